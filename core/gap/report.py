@@ -1,0 +1,143 @@
+"""The result of a gap diagnosis: :class:`GapReport` (JSON ``mebm-gap/1`` and a text report)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+FORMAT = "mebm-gap/1"
+
+
+def _num(x, nd: int = 4):
+    if x is None:
+        return None
+    if isinstance(x, (list, tuple)):
+        return [_num(v, nd) for v in x]
+    x = float(x)
+    return round(x, nd) if math.isfinite(x) else None
+
+
+@dataclass(frozen=True)
+class Where:
+    """Where the nominal model's test gap lies."""
+
+    kind: str
+    phase: str | None
+    axis: str | None
+    angle_deg: tuple[float, ...] | None
+    position_mm: float | None
+    summary: str
+    details: Mapping = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {
+            "kind": self.kind,
+            "phase": self.phase,
+            "axis": self.axis,
+            "angle_deg": None if self.angle_deg is None else _num(list(self.angle_deg), 1),
+            "position_mm": _num(self.position_mm, 2),
+            "summary": self.summary,
+            "details": dict(self.details),
+        }
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One effect added to the nominal model, fitted on the train runs, scored on the test runs."""
+
+    effect: str
+    gap_after_um: float
+    params: Mapping[str, float]
+    n_params: int
+    score: float
+    identifiable: bool = True
+    notes: str = ""
+    axes: tuple[str, ...] = ()
+
+    def to_dict(self) -> dict:
+        return {
+            "effect": self.effect,
+            "gap_after_um": _num(self.gap_after_um, 3),
+            "params": {k: _num(v, 5) if not isinstance(v, str) else v for k, v in self.params.items()},
+            "n_params": self.n_params,
+            "score_um": _num(self.score, 3),
+            "identifiable": self.identifiable,
+            "axes": list(self.axes),
+            "notes": self.notes,
+        }
+
+
+@dataclass(frozen=True)
+class GapReport:
+    """Diagnosis of the gap between the nominal model and a machine's test runs."""
+
+    machine_id: str
+    effect: str
+    where: Where
+    gap_before_um: float
+    gap_after_um: float
+    noise_floor_um: float
+    train: tuple[str, ...]
+    test: tuple[str, ...]
+    split_how: str
+    candidates: tuple[Candidate, ...]
+    nominal_backlash_um: Mapping[str, float]
+    quantity: Mapping[str, str]
+    gap_before_by_kind_um: Mapping[str, float]
+    n_test_samples: int
+    decision: str
+    thresholds: Mapping[str, float]
+    curves: Mapping = field(default_factory=dict, compare=False, repr=False)
+
+    def to_dict(self) -> dict:
+        return {
+            "format": FORMAT,
+            "effect": self.effect,
+            "where": self.where.to_dict(),
+            "gap_before_um": _num(self.gap_before_um, 3),
+            "gap_after_um": _num(self.gap_after_um, 3),
+            "split": {"train": list(self.train), "test": list(self.test), "how": self.split_how},
+            "candidates": [c.to_dict() for c in self.candidates],
+            "noise_floor_um": _num(self.noise_floor_um, 3),
+            "quantity": dict(self.quantity),
+            "gap_before_by_kind_um": {k: _num(v, 3) for k, v in self.gap_before_by_kind_um.items()},
+            "nominal_backlash_um": {k: _num(v, 2) for k, v in self.nominal_backlash_um.items()},
+            "n_test_samples": self.n_test_samples,
+            "decision": self.decision,
+            "thresholds": dict(self.thresholds),
+            "machine_id": self.machine_id,
+        }
+
+    def text(self) -> str:
+        """The human report: a few sentences, then the candidate table."""
+        gb, ga = self.gap_before_um, self.gap_after_um
+        n_tr, n_te = len(self.train), len(self.test)
+        b = ", ".join(f"{a} {v:.1f} µm" for a, v in self.nominal_backlash_um.items())
+        lines = [f"Gap diagnosis of machine {self.machine_id or '(unnamed)'}: {n_tr} train run(s), {n_te} test run(s)."]
+        lines.append(
+            f"The nominal model (K from the axis, a constant backlash per axis fitted on the train runs: {b}) "
+            f"misses the test runs by {gb:.2f} µm RMS; the measurement noise floor is {self.noise_floor_um:.2f} µm."
+        )
+        if self.effect == "none":
+            lines.append(f"Diagnosis: none. {self.decision}")
+        else:
+            lines.append(
+                f"Diagnosis: {self.effect}. Adding it, fitted on the train runs only, brings the test gap to "
+                f"{ga:.2f} µm ({(ga / gb - 1) * 100:+.0f} %)."
+            )
+        lines.append(f"Where: {self.where.summary}")
+        q = "; ".join(f"{k}: {v}" for k, v in self.quantity.items())
+        lines.append(f"Compared quantity: {q}. Gaps are RMS over all {self.n_test_samples} test samples.")
+        lines.append(f"Split: {self.split_how}.")
+        lines.append("")
+        rows = [("effect", "gap after (µm)", "change", "params", "score", "fitted parameters")]
+        for c in self.candidates:
+            ps = ", ".join(f"{k}={v:.4g}" if not isinstance(v, str) else f"{k}={v}" for k, v in c.params.items())
+            change = f"{(c.gap_after_um / gb - 1) * 100:+.0f} %" if gb > 0 else "-"
+            rows.append((c.effect, f"{c.gap_after_um:.3f}", change, str(c.n_params), f"{c.score:.3f}",
+                         (ps or "-") + (f"  [{c.notes}]" if c.notes else "")))  # fmt: skip
+        widths = [max(len(r[i]) for r in rows) for i in range(5)]
+        for r in rows:
+            lines.append("  ".join(r[i].ljust(widths[i]) for i in range(5)) + "  " + r[5])
+        return "\n".join(lines)

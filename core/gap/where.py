@@ -1,0 +1,173 @@
+"""Where the nominal model's gap lies: motion phase, position, spectrum, angle, conditions.
+
+Inputs are the nominal residuals (µm) of the runs; the result is a :class:`Where`
+with one sentence and the numbers behind it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from core.gap.data import Contour, RoundTrip
+from core.gap.report import Where
+from core.gap.roundtrip import residual_periods_mm, rms
+from core.history import pearson_r
+
+QUADRANT_WINDOW_DEG = 10.0
+REVERSAL_MARGIN_MM = 1.0
+ACCEL_FRACTION = 0.1
+
+
+def rt_phases(run: RoundTrip, backlash_um: float) -> np.ndarray:
+    """Phase label per sample: 0 rest, 1 reversal transient, 2 acceleration, 3 constant velocity."""
+    t, u = run.t_s, run.u_mm
+    v = np.gradient(u, t)
+    vmax = max(float(np.percentile(np.abs(v), 99)), 1e-9)
+    moving = np.abs(v) > 0.05 * vmax
+    cmd = run.command_mm if run.command_mm is not None else u
+    acc = np.gradient(np.gradient(cmd, t), t)
+    n = max(1, int(round(0.01 / run.dt_s)))
+    if n > 1:
+        acc = np.convolve(acc, np.ones(n) / n, mode="same")
+    amax = max(float(np.percentile(np.abs(acc), 99.5)), 1e-9)
+    phase = np.where(moving, np.where(np.abs(acc) > ACCEL_FRACTION * amax, 2, 3), 0)
+    sign = np.sign(v) * moving
+    starts = np.flatnonzero((sign[1:] != 0) & (sign[1:] != sign[:-1])) + 1
+    reach = backlash_um * 1e-3 + REVERSAL_MARGIN_MM
+    for s in starts:
+        moved = np.abs(u[s:] - u[s])
+        k = np.flatnonzero(moved >= reach)
+        end = s + (int(k[0]) if k.size else moved.size)
+        phase[max(s - n, 0) : end] = 1
+    return phase
+
+
+PHASE_NAMES = {0: "rest", 1: "reversal", 2: "acceleration", 3: "constant_velocity"}
+
+
+def _sentence_conditions(rs: Mapping[str, float | None]) -> str:
+    strong = [(k, r) for k, r in rs.items() if r is not None and abs(r) >= 0.7]
+    if not strong:
+        return ""
+    k, r = max(strong, key=lambda kr: abs(kr[1]))
+    name = {"feed_mm_min": "feed", "acceleration_mm_s2": "acceleration", "temperature_c": "temperature"}[k]
+    return f"; per run it {'grows' if r > 0 else 'shrinks'} with {name} (r = {r:+.2f})"
+
+
+def locate(
+    rts: Sequence[RoundTrip], rt_resid: Sequence[np.ndarray], contours: Sequence[Contour],
+    ct_resid: Sequence[np.ndarray], backlash_um: Mapping[str, float], lead_mm: Mapping[str, float],
+    ka_mm: Mapping[str, float], all_runs: Sequence[tuple[object, np.ndarray]],
+) -> Where:
+    """Localise the test residuals (``rts``/``contours`` with their residuals) and relate
+    per-run RMS to feed, acceleration and temperature over ``all_runs`` ((run, residual))."""
+    details: dict = {}
+    ss_rt = sum(float(np.sum(r**2)) for r in rt_resid)
+    ss_ct = sum(float(np.sum(r**2)) for r in ct_resid)
+    kind = "round_trip" if ss_rt >= ss_ct else (contours[0].kind if contours else "round_trip")
+    conds = {}
+    if len(all_runs) >= 3:
+        per = np.array([rms(r) for _, r in all_runs])
+        for key in ("feed_mm_min", "acceleration_mm_s2", "temperature_c"):
+            vals = [getattr(run, key) for run, _ in all_runs]
+            if all(v is not None for v in vals):
+                conds[key] = pearson_r(np.array(vals, float), per)
+    details["r_run_rms_vs"] = conds
+    cond_text = _sentence_conditions(conds)
+    phase = axis = None
+    angle = None
+    position = None
+    if kind == "round_trip" and rts:
+        by_axis: dict[str, float] = {}
+        for run, r in zip(rts, rt_resid):
+            by_axis[run.axis] = by_axis.get(run.axis, 0.0) + float(np.sum(r**2))
+        axis = max(by_axis, key=by_axis.get)
+        sel = [(run, r) for run, r in zip(rts, rt_resid) if run.axis == axis]
+        ph_all = np.concatenate([rt_phases(run, backlash_um.get(axis, 0.0))[run.start :] for run, _ in sel])
+        r_all = np.concatenate([r for _, r in sel])
+        u_all = np.concatenate([run.u_mm[run.start :] for run, _ in sel])
+        ph_rms = {PHASE_NAMES[k]: rms(r_all[ph_all == k]) for k in (1, 2, 3) if np.any(ph_all == k)}
+        details["rms_by_phase_um"] = {k: round(v, 3) for k, v in ph_rms.items()}
+        phase = max(ph_rms, key=ph_rms.get) if ph_rms else None
+        moving = ph_all > 0
+        edges = np.linspace(u_all[moving].min(), u_all[moving].max(), 21)
+        idx = np.clip(np.digitize(u_all, edges) - 1, 0, 19)
+        bins = np.array([rms(r_all[moving & (idx == k)]) if np.any(moving & (idx == k)) else 0.0 for k in range(20)])
+        kmax = int(np.argmax(bins))
+        position = float(0.5 * (edges[kmax] + edges[kmax + 1]))
+        details["rms_by_position_um"] = {"position_mm": (0.5 * (edges[1:] + edges[:-1])).round(1).tolist(),
+                                         "rms_um": bins.round(3).tolist()}  # fmt: skip
+        periods, spec = residual_periods_mm([run for run, _ in sel], [r[run.fit_idx - run.start] for run, r in sel],
+                                            lead_mm[axis], ka_mm[axis], n=1)  # fmt: skip
+        dom = spec.get("dominant_period_mm")
+        details["spectrum"] = spec
+        match = ""
+        if dom is not None and spec.get("power", 0) > 20:
+            for name, base in (("screw lead", lead_mm[axis]), ("motor revolution k_a", ka_mm[axis])):
+                for h in (1, 2, 3, 4):
+                    if abs(dom - base / h) / (base / h) < 0.03:
+                        match = f"{name}" + (f"/{h}" if h > 1 else "")
+                        break
+                if match:
+                    break
+            match = f"; its spectrum along the travel peaks at a period of {dom:.2f} mm" + (
+                f" (the {match})" if match else " (not the lead or k_a: a gear or other period)")
+        ratio = ph_rms.get(phase, 0.0) / max(min(ph_rms.values()), 1e-9) if ph_rms else 1.0
+        summary = (
+            f"round trips of axis {axis}: largest in the {phase.replace('_', ' ')} phase "
+            f"(RMS {ph_rms[phase]:.2f} µm, {ratio:.1f}x the quietest phase), "
+            f"largest near {position:.0f} mm of travel (binned RMS {bins[kmax]:.2f} µm vs median "
+            f"{np.median(bins):.2f} µm){match}{cond_text}."
+        )
+    elif contours:
+        by_axis: dict[str, float] = {}
+        angs, rr = [], []
+        for c, r in zip(contours, ct_resid):
+            if c.kind != "circle":
+                continue
+            angs.append(c.angle_deg())
+            rr.append(r)
+        if angs:
+            ang = np.concatenate(angs)
+            r_all = np.concatenate(rr)
+            win = {}
+            for q in (0.0, 90.0, 180.0, 270.0):
+                d = np.abs((ang - q + 180.0) % 360.0 - 180.0)
+                win[q] = rms(r_all[d <= QUADRANT_WINDOW_DEG])
+            d_any = np.min([np.abs((ang - q + 180.0) % 360.0 - 180.0) for q in win], axis=0)
+            rest = rms(r_all[d_any > QUADRANT_WINDOW_DEG])
+            near = rms(r_all[d_any <= QUADRANT_WINDOW_DEG])
+            details["rms_quadrant_windows_um"] = {f"{q:g}": round(v, 3) for q, v in win.items()}
+            details["rms_elsewhere_um"] = round(rest, 3)
+            a0, a1 = contours[0].axes
+            first = win[0.0] ** 2 + win[180.0] ** 2
+            second = win[90.0] ** 2 + win[270.0] ** 2
+            if near > 1.3 * rest:
+                phase = "reversal"
+                axis = a0 if first >= second else a1
+                angle = (0.0, 180.0) if first >= second else (90.0, 270.0)
+                summary = (
+                    f"circles: at the quadrant transitions where axis {axis} reverses ({angle[0]:g}° and "
+                    f"{angle[1]:g}°: RMS {near:.2f} µm within ±{QUADRANT_WINDOW_DEG:g}° vs {rest:.2f} µm "
+                    f"elsewhere){cond_text}."
+                )
+            else:
+                phase = "constant_velocity"
+                bins = np.linspace(0, 360, 37)
+                idx = np.clip(np.digitize(ang, bins) - 1, 0, 35)
+                b = np.array([rms(r_all[idx == k]) if np.any(idx == k) else 0.0 for k in range(36)])
+                kmax = int(np.argmax(b))
+                angle = (float(bins[kmax] + 5.0),)
+                summary = (
+                    f"circles: spread around the whole circle (RMS {rest:.2f} µm away from the quadrant "
+                    f"transitions, {near:.2f} µm at them), largest near {angle[0]:.0f}°{cond_text}."
+                )
+        else:
+            r_all = np.concatenate(ct_resid)
+            summary = f"lines: contour error RMS {rms(r_all):.2f} µm{cond_text}."
+    else:
+        summary = "no test residual to localise."
+    return Where(kind=kind, phase=phase, axis=axis, angle_deg=angle, position_mm=position, summary=summary,
+                 details=details)  # fmt: skip
