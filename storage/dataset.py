@@ -1,0 +1,298 @@
+"""Read and write `mebm-dataset/1` folders (dataset.json + one CSV per run).
+
+Every malformation ends in :class:`core.errors.DatasetError` naming the file and,
+for CSV content, the row. Unknown JSON fields survive a read-write round trip.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import tempfile
+from collections.abc import Iterable, Mapping
+from dataclasses import asdict, fields, replace
+from pathlib import Path
+
+import numpy as np
+
+from core.dataset import (
+    AXIS_FIELDS,
+    FORMAT,
+    AxisSpec,
+    Dataset,
+    MachineSpec,
+    Run,
+    RunSpec,
+    validate_columns,
+    validate_run_spec,
+)
+from core.errors import DatasetError
+
+_RUN_FIELDS = [f.name for f in fields(RunSpec) if f.name != "extra"]
+_TUPLE_FIELDS = ("axes", "centre_mm", "start_mm")
+
+
+def _load_json(path: Path) -> dict:
+    if not path.is_file():
+        raise DatasetError("dataset.json not found (is this a dataset folder?)", source=str(path))
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise DatasetError(f"not valid JSON: {exc.msg} at line {exc.lineno}", source=str(path)) from exc
+    if not isinstance(doc, dict):
+        raise DatasetError("top level must be a JSON object", source=str(path))
+    return doc
+
+
+def _parse_machine(doc: dict, src: str) -> MachineSpec:
+    m = doc.get("machine")
+    if not isinstance(m, dict) or not isinstance(m.get("axes"), dict) or not m["axes"]:
+        raise DatasetError("machine.axes must be an object with at least one axis", source=src)
+    axes = {}
+    for name, a in m["axes"].items():
+        if not isinstance(a, dict):
+            raise DatasetError(f"machine.axes.{name} must be an object", source=src)
+        missing = [k for k in AXIS_FIELDS if k not in a]
+        if missing:
+            raise DatasetError(f"machine.axes.{name} lacks {missing}", source=src)
+        try:
+            axes[name] = AxisSpec(
+                name=name,
+                transmission_mm_per_rev=float(a["transmission_mm_per_rev"]),
+                screw_lead_mm=float(a["screw_lead_mm"]),
+                position_gain_per_s=float(a["position_gain_per_s"]),
+                travel_mm=tuple(float(x) for x in a["travel_mm"]),
+                extra={k: v for k, v in a.items() if k not in AXIS_FIELDS},
+            )
+        except (TypeError, ValueError) as exc:
+            if isinstance(exc, DatasetError):
+                raise DatasetError(str(exc), source=src) from None
+            raise DatasetError(f"machine.axes.{name}: {exc}", source=src) from exc
+    return MachineSpec(
+        id=str(m.get("id", "")),
+        axes=axes,
+        extra={k: v for k, v in m.items() if k not in ("id", "axes")},
+    )
+
+
+def _parse_run_spec(r: object, i: int, src: str) -> RunSpec:
+    if not isinstance(r, dict):
+        raise DatasetError(f"runs[{i}] must be an object", source=src)
+    for key in ("file", "kind", "axes", "feed_mm_min", "temperature_c"):
+        if key not in r:
+            raise DatasetError(f"runs[{i}] ({r.get('file', '?')!r}) lacks required field {key!r}", source=src)
+    kw = {}
+    for key in _RUN_FIELDS:
+        if key in r and r[key] is not None:
+            v = r[key]
+            if key in _TUPLE_FIELDS:
+                if key == "start_mm" and isinstance(v, (int, float)):
+                    v = [v]  # a round trip's start on its one axis
+                if not isinstance(v, list):
+                    raise DatasetError(f"runs[{i}].{key} must be a list", source=src)
+                v = tuple(str(x).lower() if key == "axes" else float(x) for x in v)
+            elif key in ("file", "kind", "split", "direction"):
+                v = str(v)
+            else:
+                try:
+                    v = float(v)
+                except (TypeError, ValueError) as exc:
+                    raise DatasetError(f"runs[{i}].{key} (={v!r}) must be a number", source=src) from exc
+            kw[key] = v
+    if os.sep in kw["file"] or kw["file"].startswith(".."):
+        raise DatasetError(f"runs[{i}].file (={kw['file']!r}) must be a plain file name", source=src)
+    return RunSpec(**kw, extra={k: v for k, v in r.items() if k not in _RUN_FIELDS})
+
+
+def read_run_csv(path: Path, spec: RunSpec) -> dict[str, np.ndarray]:
+    """Read one run CSV into float columns and validate them against ``spec``."""
+    if not path.is_file():
+        raise DatasetError("run file is missing from the dataset folder", source=str(path))
+    with path.open(newline="", encoding="utf-8") as fh:
+        reader = csv.reader(fh)
+        try:
+            header = [h.strip() for h in next(reader)]
+        except StopIteration:
+            raise DatasetError("file is empty (no header row)", source=str(path)) from None
+        if len(set(header)) != len(header):
+            raise DatasetError(f"duplicate column names in header {header}", source=str(path))
+    try:
+        data = np.loadtxt(path, delimiter=",", skiprows=1, dtype=float, ndmin=2)
+    except ValueError:
+        data = None
+    if data is None or (data.size and data.shape[1] != len(header)):
+        _raise_bad_row(path, len(header))
+    if data.size == 0:
+        data = np.empty((0, len(header)))
+    columns = {name: np.ascontiguousarray(data[:, j]) for j, name in enumerate(header)}
+    try:
+        validate_columns(spec, columns)
+    except DatasetError as exc:
+        raise DatasetError(str(exc).split(": ", 1)[1] if exc.source else str(exc), source=str(path), row=exc.row) from None
+    return columns
+
+
+def _raise_bad_row(path: Path, n_cols: int) -> None:
+    with path.open(newline="", encoding="utf-8") as fh:
+        reader = csv.reader(fh)
+        next(reader)
+        for row_no, row in enumerate(reader, start=1):
+            if len(row) != n_cols:
+                raise DatasetError(f"has {len(row)} fields, the header has {n_cols}", source=str(path), row=row_no)
+            for cell in row:
+                try:
+                    float(cell)
+                except ValueError:
+                    raise DatasetError(f"value {cell!r} is not a number", source=str(path), row=row_no) from None
+    raise DatasetError("could not be parsed as numbers", source=str(path))  # pragma: no cover
+
+
+def read_dataset(folder: str | os.PathLike, *, load_runs: bool = True) -> Dataset:
+    """Read and validate a dataset folder. ``load_runs=False`` reads metadata only."""
+    root = Path(folder)
+    if not root.is_dir():
+        raise DatasetError("not a folder", source=str(root))
+    json_path = root / "dataset.json"
+    doc = _load_json(json_path)
+    src = str(json_path)
+    if doc.get("format") != FORMAT:
+        raise DatasetError(f"format (={doc.get('format')!r}) must be {FORMAT!r}", source=src)
+    machine = _parse_machine(doc, src)
+    runs_doc = doc.get("runs")
+    if not isinstance(runs_doc, list):
+        raise DatasetError("runs must be a list", source=src)
+    specs = [_parse_run_spec(r, i, src) for i, r in enumerate(runs_doc)]
+    seen = set()
+    for spec in specs:
+        if spec.file in seen:
+            raise DatasetError(f"run file {spec.file!r} listed twice", source=src)
+        seen.add(spec.file)
+        validate_run_spec(spec, machine, source=src)
+    runs = tuple(
+        Run(spec, read_run_csv(root / spec.file, spec) if load_runs else {}) for spec in specs
+    )
+    return Dataset(machine, runs, extra={k: v for k, v in doc.items() if k not in ("format", "machine", "runs")})
+
+
+
+def machine_to_json(machine: MachineSpec) -> dict:
+    axes = {}
+    for name, a in machine.axes.items():
+        axes[name] = {
+            "transmission_mm_per_rev": a.transmission_mm_per_rev,
+            "screw_lead_mm": a.screw_lead_mm,
+            "position_gain_per_s": a.position_gain_per_s,
+            "travel_mm": list(a.travel_mm),
+            **dict(a.extra),
+        }
+    return {"id": machine.id, "axes": axes, **dict(machine.extra)}
+
+
+def run_spec_to_json(spec: RunSpec) -> dict:
+    out = {}
+    for key, v in asdict(spec).items():
+        if key == "extra" or v is None:
+            continue
+        out[key] = list(v) if isinstance(v, tuple) else v
+    out.update(dict(spec.extra))
+    return out
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_run_csv(path: Path, columns: Mapping[str, np.ndarray]) -> None:
+    """Write columns as CSV with full float precision (repr round-trips exactly)."""
+    names = list(columns)
+    data = np.column_stack([np.asarray(columns[n], dtype=float) for n in names])
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+            fh.write(",".join(names) + "\n")
+            np.savetxt(fh, data, delimiter=",", fmt="%.17g")
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_dataset(folder: str | os.PathLike, dataset: Dataset) -> Path:
+    """Write a whole dataset folder (creating it); runs first, dataset.json last."""
+    root = Path(folder)
+    root.mkdir(parents=True, exist_ok=True)
+    for run in dataset.runs:
+        validate_run_spec(run.spec, dataset.machine)
+        validate_columns(run.spec, run.columns)
+        write_run_csv(root / run.spec.file, run.columns)
+    doc = {
+        "format": FORMAT,
+        "machine": machine_to_json(dataset.machine),
+        "runs": [run_spec_to_json(r.spec) for r in dataset.runs],
+        **dict(dataset.extra),
+    }
+    _atomic_write_text(root / "dataset.json", json.dumps(doc, indent=2) + "\n")
+    return root
+
+
+def append_runs(folder: str | os.PathLike, machine: MachineSpec, runs: Iterable[Run]) -> Path:
+    """Append runs to a dataset folder, creating it if absent.
+
+    An existing folder must describe the same axes (same k_a, lead, gain, travel)
+    or :class:`DatasetError` is raised; a run file name already listed is an error,
+    so nothing already stored is overwritten.
+    """
+    root = Path(folder)
+    runs = list(runs)
+    json_path = root / "dataset.json"
+    if json_path.exists():
+        existing = read_dataset(root, load_runs=False)
+        merged_axes = dict(existing.machine.axes)
+        for name, axis in machine.axes.items():
+            if name in merged_axes and merged_axes[name] != axis:
+                raise DatasetError(
+                    f"axis {name!r} differs from the one already in the dataset "
+                    f"({merged_axes[name]} vs {axis})",
+                    source=str(json_path),
+                )
+            merged_axes[name] = axis
+        machine = replace(existing.machine, axes=merged_axes)
+        listed = {r.spec.file for r in existing.runs}
+        doc = _load_json(json_path)
+        run_docs = doc["runs"]
+    else:
+        root.mkdir(parents=True, exist_ok=True)
+        listed, run_docs, doc = set(), [], {}
+    for run in runs:
+        if run.spec.file in listed:
+            raise DatasetError(f"run file {run.spec.file!r} is already in the dataset", source=str(json_path))
+        validate_run_spec(run.spec, machine)
+        validate_columns(run.spec, run.columns)
+        write_run_csv(root / run.spec.file, run.columns)
+        run_docs.append(run_spec_to_json(run.spec))
+        listed.add(run.spec.file)
+    out = {k: v for k, v in doc.items() if k not in ("format", "machine", "runs")}
+    new_doc = {"format": FORMAT, "machine": machine_to_json(machine), "runs": run_docs, **out}
+    _atomic_write_text(json_path, json.dumps(new_doc, indent=2) + "\n")
+    return root
+
+
+def next_run_name(folder: str | os.PathLike, stem: str) -> str:
+    """A run file name ``<stem>_NN.csv`` not yet used in the folder."""
+    root = Path(folder)
+    i = 0
+    while (root / f"{stem}_{i:02d}.csv").exists():
+        i += 1
+    return f"{stem}_{i:02d}.csv"

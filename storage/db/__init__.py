@@ -1,0 +1,43 @@
+"""The mebm database: SQLAlchemy 2.x models, Alembic migrations, repository functions.
+
+Use: ``engine = make_engine(url); upgrade(engine); factory = make_session_factory(engine)``,
+then ``with session_scope(factory) as s: config_repo.list_machines(s)``. Repository
+functions take a session and core types and return core types or the frozen
+records of :mod:`storage.db.records`.
+"""
+
+from storage.db import config_repo, results_repo
+from storage.db.engine import (
+    integrity_problems,
+    is_sqlite,
+    make_engine,
+    make_session_factory,
+    ping,
+    session_scope,
+    sqlite_url,
+)
+from storage.db.errors import ConflictError, DatabaseUnavailableError, NotFoundError, StorageError
+from storage.db.migrate import current_revision, head_revision, upgrade
+from storage.db.records import (
+    AlertRecord,
+    AxisRecord,
+    AxisSettings,
+    CycleRecord,
+    FinishedCycle,
+    KeyRecord,
+    MachineRecord,
+    ResultRecord,
+    Schedule,
+    TbeRecord,
+    TrendSeries,
+    as_utc,
+    utcnow,
+)
+
+__all__ = [
+    "AlertRecord", "AxisRecord", "AxisSettings", "ConflictError", "CycleRecord", "DatabaseUnavailableError",
+    "FinishedCycle", "KeyRecord", "MachineRecord", "NotFoundError", "ResultRecord", "Schedule", "StorageError",
+    "TbeRecord", "TrendSeries", "as_utc", "config_repo", "current_revision", "head_revision", "integrity_problems",
+    "is_sqlite", "make_engine", "make_session_factory", "ping", "results_repo", "session_scope", "sqlite_url",
+    "upgrade", "utcnow",
+]

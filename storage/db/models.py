@@ -1,0 +1,237 @@
+"""ORM models (SQLAlchemy 2.x, typed). Units are in the column names.
+
+These are the storage layer's private shapes: the repository turns them into core
+types and the frozen records of :mod:`storage.db.records`; the API never sees them.
+Times are UTC.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+from sqlalchemy import (
+    Boolean,
+    DateTime,
+    Float,
+    ForeignKey,
+    Index,
+    Integer,
+    LargeBinary,
+    String,
+    Text,
+    UniqueConstraint,
+)
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
+
+
+class Base(DeclarativeBase):
+    pass
+
+
+UtcDateTime = DateTime(timezone=True)
+
+
+class Machine(Base):
+    __tablename__ = "machines"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(String(100), unique=True)
+    description: Mapped[str] = mapped_column(Text, default="")
+    created_at: Mapped[datetime] = mapped_column(UtcDateTime)
+
+    axes: Mapped[list[Axis]] = relationship(back_populates="machine", order_by="Axis.id")
+
+
+class Axis(Base):
+    """A monitored axis: its mechanics (k_a, lead, travel, K), where its controller is,
+    how it is measured (round-trip feed) and when (interval or cron schedule)."""
+
+    __tablename__ = "axes"
+    __table_args__ = (UniqueConstraint("machine_id", "name"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    machine_id: Mapped[int] = mapped_column(ForeignKey("machines.id", ondelete="CASCADE"), index=True)
+    name: Mapped[str] = mapped_column(String(20))
+    transmission_mm_per_rev: Mapped[float] = mapped_column(Float)
+    screw_lead_mm: Mapped[float] = mapped_column(Float)
+    position_gain_per_s: Mapped[float] = mapped_column(Float)
+    travel_start_mm: Mapped[float] = mapped_column(Float)
+    travel_end_mm: Mapped[float] = mapped_column(Float)
+    controller_url: Mapped[str] = mapped_column(String(300))
+    measure_feed_mm_min: Mapped[float] = mapped_column(Float)
+    measure_acceleration_mm_s2: Mapped[float] = mapped_column(Float)
+    warning_fraction: Mapped[float] = mapped_column(Float)
+    schedule_interval_s: Mapped[float | None] = mapped_column(Float, nullable=True)
+    schedule_cron: Mapped[str | None] = mapped_column(String(120), nullable=True)
+    schedule_enabled: Mapped[bool] = mapped_column(Boolean, default=True)
+    in_service_since: Mapped[datetime] = mapped_column(UtcDateTime)
+    created_at: Mapped[datetime] = mapped_column(UtcDateTime)
+
+    machine: Mapped[Machine] = relationship(back_populates="axes")
+    tasks: Mapped[list[MachiningTaskRow]] = relationship(
+        back_populates="axis", order_by="MachiningTaskRow.id", cascade="all, delete-orphan"
+    )
+
+
+class MachiningTaskRow(Base):
+    """What the shop makes with the axis; the TBE is estimated for each (Eqs. 7-8)."""
+
+    __tablename__ = "machining_tasks"
+    __table_args__ = (UniqueConstraint("axis_id", "name"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    axis_id: Mapped[int] = mapped_column(ForeignKey("axes.id", ondelete="CASCADE"), index=True)
+    name: Mapped[str] = mapped_column(String(100))
+    profile: Mapped[str] = mapped_column(String(10))
+    radius_mm: Mapped[float | None] = mapped_column(Float, nullable=True)
+    angle_deg: Mapped[float | None] = mapped_column(Float, nullable=True)
+    feed_mm_min: Mapped[float] = mapped_column(Float)
+    tolerance_um: Mapped[float] = mapped_column(Float)
+
+    axis: Mapped[Axis] = relationship(back_populates="tasks")
+
+
+class Cycle(Base):
+    """One measurement cycle: queued -> running -> ok | failed | interrupted | cancelled."""
+
+    __tablename__ = "cycles"
+    __table_args__ = (Index("ix_cycles_axis_requested", "axis_id", "requested_at"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    uuid: Mapped[str] = mapped_column(String(36), unique=True)
+    axis_id: Mapped[int] = mapped_column(ForeignKey("axes.id", ondelete="CASCADE"), index=True)
+    trigger: Mapped[str] = mapped_column(String(20))
+    requested_by: Mapped[str | None] = mapped_column(String(100), nullable=True)
+    status: Mapped[str] = mapped_column(String(20), index=True)
+    requested_at: Mapped[datetime] = mapped_column(UtcDateTime)
+    started_at: Mapped[datetime | None] = mapped_column(UtcDateTime, nullable=True)
+    finished_at: Mapped[datetime | None] = mapped_column(UtcDateTime, nullable=True)
+    failure_reason: Mapped[str | None] = mapped_column(Text, nullable=True)
+    temperature_c: Mapped[float | None] = mapped_column(Float, nullable=True)
+    utility_day: Mapped[float | None] = mapped_column(Float, nullable=True)
+    uncertainty_um: Mapped[float | None] = mapped_column(Float, nullable=True)
+    run_file: Mapped[str | None] = mapped_column(String(200), nullable=True)
+
+    result: Mapped[Result | None] = relationship(back_populates="cycle", uselist=False)
+
+
+class Result(Base):
+    """The analysed round trip of an ok cycle: b̄ and profile statistics, the decision."""
+
+    __tablename__ = "results"
+    __table_args__ = (Index("ix_results_axis_measured", "axis_id", "measured_at"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    cycle_id: Mapped[int] = mapped_column(ForeignKey("cycles.id", ondelete="CASCADE"), unique=True)
+    axis_id: Mapped[int] = mapped_column(ForeignKey("axes.id", ondelete="CASCADE"))
+    measured_at: Mapped[datetime] = mapped_column(UtcDateTime)
+    temperature_c: Mapped[float | None] = mapped_column(Float, nullable=True)
+    utility_day: Mapped[float | None] = mapped_column(Float, nullable=True)
+    backlash_mean_um: Mapped[float] = mapped_column(Float)
+    backlash_min_um: Mapped[float] = mapped_column(Float)
+    backlash_max_um: Mapped[float] = mapped_column(Float)
+    backlash_std_um: Mapped[float] = mapped_column(Float)
+    useful_travel_start_mm: Mapped[float] = mapped_column(Float)
+    useful_travel_end_mm: Mapped[float] = mapped_column(Float)
+    n_samples: Mapped[int] = mapped_column(Integer)
+    peak_speed_mm_min: Mapped[float] = mapped_column(Float)
+    uncertainty_um: Mapped[float | None] = mapped_column(Float, nullable=True)
+    state: Mapped[str | None] = mapped_column(String(10), nullable=True)
+    binding_task: Mapped[str | None] = mapped_column(String(100), nullable=True)
+    backlash_limit_um: Mapped[float | None] = mapped_column(Float, nullable=True)
+    message: Mapped[str | None] = mapped_column(Text, nullable=True)
+
+    cycle: Mapped[Cycle] = relationship(back_populates="result")
+    lead: Mapped[list[LeadCriteriaRow]] = relationship(order_by="LeadCriteriaRow.id", cascade="all, delete-orphan")
+    curves: Mapped[list[Curve]] = relationship(cascade="all, delete-orphan")
+    tbe: Mapped[list[TbeRow]] = relationship(order_by="TbeRow.id", cascade="all, delete-orphan")
+
+
+class LeadCriteriaRow(Base):
+    """ISO 3408-3 criteria of one stroke direction (Eqs. 1-3)."""
+
+    __tablename__ = "lead_criteria"
+    __table_args__ = (UniqueConstraint("result_id", "direction"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    result_id: Mapped[int] = mapped_column(ForeignKey("results.id", ondelete="CASCADE"))
+    direction: Mapped[str] = mapped_column(String(10))
+    e_p_um: Mapped[float] = mapped_column(Float)
+    e_p_um_per_1000mm: Mapped[float] = mapped_column(Float)
+    v_u_um: Mapped[float] = mapped_column(Float)
+    v_300_um: Mapped[float] = mapped_column(Float)
+    v_2pi_um: Mapped[float] = mapped_column(Float)
+    n_strokes: Mapped[int] = mapped_column(Integer)
+
+
+class Curve(Base):
+    """A curve on a uniform position grid, values as little-endian float32 (compact)."""
+
+    __tablename__ = "curves"
+    __table_args__ = (UniqueConstraint("result_id", "name"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    result_id: Mapped[int] = mapped_column(ForeignKey("results.id", ondelete="CASCADE"))
+    name: Mapped[str] = mapped_column(String(60))
+    position_start_mm: Mapped[float] = mapped_column(Float)
+    position_step_mm: Mapped[float] = mapped_column(Float)
+    n_points: Mapped[int] = mapped_column(Integer)
+    values_f32: Mapped[bytes] = mapped_column(LargeBinary)
+
+
+class TbeRow(Base):
+    """TBE of one machining task at the measured b̄, with the task as it was then."""
+
+    __tablename__ = "tbe_results"
+    __table_args__ = (Index("ix_tbe_result", "result_id"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    result_id: Mapped[int] = mapped_column(ForeignKey("results.id", ondelete="CASCADE"))
+    task_name: Mapped[str] = mapped_column(String(100))
+    profile: Mapped[str] = mapped_column(String(10))
+    radius_mm: Mapped[float | None] = mapped_column(Float, nullable=True)
+    angle_deg: Mapped[float | None] = mapped_column(Float, nullable=True)
+    feed_mm_min: Mapped[float] = mapped_column(Float)
+    gain_per_s: Mapped[float] = mapped_column(Float)
+    tolerance_um: Mapped[float] = mapped_column(Float)
+    tbe_um: Mapped[float] = mapped_column(Float)
+    backlash_limit_um: Mapped[float | None] = mapped_column(Float, nullable=True)  # NULL: no limit
+    state: Mapped[str] = mapped_column(String(10))
+
+
+class Alert(Base):
+    """Raised when the axis' state reaches ALARM (a TBE above its tolerance); cleared
+    by the first measurement back below; acknowledged by a person (key name)."""
+
+    __tablename__ = "alerts"
+    __table_args__ = (Index("ix_alerts_axis_cleared", "axis_id", "cleared_at"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    axis_id: Mapped[int] = mapped_column(ForeignKey("axes.id", ondelete="CASCADE"))
+    kind: Mapped[str] = mapped_column(String(30))
+    raised_at: Mapped[datetime] = mapped_column(UtcDateTime)
+    raised_by_result_id: Mapped[int | None] = mapped_column(ForeignKey("results.id", ondelete="SET NULL"), nullable=True)
+    cleared_at: Mapped[datetime | None] = mapped_column(UtcDateTime, nullable=True)
+    cleared_by_result_id: Mapped[int | None] = mapped_column(ForeignKey("results.id", ondelete="SET NULL"), nullable=True)
+    acknowledged_at: Mapped[datetime | None] = mapped_column(UtcDateTime, nullable=True)
+    acknowledged_by: Mapped[str | None] = mapped_column(String(100), nullable=True)
+    task_name: Mapped[str | None] = mapped_column(String(100), nullable=True)
+    tbe_um: Mapped[float | None] = mapped_column(Float, nullable=True)
+    tolerance_um: Mapped[float | None] = mapped_column(Float, nullable=True)
+    backlash_um: Mapped[float | None] = mapped_column(Float, nullable=True)
+    backlash_limit_um: Mapped[float | None] = mapped_column(Float, nullable=True)
+    message: Mapped[str] = mapped_column(Text)
+
+
+class ApiKey(Base):
+    """An access key, stored as the SHA-256 of the secret (keys are 256-bit random)."""
+
+    __tablename__ = "api_keys"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(String(100), unique=True)
+    role: Mapped[str] = mapped_column(String(10))
+    key_prefix: Mapped[str] = mapped_column(String(20))
+    key_sha256: Mapped[str] = mapped_column(String(64), unique=True)
+    created_at: Mapped[datetime] = mapped_column(UtcDateTime)
+    revoked_at: Mapped[datetime | None] = mapped_column(UtcDateTime, nullable=True)

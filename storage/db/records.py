@@ -1,0 +1,214 @@
+"""Frozen records the repository returns next to core types (ids, times, states).
+
+Physical content is carried by core types: :class:`core.dataset.AxisSpec`,
+:class:`core.tbe.MachiningTask`, :class:`core.criteria.RoundTripResult`,
+:class:`core.tbe.AxisDecision`. Times are timezone-aware UTC.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+
+from core.criteria import RoundTripResult
+from core.dataset import AxisSpec
+from core.errors import InputError
+from core.tbe import AxisDecision, MachiningTask
+
+CYCLE_STATES = ("queued", "running", "ok", "failed", "interrupted", "cancelled")
+TRIGGERS = ("schedule", "manual", "catch_up", "recovered")
+ROLES = ("read", "operate", "admin")
+
+
+def utcnow() -> datetime:
+    return datetime.now(timezone.utc)
+
+
+def as_utc(t: datetime | None) -> datetime | None:
+    """SQLite hands back naive datetimes: they were written as UTC."""
+    if t is None:
+        return None
+    return t.replace(tzinfo=timezone.utc) if t.tzinfo is None else t.astimezone(timezone.utc)
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """Every ``interval_s`` seconds, or on a cron expression (5 fields, UTC); not both."""
+
+    interval_s: float | None = None
+    cron: str | None = None
+    enabled: bool = True
+
+    def __post_init__(self) -> None:
+        if self.interval_s is not None and self.cron is not None:
+            raise InputError("schedule: give interval_s or cron, not both")
+        if self.interval_s is not None and not (self.interval_s >= 1.0 and self.interval_s < 1e9):
+            raise InputError(f"schedule: interval_s (={self.interval_s}) must be >= 1 s")
+        if self.cron is not None and len(self.cron.split()) != 5:
+            raise InputError(f"schedule: cron (={self.cron!r}) must have 5 fields: minute hour day month weekday")
+
+    @property
+    def active(self) -> bool:
+        return self.enabled and (self.interval_s is not None or self.cron is not None)
+
+
+@dataclass(frozen=True)
+class MachineRecord:
+    id: int
+    name: str
+    description: str
+    axis_ids: tuple[int, ...]
+
+
+@dataclass(frozen=True)
+class AxisSettings:
+    """Everything configurable about an axis (what ``create_axis`` takes)."""
+
+    spec: AxisSpec
+    controller_url: str
+    measure_feed_mm_min: float = 2000.0
+    measure_acceleration_mm_s2: float = 500.0
+    warning_fraction: float = 0.9
+    schedule: Schedule = field(default_factory=Schedule)
+    tasks: tuple[MachiningTask, ...] = ()
+    in_service_since: datetime | None = None
+
+
+@dataclass(frozen=True)
+class AxisRecord:
+    id: int
+    machine_id: int
+    machine_name: str
+    settings: AxisSettings
+
+    @property
+    def spec(self) -> AxisSpec:
+        return self.settings.spec
+
+    @property
+    def name(self) -> str:
+        return self.settings.spec.name
+
+    @property
+    def tasks(self) -> tuple[MachiningTask, ...]:
+        return self.settings.tasks
+
+
+@dataclass(frozen=True)
+class CycleRecord:
+    id: int
+    uuid: str
+    axis_id: int
+    trigger: str
+    requested_by: str | None
+    status: str
+    requested_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None
+    failure_reason: str | None
+    temperature_c: float | None
+    utility_day: float | None
+    uncertainty_um: float | None
+    run_file: str | None
+    backlash_mean_um: float | None = None
+    state: str | None = None
+
+
+@dataclass(frozen=True)
+class TbeRecord:
+    task: MachiningTask
+    tbe_um: float
+    backlash_limit_um: float  # inf: the task never reaches its tolerance
+    state: str
+
+
+@dataclass(frozen=True)
+class ResultRecord:
+    """A stored analysed measurement. ``round_trip`` has curves only when asked for."""
+
+    id: int
+    cycle_id: int
+    axis_id: int
+    measured_at: datetime
+    temperature_c: float | None
+    utility_day: float | None
+    uncertainty_um: float | None
+    round_trip: RoundTripResult
+    state: str | None
+    binding_task: str | None
+    backlash_limit_um: float | None
+    message: str | None
+    tbe: tuple[TbeRecord, ...]
+
+
+@dataclass(frozen=True)
+class FinishedCycle:
+    """A cycle as the service hands it to storage when it ends (ok or not).
+
+    Saved in one transaction with its result; ``uuid`` makes the save idempotent
+    (a spooled cycle replayed after a database outage is stored once).
+    """
+
+    uuid: str
+    axis_id: int
+    trigger: str
+    status: str
+    requested_at: datetime
+    started_at: datetime | None
+    finished_at: datetime
+    requested_by: str | None = None
+    failure_reason: str | None = None
+    temperature_c: float | None = None
+    utility_day: float | None = None
+    uncertainty_um: float | None = None
+    run_file: str | None = None
+    round_trip: RoundTripResult | None = None
+    decision: AxisDecision | None = None
+
+
+@dataclass(frozen=True)
+class AlertRecord:
+    id: int
+    axis_id: int
+    kind: str
+    raised_at: datetime
+    cleared_at: datetime | None
+    acknowledged_at: datetime | None
+    acknowledged_by: str | None
+    raised_by_measurement_id: int | None
+    cleared_by_measurement_id: int | None
+    task_name: str | None
+    tbe_um: float | None
+    tolerance_um: float | None
+    backlash_um: float | None
+    backlash_limit_um: float | None
+    message: str
+
+    @property
+    def active(self) -> bool:
+        return self.cleared_at is None
+
+
+@dataclass(frozen=True)
+class KeyRecord:
+    id: int
+    name: str
+    role: str
+    key_prefix: str
+    created_at: datetime
+    revoked_at: datetime | None
+
+
+@dataclass(frozen=True)
+class TrendSeries:
+    """One point per ok measurement, oldest first. Lead criteria of the positive stroke."""
+
+    measurement_id: tuple[int, ...]
+    measured_at: tuple[datetime, ...]
+    temperature_c: tuple[float | None, ...]
+    utility_day: tuple[float | None, ...]
+    backlash_mean_um: tuple[float, ...]
+    e_p_um_per_1000mm: tuple[float, ...]
+    v_u_um: tuple[float, ...]
+    v_300_um: tuple[float, ...]
+    v_2pi_um: tuple[float, ...]

@@ -1,0 +1,405 @@
+"""Repository: measurement cycles, their results (criteria, curves, TBE) and alerts.
+
+:func:`save_finished_cycle` is the one write of a cycle's end: cycle, result,
+criteria, curves, TBE and the alert transition in one transaction, idempotent on
+the cycle's uuid.
+"""
+
+from __future__ import annotations
+
+import math
+from datetime import datetime
+
+import numpy as np
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session, selectinload
+
+from core.criteria import BacklashProfile, LeadCriteria, RoundTripResult
+from core.errors import InputError
+from core.tbe import MachiningTask, State
+from storage.db import curves as curve_codec
+from storage.db.errors import NotFoundError
+from storage.db.models import Alert, Axis, Curve, Cycle, LeadCriteriaRow, Result, TbeRow
+from storage.db.records import (
+    CYCLE_STATES,
+    TRIGGERS,
+    AlertRecord,
+    CycleRecord,
+    FinishedCycle,
+    ResultRecord,
+    TbeRecord,
+    TrendSeries,
+    as_utc,
+    utcnow,
+)
+
+DIRECTIONS = ("positive", "negative")
+ALERT_KIND = "tbe_exceeded"
+
+
+def _fin(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def _cycle(c: Cycle, result: Result | None = None) -> CycleRecord:
+    return CycleRecord(
+        id=c.id, uuid=c.uuid, axis_id=c.axis_id, trigger=c.trigger, requested_by=c.requested_by, status=c.status,
+        requested_at=as_utc(c.requested_at), started_at=as_utc(c.started_at), finished_at=as_utc(c.finished_at),
+        failure_reason=c.failure_reason, temperature_c=c.temperature_c, utility_day=c.utility_day,
+        uncertainty_um=c.uncertainty_um, run_file=c.run_file,
+        backlash_mean_um=result.backlash_mean_um if result is not None else None,
+        state=result.state if result is not None else None,
+    )
+
+
+# -- cycle life ----------------------------------------------------------------------------
+def queue_cycle(s: Session, axis_id: int, uuid: str, trigger: str, *, requested_by: str | None = None,
+                requested_at: datetime | None = None) -> CycleRecord:
+    if trigger not in TRIGGERS:
+        raise InputError(f"trigger (={trigger!r}) must be one of {TRIGGERS}")
+    if s.get(Axis, axis_id) is None:
+        raise NotFoundError("axis", axis_id)
+    c = Cycle(uuid=uuid, axis_id=axis_id, trigger=trigger, requested_by=requested_by, status="queued",
+              requested_at=requested_at or utcnow())
+    s.add(c)
+    s.flush()
+    return _cycle(c)
+
+
+def mark_running(s: Session, uuid: str, started_at: datetime | None = None) -> CycleRecord:
+    c = s.scalar(select(Cycle).where(Cycle.uuid == uuid))
+    if c is None:
+        raise NotFoundError("cycle", uuid)
+    c.status = "running"
+    c.started_at = started_at or utcnow()
+    s.flush()
+    return _cycle(c)
+
+
+def queued_cycle(s: Session, axis_id: int) -> CycleRecord | None:
+    """The oldest cycle of the axis still waiting to start, if any."""
+    c = s.scalar(select(Cycle).where(Cycle.axis_id == axis_id, Cycle.status == "queued").order_by(Cycle.id).limit(1))
+    return None if c is None else _cycle(c)
+
+
+def close_stale_cycles(s: Session, now: datetime | None = None) -> int:
+    """At start-up: cycles left 'running' by a crash become 'interrupted', 'queued' ones
+    'cancelled' (an axis is not moved on its own after a restart). Returns how many."""
+    now = now or utcnow()
+    n = 0
+    for c in s.scalars(select(Cycle).where(Cycle.status.in_(("running", "queued")))):
+        if c.status == "running":
+            c.status, c.failure_reason = "interrupted", "the service stopped during the cycle"
+        else:
+            c.status, c.failure_reason = "cancelled", "the service stopped before the cycle started"
+        c.finished_at = now
+        n += 1
+    s.flush()
+    return n
+
+
+def save_finished_cycle(s: Session, fc: FinishedCycle) -> tuple[CycleRecord, list[AlertRecord]]:
+    """Store a cycle's end (and its result when ok) atomically; raise/clear the alert.
+
+    Idempotent: a cycle whose uuid is stored as finished already is returned as is.
+    Returns the cycle and the alerts raised or cleared by it.
+    """
+    if fc.status not in CYCLE_STATES or fc.status in ("queued", "running"):
+        raise InputError(f"status (={fc.status!r}) must be a final state")
+    if fc.status == "ok" and fc.round_trip is None:
+        raise InputError("an ok cycle needs its round_trip result")
+    axis = s.get(Axis, fc.axis_id)
+    if axis is None:
+        raise NotFoundError("axis", fc.axis_id)
+    c = s.scalar(select(Cycle).where(Cycle.uuid == fc.uuid).options(selectinload(Cycle.result)))
+    if c is not None and c.status not in ("queued", "running", "interrupted", "cancelled"):
+        return _cycle(c, c.result), []
+    if c is None:
+        c = Cycle(uuid=fc.uuid, axis_id=fc.axis_id, trigger=fc.trigger, requested_by=fc.requested_by,
+                  requested_at=fc.requested_at, status=fc.status)
+        s.add(c)
+    c.status = fc.status
+    c.started_at = fc.started_at
+    c.finished_at = fc.finished_at
+    c.failure_reason = fc.failure_reason
+    c.temperature_c = _fin(fc.temperature_c)
+    c.utility_day = _fin(fc.utility_day)
+    c.uncertainty_um = _fin(fc.uncertainty_um)
+    c.run_file = fc.run_file
+    s.flush()
+    changes: list[AlertRecord] = []
+    result = None
+    if fc.status == "ok":
+        result = _insert_result(s, c, fc)
+        if fc.decision is not None:
+            changes = _update_alerts(s, fc, result)
+    s.flush()
+    return _cycle(c, result), changes
+
+
+def _insert_result(s: Session, c: Cycle, fc: FinishedCycle) -> Result:
+    rt = fc.round_trip
+    d = fc.decision
+    r = Result(
+        cycle_id=c.id, axis_id=fc.axis_id, measured_at=fc.finished_at, temperature_c=_fin(fc.temperature_c),
+        utility_day=_fin(fc.utility_day), backlash_mean_um=rt.backlash.mean_um, backlash_min_um=rt.backlash.min_um,
+        backlash_max_um=rt.backlash.max_um, backlash_std_um=rt.backlash.std_um,
+        useful_travel_start_mm=rt.useful_travel_mm[0], useful_travel_end_mm=rt.useful_travel_mm[1],
+        n_samples=rt.n_samples, peak_speed_mm_min=rt.peak_speed_mm_min, uncertainty_um=_fin(fc.uncertainty_um),
+        state=d.state.value if d else None, binding_task=d.binding_task if d else None,
+        backlash_limit_um=_fin(d.backlash_limit_um) if d else None, message=d.message() if d else None,
+    )
+    s.add(r)
+    s.flush()
+    curves = {"backlash_um": (rt.backlash.position_mm, rt.backlash.backlash_um)}
+    for name in DIRECTIONS:
+        lc = rt.strokes[name]
+        s.add(LeadCriteriaRow(
+            result_id=r.id, direction=name, e_p_um=lc.e_p_um, e_p_um_per_1000mm=lc.e_p_um_per_1000mm,
+            v_u_um=lc.v_u_um, v_300_um=lc.v_300_um, v_2pi_um=lc.v_2pi_um, n_strokes=lc.n_strokes,
+        ))
+        curves[f"{name}_travel_deviation_um"] = (lc.position_mm, lc.travel_deviation_um)
+        curves[f"{name}_mean_travel_deviation_um"] = (lc.position_mm, lc.mean_travel_deviation_um)
+    for name, (x, v) in curves.items():
+        start, step, n, blob = curve_codec.pack(x, v)
+        s.add(Curve(result_id=r.id, name=name, position_start_mm=start, position_step_mm=step, n_points=n,
+                    values_f32=blob))
+    if d is not None:
+        for a in d.assessments:
+            t = a.task
+            s.add(TbeRow(
+                result_id=r.id, task_name=t.name, profile=t.profile, radius_mm=t.radius_mm, angle_deg=t.angle_deg,
+                feed_mm_min=t.feed_mm_min, gain_per_s=t.gain_per_s, tolerance_um=t.tolerance_um, tbe_um=a.tbe_um,
+                backlash_limit_um=_fin(a.backlash_limit_um), state=a.state.value,
+            ))
+    s.flush()
+    return r
+
+
+def _alert(a: Alert) -> AlertRecord:
+    raised_cycle = cleared_cycle = None
+    return AlertRecord(
+        id=a.id, axis_id=a.axis_id, kind=a.kind, raised_at=as_utc(a.raised_at), cleared_at=as_utc(a.cleared_at),
+        acknowledged_at=as_utc(a.acknowledged_at), acknowledged_by=a.acknowledged_by,
+        raised_by_measurement_id=raised_cycle, cleared_by_measurement_id=cleared_cycle, task_name=a.task_name,
+        tbe_um=a.tbe_um, tolerance_um=a.tolerance_um, backlash_um=a.backlash_um,
+        backlash_limit_um=a.backlash_limit_um, message=a.message,
+    )
+
+
+def _alert_full(s: Session, a: Alert) -> AlertRecord:
+    rec = _alert(a)
+    ids = {}
+    for key, rid in (("raised", a.raised_by_result_id), ("cleared", a.cleared_by_result_id)):
+        ids[key] = s.scalar(select(Result.cycle_id).where(Result.id == rid)) if rid is not None else None
+    from dataclasses import replace
+
+    return replace(rec, raised_by_measurement_id=ids["raised"], cleared_by_measurement_id=ids["cleared"])
+
+
+def _update_alerts(s: Session, fc: FinishedCycle, r: Result) -> list[AlertRecord]:
+    d = fc.decision
+    active = s.scalar(select(Alert).where(Alert.axis_id == fc.axis_id, Alert.cleared_at.is_(None)))
+    if d.state is State.ALARM and active is None:
+        binding = next(a for a in d.assessments if a.task.name == d.binding_task)
+        a = Alert(
+            axis_id=fc.axis_id, kind=ALERT_KIND, raised_at=fc.finished_at, raised_by_result_id=r.id,
+            task_name=d.binding_task, tbe_um=binding.tbe_um, tolerance_um=binding.task.tolerance_um,
+            backlash_um=d.backlash_um, backlash_limit_um=_fin(d.backlash_limit_um), message=d.message(),
+        )
+        s.add(a)
+        s.flush()
+        return [_alert_full(s, a)]
+    if d.state is not State.ALARM and active is not None:
+        active.cleared_at = fc.finished_at
+        active.cleared_by_result_id = r.id
+        s.flush()
+        return [_alert_full(s, active)]
+    return []
+
+
+# -- reading ---------------------------------------------------------------------------------
+def _round_trip(r: Result, lead: list[LeadCriteriaRow], curves: list[Curve] | None) -> RoundTripResult:
+    arrays = {}
+    for cv in curves or ():
+        arrays[cv.name] = curve_codec.unpack(cv.position_start_mm, cv.position_step_mm, cv.n_points, cv.values_f32)
+    empty = np.zeros(0)
+    pos_b, b = arrays.get("backlash_um", (empty, empty))
+    profile = BacklashProfile(position_mm=pos_b, backlash_um=b, mean_um=r.backlash_mean_um,
+                              min_um=r.backlash_min_um, max_um=r.backlash_max_um, std_um=r.backlash_std_um)
+    strokes = {}
+    for lc in lead:
+        x, dev = arrays.get(f"{lc.direction}_travel_deviation_um", (empty, empty))
+        _, mean = arrays.get(f"{lc.direction}_mean_travel_deviation_um", (empty, empty))
+        strokes[lc.direction] = LeadCriteria(
+            direction=lc.direction, position_mm=x, travel_deviation_um=dev, mean_travel_deviation_um=mean,
+            e_p_um=lc.e_p_um, e_p_um_per_1000mm=lc.e_p_um_per_1000mm, v_u_um=lc.v_u_um, v_300_um=lc.v_300_um,
+            v_2pi_um=lc.v_2pi_um, n_strokes=lc.n_strokes,
+        )
+    return RoundTripResult(
+        axis="", useful_travel_mm=(r.useful_travel_start_mm, r.useful_travel_end_mm), backlash=profile,
+        strokes=strokes, n_samples=r.n_samples, peak_speed_mm_min=r.peak_speed_mm_min,
+    )
+
+
+def _tbe(row: TbeRow) -> TbeRecord:
+    task = MachiningTask(name=row.task_name, profile=row.profile, feed_mm_min=row.feed_mm_min,
+                         gain_per_s=row.gain_per_s, tolerance_um=row.tolerance_um, radius_mm=row.radius_mm,
+                         angle_deg=row.angle_deg)
+    limit = math.inf if row.backlash_limit_um is None else row.backlash_limit_um
+    return TbeRecord(task=task, tbe_um=row.tbe_um, backlash_limit_um=limit, state=row.state)
+
+
+def _result(s: Session, r: Result, *, curves: bool) -> ResultRecord:
+    lead = list(s.scalars(select(LeadCriteriaRow).where(LeadCriteriaRow.result_id == r.id)
+                          .order_by(LeadCriteriaRow.id)))
+    cv = list(s.scalars(select(Curve).where(Curve.result_id == r.id))) if curves else None
+    tbe = [_tbe(t) for t in s.scalars(select(TbeRow).where(TbeRow.result_id == r.id).order_by(TbeRow.id))]
+    return ResultRecord(
+        id=r.id, cycle_id=r.cycle_id, axis_id=r.axis_id, measured_at=as_utc(r.measured_at),
+        temperature_c=r.temperature_c, utility_day=r.utility_day, uncertainty_um=r.uncertainty_um,
+        round_trip=_round_trip(r, lead, cv), state=r.state, binding_task=r.binding_task,
+        backlash_limit_um=r.backlash_limit_um, message=r.message, tbe=tuple(tbe),
+    )
+
+
+def latest_result(s: Session, axis_id: int, *, curves: bool = False) -> ResultRecord | None:
+    """The newest ok measurement of the axis."""
+    r = s.scalar(select(Result).where(Result.axis_id == axis_id)
+                 .order_by(Result.measured_at.desc(), Result.id.desc()).limit(1))
+    return None if r is None else _result(s, r, curves=curves)
+
+
+def get_measurement(s: Session, cycle_id: int, *, curves: bool = True) -> tuple[CycleRecord, ResultRecord | None]:
+    c = s.get(Cycle, cycle_id)
+    if c is None:
+        raise NotFoundError("measurement", cycle_id)
+    r = s.scalar(select(Result).where(Result.cycle_id == c.id))
+    return _cycle(c, r), (None if r is None else _result(s, r, curves=curves))
+
+
+def list_measurements(
+    s: Session, axis_id: int, *, since: datetime | None = None, until: datetime | None = None,
+    status: str | None = None, limit: int = 50, offset: int = 0,
+) -> tuple[int, list[CycleRecord]]:
+    """Cycles of an axis, newest first, by request time; ``(total, page)``."""
+    if s.get(Axis, axis_id) is None:
+        raise NotFoundError("axis", axis_id)
+    if status is not None and status not in CYCLE_STATES:
+        raise InputError(f"status (={status!r}) must be one of {CYCLE_STATES}")
+    where = [Cycle.axis_id == axis_id]
+    if since is not None:
+        where.append(Cycle.requested_at >= since)
+    if until is not None:
+        where.append(Cycle.requested_at <= until)
+    if status is not None:
+        where.append(Cycle.status == status)
+    total = s.scalar(select(func.count()).select_from(Cycle).where(*where))
+    rows = s.execute(
+        select(Cycle, Result).outerjoin(Result, Result.cycle_id == Cycle.id).where(*where)
+        .order_by(Cycle.requested_at.desc(), Cycle.id.desc()).limit(limit).offset(offset)
+    ).all()
+    return int(total or 0), [_cycle(c, r) for c, r in rows]
+
+
+def trend(s: Session, axis_id: int, *, since: datetime | None = None, until: datetime | None = None) -> TrendSeries:
+    """The criteria of every ok measurement (positive stroke), oldest first."""
+    if s.get(Axis, axis_id) is None:
+        raise NotFoundError("axis", axis_id)
+    q = (select(Result.cycle_id, Result.measured_at, Result.temperature_c, Result.utility_day,
+                Result.backlash_mean_um, LeadCriteriaRow.e_p_um_per_1000mm, LeadCriteriaRow.v_u_um,
+                LeadCriteriaRow.v_300_um, LeadCriteriaRow.v_2pi_um)
+         .join(LeadCriteriaRow, (LeadCriteriaRow.result_id == Result.id) & (LeadCriteriaRow.direction == "positive"))
+         .where(Result.axis_id == axis_id).order_by(Result.measured_at, Result.id))
+    if since is not None:
+        q = q.where(Result.measured_at >= since)
+    if until is not None:
+        q = q.where(Result.measured_at <= until)
+    rows = s.execute(q).all()
+    cols = list(zip(*rows)) if rows else [()] * 9
+    return TrendSeries(
+        measurement_id=tuple(cols[0]), measured_at=tuple(as_utc(t) for t in cols[1]),
+        temperature_c=tuple(cols[2]), utility_day=tuple(cols[3]), backlash_mean_um=tuple(cols[4]),
+        e_p_um_per_1000mm=tuple(cols[5]), v_u_um=tuple(cols[6]), v_300_um=tuple(cols[7]), v_2pi_um=tuple(cols[8]),
+    )
+
+
+def backlash_history(s: Session, axis_id: int) -> tuple[np.ndarray, np.ndarray]:
+    """(temperature_c, backlash_mean_um) of every ok measurement with a temperature."""
+    rows = s.execute(select(Result.temperature_c, Result.backlash_mean_um)
+                     .where(Result.axis_id == axis_id, Result.temperature_c.is_not(None))).all()
+    if not rows:
+        return np.zeros(0), np.zeros(0)
+    a = np.asarray(rows, dtype=float)
+    return a[:, 0], a[:, 1]
+
+
+def tbe_history(s: Session, axis_id: int, *, since: datetime | None = None) -> list[tuple[datetime, str, float, float]]:
+    """(measured_at, task_name, tbe_um, tolerance_um) of every ok measurement, oldest first."""
+    q = (select(Result.measured_at, TbeRow.task_name, TbeRow.tbe_um, TbeRow.tolerance_um)
+         .join(TbeRow, TbeRow.result_id == Result.id).where(Result.axis_id == axis_id)
+         .order_by(Result.measured_at, Result.id, TbeRow.id))
+    if since is not None:
+        q = q.where(Result.measured_at >= since)
+    return [(as_utc(t), n, v, tol) for t, n, v, tol in s.execute(q).all()]
+
+
+def last_good_at(s: Session, axis_id: int) -> datetime | None:
+    return as_utc(s.scalar(select(func.max(Result.measured_at)).where(Result.axis_id == axis_id)))
+
+
+def last_cycle_at(s: Session, axis_id: int, triggers: tuple[str, ...] = ("schedule", "catch_up")) -> datetime | None:
+    """When the axis last had a scheduled cycle requested (for catching up a missed run)."""
+    return as_utc(s.scalar(select(func.max(Cycle.requested_at))
+                           .where(Cycle.axis_id == axis_id, Cycle.trigger.in_(triggers))))
+
+
+# -- alerts ----------------------------------------------------------------------------------
+def list_alerts(s: Session, state: str = "active", *, axis_id: int | None = None, limit: int = 100,
+                offset: int = 0) -> tuple[int, list[AlertRecord]]:
+    if state not in ("active", "cleared", "all"):
+        raise InputError(f"state (={state!r}) must be active, cleared or all")
+    where = []
+    if state == "active":
+        where.append(Alert.cleared_at.is_(None))
+    elif state == "cleared":
+        where.append(Alert.cleared_at.is_not(None))
+    if axis_id is not None:
+        where.append(Alert.axis_id == axis_id)
+    total = s.scalar(select(func.count()).select_from(Alert).where(*where))
+    rows = s.scalars(select(Alert).where(*where).order_by(Alert.raised_at.desc(), Alert.id.desc())
+                     .limit(limit).offset(offset))
+    return int(total or 0), [_alert_full(s, a) for a in rows]
+
+
+def get_alert(s: Session, alert_id: int) -> AlertRecord:
+    a = s.get(Alert, alert_id)
+    if a is None:
+        raise NotFoundError("alert", alert_id)
+    return _alert_full(s, a)
+
+
+def acknowledge_alert(s: Session, alert_id: int, by: str, when: datetime | None = None) -> AlertRecord:
+    """Record who acknowledged the alert; acknowledging twice keeps the first."""
+    a = s.get(Alert, alert_id)
+    if a is None:
+        raise NotFoundError("alert", alert_id)
+    if a.acknowledged_at is None:
+        a.acknowledged_at = when or utcnow()
+        a.acknowledged_by = by
+        s.flush()
+    return _alert_full(s, a)
+
+
+# -- metrics ----------------------------------------------------------------------------------
+def metrics_snapshot(s: Session) -> dict:
+    """Counts for Prometheus: cycles per axis and status, last success per axis, active alerts."""
+    cycles = {(a, st): n for a, st, n in s.execute(
+        select(Cycle.axis_id, Cycle.status, func.count()).group_by(Cycle.axis_id, Cycle.status)).all()}
+    last_ok = {a: as_utc(t) for a, t in s.execute(
+        select(Result.axis_id, func.max(Result.measured_at)).group_by(Result.axis_id)).all()}
+    alerts = {a: n for a, n in s.execute(
+        select(Alert.axis_id, func.count()).where(Alert.cleared_at.is_(None)).group_by(Alert.axis_id)).all()}
+    return {"cycles": cycles, "last_success": last_ok, "active_alerts": alerts}
+
+

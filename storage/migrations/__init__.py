@@ -1,0 +1,1 @@
+"""Alembic migrations of the mebm database (run by ``storage.db.migrate.upgrade``)."""
