@@ -1,0 +1,338 @@
+"""CANopen driver (canopen on python-can): SYNC-latched TPDO acquisition from a CiA 402 drive.
+
+Only the wire lives here; the measurement loop is :class:`acquisition.driver.ControllerDriver`.
+The driver produces SYNC at the measurement rate (its own thread); the drive answers
+each SYNC with TPDO1 = (0x6064 motor, 0x60E4 sub 1 table), both latched at that SYNC.
+A TPDO belongs to the last SYNC sent before it; a SYNC without its TPDO is a lost
+frame (a counter gap). Program, command and state go through SDO; heartbeat and EMCY
+are watched; an EMCY during a cycle aborts it with the error code in the reason.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import threading
+import time
+
+import can
+import canopen
+import numpy as np
+from canopen.sdo import SdoAbortedError, SdoCommunicationError
+
+from acquisition import canopen_od as co
+from acquisition.driver import ControllerDriver, raise_device_fault
+from acquisition.errors import (
+    ControllerConnectionError,
+    ControllerTimeoutError,
+    DeviceFaultError,
+    ProtocolError,
+)
+from acquisition.scale import EncoderScale
+from acquisition.types import AxisState, Command, ControllerStatus, RoundTripProgram, SampleBlock
+from core.errors import InputError, require_positive
+
+try:  # python-can's base error; canopen re-raises bus errors as can.CanError
+    from can import CanError
+except ImportError:  # pragma: no cover
+    CanError = OSError
+
+
+class _SyncProducer(threading.Thread):
+    """Sends SYNC (with a 1..240 counter byte) every ``period_s`` of wall clock; records send times."""
+
+    def __init__(self, network, period_s: float, start_k: int, window_s: float | None = None):
+        super().__init__(name="mebm-sync", daemon=True)
+        self.network, self.period_s = network, period_s
+        self.k = start_k
+        self.times: collections.deque = collections.deque(maxlen=4096)  # (wall time, k)
+        self.by_time: dict[float, int] = {}
+        self.window_s = window_s if window_s else 0.9 * period_s
+        self.answered = start_k
+        self.pending: collections.deque = collections.deque(maxlen=256)  # (monotonic send time, k)
+        self.late_frames = 0
+        self.lock = threading.Lock()
+        self.stop_event = threading.Event()
+        self.error: Exception | None = None
+
+    def run(self) -> None:
+        next_t = time.perf_counter()
+        while not self.stop_event.is_set():
+            now = time.perf_counter()
+            if now < next_t:
+                delay = next_t - now
+                if delay > 0.002:
+                    self.stop_event.wait(delay - 0.001)
+                else:
+                    time.sleep(0 if delay < 2e-4 else delay / 2)
+                continue
+            t_wall = time.time()
+            with self.lock:
+                self.k += 1
+                if len(self.times) == self.times.maxlen:
+                    self.by_time.pop(self.times[0][0], None)
+                self.times.append((t_wall, self.k))
+                self.by_time[t_wall] = self.k
+                self.pending.append((time.monotonic(), self.k))
+            try:
+                # the timestamp travels with the frame on buses that preserve it (virtual), so a
+                # simulated drive can stamp its TPDO with the SYNC it latched on
+                self.network.bus.send(can.Message(arbitration_id=co.SYNC_COB_ID, is_extended_id=False,
+                                                  data=[(self.k - 1) % 240 + 1], timestamp=t_wall))
+            except Exception as exc:  # noqa: BLE001 - reported by the driver's next drain
+                self.error = exc
+                return
+            next_t += self.period_s
+            if now - next_t > 20 * self.period_s:  # fell far behind (host stalled): do not burst
+                next_t = now
+
+    def sync_for(self, timestamp: float, received: float) -> int | None:
+        """The SYNC a TPDO answers, or None for a frame outside every synchronous window.
+
+        Exact when the bus preserved the SYNC's timestamp in the drive's reply (the
+        simulated drive on ``virtual``). Otherwise (real buses, ``udp_multicast``) the TPDO
+        must arrive within the synchronous window (``window_s`` after the last SYNC, as
+        CiA 301 object 0x1007) and that SYNC must not be answered yet.
+        """
+        with self.lock:
+            k = self.by_time.get(timestamp)
+            if k is not None:
+                return self._answer(k)
+            # in-order matching: the oldest unanswered SYNC still inside its window
+            for t_mono, k in self.pending:
+                if k > self.answered and received - t_mono <= self.window_s:
+                    return self._answer(k)
+            return None
+
+    def _answer(self, k: int) -> int | None:
+        if k <= self.answered:
+            return None  # a second reply to the same SYNC, or a late one: not attributable
+        self.answered = k
+        return k
+
+
+class CanopenDriver(ControllerDriver):
+    protocol = "canopen"
+    mode = "sync"
+    connect_exchanges = 14  # SDO reads/writes of the start-up; the first unanswered one ends it
+
+    def __init__(self, channel: str, node_id: int, *, interface: str = "virtual", sync_rate_hz: float = 250.0,
+                 time_scale: float = 1.0, heartbeat_ms: int = 100, bus_kwargs: dict | None = None,
+                 status_interval_s: float = 0.05, sync_window_s: float | None = None, **kwargs):
+        super().__init__(**kwargs)
+        if not 1 <= int(node_id) <= 127:
+            raise InputError(f"node (={node_id}) must be a CANopen node id 1..127")
+        self.channel, self.node_id, self.interface = channel, int(node_id), interface
+        self.sync_rate_hz = require_positive("sync_rate_hz", sync_rate_hz)
+        # time_scale > 1 only for simulated drives: SYNC is sent faster than its machine period
+        self.time_scale = require_positive("time_scale", time_scale)
+        self.heartbeat_ms = int(heartbeat_ms)
+        self.bus_kwargs = dict(bus_kwargs or {})
+        self.status_interval_s = status_interval_s
+        # synchronous window (wall clock): a TPDO must arrive this soon after its SYNC. Default
+        # 0.9 period; longer tolerates latency (frames arrive in order on CAN) at the price of
+        # attributing a frame to the previous SYNC when exactly one frame is lost.
+        self.sync_window_s = sync_window_s
+        self.servo_rate_hz = self.sync_rate_hz
+        self._network = None
+        self._node = None
+        self._sync: _SyncProducer | None = None
+        self._k = 0
+        self._frames: collections.deque = collections.deque()
+        self._emcy = None
+        self._last_hb = 0.0
+        self._first = 0
+        self._last_status = 0.0
+        self.scale: EncoderScale | None = None
+
+    def describe(self) -> str:
+        return f"canopen://{self.interface}/{self.channel}?node={self.node_id}"
+
+    # -- blocking helpers (run in a worker thread) -----------------------------------------------------
+    def _sdo(self, what: str, fn):
+        try:
+            return fn()
+        except SdoCommunicationError as exc:
+            raise ControllerTimeoutError(
+                f"no SDO answer from CANopen node {self.node_id} on {self.interface}/{self.channel} while {what}: "
+                "check the node id and that the drive is powered and on the bus"
+            ) from exc
+        except SdoAbortedError as exc:
+            raise ProtocolError(f"node {self.node_id} refused {what}: {exc}", code=exc.code) from exc
+        except (CanError, OSError) as exc:
+            raise ControllerConnectionError(f"CAN bus {self.interface}/{self.channel}: {exc}") from exc
+
+    def _connect_blocking(self) -> None:
+        net = canopen.Network()
+        net.NOTIFIER_CYCLE = 0.1  # a short receive cycle so closing takes ~0.1 s, not 1 s
+        kwargs = dict(self.bus_kwargs)
+        if self.interface == "virtual":
+            kwargs.setdefault("preserve_timestamps", True)
+        try:
+            net.connect(interface=self.interface, channel=self.channel, **kwargs)
+        except (CanError, OSError, ValueError, ImportError) as exc:
+            raise ControllerConnectionError(
+                f"cannot open CAN interface {self.interface!r} channel {self.channel!r}: {exc}"
+            ) from exc
+        self._network = net
+        node = canopen.RemoteNode(self.node_id, co.object_dictionary(self.node_id))
+        net.add_node(node)
+        node.sdo.RESPONSE_TIMEOUT = max(0.6 * self.timeout_s, 0.05)
+        node.sdo.MAX_RETRIES = 1  # one attempt: canopen counts the first try (0 would loop forever)
+        self._node = node
+        sdo = node.sdo
+        dev = self._sdo("reading the device type", lambda: sdo[co.DEVICE_TYPE].raw)
+        if dev & 0xFFFF != co.DEVICE_TYPE_CIA402 & 0xFFFF:
+            raise ProtocolError(f"node {self.node_id} is not a CiA 402 drive (device type 0x{dev:08X})")
+        ver = self._sdo("reading the mebm objects version", lambda: sdo[co.OBJECTS_VERSION_IDX].raw)
+        if ver != co.OBJECTS_VERSION:
+            raise ProtocolError(f"node {self.node_id} has mebm objects version {ver}, mebm speaks {co.OBJECTS_VERSION}")
+        mapping = self._sdo("reading the TPDO1 mapping", lambda: tuple(sdo[co.TPDO1_MAP][s].raw for s in (0, 1, 2)))
+        ttype = self._sdo("reading the TPDO1 transmission type", lambda: sdo[co.TPDO1_COMM][2].raw)
+        if mapping != (2, *co.TPDO1_MAPPING) or ttype != 1:
+            raise ProtocolError(
+                f"TPDO1 of node {self.node_id} maps {[hex(m) for m in mapping[1:]]} (type {ttype}); mebm needs "
+                "0x6064 and 0x60E4 sub 1 together, sent on every SYNC (docs/canopen-objects.md)"
+            )
+        inc = self._sdo("reading the encoder resolution", lambda: (sdo[co.ENCODER_RESOLUTION][1].raw,
+                                                                   sdo[co.ENCODER_RESOLUTION][2].raw))
+        nm = self._sdo("reading the table resolution", lambda: sdo[co.TABLE_NM_PER_COUNT].raw)
+        self.scale = EncoderScale(counts_per_rev=inc[0] / max(inc[1], 1), table_nm_per_count=float(nm))
+        period_us = int(round(1e6 / self.sync_rate_hz))
+        self._sdo("setting the SYNC period (0x1006)", lambda: setattr(sdo[co.COMM_CYCLE_PERIOD], "raw", period_us))
+        self._sdo("setting the heartbeat (0x1017)", lambda: setattr(sdo[co.PRODUCER_HEARTBEAT], "raw", self.heartbeat_ms))
+        self._last_hb = time.monotonic()
+        node.nmt.add_heartbeat_callback(self._on_heartbeat)
+        node.emcy.add_callback(self._on_emcy)
+        net.subscribe(co.tpdo1_cob_id(self.node_id), self._on_tpdo)
+        node.nmt.state = "OPERATIONAL"
+        self._sync = _SyncProducer(net, 1.0 / (self.sync_rate_hz * self.time_scale), self._k, self.sync_window_s)
+        self._sync.start()
+
+    def _close_blocking(self) -> None:
+        sync, self._sync = self._sync, None
+        if sync is not None:
+            sync.stop_event.set()
+            sync.join(1.0)
+            self._k = sync.k
+        net, self._network = self._network, None
+        if net is not None:
+            try:
+                if self._node is not None:
+                    self._node.nmt.state = "PRE-OPERATIONAL"
+            except Exception:  # noqa: BLE001 - closing must never fail
+                pass
+            try:
+                net.disconnect()
+            except Exception:  # noqa: BLE001
+                pass
+        self._node = None
+
+    # -- callbacks (notifier thread) -------------------------------------------------------------------
+    def _on_heartbeat(self, state) -> None:
+        self._last_hb = time.monotonic()
+
+    def _on_emcy(self, err) -> None:
+        if self._emcy is None and err.code != 0:
+            self._emcy = err
+
+    def _on_tpdo(self, can_id, data, timestamp) -> None:
+        sync = self._sync
+        if sync is None:
+            return
+        k = sync.sync_for(timestamp or 0.0, time.monotonic())
+        if k is None:
+            sync.late_frames += 1  # counted as a lost sample by the counter gap it leaves
+        else:
+            m, t = co.decode_tpdo1(bytes(data))
+            self._frames.append((k, m, t))
+
+    # -- wire -----------------------------------------------------------------------------------------
+    async def _connect(self) -> None:
+        await asyncio.to_thread(self._close_blocking)
+        try:
+            await asyncio.to_thread(self._connect_blocking)
+        except BaseException:
+            await asyncio.to_thread(self._close_blocking)
+            raise
+
+    async def _close(self) -> None:
+        await asyncio.to_thread(self._close_blocking)
+
+    def _status_blocking(self) -> ControllerStatus:
+        sdo = self._node.sdo
+        state = self._sdo("reading the axis state", lambda: sdo[co.AXIS_STATE].raw)
+        fault = self._sdo("reading the fault code", lambda: sdo[co.FAULT_CODE].raw)
+        temp = self._sdo("reading the temperature", lambda: sdo[co.TEMPERATURE].raw)
+        if state not in AxisState._value2member_map_:
+            raise ProtocolError(f"node {self.node_id}: unknown axis state {state}")
+        return ControllerStatus(AxisState(state), fault, temp / 100.0, self.sync_rate_hz)
+
+    async def _read_status(self) -> ControllerStatus:
+        self._check_link()
+        return await asyncio.to_thread(self._status_blocking)
+
+    def _command(self, cmd: Command) -> None:
+        sdo = self._node.sdo
+        self._sdo(f"the {cmd.name.lower()} command", lambda: setattr(sdo[co.COMMAND], "raw", int(cmd)))
+
+    def _start_blocking(self, program: RoundTripProgram) -> int:
+        sdo = self._node.sdo
+        values = (round(program.start_mm * 1000), round(program.end_mm * 1000), round(program.feed_mm_min * 1000),
+                  min(int(round(program.acceleration_mm_s2)), 65535), min(int(round(program.dwell_s * 1000)), 65535))
+        for sub, v in enumerate(values, start=1):
+            self._sdo("writing the round-trip program", lambda s=sub, v=v: setattr(sdo[co.PROGRAM][s], "raw", v))
+        self._emcy = None
+        self._command(Command.START)
+        first = self._sync.k + 1
+        self._first = first
+        self._frames.clear()
+        return first
+
+    async def _start(self, program: RoundTripProgram) -> int | None:
+        self._check_link()
+        return await asyncio.to_thread(self._start_blocking, program)
+
+    async def _abort(self) -> None:
+        await asyncio.to_thread(self._command, Command.ABORT)
+
+    async def _acknowledge(self) -> None:
+        self._emcy = None
+        await asyncio.to_thread(self._command, Command.ACKNOWLEDGE)
+
+    def _check_link(self) -> None:
+        if self._node is None or self._sync is None:
+            raise ControllerConnectionError(f"not connected to {self.describe()}")
+        if self._sync.error is not None:
+            raise ControllerConnectionError(f"cannot send SYNC on {self.interface}/{self.channel}: {self._sync.error}")
+        silent = time.monotonic() - self._last_hb
+        if self.heartbeat_ms and silent > 3 * self.heartbeat_ms / 1000.0 + 0.2:
+            raise ControllerConnectionError(
+                f"heartbeat of node {self.node_id} lost for {silent:.2f} s (drive off, cable or bus-off?)"
+            )
+
+    async def _drain(self) -> SampleBlock:
+        if self._emcy is not None:
+            e = self._emcy
+            raise DeviceFaultError(f"drive node {self.node_id} sent EMCY ({e.get_desc() or 'fault'})", code=e.code)
+        self._check_link()
+        frames = []
+        while self._frames:
+            frames.append(self._frames.popleft())
+        frames = [f for f in frames if f[0] >= self._first]
+        finished = False
+        now = time.monotonic()
+        if now - self._last_status >= self.status_interval_s:
+            self._last_status = now
+            status = await asyncio.to_thread(self._status_blocking)
+            if status.state == AxisState.DONE:
+                finished = True
+            elif status.state != AxisState.RUNNING:
+                if self._emcy is not None:
+                    e = self._emcy
+                    raise DeviceFaultError(f"drive node {self.node_id} sent EMCY ({e.get_desc() or 'fault'})", code=e.code)
+                raise_device_fault(status, self.describe(), self.link_trouble)
+        if not frames:
+            return SampleBlock.empty(finished)
+        arr = np.asarray(frames, dtype=np.int64)
+        return SampleBlock(arr[:, 0], self.scale.motor_rev(arr[:, 1]), self.scale.table_mm(arr[:, 2]), finished=finished)

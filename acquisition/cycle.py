@@ -1,0 +1,236 @@
+"""The measurement cycle: acquire a round trip, validate it, compute the criteria and the decision.
+
+:func:`run_cycle` never raises for a fault of the machine or the network: faults are
+normal events and end the cycle as ``failed`` with a reason a technician can act on
+(the driver has already sent the abort). No partial result is ever reported as a
+valid measurement: a failed cycle carries no criteria. Usable from a thread
+(:func:`run_cycle`) or an asyncio loop (:func:`run_cycle_async`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from acquisition.driver import ControllerDriver
+from acquisition.errors import AcquisitionError, IncompleteTraceError
+from acquisition.types import AcquiredTrace, RoundTripProgram
+from core.criteria import RoundTripResult, RoundTripSettings, analyze_round_trip
+from core.dataset import AxisSpec, Run, RunSpec
+from core.errors import MebmError
+from core.tbe import AxisDecision, MachiningTask, decide
+
+_REASON_CODES = (
+    ("AxisBusyError", "axis_busy"),
+    ("DeviceFaultError", "device_fault"),
+    ("LostSamplesError", "lost_samples"),
+    ("EncoderFaultError", "encoder_fault"),
+    ("ControllerConnectionError", "connection"),
+    ("ControllerTimeoutError", "timeout"),
+    ("ProtocolError", "protocol"),
+    ("IncompleteTraceError", "incomplete_trace"),
+    ("TraceError", "trace"),
+)
+
+
+def reason_code(exc: BaseException) -> str:
+    """A stable short code for the kind of failure (for the service, metrics and tests)."""
+    names = {c.__name__ for c in type(exc).__mro__}
+    for name, code in _REASON_CODES:
+        if name in names:
+            return code
+    return "acquisition" if isinstance(exc, AcquisitionError) else "error"
+
+
+@dataclass(frozen=True)
+class CycleResult:
+    """Outcome of one measurement cycle. ``status`` is ``ok`` or ``failed``.
+
+    ``uncertainty_um`` is the stated uncertainty of the backlash from the acquisition
+    (worst-case skew times speed for unlatched modes, 0 when latched).
+    """
+
+    status: str
+    controller: str
+    axis: str
+    program: RoundTripProgram
+    reason: str | None = None
+    reason_code: str | None = None
+    trace: AcquiredTrace | None = None
+    result: RoundTripResult | None = None
+    decision: AxisDecision | None = None
+    uncertainty_um: float = 0.0
+    started_at: float = 0.0
+    duration_s: float = 0.0
+    error: BaseException | None = field(default=None, compare=False, repr=False)
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    def to_dict(self) -> dict:
+        out = {
+            "status": self.status,
+            "controller": self.controller,
+            "axis": self.axis,
+            "program": {
+                "start_mm": self.program.start_mm, "end_mm": self.program.end_mm,
+                "feed_mm_min": self.program.feed_mm_min,
+                "acceleration_mm_s2": self.program.acceleration_mm_s2, "dwell_s": self.program.dwell_s,
+            },
+            "reason": self.reason,
+            "reason_code": self.reason_code,
+            "duration_s": self.duration_s,
+        }
+        if self.trace is not None:
+            t = self.trace
+            out["acquisition"] = {
+                "protocol": t.protocol, "mode": t.mode, "latched": t.latched, "samples": len(t),
+                "lost_samples": t.lost_samples, "sample_rate_hz": t.servo_rate_hz,
+                "skew_uncertainty_um": t.skew_uncertainty_um, "temperature_c": t.temperature_c,
+                "samples_per_s": t.samples_per_s,
+            }
+        if self.ok:
+            out["uncertainty_um"] = self.uncertainty_um
+            out["result"] = self.result.to_dict()
+            if self.decision is not None:
+                d = self.decision
+                out["decision"] = {
+                    "state": d.state.value, "binding_task": d.binding_task,
+                    "backlash_limit_um": d.backlash_limit_um if math.isfinite(d.backlash_limit_um) else None,
+                    "message": d.message(),
+                    "tasks": [{"name": a.task.name, "tbe_um": a.tbe_um, "tolerance_um": a.task.tolerance_um,
+                               "state": a.state.value} for a in d.assessments],
+                }
+        return out
+
+    def to_run(self, file: str, *, utility_day: float | None = None) -> Run:
+        """The cycle as a ``mebm-dataset/1`` round-trip run; only valid measurements have one."""
+        if not self.ok or self.trace is None:
+            raise MebmError(f"cycle {self.status}: {self.reason}; a failed cycle is never stored as a measurement")
+        t = self.trace
+        extra = {
+            "controller": self.controller, "acquisition_mode": t.mode, "latched": t.latched,
+            "skew_uncertainty_um": t.skew_uncertainty_um, "lost_samples": t.lost_samples,
+            "sample_rate_hz": t.servo_rate_hz, "counter_first": int(t.counter[0]), "counter_last": int(t.counter[-1]),
+            "travel_program_mm": [self.program.start_mm, self.program.end_mm],
+        }
+        spec = RunSpec(file=file, kind="round_trip", axes=(self.axis,), feed_mm_min=self.program.feed_mm_min,
+                       temperature_c=t.temperature_c if math.isfinite(t.temperature_c) else 20.0,
+                       utility_day=utility_day, acceleration_mm_s2=self.program.acceleration_mm_s2, extra=extra)
+        cols = {"time_s": t.time_s, f"{self.axis}_motor_rev": t.motor_rev, f"{self.axis}_table_mm": t.table_mm}
+        return Run(spec, cols)
+
+
+def validate_trace(trace: AcquiredTrace, program: RoundTripProgram, axis: AxisSpec,
+                   useful_travel_mm: tuple[float, float] | None = None) -> None:
+    """Raise :class:`IncompleteTraceError` unless the trace is a whole, continuous round trip.
+
+    Checks: no NaN/inf; counter strictly increasing, and continuous for continuous modes
+    (gaps only as many as the trace declares); both strokes present; the useful travel
+    covered in each stroke.
+    """
+    n = len(trace)
+    if n < 10:
+        raise IncompleteTraceError(f"only {n} samples acquired; a round trip needs many more")
+    for name in ("time_s", "motor_rev", "table_mm"):
+        a = getattr(trace, name)
+        bad = ~np.isfinite(a)
+        if bad.any():
+            raise IncompleteTraceError(f"{name} is NaN or inf at sample {int(np.argmax(bad))} ({int(bad.sum())} in all)")
+    dc = np.diff(trace.counter)
+    if np.any(dc <= 0):
+        raise IncompleteTraceError(f"sample counter not increasing at sample {int(np.argmax(dc <= 0)) + 1}")
+    if trace.mode in ("trace", "sync") and int((dc - 1).sum()) != trace.lost_samples:
+        raise IncompleteTraceError(
+            f"counter has {int((dc - 1).sum())} missing values but the acquisition reported {trace.lost_samples}"
+        )
+    lo, hi = sorted((program.start_mm, program.end_mm))
+    ulo, uhi = useful_travel_mm if useful_travel_mm is not None else (lo, hi)
+    x = trace.table_mm
+    turn = int(np.argmax(x) if program.end_mm > program.start_mm else np.argmin(x))
+    out, back = x[: turn + 1], x[turn:]
+    tol = max(0.05 * (hi - lo), 0.5)
+    for name, part in (("outward", out), ("return", back)):
+        if part.size < 5 or part.min() > ulo + tol or part.max() < uhi - tol:
+            span = (float(part.min()), float(part.max())) if part.size else (float("nan"),) * 2
+            raise IncompleteTraceError(
+                f"the {name} stroke covers {span[0]:.2f}..{span[1]:.2f} mm, not the useful travel "
+                f"{ulo:g}..{uhi:g} mm: the round trip was cut short"
+            )
+
+
+def _failed(driver, axis, program, exc, t0, wall0, trace=None) -> CycleResult:
+    reason = str(exc)
+    note = getattr(exc, "abort_note", None)
+    if note:
+        reason = f"{reason}; {note}"
+    return CycleResult(status="failed", controller=driver.describe(), axis=axis.name, program=program,
+                       reason=reason, reason_code=reason_code(exc), trace=trace, started_at=wall0,
+                       duration_s=time.monotonic() - t0, error=exc)
+
+
+def _evaluate(driver, axis, program, trace, tasks, useful_travel_mm, settings, t0, wall0) -> CycleResult:
+    try:
+        validate_trace(trace, program, axis, useful_travel_mm)
+        result = analyze_round_trip(trace.time_s, trace.motor_rev, trace.table_mm, axis,
+                                    useful_travel_mm=useful_travel_mm, settings=settings)
+        decision = decide(result.backlash_mean_um, tasks) if tasks else None
+    except MebmError as exc:
+        return _failed(driver, axis, program, exc, t0, wall0, trace)
+    return CycleResult(status="ok", controller=driver.describe(), axis=axis.name, program=program, trace=trace,
+                       result=result, decision=decision, uncertainty_um=trace.skew_uncertainty_um,
+                       started_at=wall0, duration_s=time.monotonic() - t0)
+
+
+# Allowance for the reversal transient beyond the loop's shortfall: the largest
+# backlash worth measuring (0.5 mm), the transient margin the analysis skips (1 mm)
+# and 1 mm of safety.
+REVERSAL_ALLOWANCE_MM = 2.5
+
+
+def default_program(axis: AxisSpec, feed_mm_min: float, *, acceleration_mm_s2: float = 500.0,
+                    dwell_s: float = 0.2, overtravel_mm: float | None = None) -> RoundTripProgram:
+    """A round trip over the axis' useful travel, extended just enough that the reversal
+    transients fall outside it.
+
+    A proportional loop stops short of a decelerating command by a/K² (the lag of a
+    ramp-down); the dwell lets that decay by exp(-K dwell). Beyond that, the reversal
+    needs the backlash plus the analysis' transient margin (``REVERSAL_ALLOWANCE_MM``).
+    The default is that sum, at least 3 mm and never more than 10 % of the travel: a
+    measurement should not take the axis far beyond the travel it was configured for.
+    """
+    lo, hi = axis.travel_mm
+    if overtravel_mm is None:
+        shortfall_mm = acceleration_mm_s2 / axis.position_gain_per_s**2 * math.exp(-axis.position_gain_per_s * dwell_s)
+        overtravel_mm = min(max(shortfall_mm + REVERSAL_ALLOWANCE_MM, 3.0), 0.1 * (hi - lo))
+    return RoundTripProgram(lo - overtravel_mm, hi + overtravel_mm, feed_mm_min,
+                            acceleration_mm_s2=acceleration_mm_s2, dwell_s=dwell_s)
+
+
+def run_cycle(driver: ControllerDriver, axis: AxisSpec, program: RoundTripProgram, *,
+              tasks: Sequence[MachiningTask] = (), useful_travel_mm: tuple[float, float] | None = None,
+              settings: RoundTripSettings = RoundTripSettings()) -> CycleResult:
+    """One measurement cycle from a thread (runs its own event loop). Never raises for faults."""
+    t0, wall0 = time.monotonic(), time.time()
+    try:
+        trace = driver.acquire(program, axis)
+    except MebmError as exc:
+        return _failed(driver, axis, program, exc, t0, wall0)
+    return _evaluate(driver, axis, program, trace, tasks, useful_travel_mm, settings, t0, wall0)
+
+
+async def run_cycle_async(driver: ControllerDriver, axis: AxisSpec, program: RoundTripProgram, *,
+                          tasks: Sequence[MachiningTask] = (), useful_travel_mm: tuple[float, float] | None = None,
+                          settings: RoundTripSettings = RoundTripSettings()) -> CycleResult:
+    """:func:`run_cycle` for callers already inside an asyncio loop."""
+    t0, wall0 = time.monotonic(), time.time()
+    try:
+        trace = await driver.acquire_async(program, axis)
+    except MebmError as exc:
+        return _failed(driver, axis, program, exc, t0, wall0)
+    return _evaluate(driver, axis, program, trace, tasks, useful_travel_mm, settings, t0, wall0)

@@ -1,0 +1,77 @@
+"""Acquisition errors: every way a measurement cycle can fail, as one subtree of MebmError.
+
+Faults on the wire are normal events, not bugs: each class says what a technician
+should look at. stdlib co-bases let callers catch them the usual way
+(``ConnectionError``, ``TimeoutError``). Foreign exceptions (pymodbus, python-can,
+canopen) are translated at the driver boundary with ``raise ... from``.
+"""
+
+from __future__ import annotations
+
+from core.errors import MebmError
+
+
+class AcquisitionError(MebmError):
+    """A measurement cycle could not acquire a trustworthy trace."""
+
+    #: Whether retrying the same operation may succeed (timeouts, dropped links).
+    transient = False
+
+
+class ControllerConnectionError(AcquisitionError, ConnectionError):
+    """The controller cannot be reached, refused the connection or dropped it."""
+
+    transient = True
+
+
+class ControllerTimeoutError(AcquisitionError, TimeoutError):
+    """The controller did not answer within the configured timeout."""
+
+    transient = True
+
+
+class ProtocolError(AcquisitionError):
+    """The controller answered, but with an error or something we do not understand.
+
+    ``code`` is the Modbus exception code or the SDO abort code when there is one.
+    """
+
+    def __init__(self, message: str, *, code: int | None = None):
+        self.code = code
+        super().__init__(message)
+
+
+class DeviceFaultError(AcquisitionError):
+    """The controller or drive reported a fault (CANopen EMCY, Modbus fault register).
+
+    ``code`` is the 16-bit error code (CiA 301/402 EMCY code).
+    """
+
+    def __init__(self, message: str, *, code: int):
+        self.code = int(code)
+        super().__init__(f"{message} (error code 0x{self.code:04X})")
+
+
+class LostSamplesError(AcquisitionError):
+    """The sample counter has a gap: samples were lost and will not be interpolated."""
+
+    def __init__(self, message: str, *, lost_samples: int, first_missing: int | None = None):
+        self.lost_samples = int(lost_samples)
+        self.first_missing = first_missing
+        super().__init__(message)
+
+
+class EncoderFaultError(AcquisitionError):
+    """An encoder value is implausible: stuck while the axis moves, or jumping."""
+
+    def __init__(self, message: str, *, encoder: str):
+        self.encoder = encoder
+        super().__init__(message)
+
+
+class AxisBusyError(AcquisitionError):
+    """The axis is not idle (moving, faulted or in another program): the cycle was not started."""
+
+
+class IncompleteTraceError(AcquisitionError):
+    """The acquired trace does not cover the programmed round trip (stroke missing, travel short)."""

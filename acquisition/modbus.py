@@ -1,0 +1,210 @@
+"""Modbus TCP driver (pymodbus async client) for register map ``mebm-modbus/1``.
+
+Only the wire lives here; the measurement loop is :class:`acquisition.driver.ControllerDriver`.
+Modes: ``trace`` (default) drains the controller's trace ring buffer in block reads,
+so every servo-cycle sample is kept; ``latched`` polls the latched sample (one read,
+both positions of one cycle, decimated); ``separate`` reads motor and table in two
+requests for controllers without latching, labelled unlatched with a skew uncertainty.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from pymodbus.client import AsyncModbusTcpClient
+from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+
+from acquisition import modbus_map as mm
+from acquisition.driver import ControllerDriver, raise_device_fault
+from acquisition.errors import ControllerConnectionError, ControllerTimeoutError, ProtocolError
+from acquisition.types import AxisState, Command, ControllerStatus, RoundTripProgram, SampleBlock
+from core.errors import InputError
+
+MODES = ("trace", "latched", "separate")
+_EXC_NAMES = {1: "illegal function", 2: "illegal data address", 3: "illegal data value", 4: "device failure",
+              5: "acknowledge", 6: "device busy", 8: "memory parity error", 10: "gateway path unavailable",
+              11: "gateway target failed to respond"}
+_TRANSIENT_CODES = {4, 5, 6, 11}  # the controller may answer normally on a retry
+
+
+class ModbusDriver(ControllerDriver):
+    protocol = "modbus"
+    wire_timeouts = True  # pymodbus' client timeout bounds each request
+
+    def __init__(self, host: str, port: int = 502, *, device_id: int = 1, mode: str = "trace",
+                 client_factory=None, **kwargs):
+        super().__init__(**kwargs)
+        if mode not in MODES:
+            raise InputError(f"mode (={mode!r}) must be one of {MODES}")
+        self.host, self.port, self.device_id = host, int(port), int(device_id)
+        self.mode = mode
+        self.continuous = mode == "trace"
+        self.latched = mode != "separate"
+        self._client_factory = client_factory or (
+            lambda: AsyncModbusTcpClient(host, port=self.port, timeout=self.timeout_s, retries=0, reconnect_delay=0)
+        )
+        self._client = None
+        self.scale = None
+        self.ring_records = 0
+        self._next_w = 0  # next trace record to read
+        self._next_counter: int | None = None
+        self._first_counter = 0
+
+    def describe(self) -> str:
+        return f"modbus://{self.host}:{self.port}"
+
+    # -- requests ----------------------------------------------------------------------------
+    async def _request(self, what: str, call):
+        if self._client is None:
+            raise ControllerConnectionError(f"not connected to {self.describe()}")
+        try:
+            rr = await call()
+        except ConnectionException as exc:
+            raise ControllerConnectionError(f"connection to {self.describe()} lost while {what}") from exc
+        except ModbusIOException as exc:
+            raise ControllerTimeoutError(f"no reply from {self.describe()} within {self.timeout_s:g} s while {what}") from exc
+        except ModbusException as exc:
+            raise ProtocolError(f"{self.describe()}: {what}: {exc}") from exc
+        if rr.isError():
+            code = int(getattr(rr, "exception_code", 0) or 0)
+            err = ProtocolError(
+                f"{self.describe()} answered {what} with Modbus exception {code} "
+                f"({_EXC_NAMES.get(code, 'unknown')})", code=code,
+            )
+            err.transient = code in _TRANSIENT_CODES
+            raise err
+        return rr
+
+    async def _read(self, address: int, count: int, what: str) -> list[int]:
+        rr = await self._request(
+            what, lambda: self._client.read_holding_registers(address, count=count, device_id=self.device_id)
+        )
+        return rr.registers
+
+    async def _write(self, address: int, values: list[int], what: str) -> None:
+        await self._request(what, lambda: self._client.write_registers(address, values, device_id=self.device_id))
+
+    # -- wire ---------------------------------------------------------------------------------
+    async def _connect(self) -> None:
+        await self._close()
+        self._client = self._client_factory()
+        try:
+            ok = await self._client.connect()
+        except (OSError, ModbusException) as exc:
+            ok = False
+            cause = exc
+        else:
+            cause = None
+        if not ok:
+            self._client = None
+            raise ControllerConnectionError(
+                f"cannot connect to {self.describe()}: connection refused or host unreachable "
+                "(is the controller on and its Modbus TCP server enabled?)"
+            ) from cause
+        regs = await self._read(0, mm.CONFIG_BASE + mm.CONFIG_WORDS, "reading the register map header")
+        if regs[mm.MAP_VERSION_REG] != mm.MAP_VERSION:
+            raise ProtocolError(
+                f"{self.describe()} speaks register map version {regs[mm.MAP_VERSION_REG]}, mebm speaks "
+                f"version {mm.MAP_VERSION} (docs/register-map.md)"
+            )
+        cfg = mm.decode_config(regs[mm.CONFIG_BASE:])
+        if cfg["record_words"] != mm.RECORD_WORDS or cfg["ring_records"] < mm.RECORDS_PER_READ:
+            raise ProtocolError(f"{self.describe()}: unexpected trace buffer layout {cfg}")
+        self.scale, self.servo_rate_hz, self.ring_records = cfg["scale"], cfg["servo_rate_hz"], cfg["ring_records"]
+
+    async def _close(self) -> None:
+        if self._client is not None:
+            try:
+                self._client.close()
+            except Exception:  # noqa: BLE001 - closing must never fail the caller
+                pass
+            self._client = None
+
+    async def _status(self) -> dict:
+        return mm.decode_status(await self._read(0, mm.STATUS_WORDS, "reading the status block"))
+
+    async def _read_status(self) -> ControllerStatus:
+        s = await self._status()
+        if s["state"] is None:
+            raise ProtocolError(f"{self.describe()}: unknown axis state {s['state_raw']}")
+        return ControllerStatus(s["state"], s["fault_code"], s["temperature_c"], self.servo_rate_hz)
+
+    async def _start(self, program: RoundTripProgram) -> int | None:
+        # parameters and command in one function-16 request: the controller never sees half a program
+        await self._write(mm.COMMAND, mm.encode_program(program, Command.START), "starting the round trip")
+        s = await self._status()
+        if s["state"] not in (AxisState.RUNNING, AxisState.DONE):
+            raise_device_fault(ControllerStatus(s["state"], s["fault_code"]), self.describe(), self.link_trouble)
+        self._first_counter = s["trace_first"]
+        self._next_w = 0
+        self._next_counter = None
+        self._last_poll = None
+        return s["trace_first"]
+
+    async def _abort(self) -> None:
+        await self._write(mm.COMMAND, [int(Command.ABORT)], "aborting the round trip")
+
+    async def _acknowledge(self) -> None:
+        await self._write(mm.COMMAND, [int(Command.ACKNOWLEDGE)], "acknowledging")
+
+    async def _drain(self) -> SampleBlock:
+        if self.mode == "trace":
+            return await self._drain_trace()
+        return await self._poll_sample()
+
+    async def _finished(self, s: dict, caught_up: bool) -> bool:
+        if s["state"] == AxisState.RUNNING:
+            return False
+        if s["state"] == AxisState.DONE:
+            return caught_up
+        raise_device_fault(ControllerStatus(s["state"], s["fault_code"]), self.describe(), self.link_trouble)
+        return False  # pragma: no cover
+
+    async def _drain_trace(self) -> SampleBlock:
+        slot = self._next_w % self.ring_records
+        n = min(mm.RECORDS_PER_READ, self.ring_records - slot)
+        regs = await self._read(mm.RING_BASE + slot * mm.RECORD_WORDS, n * mm.RECORD_WORDS, "reading the trace buffer")
+        counter_u32, motor, table = mm.decode_records(regs, self.scale)
+        ref = self._first_counter if self._next_counter is None else self._next_counter
+        counter = mm.unwrap_u32(counter_u32, ref)
+        # valid records: newer than what we have, strictly increasing (older ones are not yet overwritten)
+        floor = ref - 1
+        prev = np.concatenate([[floor], counter[:-1]])
+        ok = counter > prev
+        k = int(np.argmin(ok)) if not ok.all() else n
+        if k:
+            self._next_w += k
+            self._next_counter = int(counter[k - 1]) + 1
+        full = k == n
+        finished = False
+        if not full:
+            s = await self._status()
+            behind = s["trace_count"] - self._next_w
+            if behind >= self.ring_records:
+                # the ring lapped us: the records we read were whole laps newer (their counters
+                # jumped, reported as lost samples); count the laps so slots stay aligned
+                self._next_w += self.ring_records * (behind // self.ring_records)
+            finished = await self._finished(s, caught_up=self._next_w >= s["trace_count"])
+        return SampleBlock(counter[:k], motor[:k], table[:k], finished=finished, caught_up=not full)
+
+    async def _poll_sample(self) -> SampleBlock:
+        t0 = time.monotonic()
+        regs = await self._read(0, mm.TABLE_POS if self.mode == "separate" else mm.STATUS_WORDS, "reading the latched sample")
+        if self.mode == "separate":
+            # unlatched: the table is read in a second request, a little later
+            table_regs = await self._read(mm.TABLE_POS, 2, "reading the table position")
+            t1 = time.monotonic()
+            regs = list(regs) + list(table_regs) + [0] * (mm.STATUS_WORDS - mm.TABLE_POS - 2)
+            skew = t1 - t0
+        else:
+            skew = 0.0
+        s = mm.decode_status(regs)
+        if s["state"] != AxisState.RUNNING and s["state"] != AxisState.DONE:
+            raise_device_fault(ControllerStatus(s["state"], s["fault_code"]), self.describe(), self.link_trouble)
+        counter = mm.unwrap_u32([s["counter"]], self._first_counter)
+        if counter[0] < self._first_counter:
+            return SampleBlock.empty()
+        motor = self.scale.motor_rev([s["motor_counts"]])
+        table = self.scale.table_mm([s["table_counts"]])
+        return SampleBlock(counter, motor, table, finished=s["state"] == AxisState.DONE, skew_s=skew)

@@ -1,0 +1,221 @@
+"""Simulated CANopen drive: a canopen ``LocalNode`` whose positions come from a :class:`SimAxis`.
+
+The drive is clocked by SYNC: every SYNC advances its machine time by the
+communication cycle period (0x1006) and it answers with TPDO1 (0x6064 motor counts,
+0x60E4 sub 1 table counts) latched at that instant, in OPERATIONAL state only.
+Program, command, state, temperature and fault code are SDO objects
+(docs/canopen-objects.md). Runs on python-can's ``virtual`` bus in-process, or on
+``udp_multicast`` to be reachable from another process.
+"""
+
+from __future__ import annotations
+
+import struct
+import threading
+import time
+
+import can
+import canopen
+from canopen.sdo import SdoAbortedError
+
+from acquisition import canopen_od as co
+from acquisition.scale import EncoderScale
+from acquisition.sim.axis import SimAxis
+from acquisition.sim.twin import Twin
+from acquisition.types import AxisState, Command, RoundTripProgram
+from core.errors import InputError
+
+ABORT_DEVICE_STATE = 0x08000022  # data cannot be transferred because of the present device state
+ABORT_VALUE_RANGE = 0x06090030
+
+
+class SimCanopenDrive:
+    """A simulated CiA 402 drive on a CAN bus. Use as a context manager or start()/stop()."""
+
+    def __init__(
+        self,
+        twin: Twin,
+        *,
+        node_id: int = 5,
+        channel: str = "mebm-sim",
+        interface: str = "virtual",
+        servo_rate_hz: float = 1000.0,
+        scale: EncoderScale | None = None,
+        faults=(),
+        bus_kwargs: dict | None = None,
+    ):
+        self.node_id = int(node_id)
+        self.channel, self.interface = channel, interface
+        self.bus_kwargs = dict(bus_kwargs or {})
+        self.scale = scale or EncoderScale()
+        self.machine_time_s = 0.0
+        self.axis = SimAxis(twin, servo_rate_hz=servo_rate_hz, time_scale=1.0, scale=self.scale,
+                            faults=faults, clock=lambda: self.machine_time_s)
+        self.axis.on_fault = self._on_axis_fault
+        self.od = co.object_dictionary(self.node_id, counts_per_rev=self.scale.counts_per_rev,
+                                       table_nm_per_count=int(round(self.scale.table_nm_per_count)))
+        self.node = canopen.LocalNode(self.node_id, self.od)
+        self.node.add_read_callback(self._on_read)
+        self.node.add_write_callback(self._on_write)
+        self.network: canopen.Network | None = None
+        self._period_s = 1e-3
+        self._silent_until = 0.0
+        self._last_sync = 0.0
+        self.sync_loss_s = 0.5  # a running program is aborted when SYNC stops for this long
+        self._lost_left = 0
+        self._fault_cycle: dict[str, int] = {}
+        self.syncs = 0
+        self.tpdos_sent = 0
+
+    # -- lifecycle -----------------------------------------------------------------------------
+    def start(self) -> "SimCanopenDrive":
+        self.network = canopen.Network()
+        self.network.NOTIFIER_CYCLE = 0.1
+        kwargs = dict(self.bus_kwargs)
+        if self.interface == "virtual":
+            kwargs.setdefault("preserve_timestamps", True)
+        self.network.connect(interface=self.interface, channel=self.channel, **kwargs)
+        self.network.add_node(self.node)
+        # route SDO requests through a wrapper so faults can make the drive silent or slow
+        self.network.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
+        self.network.subscribe(self.node.sdo.rx_cobid, self._on_sdo_request)
+        self.network.subscribe(co.SYNC_COB_ID, self._on_sync)
+        self.network.send_message(0x700 + self.node_id, [0])  # boot-up
+        self.node.nmt.state = "PRE-OPERATIONAL"
+        return self
+
+    def stop(self) -> None:
+        if self.network is not None:
+            try:
+                self.node.nmt.stop_heartbeat()
+                self.network.disconnect()
+            finally:
+                self.network = None
+
+    def __enter__(self) -> "SimCanopenDrive":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    # -- faults -----------------------------------------------------------------------------------
+    def _due(self, kind: str):
+        f = self.axis.fault(kind)
+        if f is None or self.axis.state != AxisState.RUNNING:
+            return None
+        if self._fault_cycle.get(kind) == self.axis.cycles_started:
+            return None  # already fired in this cycle
+        if self.axis.progress() < f.at:
+            return None
+        self._fault_cycle[kind] = self.axis.cycles_started
+        return f
+
+    def _silent(self) -> bool:
+        return time.monotonic() < self._silent_until
+
+    def _go_silent(self, for_s: float) -> None:
+        self._silent_until = time.monotonic() + min(for_s, 3600.0)
+        self.node.nmt.stop_heartbeat()
+        hb_raw = self.node.data_store.get(co.PRODUCER_HEARTBEAT, {}).get(0)
+        hb = struct.unpack("<H", hb_raw)[0] if hb_raw else 0
+
+        def wake():
+            if self.network is not None and hb:
+                self.node.nmt.start_heartbeat(hb)
+
+        t = threading.Timer(min(for_s, 3600.0), wake)
+        t.daemon = True
+        t.start()
+
+    def _on_axis_fault(self, code: int) -> None:
+        if self.network is not None:
+            self.node.emcy.send(code, register=0x01)
+
+    # -- CAN callbacks (python-can notifier thread) ------------------------------------------------------
+    def _sync_watchdog(self) -> None:
+        # CiA 402 0x6007-style reaction: a running program stops when SYNC stops coming
+        if (self.axis.state == AxisState.RUNNING and self._last_sync
+                and time.monotonic() - self._last_sync > self.sync_loss_s):
+            self.axis.abort()
+
+    def _on_sdo_request(self, can_id, data, timestamp):
+        if self._silent():
+            return
+        self._sync_watchdog()
+        slow = self.axis.fault("slow")
+        if slow is not None and self.axis.state == AxisState.RUNNING and self.axis.progress() >= slow.at:
+            t = threading.Timer(float(slow.value("s")), self.node.sdo.on_request, (can_id, data, timestamp))
+            t.daemon = True
+            t.start()
+            return
+        self.node.sdo.on_request(can_id, data, timestamp)
+
+    def _on_sync(self, can_id, data, timestamp):
+        if self._silent() or self.node.nmt.state != "OPERATIONAL":
+            return
+        self.syncs += 1
+        self._last_sync = time.monotonic()
+        self.machine_time_s += self._period_s
+        self.axis.update()
+        drop = self._due("drop")
+        if drop is not None:
+            self._go_silent(drop.for_s)
+            return
+        lost = self._due("lost")
+        if lost is not None:
+            self._lost_left = int(lost.value("n"))
+        if self._lost_left > 0:
+            self._lost_left -= 1
+            return
+        motor_rev, table_mm = self.axis.position_at()
+        m = int(self.scale.motor_counts(motor_rev))
+        t = int(self.scale.table_counts(table_mm))
+        # stamped with the SYNC it was latched on (kept by buses that preserve timestamps)
+        msg = can.Message(arbitration_id=co.tpdo1_cob_id(self.node_id), is_extended_id=False,
+                          data=co.encode_tpdo1(m, t), timestamp=timestamp or time.time())
+        self.network.bus.send(msg)
+        self.tpdos_sent += 1
+
+    def _on_read(self, index, subindex, od):
+        ax = self.axis
+        if index == co.POSITION_ACTUAL:
+            return int(self.scale.motor_counts(ax.position_at()[0]))
+        if index == co.ADDITIONAL_POSITION and subindex == 1:
+            return int(self.scale.table_counts(ax.position_at()[1]))
+        if index == co.AXIS_STATE:
+            return int(ax.update())
+        if index == co.TEMPERATURE:
+            return int(round(ax.twin.temperature_c * 100))
+        if index == co.FAULT_CODE:
+            return int(ax.fault_code)
+        return None
+
+    def _program(self) -> RoundTripProgram:
+        def raw(sub):
+            return self.node.get_data(co.PROGRAM, sub)
+
+        v = [self.od[co.PROGRAM][s].decode_raw(raw(s)) for s in range(1, 6)]
+        return RoundTripProgram(start_mm=v[0] / 1000.0, end_mm=v[1] / 1000.0, feed_mm_min=v[2] / 1000.0,
+                                acceleration_mm_s2=float(v[3]), dwell_s=v[4] / 1000.0)
+
+    def _on_write(self, index, subindex, od, data):
+        if index == co.COMM_CYCLE_PERIOD:
+            us = struct.unpack("<L", bytes(data))[0]
+            if us == 0:
+                raise SdoAbortedError(ABORT_VALUE_RANGE)
+            self._period_s = us * 1e-6
+        elif index == co.COMMAND:
+            cmd = struct.unpack("<H", bytes(data))[0]
+            if cmd == Command.START:
+                try:
+                    program = self._program()
+                except InputError:
+                    raise SdoAbortedError(ABORT_VALUE_RANGE) from None
+                try:
+                    self.axis.start(program)
+                except InputError:
+                    raise SdoAbortedError(ABORT_DEVICE_STATE) from None
+            elif cmd == Command.ABORT:
+                self.axis.abort()
+            elif cmd == Command.ACKNOWLEDGE:
+                self.axis.acknowledge()
