@@ -1,0 +1,76 @@
+"""``mebm analyze DATASET``: backlash and lead criteria of every round-trip run."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from api.cli.output import print_json, print_table
+from core.criteria import RoundTripSettings, analyze_round_trip
+from core.errors import MebmError, TraceError
+from storage.dataset import read_dataset
+
+
+class AnalysisFailed(TraceError):
+    """Some runs of a dataset could not be analysed (each was reported on stderr)."""
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("analyze", help="backlash b(x) and ISO 3408-3 lead criteria of a dataset's round trips")
+    p.add_argument("dataset", help="dataset folder (mebm-dataset/1)")
+    p.add_argument("--json", action="store_true", help="print a JSON list, one object per run and axis")
+    p.add_argument("--curves", action="store_true", help="with --json: include b(x) and the lead curves")
+    p.add_argument(
+        "--useful-travel-mm", nargs=2, type=float, metavar=("START", "END"),
+        help="useful travel (table coordinates); default: the axis' travel_mm",
+    )
+    p.add_argument("--grid-step-mm", type=float, default=RoundTripSettings.grid_step_mm,
+                   help="resolution of b(x) and the lead curves (mm)")
+    p.set_defaults(func=run)
+
+
+def run(a: argparse.Namespace) -> int:
+    ds = read_dataset(a.dataset)
+    settings = RoundTripSettings(grid_step_mm=a.grid_step_mm)
+    results, failures, skipped = [], [], []
+    for r in ds.runs:
+        if r.spec.kind != "round_trip":
+            skipped.append(r.spec.file)
+            continue
+        for axis_name in r.spec.axes:
+            axis = ds.machine.axes[axis_name]
+            try:
+                res = analyze_round_trip(
+                    r.time_s, r.motor_rev(axis_name), r.table_mm(axis_name), axis,
+                    useful_travel_mm=tuple(a.useful_travel_mm) if a.useful_travel_mm else None,
+                    settings=settings,
+                )
+            except MebmError as exc:
+                failures.append(f"{r.spec.file} (axis {axis_name}): {exc}")
+                continue
+            results.append({
+                "file": r.spec.file,
+                "feed_mm_min": r.spec.feed_mm_min,
+                "temperature_c": r.spec.temperature_c,
+                **({"utility_day": r.spec.utility_day} if r.spec.utility_day is not None else {}),
+                **res.to_dict(curves=a.curves),
+            })
+    if a.json:
+        print_json(results)
+    elif results:
+        print_table(
+            ["run", "axis", "b̄ (µm)", "b min (µm)", "b max (µm)", "e_p (µm)", "e_p (µm/1000mm)",
+             "v_u (µm)", "v_300 (µm)", "v_2π (µm)"],
+            [[x["file"], x["axis"], x["backlash_mean_um"], x["backlash_min_um"], x["backlash_max_um"],
+              x["e_p_um"], x["e_p_um_per_1000mm"], x["v_u_um"], x["v_300_um"], x["v_2pi_um"]] for x in results],
+        )
+        print("lead criteria of the positive stroke; --json gives both directions")
+    if skipped and not a.json:
+        print(f"skipped {len(skipped)} run(s) that are not round trips: {', '.join(skipped)}")
+    for f in failures:
+        print(f"mebm analyze: error: {f}", file=sys.stderr)
+    if failures:
+        return 1
+    if not results:
+        raise AnalysisFailed(f"dataset {a.dataset} has no round-trip run to analyse")
+    return 0

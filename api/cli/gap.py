@@ -1,0 +1,144 @@
+"""``mebm gap diagnose DATASET`` and ``mebm gap benchmark``: the sim-to-real gap diagnosis."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+from api.cli.output import _clean
+from core.gap import LABELS, CaseSize, diagnose, run_benchmark
+from core.gap.benchmark import SMALL
+from storage.dataset import read_dataset
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("gap", help="where and why the nominal model misses a machine (sim-to-real gap)")
+    gsub = p.add_subparsers(dest="gap_command", metavar="GAP_COMMAND")
+    gsub.required = True
+
+    d = gsub.add_parser("diagnose", help="diagnose the gap on a dataset's test runs")
+    d.add_argument("dataset", help="dataset folder (mebm-dataset/1) with round trips and/or circles/lines")
+    d.add_argument("--json", metavar="FILE", help="write the mebm-gap/1 JSON result to FILE ('-' for stdout)")
+    d.add_argument("--plots", metavar="DIR", help="write PNG plots of measured vs nominal vs corrected to DIR")
+    d.set_defaults(func=run_diagnose)
+
+    b = gsub.add_parser("benchmark", help="diagnose generated datasets whose effect is withheld, and score it")
+    b.add_argument("--cases", type=int, default=40, help="number of generated datasets (default 40)")
+    b.add_argument("--seed", type=int, default=2024, help="random seed (default 2024)")
+    b.add_argument("--json", metavar="FILE", help="write the per-case results and the summary to FILE")
+    b.add_argument("--small", action="store_true", help="small, fast datasets (for a smoke test)")
+    b.set_defaults(func=run_benchmark_cmd)
+
+
+def _write_json(obj, target: str) -> None:
+    text = json.dumps(_clean(obj), indent=2, ensure_ascii=False) + "\n"
+    if target == "-":
+        sys.stdout.write(text)
+    else:
+        Path(target).write_text(text, encoding="utf-8")
+
+
+def run_diagnose(a: argparse.Namespace) -> int:
+    ds = read_dataset(a.dataset)
+    report = diagnose(ds)
+    if a.json != "-":
+        print(report.text())
+    if a.json:
+        _write_json(report.to_dict(), a.json)
+    if a.plots:
+        files = write_plots(report, Path(a.plots))
+        if a.json != "-":
+            print(f"\nplots: {', '.join(str(f) for f in files)}")
+    return 0
+
+
+def write_plots(report, folder: Path) -> list[Path]:
+    """PNGs of the test residuals: nominal vs corrected by the diagnosed effect
+    (along the travel for round trips, versus angle for circles)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    folder.mkdir(parents=True, exist_ok=True)
+    out = []
+    label = report.effect if report.effect != "none" else "nominal (no effect named)"
+    for c in report.curves.get("round_trip", []):
+        fig, ax = plt.subplots(figsize=(9, 3.6))
+        ax.plot(c["u_mm"], c["nominal_um"], lw=0.5, label=f"measured - nominal (RMS {_rms(c['nominal_um']):.2f} µm)")
+        ax.plot(c["u_mm"], c["corrected_um"], lw=0.5, label=f"measured - {label} (RMS {_rms(c['corrected_um']):.2f} µm)")
+        ax.set_xlabel("nut travel k_a x_m (mm)")
+        ax.set_ylabel("table given motor: residual (µm)")
+        ax.set_title(f"{c['file']} (axis {c['axis']}, test run)")
+        ax.legend(loc="best", fontsize=8)
+        fig.tight_layout()
+        path = folder / f"gap_{Path(c['file']).stem}.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        out.append(path)
+    for c in report.curves.get("contour", []):
+        fig, ax = plt.subplots(figsize=(9, 3.6))
+        x = c["angle_deg"]
+        ax.plot(x, c["nominal_um"], ".", ms=1, label=f"measured - nominal (RMS {_rms(c['nominal_um']):.2f} µm)")
+        ax.plot(x, c["corrected_um"], ".", ms=1, label=f"measured - {label} (RMS {_rms(c['corrected_um']):.2f} µm)")
+        ax.set_xlabel("angle (deg)" if c["kind"] == "circle" else "distance along the line (mm)")
+        ax.set_ylabel("contour error residual (µm)")
+        if c["kind"] == "circle":
+            for q in (0, 90, 180, 270, 360):
+                ax.axvline(q, color="0.8", lw=0.5)
+        ax.set_title(f"{c['file']} ({c['kind']}, test run)")
+        ax.legend(loc="best", fontsize=8, markerscale=8)
+        fig.tight_layout()
+        path = folder / f"gap_{Path(c['file']).stem}.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        out.append(path)
+    return out
+
+
+def _rms(x) -> float:
+    import numpy as np
+
+    x = np.asarray(x)
+    return float(np.sqrt(np.mean(x**2))) if x.size else math.nan
+
+
+def run_benchmark_cmd(a: argparse.Namespace) -> int:
+    if a.cases < 1:
+        from core.errors import InputError
+
+        raise InputError(f"--cases (={a.cases}) must be >= 1")
+    size = SMALL if a.small else CaseSize()
+
+    def progress(c):
+        print(f"case {c.index + 1:3d}/{a.cases}: {c.label:17s} -> {c.diagnosed:17s} gap {c.gap_before_um:7.2f} -> "
+              f"{c.gap_after_um:6.2f} µm (noise {c.noise_floor_um:.2f}) {c.seconds:5.1f} s", flush=True)  # fmt: skip
+
+    res = run_benchmark(a.cases, a.seed, size, progress=progress)
+    print()
+    print(format_summary(res))
+    if a.json:
+        _write_json(res.to_dict(), a.json)
+    return 0
+
+
+def format_summary(res) -> str:
+    short = {"none": "none", "thermal": "therm", "backlash_profile": "b_prof", "cyclic_error": "cyclic",
+             "friction": "fric", "compliance": "compl", "servo_dynamics": "servo", "sampling_skew": "skew"}  # fmt: skip
+    conf = res.confusion()
+    lines = [f"confusion matrix (rows: injected, columns: diagnosed), {len(res.cases)} cases, seed {res.seed}:"]
+    head = "".ljust(17) + "".join(short[p].rjust(8) for p in LABELS)
+    lines.append(head)
+    for t in LABELS:
+        lines.append(t.ljust(17) + "".join(str(conf[t][p]).rjust(8) for p in LABELS))
+    n_ok = sum(c.label == c.diagnosed for c in res.cases)
+    lines.append("")
+    lines.append(f"named correctly: {n_ok}/{len(res.cases)} = {res.fraction_correct * 100:.1f} %")
+    n_none = sum(c.label == "none" for c in res.cases)
+    lines.append(f"none cases diagnosed as an effect: {res.false_effects_on_none} of {n_none}")
+    lines.append(f"median gap_after/gap_before on the effect cases: {res.median_ratio_effect_cases:.3f}")
+    lines.append(f"median diagnosis time per dataset: {res.median_seconds:.1f} s")
+    return "\n".join(lines)

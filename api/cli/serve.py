@@ -1,0 +1,105 @@
+"""``mebm serve [--config FILE]``: the REST API, the scheduler and (for axes whose
+controller is ``sim``, as in the embedded demo) the built-in simulated controller."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import socket
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+from api.service.config import load_settings
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("serve", help="run the service: REST API, scheduled measurements, simulated demo controller",
+                       description="Run the mebm service. Without --config: SQLite under ./data (MEBM_DATA_DIR), "
+                                   "the demo machine on a built-in simulated controller, demo keys printed.")
+    p.add_argument("--config", type=Path, help="TOML configuration file (docs/configuration.md)")
+    p.add_argument("--host", help="listen address (default 127.0.0.1; env MEBM_HOST)")
+    p.add_argument("--port", type=int, help="listen port, 0 for a free one (default 8000; env MEBM_PORT)")
+    p.add_argument("--data-dir", type=Path, help="data directory (default ./data; env MEBM_DATA_DIR)")
+    p.add_argument("--no-scheduler", action="store_true", help="serve the API only: no scheduled cycles")
+    p.set_defaults(func=_serve)
+
+
+def _bind(host: str, port: int) -> socket.socket:
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    # proto must be IPPROTO_TCP: asyncio only sets TCP_NODELAY on such sockets, and without
+    # it every response waits ~40 ms for a delayed ACK (Nagle) on keep-alive connections.
+    sock = socket.socket(family, socket.SOCK_STREAM, socket.IPPROTO_TCP)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, port))
+    except OSError as exc:
+        sock.close()
+        from core.errors import InputError
+
+        raise InputError(f"cannot listen on {host}:{port}: {exc.strerror} (try --port 0 for a free port)") from exc
+    sock.listen(2048)
+    sock.set_inheritable(True)
+    return sock
+
+
+def banner(settings, report, url: str) -> str:
+    lines = [f"mebm service on {url}  (API {url}/api/v1, OpenAPI docs {url}/docs)",
+             f"database: {report.database}"]
+    if report.replayed:
+        lines.append(f"stored {report.replayed} cycle(s) kept on disk during a database outage")
+    if report.interrupted:
+        lines.append(f"{report.interrupted} cycle(s) interrupted by the last stop were closed")
+    for axis_id, sim_url in report.simulators.items():
+        lines.append(f"axis {axis_id}: built-in simulated controller on {sim_url}")
+    if report.demo_keys:
+        k = report.demo_keys
+        lines += [
+            f"demo keys (kept in {Path(settings.data_dir) / 'demo-keys.json'}):",
+            f"  read (MES):  {k.get('read')}",
+            f"  operate:     {k.get('operate')}",
+            f"  admin:       {k.get('admin')}",
+            "try (the first measurement arrives within a minute):",
+            f"  curl -H 'X-API-Key: {k.get('read')}' {url}/api/v1/axes/1/status",
+            f"  curl -H 'X-API-Key: {k.get('read')}' '{url}/api/v1/alerts?state=active'",
+            f"  open {url}/api/v1/axes/1/plots/backlash_trend.png (with the key header) for Fig. 10",
+        ]
+    if report.bootstrap_admin:
+        lines.append(f"bootstrap admin key registered as {report.bootstrap_admin!r}")
+    return "\n".join(lines)
+
+
+def _serve(a: argparse.Namespace) -> int:
+    import uvicorn
+
+    from api.rest import create_app
+    from api.service.service import Service
+
+    settings = load_settings(a.config)
+    if a.host:
+        settings = replace(settings, host=a.host)
+    if a.port is not None:
+        settings = replace(settings, port=a.port)
+    if a.data_dir:
+        settings = replace(settings, data_dir=a.data_dir)
+    if a.no_scheduler:
+        settings = replace(settings, scheduler_enabled=False)
+    logging.basicConfig(level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.getLogger("apscheduler").setLevel(logging.WARNING)  # one line per job run is noise
+    sock = _bind(settings.host, settings.port)
+    port = sock.getsockname()[1]
+    service = Service(settings)
+    try:
+        report = service.start()
+        host = settings.host if settings.host not in ("0.0.0.0", "::") else "127.0.0.1"
+        url = f"http://{host}:{port}"
+        print(banner(settings, report, url), flush=True)
+        app = create_app(settings, service=service)
+        config = uvicorn.Config(app, log_level=settings.log_level, access_log=False, timeout_graceful_shutdown=10)
+        server = uvicorn.Server(config)
+        server.run(sockets=[sock])
+    finally:
+        service.stop()
+        sock.close()
+    sys.stdout.flush()
+    return 0

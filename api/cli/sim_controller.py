@@ -1,0 +1,144 @@
+"""``mebm sim-controller modbus|canopen``: a simulated controller whose axis is the digital twin.
+
+Runs until interrupted (or ``--duration-s``). Prints one line with the address to use
+as ``mebm measure --controller``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import sys
+import time
+
+import numpy as np
+
+from core.errors import InputError
+
+
+def _add_axis_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("simulated axis (the digital twin)")
+    g.add_argument("--axis", default="y", help="axis name (default y)")
+    g.add_argument("--backlash-um", type=float, default=120.0, help="backlash width b (µm), default 120")
+    g.add_argument("--transmission-mm-per-rev", type=float, default=6.857, help="k_a (mm/rev), default 6.857")
+    g.add_argument("--screw-lead-mm", type=float, default=16.0, help="ball-screw lead (mm), default 16")
+    g.add_argument("--position-gain-per-s", type=float, default=10.0, help="K = k_a k_p (1/s), default 10")
+    g.add_argument("--temperature-c", type=float, default=20.0, help="machine temperature (degC)")
+    g.add_argument("--effect", action="append", default=[], metavar="CATEGORY:key=value,...",
+                   help="a core.sim effect, e.g. cyclic_error:periods_mm=16,amplitudes_um=3 (repeatable)")
+    g.add_argument("--fault", action="append", default=[], metavar="KIND:key=value,...",
+                   help="inject a fault: stuck, jump, lost, emcy, drop, slow, exception, refuse "
+                        "(see acquisition.sim.faults), e.g. emcy:at=0.5,code=0x7305")
+    g.add_argument("--servo-rate-hz", type=float, default=1000.0, help="servo (latch) rate, default 1000")
+    g.add_argument("--counts-per-rev", type=int, default=131072, help="motor encoder counts/rev")
+    g.add_argument("--table-nm-per-count", type=int, default=10, help="linear encoder resolution (nm)")
+    g.add_argument("--seed", type=int, default=0, help="seed of the twin's encoder noise")
+    g.add_argument("--duration-s", type=float, default=None, help="stop after this many seconds (default: run until Ctrl-C)")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("sim-controller", help="run a simulated Modbus TCP controller or CANopen drive")
+    sp = p.add_subparsers(dest="protocol", metavar="PROTOCOL")
+    sp.required = True
+    m = sp.add_parser("modbus", help="simulated controller on Modbus TCP (register map mebm-modbus/1)")
+    m.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
+    m.add_argument("--port", type=int, default=5020, help="TCP port (0: a free one), default 5020")
+    m.add_argument("--time-scale", type=float, default=1.0, help="run the axis X times faster than real time")
+    m.add_argument("--ring-records", type=int, default=2000,
+                   help="trace buffer size in samples (20..10906), default 2000 (2 s at 1 kHz)")
+    _add_axis_options(m)
+    m.set_defaults(func=run)
+    c = sp.add_parser("canopen", help="simulated CiA 402 drive on a python-can bus (SYNC-clocked)")
+    c.add_argument("--interface", default="udp_multicast",
+                   help="python-can interface: udp_multicast (reachable from other processes, default) or virtual")
+    c.add_argument("--channel", default="239.74.163.2", help="python-can channel (default 239.74.163.2)")
+    c.add_argument("--node", type=int, default=5, help="CANopen node id (default 5)")
+    c.add_argument("--bus-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="python-can bus option, e.g. port=43114 for udp_multicast (repeatable)")
+    _add_axis_options(c)
+    c.set_defaults(func=run)
+
+
+def build_twin(a: argparse.Namespace):
+    from acquisition.sim.twin import CoreSimTwin
+    from core.sim import AxisModel, Effects, parse_effect
+
+    effects = {}
+    for text in a.effect:
+        cat, eff = parse_effect(text)
+        if cat in effects:
+            raise InputError(f"--effect {cat} given twice")
+        effects[cat] = eff
+    model = AxisModel(name=a.axis.lower(), transmission_mm_per_rev=a.transmission_mm_per_rev,
+                      screw_lead_mm=a.screw_lead_mm, position_gain_per_s=a.position_gain_per_s,
+                      backlash_um=a.backlash_um, effects=Effects(**effects))
+    twin = CoreSimTwin(model, temperature_c=a.temperature_c, rng=np.random.default_rng(a.seed))
+    twin.warm_up()
+    return twin
+
+
+def run(a: argparse.Namespace) -> int:
+    from acquisition.scale import EncoderScale
+    from acquisition.sim.faults import parse_fault
+
+    for name in ("pymodbus", "canopen", "can"):
+        logging.getLogger(name).setLevel(logging.CRITICAL)
+    faults = [parse_fault(f) for f in a.fault]
+    scale = EncoderScale(counts_per_rev=a.counts_per_rev, table_nm_per_count=a.table_nm_per_count)
+    twin = build_twin(a)
+    if a.protocol == "modbus":
+        return asyncio.run(_serve_modbus(a, twin, scale, faults))
+    return _serve_canopen(a, twin, scale, faults)
+
+
+async def _serve_modbus(a, twin, scale, faults) -> int:
+    from acquisition.sim.axis import SimAxis
+    from acquisition.sim.modbus_server import SimModbusController
+
+    if not 20 <= a.ring_records <= (65536 - 100) // 6:
+        raise InputError(f"--ring-records (={a.ring_records}) must be in 20..{(65536 - 100) // 6}")
+    axis = SimAxis(twin, servo_rate_hz=a.servo_rate_hz, time_scale=a.time_scale, scale=scale, faults=faults,
+                   ring_records=a.ring_records)
+    sim = SimModbusController(axis, host=a.host, port=a.port)
+    try:
+        port = await sim.start()
+    except OSError as exc:
+        raise InputError(f"cannot listen on {a.host}:{a.port}: {exc.strerror or exc}") from exc
+    print(f"simulated controller listening on modbus://{a.host}:{port} "
+          f"(axis {a.axis}, b = {a.backlash_um:g} µm, time scale {a.time_scale:g})", flush=True)
+    try:
+        if a.duration_s is not None:
+            await asyncio.sleep(a.duration_s)
+        else:
+            await asyncio.Event().wait()
+    finally:
+        await sim.stop()
+    return 0
+
+
+def _serve_canopen(a, twin, scale, faults) -> int:
+    from acquisition.sim.canopen_drive import SimCanopenDrive
+
+    bus_kwargs = {}
+    for opt in a.bus_option:
+        key, eq, val = opt.partition("=")
+        if not eq:
+            raise InputError(f"--bus-option {opt!r} must be KEY=VALUE")
+        bus_kwargs[key.strip()] = int(val) if val.strip().lstrip("-").isdigit() else val.strip()
+    drive = SimCanopenDrive(twin, node_id=a.node, channel=a.channel, interface=a.interface,
+                            servo_rate_hz=a.servo_rate_hz, scale=scale, faults=faults, bus_kwargs=bus_kwargs)
+    try:
+        drive.start()
+    except Exception as exc:  # noqa: BLE001 - python-can raises many kinds on a bad interface
+        raise InputError(f"cannot open CAN interface {a.interface!r} channel {a.channel!r}: {exc}") from exc
+    print(f"simulated drive on canopen://{a.interface}/{a.channel}?node={a.node} "
+          f"(axis {a.axis}, b = {a.backlash_um:g} µm)", flush=True)
+    try:
+        deadline = time.monotonic() + (a.duration_s if a.duration_s is not None else float("inf"))
+        while time.monotonic() < deadline:
+            time.sleep(min(0.5, max(deadline - time.monotonic(), 0.0)))
+    finally:
+        drive.stop()
+    sys.stdout.flush()
+    return 0

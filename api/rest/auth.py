@@ -1,0 +1,86 @@
+"""API keys: ``X-API-Key: <key>`` (or ``Authorization: Bearer <key>``), roles
+read < operate < admin. Keys are looked up by their SHA-256; a verified key is cached
+for a few seconds so a busy MES does not cost a database round trip per request."""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Annotated
+
+from fastapi import Depends, Request, Security
+from fastapi.concurrency import run_in_threadpool
+from fastapi.security import APIKeyHeader
+
+from api.rest.errors import AuthError, ForbiddenError
+from storage.db import KeyRecord, config_repo, session_scope
+
+ROLE_RANK = {"read": 0, "operate": 1, "admin": 2}
+api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False,
+                              description="An access key (`mebm keys create --role read|operate|admin`).")
+
+
+class KeyCache:
+    def __init__(self, ttl_s: float = 5.0):
+        self.ttl_s = ttl_s
+        self._d: dict[str, tuple[float, KeyRecord | None]] = {}
+        self._lock = threading.Lock()
+
+    def cached(self, secret: str) -> tuple[bool, KeyRecord | None]:
+        hit = self._d.get(secret)
+        if hit is not None and time.monotonic() - hit[0] < self.ttl_s:
+            return True, hit[1]
+        return False, None
+
+    def lookup(self, factory, secret: str) -> KeyRecord | None:
+        now = time.monotonic()
+        found, rec = self.cached(secret)
+        if found:
+            return rec
+        with session_scope(factory) as s:
+            rec = config_repo.authenticate(s, secret)
+        with self._lock:
+            if len(self._d) > 10000:
+                self._d.clear()
+            self._d[secret] = (now, rec)
+        return rec
+
+    def clear(self) -> None:
+        with self._lock:
+            self._d.clear()
+
+
+async def current_key(request: Request, header_key: Annotated[str | None, Security(api_key_header)]) -> KeyRecord:
+    """The caller's key. Async with a cache fast path: a busy MES costs no thread hop
+    and no database round trip per request; a miss looks the key up in a worker thread."""
+    secret = header_key
+    if not secret:
+        auth = request.headers.get("authorization", "")
+        if auth.lower().startswith("bearer "):
+            secret = auth[7:].strip()
+    if not secret:
+        raise AuthError("an access key is required: send it in the X-API-Key header")
+    state = request.app.state
+    found, rec = state.key_cache.cached(secret)
+    if not found:
+        rec = await run_in_threadpool(state.key_cache.lookup, state.service.factory, secret)
+    if rec is None:
+        raise AuthError("unknown or revoked access key")
+    return rec
+
+
+def require(role: str):
+    """A dependency that admits keys of ``role`` or higher."""
+
+    async def check(key: Annotated[KeyRecord, Depends(current_key)]) -> KeyRecord:
+        if ROLE_RANK[key.role] < ROLE_RANK[role]:
+            raise ForbiddenError(f"key {key.name!r} has role {key.role!r}; this needs {role!r}")
+        return key
+
+    check.__name__ = f"require_{role}"
+    return check
+
+
+ReadKey = Annotated[KeyRecord, Depends(require("read"))]
+OperateKey = Annotated[KeyRecord, Depends(require("operate"))]
+AdminKey = Annotated[KeyRecord, Depends(require("admin"))]

@@ -1,0 +1,169 @@
+"""Records and core types -> response schemas."""
+
+from __future__ import annotations
+
+import math
+from datetime import datetime
+
+import numpy as np
+
+from api.rest import schemas as sc
+from api.service.status import AxisStatus
+from core.history import TemperatureModel, correlation_table
+from core.errors import MebmError
+from storage.db import AlertRecord, AxisRecord, CycleRecord, KeyRecord, MachineRecord, ResultRecord, TrendSeries
+
+
+def machine(m: MachineRecord) -> sc.MachineOut:
+    return sc.MachineOut(id=m.id, name=m.name, description=m.description, axis_ids=list(m.axis_ids))
+
+
+def task(t) -> sc.TaskOut:
+    try:
+        limit = t.backlash_limit_um()
+    except MebmError:
+        limit = None
+    return sc.TaskOut(name=t.name, profile=t.profile, feed_mm_min=t.feed_mm_min, tolerance_um=t.tolerance_um,
+                      gain_per_s=t.gain_per_s, radius_mm=t.radius_mm, angle_deg=t.angle_deg,
+                      backlash_limit_um=sc.fin(limit))
+
+
+def axis(a: AxisRecord, next_run: datetime | None = None) -> sc.AxisOut:
+    st = a.settings
+    return sc.AxisOut(
+        id=a.id, machine_id=a.machine_id, machine_name=a.machine_name, name=a.name,
+        transmission_mm_per_rev=st.spec.transmission_mm_per_rev, screw_lead_mm=st.spec.screw_lead_mm,
+        position_gain_per_s=st.spec.position_gain_per_s, travel_mm=st.spec.travel_mm,
+        controller_url=st.controller_url, measure_feed_mm_min=st.measure_feed_mm_min,
+        measure_acceleration_mm_s2=st.measure_acceleration_mm_s2, warning_fraction=st.warning_fraction,
+        schedule=sc.ScheduleOut(interval_s=st.schedule.interval_s, cron=st.schedule.cron,
+                                enabled=st.schedule.enabled, next_run_at=next_run),
+        tasks=[task(t) for t in st.tasks],
+    )
+
+
+def status(s: AxisStatus, now: datetime, next_run: datetime | None) -> sc.AxisStatusOut:
+    a, latest, d = s.axis, s.latest, s.decision
+    tasks = []
+    if d is not None:
+        for x in d.assessments:
+            tasks.append(sc.TaskStatus(
+                name=x.task.name, profile=x.task.profile, tolerance_um=x.task.tolerance_um,
+                warning_threshold_um=d.warning_fraction * x.task.tolerance_um, tbe_um=x.tbe_um,
+                backlash_limit_um=sc.fin(x.backlash_limit_um), state=x.state.value, utilisation=x.utilisation,
+            ))
+    b = latest.round_trip.backlash.mean_um if latest else None
+    limit = sc.fin(d.backlash_limit_um) if d else None
+    if latest is None:
+        state, message = "UNKNOWN", "no good measurement yet"
+        if s.last_failure_reason:
+            message += f"; last cycle failed: {s.last_failure_reason}"
+    elif d is None and s.decision_error:
+        state, message = "UNKNOWN", f"mean backlash {b:.1f} µm; the TBE model cannot evaluate it: {s.decision_error}"
+    elif d is None:
+        state, message = "UNKNOWN", f"mean backlash {b:.1f} µm; no machining task configured (PUT /axes/{a.id}/tasks)"
+    else:
+        state, message = d.state.value, d.message()
+    return sc.AxisStatusOut(
+        axis_id=a.id, machine_id=a.machine_id, machine_name=a.machine_name, axis_name=a.name, state=state,
+        message=message, measurement_id=latest.cycle_id if latest else None,
+        measured_at=latest.measured_at if latest else None,
+        age_s=(now - latest.measured_at).total_seconds() if latest else None,
+        temperature_c=latest.temperature_c if latest else None, utility_day=latest.utility_day if latest else None,
+        backlash_mean_um=b, backlash_mean_20c_um=sc.fin(s.backlash_mean_20c_um),
+        thermal_beta_um_per_k=sc.fin(s.thermal_beta_um_per_k), uncertainty_um=latest.uncertainty_um if latest else None,
+        backlash_limit_um=limit,
+        backlash_reduction_needed_um=max(b - limit, 0.0) if (b is not None and limit is not None) else None,
+        binding_task=d.binding_task if d else None, tasks=tasks, active_alert_id=s.active_alert_id,
+        last_cycle_status=s.last_cycle_status, last_cycle_at=s.last_cycle_at,
+        last_failure_reason=s.last_failure_reason, next_run_at=next_run,
+    )
+
+
+def summary(c: CycleRecord) -> sc.MeasurementSummary:
+    return sc.MeasurementSummary(
+        id=c.id, axis_id=c.axis_id, status=c.status, trigger=c.trigger, requested_by=c.requested_by,
+        requested_at=c.requested_at, started_at=c.started_at, finished_at=c.finished_at,
+        failure_reason=c.failure_reason, temperature_c=c.temperature_c, utility_day=c.utility_day,
+        uncertainty_um=c.uncertainty_um, backlash_mean_um=c.backlash_mean_um, state=c.state,
+    )
+
+
+def _list(a) -> list[float]:
+    return [float(v) for v in np.asarray(a, dtype=float)]
+
+
+def detail(c: CycleRecord, r: ResultRecord | None, curves: bool) -> sc.MeasurementDetail:
+    base = summary(c).model_dump()
+    if r is None:
+        return sc.MeasurementDetail(**base, result=None, curves=None)
+    rt = r.round_trip
+    lead = {d: sc.LeadOut(direction=d, e_p_um=lc.e_p_um, e_p_um_per_1000mm=lc.e_p_um_per_1000mm, v_u_um=lc.v_u_um,
+                          v_300_um=lc.v_300_um, v_2pi_um=lc.v_2pi_um, n_strokes=lc.n_strokes)
+            for d, lc in rt.strokes.items()}
+    tbe = [sc.TbeOut(task_name=t.task.name, profile=t.task.profile, tolerance_um=t.task.tolerance_um, tbe_um=t.tbe_um,
+                     backlash_limit_um=sc.fin(t.backlash_limit_um), state=t.state) for t in r.tbe]
+    result = sc.ResultOut(
+        backlash_mean_um=rt.backlash.mean_um, backlash_min_um=rt.backlash.min_um, backlash_max_um=rt.backlash.max_um,
+        backlash_std_um=rt.backlash.std_um, useful_travel_mm=rt.useful_travel_mm, n_samples=rt.n_samples,
+        peak_speed_mm_min=rt.peak_speed_mm_min, lead=lead, tbe=tbe, state=r.state, binding_task=r.binding_task,
+        backlash_limit_um=sc.fin(r.backlash_limit_um), message=r.message, run_file=c.run_file,
+    )
+    cv = None
+    if curves and rt.backlash.position_mm.size:
+        p, n = rt.strokes["positive"], rt.strokes["negative"]
+        cv = sc.CurvesOut(
+            position_mm=_list(rt.backlash.position_mm), backlash_um=_list(rt.backlash.backlash_um),
+            positive_travel_deviation_um=_list(p.travel_deviation_um),
+            negative_travel_deviation_um=_list(n.travel_deviation_um),
+            positive_mean_travel_deviation_um=_list(p.mean_travel_deviation_um),
+            negative_mean_travel_deviation_um=_list(n.mean_travel_deviation_um),
+        )
+    return sc.MeasurementDetail(**base, result=result, curves=cv)
+
+
+CRITERIA = ("backlash_mean_um", "e_p_um_per_1000mm", "v_u_um", "v_300_um", "v_2pi_um")
+
+
+def trend(axis_id: int, t: TrendSeries) -> sc.TrendOut:
+    series = sc.TrendSeriesOut(
+        measurement_id=list(t.measurement_id), measured_at=list(t.measured_at), temperature_c=list(t.temperature_c),
+        utility_day=list(t.utility_day), backlash_mean_um=list(t.backlash_mean_um),
+        e_p_um_per_1000mm=list(t.e_p_um_per_1000mm), v_u_um=list(t.v_u_um), v_300_um=list(t.v_300_um),
+        v_2pi_um=list(t.v_2pi_um),
+    )
+    corr: dict[str, dict[str, float | None]] = {c: {} for c in CRITERIA}
+    for driver in ("temperature_c", "utility_day"):
+        x = getattr(t, driver)
+        keep = [i for i, v in enumerate(x) if v is not None and math.isfinite(v)]
+        against = {driver: np.asarray([x[i] for i in keep], dtype=float)}
+        crit = {c: np.asarray([getattr(t, c)[i] for i in keep], dtype=float) for c in CRITERIA}
+        for c, row in correlation_table(crit, against).items():
+            corr[c][driver] = sc.fin(row[driver])
+    model = None
+    keep = [i for i, v in enumerate(t.temperature_c) if v is not None]
+    temps = np.asarray([t.temperature_c[i] for i in keep], dtype=float)
+    if temps.size >= 3 and np.ptp(temps) >= 1.0:
+        try:
+            m = TemperatureModel().fit(temps, np.asarray([t.backlash_mean_um[i] for i in keep], dtype=float))
+            model = sc.ThermalModelOut(backlash_20c_um=m.backlash_ref_um_, beta_um_per_k=m.beta_um_per_k_,
+                                       r=sc.fin(m.r_), n=m.n_)
+        except MebmError:
+            model = None
+    return sc.TrendOut(axis_id=axis_id, points=len(t.measurement_id), series=series, correlation=corr,
+                       thermal_model=model)
+
+
+def alert(a: AlertRecord) -> sc.AlertOut:
+    return sc.AlertOut(
+        id=a.id, axis_id=a.axis_id, kind=a.kind, active=a.active, raised_at=a.raised_at, cleared_at=a.cleared_at,
+        acknowledged_at=a.acknowledged_at, acknowledged_by=a.acknowledged_by,
+        raised_by_measurement_id=a.raised_by_measurement_id, cleared_by_measurement_id=a.cleared_by_measurement_id,
+        task_name=a.task_name, tbe_um=a.tbe_um, tolerance_um=a.tolerance_um, backlash_um=a.backlash_um,
+        backlash_limit_um=a.backlash_limit_um, message=a.message,
+    )
+
+
+def key(k: KeyRecord) -> sc.KeyOut:
+    return sc.KeyOut(id=k.id, name=k.name, role=k.role, key_prefix=k.key_prefix, created_at=k.created_at,
+                     revoked_at=k.revoked_at)

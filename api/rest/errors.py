@@ -1,0 +1,83 @@
+"""The one place errors become HTTP status codes.
+
+422 bad input (the message names the field), 404 unknown id, 409 conflict,
+401/403 keys, 503 database down. Anything else is logged and answered 500 without
+internals.
+"""
+
+from __future__ import annotations
+
+import logging
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+
+from core.errors import InputError, MebmError
+from storage.db import ConflictError, DatabaseUnavailableError, NotFoundError, StorageError
+
+log = logging.getLogger("mebm.api")
+
+
+class AuthError(MebmError):
+    """401: no key, or a key that is not (or no longer) valid."""
+
+    status_code = 401
+
+
+class ForbiddenError(MebmError):
+    """403: a valid key whose role does not allow the action."""
+
+    status_code = 403
+
+
+def _body(status: int, message: str, **extra) -> JSONResponse:
+    headers = {"WWW-Authenticate": "ApiKey"} if status == 401 else None
+    return JSONResponse({"detail": message, **extra}, status_code=status, headers=headers)
+
+
+def _field(loc) -> str:
+    parts = [str(p) for p in loc if p not in ("body", "query", "path", "header")]
+    return ".".join(parts) or ".".join(str(p) for p in loc)
+
+
+def install(app: FastAPI) -> None:
+    @app.exception_handler(RequestValidationError)
+    async def _validation(_req: Request, exc: RequestValidationError):
+        errors = [{"field": _field(e.get("loc", ())), "message": e.get("msg", "invalid")} for e in exc.errors()]
+        msg = "; ".join(f"{e['field']}: {e['message']}" for e in errors) or "invalid request"
+        return _body(422, msg, errors=errors)
+
+    @app.exception_handler(AuthError)
+    async def _auth(_req, exc):
+        return _body(401, str(exc))
+
+    @app.exception_handler(ForbiddenError)
+    async def _forbidden(_req, exc):
+        return _body(403, str(exc))
+
+    @app.exception_handler(NotFoundError)
+    async def _not_found(_req, exc):
+        return _body(404, str(exc))
+
+    @app.exception_handler(ConflictError)
+    async def _conflict(_req, exc):
+        return _body(409, str(exc))
+
+    @app.exception_handler(DatabaseUnavailableError)
+    async def _db_down(_req, exc):
+        return _body(503, f"database unavailable, retry later: {exc}")
+
+    @app.exception_handler(InputError)
+    async def _input(_req, exc):
+        return _body(422, str(exc))
+
+    @app.exception_handler(StorageError)
+    async def _storage(_req, exc):
+        log.error("storage error: %s", exc)
+        return _body(500, "internal storage error")
+
+    @app.exception_handler(MebmError)
+    async def _mebm(_req, exc):
+        log.error("unexpected error: %s", exc)
+        return _body(500, f"{type(exc).__name__}: {exc}")

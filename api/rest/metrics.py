@@ -1,0 +1,66 @@
+"""Prometheus metrics, computed from the database at scrape time (they survive restarts
+and agree with what the API reports). One registry per app, no global state."""
+
+from __future__ import annotations
+
+from prometheus_client import CollectorRegistry, generate_latest
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
+
+from storage.db import StorageError, results_repo, session_scope
+
+
+class ServiceCollector:
+    def __init__(self, service):
+        self.service = service
+
+    def collect(self):
+        up = GaugeMetricFamily("mebm_database_up", "1 when the database answers")
+        try:
+            with session_scope(self.service.factory) as s:
+                snap = results_repo.metrics_snapshot(s)
+            up.add_metric([], 1.0)
+        except StorageError:
+            up.add_metric([], 0.0)
+            yield up
+            return
+        yield up
+        cycles = CounterMetricFamily("mebm_cycles", "Measurement cycles by axis and final status",
+                                     labels=["axis_id", "status"])
+        failed = CounterMetricFamily("mebm_cycles_failed", "Cycles that failed or were interrupted",
+                                     labels=["axis_id"])
+        per_axis_failed: dict[int, int] = {}
+        for (axis_id, status), n in sorted(snap["cycles"].items()):
+            cycles.add_metric([str(axis_id), status], float(n))
+            if status in ("failed", "interrupted"):
+                per_axis_failed[axis_id] = per_axis_failed.get(axis_id, 0) + n
+        for axis_id, n in sorted(per_axis_failed.items()):
+            failed.add_metric([str(axis_id)], float(n))
+        yield cycles
+        yield failed
+        last = GaugeMetricFamily("mebm_last_success_timestamp_seconds",
+                                 "Unix time of the last good measurement per axis", labels=["axis_id"])
+        for axis_id, t in sorted(snap["last_success"].items()):
+            last.add_metric([str(axis_id)], t.timestamp())
+        yield last
+        alerts = GaugeMetricFamily("mebm_active_alerts", "Active (not cleared) alerts", labels=["axis_id"])
+        total = 0
+        for axis_id, n in sorted(snap["active_alerts"].items()):
+            alerts.add_metric([str(axis_id)], float(n))
+            total += n
+        yield alerts
+        tot = GaugeMetricFamily("mebm_active_alerts_total", "Active alerts over all axes")
+        tot.add_metric([], float(total))
+        yield tot
+        spooled = GaugeMetricFamily("mebm_spooled_cycles", "Cycles kept on disk waiting for the database")
+        spooled.add_metric([], float(len(self.service.executor.pending())))
+        yield spooled
+
+
+def make_registry(service) -> CollectorRegistry:
+    reg = CollectorRegistry(auto_describe=False)
+    reg.register(ServiceCollector(service))
+    return reg
+
+
+def render(registry: CollectorRegistry) -> bytes:
+    return generate_latest(registry)

@@ -1,0 +1,114 @@
+"""/axes/{id}: configuration, current status, machining tasks, schedule, cycles, trend."""
+
+from __future__ import annotations
+
+from datetime import datetime, timezone
+from typing import Annotated
+
+from fastapi import APIRouter, Query, Request, Response, status
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import JSONResponse
+
+from api.rest import convert, schemas as sc
+from api.rest.auth import AdminKey, OperateKey, ReadKey
+from api.rest.deps import AxisId, ServiceDep, SessionDep
+from api.rest.routers.machines import tasks_from
+from api.service.scheduler import make_trigger
+from storage.db import CycleRecord, Schedule, config_repo, results_repo, utcnow
+
+router = APIRouter(tags=["axes"])
+
+Since = Annotated[datetime | None, Query(description="from this time (ISO 8601; UTC if no offset)")]
+Until = Annotated[datetime | None, Query(description="up to this time (ISO 8601; UTC if no offset)")]
+
+
+def utc(t: datetime | None) -> datetime | None:
+    if t is None:
+        return None
+    return t.replace(tzinfo=timezone.utc) if t.tzinfo is None else t.astimezone(timezone.utc)
+
+
+@router.get("/axes/{axis_id}", response_model=sc.AxisOut, summary="An axis and its configuration")
+def get_axis(axis_id: AxisId, s: SessionDep, svc: ServiceDep, _k: ReadKey):
+    return convert.axis(config_repo.get_axis(s, axis_id), svc.scheduler.next_run(axis_id))
+
+
+@router.get("/axes/{axis_id}/status", response_model=sc.AxisStatusOut,
+            summary="Current TBE per task, backlash (also at 20 °C), limit, state and age of the last measurement")
+async def axis_status(axis_id: AxisId, svc: ServiceDep, _k: ReadKey, request: Request):
+    # The endpoint an MES polls: async with a cache fast path (no thread hop). A status
+    # older than the cache TTL (30 s) but not invalidated by a new cycle is served while one
+    # background thread recomputes it, so pollers never queue behind the recomputation.
+    st = svc.status.fresh(axis_id)
+    if st is None:
+        st = svc.status.stale(axis_id)
+        if st is not None:
+            svc.status.refresh_in_background(axis_id)
+        else:
+            st = await run_in_threadpool(svc.status.get, axis_id)
+    # The validated body is built once per computed status; per request only the age of
+    # the measurement and the next run change (this endpoint is what an MES polls).
+    memos = request.app.state.status_json
+    memo = memos.get(axis_id)
+    if memo is None or memo[0] is not st:
+        body = convert.status(st, utcnow(), None).model_dump(mode="json")
+        memo = memos[axis_id] = (st, body)
+    body = dict(memo[1])
+    now = utcnow()
+    latest = st.latest
+    body["age_s"] = (now - latest.measured_at).total_seconds() if latest is not None else None
+    nxt = svc.scheduler.next_run(axis_id)
+    body["next_run_at"] = nxt.isoformat().replace("+00:00", "Z") if nxt is not None else None
+    return JSONResponse(body)
+
+
+
+@router.put("/axes/{axis_id}/tasks", response_model=sc.AxisOut, summary="Replace the machining tasks (admin)")
+def put_tasks(axis_id: AxisId, body: sc.TasksIn, s: SessionDep, svc: ServiceDep, _k: AdminKey):
+    axis = config_repo.get_axis(s, axis_id)
+    a = config_repo.set_tasks(s, axis_id, tasks_from(body.tasks, axis.spec.position_gain_per_s))
+    s.commit()
+    svc.axis_changed(a)
+    return convert.axis(a, svc.scheduler.next_run(axis_id))
+
+
+@router.put("/axes/{axis_id}/schedule", response_model=sc.AxisOut, summary="Set the measurement schedule (admin)")
+def put_schedule(axis_id: AxisId, body: sc.ScheduleIn, s: SessionDep, svc: ServiceDep, _k: AdminKey):
+    sch = Schedule(body.interval_s, body.cron, body.enabled)
+    if sch.cron is not None:
+        make_trigger(sch)
+    a = config_repo.set_schedule(s, axis_id, sch)
+    s.commit()
+    svc.axis_changed(a)
+    return convert.axis(a, svc.scheduler.next_run(axis_id))
+
+
+@router.post("/axes/{axis_id}/measurements", response_model=sc.TriggerOut, status_code=status.HTTP_202_ACCEPTED,
+             summary="Trigger a measurement cycle (operate: the axis will move)")
+def trigger(axis_id: AxisId, svc: ServiceDep, key: OperateKey, response: Response):
+    rec = svc.trigger(axis_id, key.name)
+    stored = rec if isinstance(rec, CycleRecord) else None
+    if stored is not None:
+        response.headers["Location"] = f"/api/v1/measurements/{stored.id}"
+    return sc.TriggerOut(
+        measurement=convert.summary(stored) if stored else None, uuid=rec.uuid, queued=True,
+        detail="queued; it runs after any cycle of this axis already running",
+    )
+
+
+@router.get("/axes/{axis_id}/measurements", response_model=sc.MeasurementPage,
+            summary="Measurement cycles of an axis, newest first")
+def list_measurements(
+    axis_id: AxisId, s: SessionDep, _k: ReadKey, since: Since = None, until: Until = None,
+    status_: Annotated[str | None, Query(alias="status", pattern="^(queued|running|ok|failed|interrupted|cancelled)$")] = None,
+    limit: Annotated[int, Query(ge=1, le=500)] = 50, offset: Annotated[int, Query(ge=0, le=10**7)] = 0,
+):
+    total, rows = results_repo.list_measurements(s, axis_id, since=utc(since), until=utc(until), status=status_,
+                                                 limit=limit, offset=offset)
+    return sc.MeasurementPage(items=[convert.summary(c) for c in rows], total=total, limit=limit, offset=offset)
+
+
+@router.get("/axes/{axis_id}/trend", response_model=sc.TrendOut,
+            summary="b̄, e_p, v_u, v_300, v_2pi over time with temperature, utility day and Pearson r (Section 3)")
+def trend(axis_id: AxisId, s: SessionDep, _k: ReadKey, since: Since = None, until: Until = None):
+    return convert.trend(axis_id, results_repo.trend(s, axis_id, since=utc(since), until=utc(until)))

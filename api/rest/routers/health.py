@@ -1,0 +1,32 @@
+"""/healthz (no key: for load balancers and container health checks) and /metrics."""
+
+from __future__ import annotations
+
+import time
+
+from fastapi import APIRouter, Request, Response
+from fastapi.responses import JSONResponse
+from prometheus_client import CONTENT_TYPE_LATEST
+
+from api.rest import metrics, schemas as sc
+from api.rest.auth import ReadKey
+from api.rest.deps import ServiceDep
+
+router = APIRouter(tags=["health"])
+VERSION = "0.1.0"
+
+
+@router.get("/healthz", response_model=sc.Health, responses={503: {"model": sc.Health}},
+            summary="Liveness and database reachability (no key needed)")
+def healthz(svc: ServiceDep):
+    ok = svc.db_ok()
+    body = sc.Health(status="ok" if ok else "degraded", database="ok" if ok else "unavailable", version=VERSION,
+                     uptime_s=time.time() - svc.started_at, spooled_cycles=len(svc.executor.pending()))
+    return JSONResponse(body.model_dump(), status_code=200 if ok else 503)
+
+
+@router.get("/metrics", response_class=Response,
+            responses={200: {"content": {"text/plain": {}}, "description": "Prometheus text format"}},
+            summary="Prometheus metrics (read key; Prometheus sends it as a bearer token)")
+def prometheus(request: Request, _k: ReadKey):
+    return Response(metrics.render(request.app.state.metrics), media_type=CONTENT_TYPE_LATEST)

@@ -1,0 +1,354 @@
+"""Pydantic schemas of the REST API (separate from the ORM models). Units in every name."""
+
+from __future__ import annotations
+
+import math
+from datetime import datetime
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+Finite = dict(allow_inf_nan=False)
+
+
+def fin(x: float | None) -> float | None:
+    """JSON has no infinity: an unbounded limit is null."""
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+class In(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+# -- machines and axes ---------------------------------------------------------------------------
+class MachineIn(In):
+    name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9][A-Za-z0-9 ._-]*$")
+    description: str = Field("", max_length=2000)
+
+
+class MachineOut(BaseModel):
+    id: int
+    name: str
+    description: str
+    axis_ids: list[int]
+
+
+class TaskIn(In):
+    """A machining task. ``circle`` needs ``radius_mm``; ``line`` needs ``angle_deg``
+    (to the reversely engaged axis, -90..90)."""
+
+    name: str = Field(min_length=1, max_length=100)
+    profile: Literal["circle", "line"]
+    feed_mm_min: float = Field(ge=0.1, le=100000)
+    tolerance_um: float = Field(ge=0.01, le=10000)
+    radius_mm: float | None = Field(None, ge=0.01, le=100000)
+    angle_deg: float | None = Field(None, gt=-90, lt=90)
+
+    @model_validator(mode="after")
+    def _shape(self):
+        if self.profile == "circle" and self.radius_mm is None:
+            raise ValueError("radius_mm is required for a circle task")
+        if self.profile == "line" and self.angle_deg is None:
+            raise ValueError("angle_deg is required for a line task")
+        return self
+
+
+class TasksIn(In):
+    tasks: list[TaskIn] = Field(min_length=1, max_length=50)
+
+
+class TaskOut(BaseModel):
+    name: str
+    profile: str
+    feed_mm_min: float
+    tolerance_um: float
+    gain_per_s: float
+    radius_mm: float | None
+    angle_deg: float | None
+    backlash_limit_um: float | None = Field(description="largest permissible mean backlash; null: no limit")
+
+
+class ScheduleIn(In):
+    """Every ``interval_s`` seconds or on a 5-field cron expression (UTC); not both.
+    Neither (or ``enabled: false``): manual cycles only."""
+
+    interval_s: float | None = Field(None, ge=1, le=1e8)
+    cron: str | None = Field(None, min_length=9, max_length=120)
+    enabled: bool = True
+
+    @model_validator(mode="after")
+    def _one(self):
+        if self.interval_s is not None and self.cron is not None:
+            raise ValueError("give interval_s or cron, not both")
+        return self
+
+
+class ScheduleOut(BaseModel):
+    interval_s: float | None
+    cron: str | None
+    enabled: bool
+    next_run_at: datetime | None
+
+
+class AxisIn(In):
+    name: str = Field(min_length=1, max_length=20, pattern=r"^[a-z][a-z0-9_]*$")
+    transmission_mm_per_rev: float = Field(ge=0.001, le=10000)
+    screw_lead_mm: float = Field(ge=0.001, le=10000)
+    position_gain_per_s: float = Field(ge=0.01, le=10000)
+    travel_mm: tuple[float, float]
+    controller_url: str = Field(min_length=3, max_length=300, pattern=r"^(sim|modbus://.+|canopen://.+)$")
+    measure_feed_mm_min: float = Field(2000.0, ge=0.1, le=100000)
+    measure_acceleration_mm_s2: float = Field(500.0, ge=0.1, le=100000)
+    warning_fraction: float = Field(0.9, ge=0.01, le=1)
+    schedule: ScheduleIn = Field(default_factory=ScheduleIn)
+    tasks: list[TaskIn] = Field(default_factory=list, max_length=50)
+
+    @model_validator(mode="after")
+    def _travel(self):
+        a, b = self.travel_mm
+        if not (abs(a) < 1e6 and abs(b) < 1e6 and b - a >= 10):
+            raise ValueError("travel_mm must be [start, end] with end - start >= 10 mm (|values| < 1e6)")
+        return self
+
+
+class AxisOut(BaseModel):
+    id: int
+    machine_id: int
+    machine_name: str
+    name: str
+    transmission_mm_per_rev: float
+    screw_lead_mm: float
+    position_gain_per_s: float
+    travel_mm: tuple[float, float]
+    controller_url: str
+    measure_feed_mm_min: float
+    measure_acceleration_mm_s2: float
+    warning_fraction: float
+    schedule: ScheduleOut
+    tasks: list[TaskOut]
+
+
+# -- status ----------------------------------------------------------------------------------------
+class TaskStatus(BaseModel):
+    name: str
+    profile: str
+    tolerance_um: float
+    warning_threshold_um: float
+    tbe_um: float
+    backlash_limit_um: float | None
+    state: Literal["OK", "WARNING", "ALARM"]
+    utilisation: float = Field(description="TBE / tolerance")
+
+
+class AxisStatusOut(BaseModel):
+    axis_id: int
+    machine_id: int
+    machine_name: str
+    axis_name: str
+    state: Literal["OK", "WARNING", "ALARM", "UNKNOWN"]
+    message: str
+    measurement_id: int | None
+    measured_at: datetime | None
+    age_s: float | None = Field(description="age of the last good measurement, seconds")
+    temperature_c: float | None
+    utility_day: float | None
+    backlash_mean_um: float | None
+    backlash_mean_20c_um: float | None = Field(description="b̄ normalised to 20 °C with the axis' thermal model")
+    thermal_beta_um_per_k: float | None
+    uncertainty_um: float | None
+    backlash_limit_um: float | None
+    backlash_reduction_needed_um: float | None = Field(
+        description="how much the mean backlash must be reduced to get below the limit (0 when below)")
+    binding_task: str | None
+    tasks: list[TaskStatus]
+    active_alert_id: int | None
+    last_cycle_status: str | None
+    last_cycle_at: datetime | None
+    last_failure_reason: str | None
+    next_run_at: datetime | None
+
+
+# -- measurements ------------------------------------------------------------------------------------
+class MeasurementSummary(BaseModel):
+    id: int
+    axis_id: int
+    status: str
+    trigger: str
+    requested_by: str | None
+    requested_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None
+    failure_reason: str | None
+    temperature_c: float | None
+    utility_day: float | None
+    uncertainty_um: float | None
+    backlash_mean_um: float | None
+    state: str | None
+
+
+class MeasurementPage(BaseModel):
+    items: list[MeasurementSummary]
+    total: int
+    limit: int
+    offset: int
+
+
+class LeadOut(BaseModel):
+    direction: str
+    e_p_um: float
+    e_p_um_per_1000mm: float
+    v_u_um: float
+    v_300_um: float
+    v_2pi_um: float
+    n_strokes: int
+
+
+class TbeOut(BaseModel):
+    task_name: str
+    profile: str
+    tolerance_um: float
+    tbe_um: float
+    backlash_limit_um: float | None
+    state: str
+
+
+class CurvesOut(BaseModel):
+    position_mm: list[float]
+    backlash_um: list[float]
+    positive_travel_deviation_um: list[float]
+    negative_travel_deviation_um: list[float]
+    positive_mean_travel_deviation_um: list[float]
+    negative_mean_travel_deviation_um: list[float]
+
+
+class ResultOut(BaseModel):
+    backlash_mean_um: float
+    backlash_min_um: float
+    backlash_max_um: float
+    backlash_std_um: float
+    useful_travel_mm: tuple[float, float]
+    n_samples: int
+    peak_speed_mm_min: float
+    lead: dict[str, LeadOut]
+    tbe: list[TbeOut]
+    state: str | None
+    binding_task: str | None
+    backlash_limit_um: float | None
+    message: str | None
+    run_file: str | None
+
+
+class MeasurementDetail(MeasurementSummary):
+    result: ResultOut | None
+    curves: CurvesOut | None
+
+
+class TriggerOut(BaseModel):
+    measurement: MeasurementSummary | None
+    uuid: str
+    queued: bool
+    detail: str
+
+
+# -- trend ---------------------------------------------------------------------------------------------
+class TrendSeriesOut(BaseModel):
+    measurement_id: list[int]
+    measured_at: list[datetime]
+    temperature_c: list[float | None]
+    utility_day: list[float | None]
+    backlash_mean_um: list[float]
+    e_p_um_per_1000mm: list[float]
+    v_u_um: list[float]
+    v_300_um: list[float]
+    v_2pi_um: list[float]
+
+
+class ThermalModelOut(BaseModel):
+    backlash_20c_um: float
+    beta_um_per_k: float
+    r: float | None
+    n: int
+
+
+class TrendOut(BaseModel):
+    axis_id: int
+    points: int
+    series: TrendSeriesOut
+    correlation: dict[str, dict[str, float | None]] = Field(
+        description="Pearson r (Eq. 4) of each criterion against temperature_c and utility_day; null if undefined")
+    thermal_model: ThermalModelOut | None
+
+
+# -- alerts and keys -------------------------------------------------------------------------------------
+class AlertOut(BaseModel):
+    id: int
+    axis_id: int
+    kind: str
+    active: bool
+    raised_at: datetime
+    cleared_at: datetime | None
+    acknowledged_at: datetime | None
+    acknowledged_by: str | None
+    raised_by_measurement_id: int | None
+    cleared_by_measurement_id: int | None
+    task_name: str | None
+    tbe_um: float | None
+    tolerance_um: float | None
+    backlash_um: float | None
+    backlash_limit_um: float | None
+    message: str
+
+
+class AlertPage(BaseModel):
+    items: list[AlertOut]
+    total: int
+    limit: int
+    offset: int
+
+
+class KeyIn(In):
+    name: str = Field(min_length=1, max_length=100)
+    role: Literal["read", "operate", "admin"]
+
+
+class KeyOut(BaseModel):
+    id: int
+    name: str
+    role: str
+    key_prefix: str
+    created_at: datetime
+    revoked_at: datetime | None
+
+
+class KeyCreated(KeyOut):
+    key: str = Field(description="the secret; shown once, stored only hashed")
+
+
+class FieldError(BaseModel):
+    field: str
+    message: str
+
+
+class ErrorOut(BaseModel):
+    """Every error answer: ``detail`` says what is wrong (and names the field for 422)."""
+
+    detail: str
+    errors: list[FieldError] | None = None
+
+
+ERROR_RESPONSES = {
+    401: {"model": ErrorOut, "description": "no key, or an unknown or revoked key"},
+    403: {"model": ErrorOut, "description": "the key's role does not allow this"},
+    404: {"model": ErrorOut, "description": "unknown id"},
+    409: {"model": ErrorOut, "description": "conflicts with what is stored"},
+    422: {"model": ErrorOut, "description": "invalid input; the message names the field"},
+    503: {"model": ErrorOut, "description": "database unavailable; retry later"},
+}
+
+
+class Health(BaseModel):
+    status: Literal["ok", "degraded"]
+    database: Literal["ok", "unavailable"]
+    version: str
+    uptime_s: float
+    spooled_cycles: int

@@ -1,0 +1,260 @@
+"""Service configuration: a TOML file (docs/configuration.md), embedded defaults and
+environment overrides (MEBM_DATABASE_URL, MEBM_DATA_DIR, MEBM_BOOTSTRAP_ADMIN_KEY,
+MEBM_HOST, MEBM_PORT).
+
+Without a file the defaults describe the demo: SQLite under ./data, the built-in
+simulated Modbus controller, and the seed paper's Y axis measured every 60 s.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+from core.dataset import AxisSpec
+from core.errors import InputError
+from core.tbe import MachiningTask
+from storage.db import AxisSettings, Schedule, sqlite_url
+
+SIM_CONTROLLER = "sim"
+
+
+class ConfigError(InputError):
+    """The configuration file or an environment override is invalid; says which option."""
+
+
+@dataclass(frozen=True)
+class SimulatorSettings:
+    """The built-in simulated controller (used by axes whose controller is ``sim``).
+
+    The shop temperature swings sinusoidally; the backlash follows it with
+    ``backlash_um_per_k`` (the paper found b̄ tracks temperature, r = 0.94)."""
+
+    time_scale: float = 10.0
+    servo_rate_hz: float = 400.0
+    backlash_um_at_20c: float = 226.0
+    backlash_um_per_k: float = 2.0
+    temperature_mean_c: float = 21.0
+    temperature_amplitude_c: float = 6.0
+    temperature_period_s: float = 900.0
+    cyclic_error_um: float = 4.0
+
+
+@dataclass(frozen=True)
+class AxisConfig:
+    machine: str
+    settings: AxisSettings
+
+
+@dataclass(frozen=True)
+class Settings:
+    host: str = "127.0.0.1"
+    port: int = 8000
+    data_dir: Path = Path("data")
+    database_url: str | None = None
+    bootstrap_admin_key: str | None = None
+    demo_keys: bool = True
+    scheduler_enabled: bool = True
+    catch_up_missed: bool = True
+    spool_retry_s: float = 30.0
+    machines: tuple[tuple[str, str], ...] = ()  # (name, description)
+    axes: tuple[AxisConfig, ...] = ()
+    simulator: SimulatorSettings = field(default_factory=SimulatorSettings)
+    log_level: str = "info"
+
+    @property
+    def db_url(self) -> str:
+        return self.database_url or sqlite_url(self.data_dir)
+
+    @property
+    def uses_simulator(self) -> bool:
+        return any(a.settings.controller_url == SIM_CONTROLLER for a in self.axes)
+
+
+DEMO_MACHINE = "demo-vmc"
+DEMO_TASK = MachiningTask("circle R200 F200", "circle", feed_mm_min=200.0, gain_per_s=10.0, tolerance_um=45.0,
+                          radius_mm=200.0)
+
+
+def demo_axis() -> AxisConfig:
+    """The seed paper's Y axis (Table 1, Section 5) on the simulated controller."""
+    spec = AxisSpec("y", transmission_mm_per_rev=6.857, screw_lead_mm=16.0, position_gain_per_s=10.0,
+                    travel_mm=(0.0, 1000.0))
+    return AxisConfig(DEMO_MACHINE, AxisSettings(
+        spec=spec, controller_url=SIM_CONTROLLER, measure_feed_mm_min=3000.0, measure_acceleration_mm_s2=500.0,
+        warning_fraction=0.9, schedule=Schedule(interval_s=60.0), tasks=(DEMO_TASK,),
+    ))
+
+
+def default_settings() -> Settings:
+    return Settings(machines=((DEMO_MACHINE, "demo: the seed paper's Y axis on a simulated controller"),),
+                    axes=(demo_axis(),))
+
+
+# -- parsing -----------------------------------------------------------------------------------
+_TOP = {"server", "storage", "auth", "scheduler", "simulator", "machines", "logging"}
+
+
+def _get(table: Mapping, key: str, kind, where: str, default=None):
+    if key not in table:
+        return default
+    v = table[key]
+    if kind is float and isinstance(v, int) and not isinstance(v, bool):
+        v = float(v)
+    if not isinstance(v, kind) or (kind is int and isinstance(v, bool)):
+        raise ConfigError(f"{where}.{key} (={v!r}) must be {kind.__name__}")
+    if kind is float and not math.isfinite(v):
+        raise ConfigError(f"{where}.{key} (={v!r}) must be finite")
+    return v
+
+
+def _unknown(table: Mapping, allowed: set[str], where: str) -> None:
+    extra = sorted(set(table) - allowed)
+    if extra:
+        raise ConfigError(f"{where}: unknown option(s) {extra} (allowed: {sorted(allowed)})")
+
+
+def _task(t: Mapping, gain: float, where: str) -> MachiningTask:
+    _unknown(t, {"name", "profile", "radius_mm", "angle_deg", "feed_mm_min", "tolerance_um"}, where)
+    try:
+        return MachiningTask(
+            name=_get(t, "name", str, where) or "", profile=_get(t, "profile", str, where, "circle"),
+            feed_mm_min=_get(t, "feed_mm_min", float, where, float("nan")), gain_per_s=gain,
+            tolerance_um=_get(t, "tolerance_um", float, where, float("nan")),
+            radius_mm=_get(t, "radius_mm", float, where), angle_deg=_get(t, "angle_deg", float, where),
+        )
+    except ConfigError:
+        raise
+    except InputError as exc:
+        raise ConfigError(f"{where}: {exc}") from exc
+
+
+def _axis(a: Mapping, machine: str, where: str) -> AxisConfig:
+    allowed = {"name", "transmission_mm_per_rev", "screw_lead_mm", "position_gain_per_s", "travel_mm",
+               "controller", "measure_feed_mm_min", "measure_acceleration_mm_s2", "warning_fraction",
+               "schedule_interval_s", "schedule_cron", "schedule_enabled", "tasks"}
+    _unknown(a, allowed, where)
+    travel = a.get("travel_mm")
+    if not (isinstance(travel, list) and len(travel) == 2 and all(isinstance(x, (int, float)) for x in travel)):
+        raise ConfigError(f"{where}.travel_mm (={travel!r}) must be [start, end] in mm")
+    try:
+        spec = AxisSpec(
+            name=_get(a, "name", str, where, ""), transmission_mm_per_rev=_get(a, "transmission_mm_per_rev", float, where),
+            screw_lead_mm=_get(a, "screw_lead_mm", float, where),
+            position_gain_per_s=_get(a, "position_gain_per_s", float, where),
+            travel_mm=(float(travel[0]), float(travel[1])),
+        )
+        if not spec.name:
+            raise ConfigError(f"{where}.name must be given")
+        schedule = Schedule(_get(a, "schedule_interval_s", float, where), _get(a, "schedule_cron", str, where),
+                            _get(a, "schedule_enabled", bool, where, True))
+    except ConfigError:
+        raise
+    except InputError as exc:
+        raise ConfigError(f"{where}: {exc}") from exc
+    tasks = tuple(_task(t, spec.position_gain_per_s, f"{where}.tasks[{i}]") for i, t in enumerate(a.get("tasks", [])))
+    controller = _get(a, "controller", str, where, SIM_CONTROLLER)
+    if controller != SIM_CONTROLLER and not controller.startswith(("modbus://", "canopen://")):
+        raise ConfigError(f"{where}.controller (={controller!r}) must be 'sim', modbus://host:port or canopen://...")
+    st = AxisSettings(
+        spec=spec, controller_url=controller,
+        measure_feed_mm_min=_get(a, "measure_feed_mm_min", float, where, 2000.0),
+        measure_acceleration_mm_s2=_get(a, "measure_acceleration_mm_s2", float, where, 500.0),
+        warning_fraction=_get(a, "warning_fraction", float, where, 0.9), schedule=schedule, tasks=tasks,
+    )
+    if not st.measure_feed_mm_min > 0 or not st.measure_acceleration_mm_s2 > 0:
+        raise ConfigError(f"{where}: measure_feed_mm_min and measure_acceleration_mm_s2 must be > 0")
+    if not 0 < st.warning_fraction <= 1:
+        raise ConfigError(f"{where}.warning_fraction (={st.warning_fraction}) must be in (0, 1]")
+    return AxisConfig(machine, st)
+
+
+def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
+    """Settings from a parsed TOML document; options absent keep the defaults."""
+    base = base or Settings()
+    _unknown(doc, _TOP, "config")
+    server = doc.get("server", {})
+    _unknown(server, {"host", "port"}, "server")
+    storage = doc.get("storage", {})
+    _unknown(storage, {"data_dir", "database_url"}, "storage")
+    auth = doc.get("auth", {})
+    _unknown(auth, {"bootstrap_admin_key", "demo_keys"}, "auth")
+    sched = doc.get("scheduler", {})
+    _unknown(sched, {"enabled", "catch_up_missed", "spool_retry_s"}, "scheduler")
+    sim = doc.get("simulator", {})
+    sim_fields = set(SimulatorSettings.__dataclass_fields__)
+    _unknown(sim, sim_fields, "simulator")
+    logging_ = doc.get("logging", {})
+    _unknown(logging_, {"level"}, "logging")
+    port = _get(server, "port", int, "server", base.port)
+    if not 0 <= port <= 65535:
+        raise ConfigError(f"server.port (={port}) must be 0..65535 (0: a free port)")
+    simulator = replace(base.simulator, **{k: _get(sim, k, float, "simulator") for k in sim})
+    for k in ("time_scale", "servo_rate_hz", "temperature_period_s"):
+        if not getattr(simulator, k) > 0:
+            raise ConfigError(f"simulator.{k} (={getattr(simulator, k)}) must be > 0")
+    machines, axes = base.machines, base.axes
+    if "machines" in doc:
+        machines, axes = [], []
+        for i, m in enumerate(doc["machines"]):
+            where = f"machines[{i}]"
+            _unknown(m, {"name", "description", "axes"}, where)
+            name = _get(m, "name", str, where, "")
+            if not name:
+                raise ConfigError(f"{where}.name must be given")
+            machines.append((name, _get(m, "description", str, where, "")))
+            for j, a in enumerate(m.get("axes", [])):
+                axes.append(_axis(a, name, f"{where}.axes[{j}]"))
+        machines, axes = tuple(machines), tuple(axes)
+    data_dir = _get(storage, "data_dir", str, "storage")
+    return replace(
+        base,
+        host=_get(server, "host", str, "server", base.host), port=port,
+        data_dir=Path(data_dir) if data_dir else base.data_dir,
+        database_url=_get(storage, "database_url", str, "storage", base.database_url) or None,
+        bootstrap_admin_key=_get(auth, "bootstrap_admin_key", str, "auth", base.bootstrap_admin_key) or None,
+        demo_keys=_get(auth, "demo_keys", bool, "auth", base.demo_keys),
+        scheduler_enabled=_get(sched, "enabled", bool, "scheduler", base.scheduler_enabled),
+        catch_up_missed=_get(sched, "catch_up_missed", bool, "scheduler", base.catch_up_missed),
+        spool_retry_s=_get(sched, "spool_retry_s", float, "scheduler", base.spool_retry_s),
+        machines=machines, axes=axes, simulator=simulator,
+        log_level=_get(logging_, "level", str, "logging", base.log_level),
+    )
+
+
+def apply_env(settings: Settings, env: Mapping[str, str] | None = None) -> Settings:
+    env = os.environ if env is None else env
+    out = settings
+    if env.get("MEBM_DATA_DIR"):
+        out = replace(out, data_dir=Path(env["MEBM_DATA_DIR"]))
+    if env.get("MEBM_DATABASE_URL"):
+        out = replace(out, database_url=env["MEBM_DATABASE_URL"])
+    if env.get("MEBM_BOOTSTRAP_ADMIN_KEY"):
+        out = replace(out, bootstrap_admin_key=env["MEBM_BOOTSTRAP_ADMIN_KEY"])
+    if env.get("MEBM_HOST"):
+        out = replace(out, host=env["MEBM_HOST"])
+    if env.get("MEBM_PORT"):
+        try:
+            out = replace(out, port=int(env["MEBM_PORT"]))
+        except ValueError as exc:
+            raise ConfigError(f"MEBM_PORT (={env['MEBM_PORT']!r}) must be an integer") from exc
+    return out
+
+
+def load_settings(path: str | os.PathLike | None = None, env: Mapping[str, str] | None = None) -> Settings:
+    """Embedded defaults, then the TOML file (if any), then the environment."""
+    settings = default_settings()
+    if path is not None:
+        p = Path(path)
+        try:
+            doc = tomllib.loads(p.read_text(encoding="utf-8"))
+        except FileNotFoundError as exc:
+            raise ConfigError(f"config file {p} not found") from exc
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"config file {p}: {exc}") from exc
+        settings = parse_settings(doc, base=settings)
+    return apply_env(settings, env)

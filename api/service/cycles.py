@@ -1,0 +1,302 @@
+"""One measurement cycle from request to stored result, and the on-disk spool.
+
+Order of writes, so that a measurement is never lost:
+1. the raw round trip goes to the axis' dataset folder (``storage.dataset.append_runs``);
+2. a spool file (``<data_dir>/spool/<uuid>.json``) records the cycle's metadata;
+3. cycle, result, curves, TBE and alert change are saved in one transaction;
+4. the spool file is deleted.
+If the database is down at step 3, the spool file stays and :meth:`CycleExecutor.replay_spool`
+inserts it when the database is back (re-analysing the raw run from the dataset folder).
+Saving is idempotent on the cycle's uuid, so a crash between 3 and 4 stores it once.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import tempfile
+import threading
+from dataclasses import dataclass, replace
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+
+from api.service.runner import CycleOutcome, CycleRunner, analyse
+from core.dataset import MachineSpec, Run, RunSpec
+from core.errors import MebmError
+from core.tbe import AxisDecision, MachiningTask, decide
+from storage.dataset import append_runs, next_run_name, read_dataset
+from storage.db import (
+    AlertRecord,
+    AxisRecord,
+    CycleRecord,
+    DatabaseUnavailableError,
+    FinishedCycle,
+    StorageError,
+    as_utc,
+    config_repo,
+    results_repo,
+    session_scope,
+    utcnow,
+)
+
+log = logging.getLogger("mebm.cycles")
+
+
+@dataclass(frozen=True)
+class CycleRequest:
+    uuid: str
+    axis_id: int
+    trigger: str
+    requested_at: datetime
+    requested_by: str | None = None
+
+
+def utility_day(axis: AxisRecord, when: datetime) -> float:
+    """Days in service (since the axis was put under monitoring), as in Table 2."""
+    since = axis.settings.in_service_since or when
+    return round(max((when - since).total_seconds(), 0.0) / 86400.0, 4)
+
+
+def make_decision(axis: AxisRecord, tasks, backlash_um: float) -> AxisDecision | None:
+    """The maintenance decision, or None without tasks or when the TBE model cannot be
+    evaluated at this backlash for some task (the measurement is stored all the same)."""
+    if not tasks:
+        return None
+    try:
+        return decide(max(backlash_um, 0.0), tasks, warning_fraction=axis.settings.warning_fraction)
+    except MebmError as exc:
+        log.warning("axis %s: no decision at b = %.1f µm: %s", axis.id, backlash_um, exc)
+        return None
+
+
+def _task_doc(t: MachiningTask) -> dict:
+    return {"name": t.name, "profile": t.profile, "feed_mm_min": t.feed_mm_min, "gain_per_s": t.gain_per_s,
+            "tolerance_um": t.tolerance_um, "radius_mm": t.radius_mm, "angle_deg": t.angle_deg}
+
+
+def _fin(x):
+    return None if x is None or (isinstance(x, float) and not math.isfinite(x)) else x
+
+
+class CycleExecutor:
+    """Runs cycles for the scheduler and stores them (see the module docstring)."""
+
+    def __init__(self, factory, data_dir: Path, runner: CycleRunner, resolve_url, *, on_saved=None):
+        self.factory = factory
+        self.data_dir = Path(data_dir)
+        self.spool_dir = self.data_dir / "spool"
+        self.datasets_dir = self.data_dir / "datasets"
+        self.runner = runner
+        self.resolve_url = resolve_url
+        self.on_saved = on_saved or (lambda axis_id, cycle, alerts: None)
+        self._axes: dict[int, AxisRecord] = {}  # last known settings, for cycles during a DB outage
+        self._spool_lock = threading.Lock()
+
+    # -- the cycle ---------------------------------------------------------------------------
+    def remember(self, axis: AxisRecord) -> None:
+        self._axes[axis.id] = axis
+
+    def _axis(self, axis_id: int) -> AxisRecord:
+        try:
+            with session_scope(self.factory) as s:
+                axis = config_repo.get_axis(s, axis_id)
+            self._axes[axis_id] = axis
+            return axis
+        except DatabaseUnavailableError:
+            if axis_id in self._axes:
+                return self._axes[axis_id]
+            raise
+
+    def execute(self, req: CycleRequest) -> CycleRecord | None:
+        """Run and store one cycle. Never raises for a failed measurement or a database
+        outage (the cycle is then spooled); returns the stored cycle or None if spooled."""
+        axis = self._axis(req.axis_id)
+        started = utcnow()
+        try:
+            with session_scope(self.factory) as s:
+                results_repo.mark_running(s, req.uuid, started)
+        except StorageError as exc:
+            log.warning("cycle %s: could not mark running (%s); measuring anyway", req.uuid, exc)
+        try:
+            outcome = self.runner(axis, self.resolve_url(axis))
+        except Exception as exc:  # noqa: BLE001 - a broken runner must not stop the schedule
+            log.exception("cycle %s on axis %s: runner crashed", req.uuid, axis.id)
+            outcome = CycleOutcome.failed(f"internal error in the cycle runner: {type(exc).__name__}: {exc}")
+        finished = utcnow()
+        try:
+            return self._finish(axis, req, outcome, started, finished)
+        except Exception as exc:  # noqa: BLE001 - never leave a cycle "running" because of a bug
+            log.exception("cycle %s: could not be finished normally", req.uuid)
+            fc = FinishedCycle(
+                uuid=req.uuid, axis_id=axis.id, trigger=req.trigger, requested_by=req.requested_by, status="failed",
+                requested_at=req.requested_at, started_at=started, finished_at=finished,
+                failure_reason=f"internal error while storing the cycle: {type(exc).__name__}: {exc}",
+                temperature_c=_fin(outcome.temperature_c),
+            )
+            return self._save(fc, None)
+
+    def _finish(self, axis: AxisRecord, req: CycleRequest, outcome: CycleOutcome, started: datetime,
+                finished: datetime) -> CycleRecord | None:
+        run_file, folder, note = None, None, None
+        if outcome.time_s is not None:
+            try:
+                folder, run_file = self._write_run(axis, outcome, req, finished)
+            except (MebmError, OSError) as exc:
+                note = f"raw run not written to the dataset folder: {exc}"
+                log.error("cycle %s: %s", req.uuid, note)
+        decision = None
+        if outcome.ok and outcome.round_trip is not None:
+            decision = make_decision(axis, axis.tasks, outcome.round_trip.backlash.mean_um)
+        reason = outcome.reason if not outcome.ok else None
+        if note and not outcome.ok:
+            reason = f"{reason}; {note}"
+        fc = FinishedCycle(
+            uuid=req.uuid, axis_id=axis.id, trigger=req.trigger, requested_by=req.requested_by,
+            status="ok" if outcome.ok else "failed", requested_at=req.requested_at, started_at=started,
+            finished_at=finished, failure_reason=reason, temperature_c=_fin(outcome.temperature_c),
+            utility_day=utility_day(axis, finished), uncertainty_um=_fin(outcome.uncertainty_um), run_file=run_file,
+            round_trip=outcome.round_trip if outcome.ok else None, decision=decision,
+        )
+        spool = self._spool(fc, folder, axis.tasks)
+        return self._save(fc, spool)
+
+    def _save(self, fc: FinishedCycle, spool: Path | None) -> CycleRecord | None:
+        try:
+            with session_scope(self.factory) as s:
+                cycle, alerts = results_repo.save_finished_cycle(s, fc)
+        except DatabaseUnavailableError as exc:
+            log.warning("cycle %s kept on disk (%s): it is stored when the database is back", fc.uuid, exc)
+            return None
+        if spool is not None:
+            spool.unlink(missing_ok=True)
+        self._notify(fc.axis_id, cycle, alerts)
+        return cycle
+
+    def _notify(self, axis_id: int, cycle: CycleRecord, alerts: list[AlertRecord]) -> None:
+        for a in alerts:
+            if a.active:
+                log.warning("ALERT raised on axis %s: %s", axis_id, a.message)
+            else:
+                log.warning("alert %s on axis %s cleared", a.id, axis_id)
+        try:
+            self.on_saved(axis_id, cycle, alerts)
+        except Exception:  # noqa: BLE001 - a listener must not lose a cycle
+            log.exception("on_saved listener failed")
+
+    # -- raw runs ------------------------------------------------------------------------------
+    def dataset_folder(self, axis: AxisRecord) -> Path:
+        safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in f"{axis.machine_name}_{axis.name}")
+        return self.datasets_dir / safe
+
+    def _write_run(self, axis: AxisRecord, out: CycleOutcome, req: CycleRequest, finished: datetime):
+        """The raw round trip as a dataset run. Traces of failed cycles go to a sibling
+        ``..._rejected`` folder: kept for diagnosis, never mistaken for measurements."""
+        name = axis.name.lower()
+        cols = {"time_s": np.asarray(out.time_s, float), f"{name}_motor_rev": np.asarray(out.motor_rev, float),
+                f"{name}_table_mm": np.asarray(out.table_mm, float)}
+        if out.command_mm is not None:
+            cols[f"{name}_command_mm"] = np.asarray(out.command_mm, float)
+        spec_axis = replace(axis.spec, name=name)
+        machine = MachineSpec(id=axis.machine_name, axes={name: spec_axis})
+        folder = self.dataset_folder(axis)
+        if not out.ok:
+            folder = folder.with_name(folder.name + "_rejected")
+        for attempt in range(2):
+            try:
+                file = next_run_name(folder, f"rt_{name}_{finished:%Y%m%dT%H%M%S}")
+                temp = out.temperature_c if out.temperature_c is not None else float("nan")
+                spec = RunSpec(
+                    file=file, kind="round_trip", axes=(name,),
+                    feed_mm_min=out.feed_mm_min or axis.settings.measure_feed_mm_min,
+                    temperature_c=temp if math.isfinite(temp) else 20.0,
+                    utility_day=utility_day(axis, finished),
+                    acceleration_mm_s2=out.acceleration_mm_s2 or axis.settings.measure_acceleration_mm_s2,
+                    extra={"cycle_uuid": req.uuid, "measured_at": finished.isoformat(),
+                           "temperature_measured": math.isfinite(temp), "cycle_status": "ok" if out.ok else "failed",
+                           **({} if out.ok else {"failure_reason": out.reason or ""})},
+                )
+                append_runs(folder, machine, [Run(spec, cols)])
+                return folder, file
+            except MebmError:
+                if attempt:
+                    raise
+                # the axis' mechanics changed since the folder was started: begin a new one
+                folder = folder.with_name(f"{folder.name}@{finished:%Y%m%dT%H%M%S}")
+        raise AssertionError("unreachable")
+
+    # -- spool -----------------------------------------------------------------------------------
+    def _spool(self, fc: FinishedCycle, folder: Path | None, tasks) -> Path | None:
+        doc = {
+            "uuid": fc.uuid, "axis_id": fc.axis_id, "trigger": fc.trigger, "requested_by": fc.requested_by,
+            "status": fc.status, "requested_at": fc.requested_at.isoformat(),
+            "started_at": fc.started_at.isoformat() if fc.started_at else None,
+            "finished_at": fc.finished_at.isoformat(), "failure_reason": fc.failure_reason,
+            "temperature_c": fc.temperature_c, "utility_day": fc.utility_day, "uncertainty_um": fc.uncertainty_um,
+            "dataset_folder": str(folder) if folder else None, "run_file": fc.run_file,
+            "tasks": [_task_doc(t) for t in tasks],
+        }
+        try:
+            self.spool_dir.mkdir(parents=True, exist_ok=True)
+            path = self.spool_dir / f"{fc.uuid}.json"
+            fd, tmp = tempfile.mkstemp(dir=self.spool_dir, prefix=".spool.")
+            with os.fdopen(fd, "w", encoding="utf-8") as fh:
+                json.dump(doc, fh)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+            return path
+        except OSError as exc:
+            log.error("cycle %s: spool file not written (%s)", fc.uuid, exc)
+            return None
+
+    def pending(self) -> list[Path]:
+        return sorted(self.spool_dir.glob("*.json")) if self.spool_dir.is_dir() else []
+
+    def replay_spool(self) -> int:
+        """Store every spooled cycle the database does not have yet; returns how many were
+        stored. Stops at the first database outage (retried later)."""
+        stored = 0
+        with self._spool_lock:
+            for path in self.pending():
+                try:
+                    fc = self._from_spool(path)
+                except (OSError, ValueError, KeyError, MebmError) as exc:
+                    log.error("spool file %s unreadable (%s): moved aside", path.name, exc)
+                    path.rename(path.with_suffix(".bad"))
+                    continue
+                try:
+                    if self._save(fc, path) is None:
+                        break
+                except StorageError as exc:
+                    log.error("spooled cycle %s could not be stored: %s", path.name, exc)
+                    continue
+                stored += 1
+        return stored
+
+    def _from_spool(self, path: Path) -> FinishedCycle:
+        d = json.loads(path.read_text(encoding="utf-8"))
+        axis = self._axis(int(d["axis_id"]))
+        rt = decision = None
+        status, reason = d["status"], d["failure_reason"]
+        if status == "ok":
+            try:
+                ds = read_dataset(d["dataset_folder"])
+                run = ds.run(d["run_file"])
+                name = run.spec.axes[0]
+                rt = analyse(axis, run.time_s, run.motor_rev(name), run.table_mm(name))
+                tasks = [MachiningTask(**t) for t in d["tasks"]]
+                decision = make_decision(axis, tasks, rt.backlash.mean_um)
+            except MebmError as exc:
+                status, reason = "failed", f"stored run could not be re-read after a database outage: {exc}"
+        ts = {k: as_utc(datetime.fromisoformat(d[k])) if d.get(k) else None
+              for k in ("requested_at", "started_at", "finished_at")}
+        return FinishedCycle(
+            uuid=d["uuid"], axis_id=axis.id, trigger=d["trigger"], requested_by=d.get("requested_by"), status=status,
+            requested_at=ts["requested_at"], started_at=ts["started_at"], finished_at=ts["finished_at"],
+            failure_reason=reason, temperature_c=d.get("temperature_c"), utility_day=d.get("utility_day"),
+            uncertainty_um=d.get("uncertainty_um"), run_file=d.get("run_file"), round_trip=rt, decision=decision,
+        )

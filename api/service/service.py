@@ -1,0 +1,246 @@
+"""The service: database, migrations, configured machines, keys, simulated controller,
+scheduler and cycle executor, started and stopped as one.
+
+``Service(settings).start()`` is what ``mebm serve`` does before the HTTP server
+starts; the REST app (``api.rest.create_app``) reads through the same object.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from sqlalchemy import text
+
+from api.service.config import SIM_CONTROLLER, Settings
+from api.service.cycles import CycleExecutor
+from api.service.demo import DemoController
+from api.service.runner import CycleRunner, DriverRunner
+from api.service.scheduler import CycleScheduler
+from api.service.status import StatusCache
+from storage.db import (
+    AxisRecord,
+    DatabaseUnavailableError,
+    StorageError,
+    config_repo,
+    make_engine,
+    make_session_factory,
+    ping,
+    results_repo,
+    session_scope,
+    upgrade,
+)
+
+log = logging.getLogger("mebm.service")
+DEMO_KEYS_FILE = "demo-keys.json"
+
+
+@dataclass(frozen=True)
+class StartReport:
+    """What start-up did, for the banner ``mebm serve`` prints."""
+
+    database: str
+    replayed: int
+    interrupted: int
+    created_axes: tuple[str, ...]
+    demo_keys: dict
+    simulators: dict  # axis id -> controller url
+    bootstrap_admin: str | None
+
+
+class Service:
+    def __init__(self, settings: Settings, *, runner: CycleRunner | None = None, db_wait_s: float = 30.0):
+        self.settings = settings
+        self.runner = runner or DriverRunner()
+        self.db_wait_s = db_wait_s
+        self.engine = None
+        self.factory = None
+        self.executor: CycleExecutor | None = None
+        self.scheduler: CycleScheduler | None = None
+        self.status: StatusCache | None = None
+        self.simulators: dict[int, DemoController] = {}
+        self.started_at = time.time()
+        self.report: StartReport | None = None
+
+    # -- wiring ----------------------------------------------------------------------------------
+    def resolve_url(self, axis: AxisRecord) -> str:
+        if axis.settings.controller_url == SIM_CONTROLLER:
+            sim = self.simulators.get(axis.id)
+            if sim is None:
+                sim = self._start_simulator(axis)
+            return sim.url
+        return axis.settings.controller_url
+
+    def _start_simulator(self, axis: AxisRecord) -> DemoController:
+        sim = DemoController(axis.spec, self.settings.simulator)
+        sim.start()
+        self.simulators[axis.id] = sim
+        log.info("simulated controller for axis %s listens on %s", axis.id, sim.url)
+        return sim
+
+    def _on_saved(self, axis_id, cycle, alerts) -> None:
+        if self.status is not None:
+            self.status.invalidate(axis_id)
+
+    def _connect(self) -> None:
+        self.engine = make_engine(self.settings.db_url)
+        deadline = time.monotonic() + self.db_wait_s
+        while True:
+            try:
+                ping(self.engine)
+                upgrade(self.engine)
+                break
+            except DatabaseUnavailableError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(1.0)
+        self.factory = make_session_factory(self.engine)
+
+    # -- life cycle ------------------------------------------------------------------------------
+    def start(self) -> StartReport:
+        st = self.settings
+        Path(st.data_dir).mkdir(parents=True, exist_ok=True)
+        self._connect()
+        self.status = StatusCache(self.factory)
+        self.executor = CycleExecutor(self.factory, Path(st.data_dir), self.runner, self.resolve_url,
+                                      on_saved=self._on_saved)
+        self.scheduler = CycleScheduler(self.executor, self.factory)
+        replayed = self.executor.replay_spool()
+        with session_scope(self.factory) as s:
+            interrupted = results_repo.close_stale_cycles(s)
+        created = self._sync_config()
+        admin = self._bootstrap_admin()
+        demo_keys = self._demo_keys() if st.demo_keys and st.uses_simulator else {}
+        with session_scope(self.factory) as s:
+            axes = config_repo.list_axes(s)
+        fresh_sim_axes = []
+        for axis in axes:
+            if axis.settings.controller_url == SIM_CONTROLLER:
+                self._start_simulator(axis)
+                with session_scope(self.factory) as s:
+                    if results_repo.last_cycle_at(s, axis.id, ("schedule", "catch_up", "manual")) is None:
+                        fresh_sim_axes.append(axis)
+            self.executor.remember(axis)
+            if st.scheduler_enabled:
+                self.scheduler.schedule(axis)
+        if st.scheduler_enabled:
+            self.scheduler.clock.add_job(self._retry_spool, "interval", seconds=st.spool_retry_s, id="spool",
+                                         coalesce=True, max_instances=1)
+            self.scheduler.start()
+            for axis in axes:
+                if axis in fresh_sim_axes:
+                    self.scheduler.request(axis.id, "catch_up")  # the demo shows a measurement at once
+                elif st.catch_up_missed:
+                    self.scheduler.catch_up(axis)
+        self.report = StartReport(
+            database=_redact(st.db_url), replayed=replayed, interrupted=interrupted, created_axes=tuple(created),
+            demo_keys=demo_keys, simulators={a: s.url for a, s in self.simulators.items()}, bootstrap_admin=admin,
+        )
+        return self.report
+
+    def stop(self) -> None:
+        if self.scheduler is not None:
+            self.scheduler.stop()
+        for sim in self.simulators.values():
+            sim.stop()
+        self.simulators.clear()
+        if self.engine is not None:
+            self.engine.dispose()
+
+    def _retry_spool(self) -> None:
+        if self.executor.pending():
+            n = self.executor.replay_spool()
+            if n:
+                log.info("stored %d cycle(s) kept on disk during a database outage", n)
+
+    # -- configuration ---------------------------------------------------------------------------
+    def _sync_config(self) -> list[str]:
+        """Create the configured machines and axes that the database does not have yet.
+        Existing ones are left as stored (changes made through the API persist)."""
+        created = []
+        with session_scope(self.factory) as s:
+            for name, description in self.settings.machines:
+                if config_repo.find_machine(s, name) is None:
+                    config_repo.create_machine(s, name, description)
+            for ac in self.settings.axes:
+                m = config_repo.find_machine(s, ac.machine)
+                if m is None:
+                    m = config_repo.create_machine(s, ac.machine)
+                if config_repo.find_axis(s, ac.machine, ac.settings.spec.name) is None:
+                    config_repo.create_axis(s, m.id, ac.settings)
+                    created.append(f"{ac.machine}/{ac.settings.spec.name}")
+        return created
+
+    def _bootstrap_admin(self) -> str | None:
+        secret = self.settings.bootstrap_admin_key
+        if not secret:
+            return None
+        with session_scope(self.factory) as s:
+            if config_repo.authenticate(s, secret) is not None:
+                return "bootstrap-admin"
+            if any(k.role == "admin" and k.revoked_at is None for k in config_repo.list_keys(s)):
+                log.warning("MEBM_BOOTSTRAP_ADMIN_KEY ignored: an admin key exists already")
+                return None
+            name = "bootstrap-admin"
+            if config_repo.find_key(s, name) is not None:
+                name = f"bootstrap-admin-{int(time.time())}"
+            config_repo.create_key(s, name, "admin", secret=secret)
+            return name
+
+    def _demo_keys(self) -> dict:
+        """Demo keys (read, operate, admin), created hashed on first start; the secrets
+        are kept in ``<data_dir>/demo-keys.json`` (mode 600) so every start can print them."""
+        path = Path(self.settings.data_dir) / DEMO_KEYS_FILE
+        keys = {}
+        if path.is_file():
+            try:
+                keys = json.loads(path.read_text(encoding="utf-8"))
+            except ValueError:
+                keys = {}
+        with session_scope(self.factory) as s:
+            valid = {r: k for r, k in keys.items() if config_repo.authenticate(s, k) is not None}
+            for role in ("read", "operate", "admin"):
+                if role in valid:
+                    continue
+                name = f"demo-{role}"
+                if config_repo.find_key(s, name) is not None:
+                    name = f"demo-{role}-{int(time.time())}"
+                _, valid[role] = config_repo.create_key(s, name, role)
+        if valid != keys:
+            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+            with os.fdopen(fd, "w", encoding="utf-8") as fh:
+                json.dump(valid, fh, indent=2)
+        return valid
+
+    # -- operations for the API ------------------------------------------------------------------
+    def trigger(self, axis_id: int, requested_by: str | None):
+        with session_scope(self.factory) as s:
+            config_repo.get_axis(s, axis_id)  # 404 before anything moves
+        return self.scheduler.request(axis_id, "manual", requested_by)
+
+    def axis_changed(self, axis: AxisRecord) -> None:
+        self.status.invalidate(axis.id)
+        self.executor.remember(axis)
+        if self.settings.scheduler_enabled:
+            self.scheduler.schedule(axis)
+
+    def db_ok(self) -> bool:
+        try:
+            with session_scope(self.factory) as s:
+                s.execute(text("SELECT 1"))
+            return True
+        except StorageError:
+            return False
+
+
+def _redact(url: str) -> str:
+    if "@" in url and "://" in url:
+        scheme, rest = url.split("://", 1)
+        creds, host = rest.rsplit("@", 1)
+        user = creds.split(":", 1)[0]
+        return f"{scheme}://{user}:***@{host}" if ":" in creds else url
+    return url

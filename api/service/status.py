@@ -1,0 +1,139 @@
+"""The current condition of an axis, as the MES and the maintenance team see it.
+
+Built from the newest good measurement and the axis' *current* machining tasks (so a
+task changed through the API is reflected at once), plus the backlash normalised to
+20 °C with the thermal model fitted on the axis' history (``core.history``).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass
+from datetime import datetime
+
+import numpy as np
+
+from core.errors import MebmError
+from core.history import TemperatureModel
+from core.tbe import AxisDecision, decide
+from storage.db import AxisRecord, ResultRecord, config_repo, results_repo, session_scope
+
+
+@dataclass(frozen=True)
+class AxisStatus:
+    axis: AxisRecord
+    latest: ResultRecord | None
+    decision: AxisDecision | None
+    backlash_mean_20c_um: float | None
+    thermal_beta_um_per_k: float | None
+    active_alert_id: int | None
+    last_cycle_status: str | None
+    last_cycle_at: datetime | None
+    last_failure_reason: str | None
+    decision_error: str | None = None
+
+
+def compute_status(s, axis_id: int) -> AxisStatus:
+    axis = config_repo.get_axis(s, axis_id)
+    latest = results_repo.latest_result(s, axis_id)
+    decision = None
+    decision_error = None
+    b20 = beta = None
+    if latest is not None:
+        b = latest.round_trip.backlash.mean_um
+        if axis.tasks:
+            try:
+                decision = decide(max(b, 0.0), axis.tasks, warning_fraction=axis.settings.warning_fraction)
+            except MebmError as exc:
+                decision_error = str(exc)
+        temps, backlash = results_repo.backlash_history(s, axis_id)
+        if temps.size >= 3 and np.ptp(temps) >= 1.0 and latest.temperature_c is not None:
+            try:
+                model = TemperatureModel().fit(temps, backlash)
+                b20 = float(model.normalise_um(b, latest.temperature_c))
+                beta = model.beta_um_per_k_
+            except MebmError:
+                pass
+    _, alerts = results_repo.list_alerts(s, "active", axis_id=axis_id, limit=1)
+    _, last = results_repo.list_measurements(s, axis_id, limit=1)
+    last_final = next((c for c in last if c.status not in ("queued", "running")), None)
+    return AxisStatus(
+        axis=axis, latest=latest, decision=decision, backlash_mean_20c_um=b20, thermal_beta_um_per_k=beta,
+        active_alert_id=alerts[0].id if alerts else None,
+        last_cycle_status=last[0].status if last else None,
+        last_cycle_at=(last[0].finished_at or last[0].requested_at) if last else None,
+        last_failure_reason=last_final.failure_reason if last_final is not None else None,
+        decision_error=decision_error,
+    )
+
+
+class StatusCache:
+    """Status per axis, recomputed when a cycle is saved or the axis changes (this
+    process invalidates it), and at most ``ttl_s`` old otherwise (changes made by
+    another process, e.g. a second API process on the same database, show up then).
+    The age of the measurement is computed per request, not cached."""
+
+    def __init__(self, factory, ttl_s: float = 30.0):
+        self.factory = factory
+        self.ttl_s = ttl_s
+        self._cache: dict[int, tuple[float, AxisStatus]] = {}
+        self._locks: dict[int, threading.Lock] = {}
+        self._lock = threading.Lock()
+
+    def fresh(self, axis_id: int) -> AxisStatus | None:
+        """The cached status if it is recent enough (no database access)."""
+        hit = self._cache.get(axis_id)
+        if hit is not None and time.monotonic() - hit[0] < self.ttl_s:
+            return hit[1]
+        return None
+
+    def stale(self, axis_id: int) -> AxisStatus | None:
+        """The cached status however old (None after an invalidation)."""
+        hit = self._cache.get(axis_id)
+        return None if hit is None else hit[1]
+
+    def refresh_in_background(self, axis_id: int) -> None:
+        """Recompute in a thread unless a recomputation is already under way."""
+        lock = self._axis_lock(axis_id)
+        if lock.locked():
+            return
+
+        def work():
+            try:
+                self.get(axis_id)
+            except Exception:  # noqa: BLE001 - the next request recomputes and reports it
+                pass
+
+        threading.Thread(target=work, name=f"status-{axis_id}", daemon=True).start()
+
+    def get(self, axis_id: int) -> AxisStatus:
+        hit = self.fresh(axis_id)
+        if hit is not None:
+            return hit
+        with self._axis_lock(axis_id):  # one recomputation per axis, not one per waiting request
+            hit = self.fresh(axis_id)
+            if hit is not None:
+                return hit
+            now = time.monotonic()
+            with session_scope(self.factory) as s:
+                st = compute_status(s, axis_id)
+            with self._lock:
+                self._cache[axis_id] = (now, st)
+            return st
+
+    def _axis_lock(self, axis_id: int) -> threading.Lock:
+        with self._lock:
+            return self._locks.setdefault(axis_id, threading.Lock())
+
+    def invalidate(self, axis_id: int | None = None) -> None:
+        with self._lock:
+            if axis_id is None:
+                self._cache.clear()
+            else:
+                self._cache.pop(axis_id, None)
+
+
+def finite_or_none(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
