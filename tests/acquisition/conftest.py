@@ -1,0 +1,74 @@
+"""Simulated peers for the driver tests: each yields a driver factory and the simulated axis."""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import logging
+
+import pytest
+
+from acquisition.canopen import CanopenDriver
+from acquisition.modbus import ModbusDriver
+from acquisition.sim.axis import SimAxis
+from acquisition.sim.canopen_drive import SimCanopenDrive
+from acquisition.sim.faults import parse_fault
+from acquisition.sim.modbus_server import SimModbusController
+from acquisition.sim.twin import KinematicTwin
+from acquisition.types import RoundTripProgram
+from core.dataset import AxisSpec
+
+for _name in ("pymodbus", "canopen", "can"):
+    logging.getLogger(_name).setLevel(logging.CRITICAL)
+
+AXIS = AxisSpec("y", 6.857, 16.0, 30.0, (0.0, 20.0))
+PROGRAM = RoundTripProgram(-2.0, 22.0, 1000.0, acceleration_mm_s2=500.0, dwell_s=0.1)
+_channels = itertools.count()
+
+
+class Peer:
+    """A simulated controller and how to reach it."""
+
+    def __init__(self, kind, sim_axis, make_driver):
+        self.kind, self.axis, self._make = kind, sim_axis, make_driver
+
+    def driver(self, **kw):
+        kw.setdefault("timeout_s", 0.5)
+        kw.setdefault("retries", 2)
+        return self._make(**kw)
+
+
+@contextlib.contextmanager
+def modbus_peer(faults=(), twin=None, *, time_scale=10.0, servo_rate_hz=500.0, mode="trace"):
+    twin = twin or KinematicTwin(backlash_um=120.0, position_gain_per_s=30.0)
+    axis = SimAxis(twin, servo_rate_hz=servo_rate_hz, time_scale=time_scale,
+                   faults=[parse_fault(f) if isinstance(f, str) else f for f in faults])
+    sim = SimModbusController(axis)
+    port = sim.start_in_thread()
+    try:
+        yield Peer("modbus", axis, lambda **kw: ModbusDriver("127.0.0.1", port, mode=kw.pop("mode", mode), **kw))
+    finally:
+        sim.stop_thread()
+
+
+@contextlib.contextmanager
+def canopen_peer(faults=(), twin=None, *, time_scale=5.0, sync_rate_hz=200.0, servo_rate_hz=1000.0):
+    twin = twin or KinematicTwin(backlash_um=120.0, position_gain_per_s=30.0)
+    channel = f"mebm-test-{next(_channels)}"
+    drive = SimCanopenDrive(twin, node_id=5, channel=channel, servo_rate_hz=servo_rate_hz,
+                            faults=[parse_fault(f) if isinstance(f, str) else f for f in faults])
+    drive.start()
+    try:
+        yield Peer("canopen", drive.axis, lambda **kw: CanopenDriver(
+            channel, kw.pop("node_id", 5), sync_rate_hz=sync_rate_hz, time_scale=time_scale, heartbeat_ms=50, **kw))
+    finally:
+        drive.stop()
+
+
+PEERS = {"modbus": modbus_peer, "canopen": canopen_peer}
+
+
+@pytest.fixture(params=sorted(PEERS))
+def peer_factory(request):
+    """Parametrises a test over both simulated peers: ``with peer_factory(faults=[...]) as peer``."""
+    return PEERS[request.param]

@@ -1,0 +1,100 @@
+"""Contract suite: the same checks against both drivers and their simulated peers."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from acquisition.cycle import run_cycle
+from acquisition.types import AxisState
+from tests.acquisition.conftest import AXIS, PROGRAM
+
+
+def _ok(peer, **kw):
+    r = run_cycle(peer.driver(**kw), AXIS, PROGRAM)
+    assert r.ok, r.reason
+    return r
+
+
+def test_clean_cycle_is_latched_continuous_and_measures_b(peer_factory):
+    with peer_factory() as peer:
+        r = _ok(peer)
+        t = r.trace
+        assert t.latched and t.lost_samples == 0 and r.uncertainty_um == 0.0
+        assert np.all(np.diff(t.counter) == 1)
+        assert np.all(np.diff(t.time_s) > 0)
+        assert abs(r.result.backlash_mean_um - 120.0) < 1.0
+        assert peer.axis.state == AxisState.DONE
+        # a second cycle on the same axis (nut on the other side now) measures the same
+        r2 = _ok(peer)
+        assert abs(r2.result.backlash_mean_um - 120.0) < 1.0
+
+
+def test_device_fault_aborts_with_code_then_next_cycle_succeeds(peer_factory):
+    with peer_factory(faults=["emcy:at=0.4,code=0x7305"]) as peer:
+        r = run_cycle(peer.driver(), AXIS, PROGRAM)
+        assert not r.ok and r.reason_code == "device_fault"
+        assert "0x7305" in r.reason and r.result is None
+        assert peer.axis.state != AxisState.RUNNING
+        _ok(peer)
+
+
+def test_lost_samples_are_reported_never_interpolated(peer_factory):
+    with peer_factory(faults=["lost:at=0.5,n=3"]) as peer:
+        r = run_cycle(peer.driver(), AXIS, PROGRAM)
+        assert not r.ok and r.reason_code == "lost_samples", r.reason
+        assert "lost" in r.reason and r.result is None
+        _ok(peer)
+
+
+def test_lost_samples_counted_when_tolerated(peer_factory):
+    with peer_factory(faults=["lost:at=0.5,n=3"]) as peer:
+        r = run_cycle(peer.driver(max_lost_samples=100), AXIS, PROGRAM)
+        assert r.trace is not None and r.trace.lost_samples >= 1
+        assert np.sum(np.diff(r.trace.counter) - 1) == r.trace.lost_samples
+
+
+def test_stuck_encoder_fails_and_leaves_axis_stopped(peer_factory):
+    with peer_factory(faults=["stuck:at=0.2"]) as peer:
+        r = run_cycle(peer.driver(), AXIS, PROGRAM)
+        assert not r.ok and r.reason_code == "encoder_fault", r.reason
+        assert "stuck" in r.reason and "abort sent" in r.reason
+        assert peer.axis.state == AxisState.ABORTED
+        _ok(peer)
+
+
+def test_jumping_encoder_fails(peer_factory):
+    with peer_factory(faults=["jump:at=0.3,mm=0.5"]) as peer:
+        r = run_cycle(peer.driver(), AXIS, PROGRAM)
+        assert not r.ok and r.reason_code == "encoder_fault", r.reason
+        assert "jumped" in r.reason
+        _ok(peer)
+
+
+def test_busy_axis_is_not_started(peer_factory):
+    with peer_factory() as peer:
+        peer.axis.start(PROGRAM)  # someone else's program is running
+        r = run_cycle(peer.driver(), AXIS, PROGRAM)
+        assert not r.ok and r.reason_code == "axis_busy" and "RUNNING" in r.reason
+
+
+def test_dropped_connection_fails_after_retries_and_next_cycle_succeeds(peer_factory):
+    with peer_factory(faults=["drop:at=0.3,for=1.5"]) as peer:
+        r = run_cycle(peer.driver(), AXIS, PROGRAM)
+        assert not r.ok and r.reason_code in ("connection", "timeout"), r.reason
+        assert r.result is None
+        time.sleep(2.5)  # the fault clears
+        assert peer.axis.state != AxisState.RUNNING  # abort reached it, or the program ended
+        _ok(peer)
+
+
+def test_slow_replies_time_out(peer_factory):
+    # real time, so the program is still running when the replies turn slow
+    with peer_factory(faults=["slow:at=0.2,s=1.5"], time_scale=1.0) as peer:
+        t0 = time.monotonic()
+        r = run_cycle(peer.driver(timeout_s=0.3, retries=1), AXIS, PROGRAM)
+        assert not r.ok and r.reason_code == "timeout", r.reason
+        assert time.monotonic() - t0 < 15.0
+        time.sleep(2.5)  # delayed replies drain
+        _ok(peer)

@@ -1,0 +1,134 @@
+"""Modbus TCP specifics: register codec, modes, exception codes, refused and recovered connections."""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import numpy as np
+import pytest
+
+from acquisition import modbus_map as mm
+from acquisition.cycle import run_cycle
+from acquisition.errors import ControllerConnectionError
+from acquisition.modbus import ModbusDriver
+from acquisition.scale import EncoderScale
+from acquisition.types import AxisState, RoundTripProgram
+from tests.acquisition.conftest import AXIS, PROGRAM, modbus_peer
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_words_round_trip_signed_and_unsigned():
+    vals = np.array([0, 1, -1, 2**31 - 1, -(2**31), 123456789, -987654])
+    w = mm.split32(vals)
+    assert np.array_equal(mm.join_i32(w[:, 0], w[:, 1]), vals)
+    u = np.array([0, 2**32 - 1, 70000])
+    w = mm.split32(u)
+    assert np.array_equal(mm.join_u32(w[:, 0], w[:, 1]), u)
+
+
+def test_records_decode_to_physical_units_through_the_scale():
+    scale = EncoderScale(counts_per_rev=1000, table_nm_per_count=10)
+    rec = np.array([[5, 2500, -300], [6, -1000, 100000]])
+    counter, motor_rev, table_mm = mm.decode_records(mm.encode_records(rec), scale)
+    assert counter.tolist() == [5, 6]
+    assert motor_rev.tolist() == [2.5, -1.0]
+    assert table_mm == pytest.approx([-0.003, 1.0])
+
+
+def test_program_words_round_trip():
+    p = RoundTripProgram(-8.5, 108.25, 1234.5, acceleration_mm_s2=700, dwell_s=0.35)
+    words = mm.encode_program(p, 1)
+    assert len(words) == mm.CONTROL_WORDS and words[0] == 1
+    assert mm.decode_program(words[1:]) == p
+
+
+def test_counter_unwraps_across_u32_overflow():
+    ref = 2**32 - 2
+    got = mm.unwrap_u32([2**32 - 2, 2**32 - 1, 0, 1], ref)
+    assert got.tolist() == [ref, ref + 1, ref + 2, ref + 3]
+
+
+def test_refused_connection_fails_fast_with_one_clear_reason():
+    port = _free_port()  # nothing listens here
+    d = ModbusDriver("127.0.0.1", port, timeout_s=1.0)
+    t0 = time.monotonic()
+    r = run_cycle(d, AXIS, PROGRAM)
+    assert time.monotonic() - t0 < 1.0
+    assert not r.ok and r.reason_code == "connection"
+    assert f"127.0.0.1:{port}" in r.reason and "\n" not in r.reason
+    assert isinstance(r.error, ControllerConnectionError) and isinstance(r.error, ConnectionError)
+
+
+def test_persistent_exception_code_fails_with_the_code():
+    with modbus_peer(faults=["exception:at=0.3,code=4"], time_scale=2.0) as peer:
+        r = run_cycle(peer.driver(timeout_s=0.5, retries=2), AXIS, PROGRAM)
+        assert not r.ok and r.reason_code == "protocol", r.reason
+        assert "exception 4" in r.reason and "device failure" in r.reason
+        assert "gave up after 3 attempts" in r.reason
+        assert peer.axis.state in (AxisState.ABORTED, AxisState.DONE)
+
+
+def test_brief_exception_is_retried_without_losing_samples():
+    with modbus_peer(faults=["exception:at=0.3,code=6,for=0.05"], time_scale=2.0) as peer:
+        r = run_cycle(peer.driver(timeout_s=0.5, retries=3), AXIS, PROGRAM)
+        assert r.ok, r.reason
+        assert r.trace.lost_samples == 0
+
+
+def test_brief_drop_is_recovered_from_the_trace_buffer():
+    with modbus_peer(faults=["drop:at=0.4,for=0.2"], time_scale=2.0) as peer:
+        r = run_cycle(peer.driver(timeout_s=0.5, retries=3), AXIS, PROGRAM)
+        assert r.ok, r.reason
+        assert r.trace.lost_samples == 0 and np.all(np.diff(r.trace.counter) == 1)
+        assert abs(r.result.backlash_mean_um - 120.0) < 1.0
+
+
+def test_latched_poll_mode_is_latched_but_decimated():
+    with modbus_peer(mode="latched", time_scale=1.0) as peer:
+        r = run_cycle(peer.driver(), AXIS, PROGRAM)
+        assert r.ok, r.reason
+        assert r.trace.mode == "latched" and r.trace.latched and r.uncertainty_um == 0.0
+        assert abs(r.result.backlash_mean_um - 120.0) < 1.0
+
+
+def test_separate_reads_are_labelled_and_carry_skew_uncertainty():
+    with modbus_peer(mode="separate", time_scale=1.0) as peer:
+        r = run_cycle(peer.driver(), AXIS, PROGRAM)
+        assert r.ok, r.reason
+        t = r.trace
+        assert t.mode == "separate" and not t.latched
+        # worst-case skew times the programmed speed (16.7 mm/s): > 0, and stated as the uncertainty
+        assert t.skew_uncertainty_um > 0 and r.uncertainty_um == t.skew_uncertainty_um
+        assert r.to_run("rt.csv").spec.extra["latched"] is False
+
+
+def test_peer_that_never_answers_times_out_quickly():
+    # a plain TCP peer that is not a mebm controller: connection then garbage -> clear error, no hang
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(1)
+    port = srv.getsockname()[1]
+    try:
+        d = ModbusDriver("127.0.0.1", port, timeout_s=0.3, retries=0)
+        t0 = time.monotonic()
+        r = run_cycle(d, AXIS, PROGRAM)
+        assert not r.ok and r.reason_code == "timeout"
+        assert time.monotonic() - t0 < 1.5
+    finally:
+        srv.close()
+
+
+def test_controller_refusing_connections_fails_then_succeeds_once_it_accepts():
+    with modbus_peer(faults=["refuse:for=0.8"]) as peer:
+        t0 = time.monotonic()
+        r = run_cycle(peer.driver(timeout_s=0.3), AXIS, PROGRAM)
+        assert not r.ok and r.reason_code == "connection" and time.monotonic() - t0 < 0.3 + 0.5
+        time.sleep(1.0)
+        r = run_cycle(peer.driver(), AXIS, PROGRAM)
+        assert r.ok, r.reason

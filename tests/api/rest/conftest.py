@@ -1,0 +1,77 @@
+"""Fixtures of the REST suite: an app on SQLite and PostgreSQL with an injected cycle
+runner (a synthetic round trip of a settable backlash), and one key per role."""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+from api.rest import create_app
+from api.service.config import AxisConfig, Settings
+from api.service.runner import CycleOutcome, analyse
+from storage.db import Schedule, config_repo, session_scope
+from tests.storage.db import factories as f
+from tests.storage.db.backends import db_url, engine  # noqa: F401 - fixtures
+
+
+class FakeRunner:
+    """Stands in for the controller: a round trip through a play of ``backlash_um``."""
+
+    def __init__(self, backlash_um: float = 200.0, temperature_c: float = 20.0):
+        self.backlash_um = backlash_um
+        self.temperature_c = temperature_c
+        self.fail: str | None = None
+        self.calls = 0
+        self.gate: threading.Event | None = None  # set to hold a cycle "running"
+        self.running = threading.Event()
+
+    def __call__(self, axis, url) -> CycleOutcome:
+        self.calls += 1
+        self.running.set()
+        if self.gate is not None:
+            self.gate.wait(10.0)
+        self.running.clear()
+        if self.fail:
+            return CycleOutcome.failed(self.fail, temperature_c=self.temperature_c)
+        t, m, x = f.trace(self.backlash_um)
+        return CycleOutcome(ok=True, time_s=t, motor_rev=m, table_mm=x, temperature_c=self.temperature_c,
+                            uncertainty_um=0.8, round_trip=analyse(axis, t, m, x), feed_mm_min=1000.0)
+
+
+def make_settings(url: str, data_dir: Path, **kw) -> Settings:
+    axis = AxisConfig("vmc-850", f.settings(controller_url="modbus://127.0.0.1:1",
+                                            schedule=Schedule(interval_s=3600.0)))
+    base = Settings(data_dir=data_dir, database_url=url, machines=(("vmc-850", "test"),), axes=(axis,),
+                    catch_up_missed=False, demo_keys=False)
+    return replace(base, **kw)
+
+
+@pytest.fixture
+def runner():
+    return FakeRunner()
+
+
+@pytest.fixture
+def app_env(engine, db_url, tmp_path, runner):  # noqa: F811 - engine truncates the tables
+    app = create_app(make_settings(db_url, tmp_path), runner=runner)
+    with TestClient(app) as client:
+        svc = app.state.service
+        keys = {}
+        with session_scope(svc.factory) as s:
+            for role in ("read", "operate", "admin"):
+                keys[role] = config_repo.create_key(s, f"test-{role}", role)[1]
+            axis_id = config_repo.list_axes(s)[0].id
+        yield client, svc, keys, axis_id
+
+
+@pytest.fixture
+def client(app_env):
+    return app_env[0]
+
+
+def hdr(key: str) -> dict:
+    return {"X-API-Key": key}

@@ -1,0 +1,138 @@
+"""Configuration: embedded defaults, the TOML file, environment overrides, errors that
+name the option; and the ``mebm keys`` commands."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from api.cli.main import main
+from api.service.config import ConfigError, load_settings
+from storage.db import config_repo, make_engine, make_session_factory, session_scope
+
+FULL = """
+[server]
+host = "0.0.0.0"
+port = 9000
+[storage]
+data_dir = "/var/lib/mebm"
+database_url = "postgresql://mebm@db/mebm"
+[auth]
+bootstrap_admin_key = "0123456789abcdef0123"
+demo_keys = false
+[scheduler]
+enabled = true
+catch_up_missed = false
+spool_retry_s = 10
+[simulator]
+time_scale = 5
+servo_rate_hz = 500
+backlash_um_at_20c = 200
+backlash_um_per_k = 1.5
+temperature_mean_c = 18
+temperature_amplitude_c = 4
+temperature_period_s = 3600
+cyclic_error_um = 2
+[logging]
+level = "warning"
+[[machines]]
+name = "vmc-850"
+description = "hall 2"
+  [[machines.axes]]
+  name = "y"
+  transmission_mm_per_rev = 6.857
+  screw_lead_mm = 16
+  position_gain_per_s = 10
+  travel_mm = [0, 1000]
+  controller = "modbus://10.0.0.7:502?mode=latched"
+  measure_feed_mm_min = 2000
+  measure_acceleration_mm_s2 = 400
+  warning_fraction = 0.85
+  schedule_cron = "0 6 * * *"
+    [[machines.axes.tasks]]
+    name = "bore R200"
+    profile = "circle"
+    radius_mm = 200
+    feed_mm_min = 200
+    tolerance_um = 45
+    [[machines.axes.tasks]]
+    name = "chamfer"
+    profile = "line"
+    angle_deg = 45
+    feed_mm_min = 1000
+    tolerance_um = 100
+"""
+
+
+def test_defaults_are_the_demo():
+    s = load_settings(None, env={})
+    assert s.db_url.startswith("sqlite:///") and s.db_url.endswith("data/mebm.sqlite3")
+    (axis,) = s.axes
+    assert axis.settings.controller_url == "sim" and s.uses_simulator
+    assert axis.settings.spec.transmission_mm_per_rev == 6.857 and axis.settings.spec.position_gain_per_s == 10
+    (task,) = axis.settings.tasks
+    assert (task.radius_mm, task.feed_mm_min, task.tolerance_um) == (200, 200, 45)
+    assert task.backlash_limit_um() == pytest.approx(236.0, abs=0.1)
+
+
+def test_every_option_is_read(tmp_path):
+    p = tmp_path / "mebm.toml"
+    p.write_text(FULL)
+    s = load_settings(p, env={})
+    assert (s.host, s.port, s.data_dir, s.database_url) == ("0.0.0.0", 9000, Path("/var/lib/mebm"),
+                                                          "postgresql://mebm@db/mebm")
+    assert s.bootstrap_admin_key == "0123456789abcdef0123" and s.demo_keys is False
+    assert (s.catch_up_missed, s.spool_retry_s, s.log_level) == (False, 10, "warning")
+    assert s.simulator.time_scale == 5 and s.simulator.temperature_period_s == 3600
+    (axis,) = s.axes
+    st = axis.settings
+    assert st.schedule.cron == "0 6 * * *" and st.warning_fraction == 0.85 and st.measure_acceleration_mm_s2 == 400
+    assert [t.profile for t in st.tasks] == ["circle", "line"] and st.tasks[1].gain_per_s == 10
+    assert not s.uses_simulator
+
+
+def test_environment_overrides_the_file(tmp_path):
+    p = tmp_path / "mebm.toml"
+    p.write_text(FULL)
+    env = {"MEBM_DATABASE_URL": "sqlite:////tmp/x.sqlite3", "MEBM_DATA_DIR": "/srv/mebm", "MEBM_PORT": "0",
+           "MEBM_HOST": "127.0.0.1", "MEBM_BOOTSTRAP_ADMIN_KEY": "k" * 20}
+    s = load_settings(p, env=env)
+    assert (s.database_url, s.data_dir, s.port, s.host, s.bootstrap_admin_key) == (
+        "sqlite:////tmp/x.sqlite3", Path("/srv/mebm"), 0, "127.0.0.1", "k" * 20)
+
+
+@pytest.mark.parametrize("text, where", [
+    ("[server]\nport = 'x'", "server.port"),
+    ("[server]\nprt = 1", "prt"),
+    ("[[machines]]\nname='m'\n[[machines.axes]]\nname='y'\ntransmission_mm_per_rev=1\nscrew_lead_mm=1\n"
+     "position_gain_per_s=1\ntravel_mm=[0]\n", "travel_mm"),
+    ("[[machines]]\nname='m'\n[[machines.axes]]\nname='y'\ntransmission_mm_per_rev=1\nscrew_lead_mm=1\n"
+     "position_gain_per_s=1\ntravel_mm=[0, 10]\ncontroller='ftp://x'\n", "controller"),
+    ("[[machines]]\nname='m'\n[[machines.axes]]\nname='y'\ntransmission_mm_per_rev=1\nscrew_lead_mm=1\n"
+     "position_gain_per_s=1\ntravel_mm=[0, 10]\n[[machines.axes.tasks]]\nname='c'\nprofile='circle'\n"
+     "feed_mm_min=100\ntolerance_um=5\n", "radius_mm"),
+    ("not toml =", "mebm.toml"),
+])
+def test_errors_name_the_option(tmp_path, text, where):
+    p = tmp_path / "mebm.toml"
+    p.write_text(text)
+    with pytest.raises(ConfigError, match=where.replace(".", r"\.")):
+        load_settings(p, env={})
+
+
+def test_keys_cli_create_list_revoke(tmp_path, capsys, monkeypatch):
+    url = f"sqlite:///{tmp_path}/k.sqlite3"
+    monkeypatch.setenv("MEBM_DATABASE_URL", url)
+    assert main(["keys", "create", "--role", "read", "--name", "mes", "--json"]) == 0
+    created = json.loads(capsys.readouterr().out)
+    assert created["role"] == "read" and created["key"].startswith("mebm_")
+    assert main(["keys", "list", "--json"]) == 0
+    (row,) = json.loads(capsys.readouterr().out)
+    assert row["name"] == "mes" and "key" not in row
+    assert main(["keys", "revoke", "mes"]) == 0
+    eng = make_engine(url)
+    with session_scope(make_session_factory(eng)) as s:
+        assert config_repo.authenticate(s, created["key"]) is None
+    eng.dispose()

@@ -1,0 +1,94 @@
+"""The whole loop on loopback: the scheduler starts cycles on the built-in simulated
+Modbus controller (a real pymodbus server on 127.0.0.1, a free port), results land
+in the database, status and trend answer, an alert is raised when the simulated
+backlash is raised past the 236 µm limit and cleared when it is lowered, and an MES
+(read) key can read but not trigger."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import pytest
+from fastapi.testclient import TestClient
+
+from api.rest import create_app
+from api.service.config import AxisConfig, Settings, SimulatorSettings, demo_axis
+from core.dataset import AxisSpec
+from storage.db import Schedule, config_repo, integrity_problems, session_scope
+from storage.dataset import read_dataset
+
+V1 = "/api/v1"
+pytestmark = pytest.mark.slow
+
+
+def wait_for(pred, timeout_s=40.0):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        v = pred()
+        if v:
+            return v
+        time.sleep(0.1)
+    return pred()
+
+
+@pytest.fixture
+def live(engine, db_url, tmp_path):  # noqa: ARG001 - engine empties the database
+    demo = demo_axis()
+    spec = AxisSpec("y", 6.857, 16.0, 10.0, (0.0, 200.0))
+    axis = AxisConfig(demo.machine, replace(demo.settings, spec=spec, schedule=Schedule(interval_s=2.0)))
+    sim = SimulatorSettings(time_scale=20.0, temperature_mean_c=20.0, temperature_amplitude_c=0.0,
+                            backlash_um_at_20c=226.0)
+    settings = Settings(data_dir=tmp_path, database_url=db_url, machines=((demo.machine, "loopback"),), axes=(axis,),
+                        simulator=sim, demo_keys=True)
+    app = create_app(settings)  # the production runner: Modbus driver + acquisition cycle
+    with TestClient(app) as client:
+        yield client, app.state.service
+
+
+def test_scheduler_simulator_database_status_trend_alert(live):
+    client, svc = live
+    keys = svc.report.demo_keys
+    read = {"X-API-Key": keys["read"]}
+    axis_id = next(iter(svc.simulators))
+    sim = svc.simulators[axis_id]
+    assert sim.url.startswith("modbus://127.0.0.1:")
+
+    def ok_count():
+        page = client.get(f"{V1}/axes/{axis_id}/measurements?status=ok", headers=read).json()
+        return page["total"]
+
+    assert wait_for(lambda: ok_count() >= 1), client.get(f"{V1}/axes/{axis_id}/measurements", headers=read).json()
+    st = client.get(f"{V1}/axes/{axis_id}/status", headers=read).json()
+    assert st["backlash_mean_um"] == pytest.approx(226.0, abs=4.0)
+    assert st["state"] == "WARNING" and st["temperature_c"] == pytest.approx(20.0, abs=0.05)
+    assert st["backlash_limit_um"] == pytest.approx(236.0, abs=0.1)
+
+    # an MES reads but cannot move the axis
+    assert client.post(f"{V1}/axes/{axis_id}/measurements", headers=read).status_code == 403
+
+    sim.twin.backlash_offset_um = 30.0  # wear the chain past the limit
+    n = ok_count()
+    assert wait_for(lambda: client.get(f"{V1}/alerts", headers=read).json()["total"] == 1)
+    (alert,) = client.get(f"{V1}/alerts", headers=read).json()["items"]
+    assert alert["backlash_um"] == pytest.approx(256.0, abs=4.0) and alert["tbe_um"] > 45.0
+    st = client.get(f"{V1}/axes/{axis_id}/status", headers=read).json()
+    assert st["state"] == "ALARM" and st["active_alert_id"] == alert["id"]
+    assert st["backlash_reduction_needed_um"] == pytest.approx(20.0, abs=4.0)
+
+    sim.twin.backlash_offset_um = -40.0  # the maintenance team re-preloads the nut
+    assert wait_for(lambda: client.get(f"{V1}/alerts?state=cleared", headers=read).json()["total"] == 1)
+    assert client.get(f"{V1}/alerts?state=active", headers=read).json()["total"] == 0
+    assert client.get(f"{V1}/axes/{axis_id}/status", headers=read).json()["state"] == "OK"
+
+    tr = client.get(f"{V1}/axes/{axis_id}/trend", headers=read).json()
+    assert tr["points"] >= n + 2 and max(tr["series"]["backlash_mean_um"]) > 250
+    m = client.get(f"{V1}/measurements/{tr['series']['measurement_id'][-1]}", headers=read).json()
+    assert m["result"]["lead"]["positive"]["v_2pi_um"] > 0 and len(m["curves"]["backlash_um"]) > 100
+    # every good cycle's raw run is in the dataset folder
+    with session_scope(svc.factory) as s:
+        axis = config_repo.get_axis(s, axis_id)
+    ds = read_dataset(svc.executor.dataset_folder(axis))
+    assert len(ds.runs) >= tr["points"]
+    svc.scheduler.stop()
+    assert integrity_problems(svc.engine) == []

@@ -1,0 +1,118 @@
+"""`mebm tbe` and `mebm analyze` as a user calls them."""
+
+import json
+
+import numpy as np
+import pytest
+
+from api.cli.main import main
+from core.dataset import AxisSpec, Dataset, MachineSpec, Run, RunSpec
+from storage.dataset import write_dataset
+from tests.core.criteria.synth import round_trip
+
+
+def run_cli(capsys, *argv):
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_tbe_limit_gives_paper_236(capsys):
+    code, out, _ = run_cli(capsys, "tbe", "limit", "--tolerance-um", "45", "--radius-mm", "200",
+                           "--feed-mm-min", "200", "--gain-per-s", "10", "--json")
+    assert code == 0
+    assert json.loads(out)["backlash_limit_um"] == pytest.approx(236.0, abs=0.1)
+
+
+def test_tbe_circle_json_and_text(capsys):
+    code, out, _ = run_cli(capsys, "tbe", "circle", "--backlash-um", "240.1", "--radius-mm", "200",
+                           "--feed-mm-min", "200", "--gain-per-s", "10", "--json")
+    assert code == 0
+    d = json.loads(out)
+    assert d["tbe_um"] == pytest.approx(45.55, abs=0.02)
+    assert d["radial_peak_from_programmed_um"] == pytest.approx(d["tbe_um"] - d["steady_lag_um"])
+    code, out, _ = run_cli(capsys, "tbe", "circle", "--backlash-um", "240.1", "--radius-mm", "200",
+                           "--feed-mm-min", "200", "--gain-per-s", "10")
+    assert "45.55 µm" in out
+
+
+def test_tbe_line(capsys):
+    code, out, _ = run_cli(capsys, "tbe", "line", "--backlash-um", "236", "--angle-deg", "45",
+                           "--feed-mm-min", "200", "--gain-per-s", "10", "--json")
+    assert code == 0 and json.loads(out)["tbe_um"] == pytest.approx(109.67, abs=0.02)
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["tbe", "circle", "--backlash-um", "100", "--radius-mm", "200", "--feed-mm-min", "0", "--gain-per-s", "10"],
+        ["tbe", "limit", "--tolerance-um", "-5", "--radius-mm", "200", "--feed-mm-min", "200", "--gain-per-s", "10"],
+        ["tbe", "limit", "--tolerance-um", "1e7", "--radius-mm", "200", "--feed-mm-min", "200", "--gain-per-s", "10"],
+        ["tbe", "line", "--backlash-um", "nan", "--angle-deg", "45", "--feed-mm-min", "200", "--gain-per-s", "10"],
+    ],
+)
+def test_bad_values_give_one_line_and_nonzero_exit(capsys, argv):
+    code, out, err = run_cli(capsys, *argv)
+    assert code != 0
+    assert err.startswith("mebm tbe: error: ")
+    assert err.count("\n") == 1 and "Traceback" not in err
+
+
+def _dataset(tmp_path, *runs):
+    axis = AxisSpec("y", 6.857, 16.0, 10.0, (0.0, 300.0))
+    folder = tmp_path / "ds"
+    write_dataset(folder, Dataset(MachineSpec("vmc-850", {"y": axis}), tuple(runs)))
+    return folder
+
+
+def _rt_run(name, b_um, feed=2000, end_mm=305.0):
+    s = round_trip(start_mm=-5.0, end_mm=end_mm, feed_mm_min=feed, backlash_um=lambda u: b_um + 0 * u,
+                   lead_error_um=lambda u: 3 * np.sin(2 * np.pi * u / 16), rng=np.random.default_rng(1))
+    spec = RunSpec(file=name, kind="round_trip", axes=("y",), feed_mm_min=feed, temperature_c=21.5, utility_day=3)
+    return Run(spec, {"time_s": s.time_s, "y_motor_rev": s.motor_rev, "y_table_mm": s.table_mm})
+
+
+def test_analyze_json_has_the_contract_keys(tmp_path, capsys):
+    folder = _dataset(tmp_path, _rt_run("rt_00.csv", 120.0), _rt_run("rt_01.csv", 200.0))
+    code, out, _ = run_cli(capsys, "analyze", str(folder), "--json")
+    assert code == 0
+    rows = json.loads(out)
+    assert [r["file"] for r in rows] == ["rt_00.csv", "rt_01.csv"]
+    for r, b in zip(rows, (120.0, 200.0)):
+        for key in ("file", "axis", "backlash_mean_um", "backlash_min_um", "backlash_max_um",
+                    "e_p_um", "v_u_um", "v_300_um", "v_2pi_um", "strokes"):
+            assert key in r
+        assert r["backlash_mean_um"] == pytest.approx(b, abs=0.5)
+        assert set(r["strokes"]) == {"positive", "negative"}
+        assert r["temperature_c"] == 21.5
+
+
+def test_analyze_table_output(tmp_path, capsys):
+    folder = _dataset(tmp_path, _rt_run("rt_00.csv", 120.0))
+    code, out, _ = run_cli(capsys, "analyze", str(folder))
+    assert code == 0
+    assert "b̄ (µm)" in out and "rt_00.csv" in out and "120.0" in out
+
+
+def test_analyze_reports_bad_run_by_name_and_keeps_the_good_one(tmp_path, capsys):
+    folder = _dataset(tmp_path, _rt_run("good.csv", 120.0), _rt_run("short.csv", 120.0, end_mm=200.0))
+    code, out, err = run_cli(capsys, "analyze", str(folder), "--json")
+    assert code == 1
+    assert [r["file"] for r in json.loads(out)] == ["good.csv"]
+    assert "short.csv (axis y)" in err and "shorter than the useful travel" in err
+
+
+def test_analyze_malformed_dataset_names_file_and_row(tmp_path, capsys):
+    folder = _dataset(tmp_path, _rt_run("rt_00.csv", 120.0))
+    lines = (folder / "rt_00.csv").read_text().splitlines()
+    lines[5] = lines[5].split(",", 1)[0] + ",abc," + lines[5].split(",", 2)[2]
+    (folder / "rt_00.csv").write_text("\n".join(lines) + "\n")
+    code, _, err = run_cli(capsys, "analyze", str(folder))
+    assert code != 0
+    assert "rt_00.csv, row 5" in err and "'abc'" in err
+    assert "Traceback" not in err
+
+
+def test_analyze_missing_folder(tmp_path, capsys):
+    code, _, err = run_cli(capsys, "analyze", str(tmp_path / "nope"))
+    assert code != 0 and "not a folder" in err

@@ -1,0 +1,69 @@
+"""``mebm gap diagnose`` and ``mebm gap benchmark`` end to end."""
+
+import json
+
+import numpy as np
+import pytest
+
+from api.cli.main import main
+from core.dataset import Dataset, MachineSpec
+from core.sim import AxisModel, CyclicError, Effects, Encoders, round_trip, simulate
+from storage.dataset import write_dataset
+
+
+def _dataset(tmp_path, n_runs=4):
+    axis = AxisModel(name="y", backlash_um=50.0, encoders=Encoders(table_noise_um=0.2),
+                     effects=Effects(cyclic_error=CyclicError.of((16.0, 4.0, 0.0))))
+    rng = np.random.default_rng(1)
+    runs = []
+    for i, (feed, temp) in enumerate(((600.0, 18.0), (1000.0, 20.0), (1400.0, 22.0), (2400.0, 30.0))[:n_runs]):
+        tr = simulate({"y": axis}, round_trip(10.0 + 10 * i, 110.0 + 10 * i, feed, 600.0, 0.3), temperature_c=temp,
+                      rate_hz=250.0, rng=rng)
+        runs.append(tr.to_run(f"rt_{i}.csv", split=("test" if i == 3 else "train") if n_runs > 1 else None))
+    folder = tmp_path / "ds"
+    write_dataset(folder, Dataset(MachineSpec("cli", {"y": axis.to_axis_spec((0.0, 200.0))}), tuple(runs)))
+    return folder
+
+
+def test_diagnose_prints_the_report_and_writes_json_and_plots(tmp_path, capsys):
+    folder = _dataset(tmp_path)
+    out = tmp_path / "gap.json"
+    plots = tmp_path / "plots"
+    assert main(["gap", "diagnose", str(folder), "--json", str(out), "--plots", str(plots)]) == 0
+    text = capsys.readouterr().out
+    assert "Diagnosis: cyclic_error" in text
+    assert "effect" in text and "gap after (µm)" in text
+    doc = json.loads(out.read_text())
+    assert doc["format"] == "mebm-gap/1" and doc["effect"] == "cyclic_error"
+    assert doc["gap_after_um"] < 0.5 * doc["gap_before_um"]
+    assert doc["split"]["test"] == ["rt_3.csv"]
+    assert sorted(p.name for p in plots.iterdir()) == ["gap_rt_3.png"]
+
+
+def test_diagnose_json_to_stdout_is_only_json(tmp_path, capsys):
+    folder = _dataset(tmp_path)
+    assert main(["gap", "diagnose", str(folder), "--json", "-"]) == 0
+    assert json.loads(capsys.readouterr().out)["format"] == "mebm-gap/1"
+
+
+def test_a_single_run_is_one_error_line_and_a_failure_code(tmp_path, capsys):
+    folder = _dataset(tmp_path, n_runs=1)
+    assert main(["gap", "diagnose", str(folder)]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("mebm gap: error:") and "at least 2" in err[0]
+
+
+def test_benchmark_prints_the_confusion_matrix_and_scores(tmp_path, capsys):
+    out = tmp_path / "bench.json"
+    assert main(["gap", "benchmark", "--cases", "1", "--seed", "4", "--small", "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "confusion matrix" in text and "named correctly" in text and "median gap_after/gap_before" in text
+    doc = json.loads(out.read_text())
+    assert doc["n_cases"] == 1 and len(doc["cases"]) == 1
+    assert doc["cases"][0]["label"] in doc["confusion"]
+
+
+@pytest.mark.parametrize("cases", ["0", "-3"])
+def test_benchmark_refuses_no_cases(cases, capsys):
+    assert main(["gap", "benchmark", "--cases", cases]) != 0
+    assert "--cases" in capsys.readouterr().err

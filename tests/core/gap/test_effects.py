@@ -1,0 +1,90 @@
+"""Each effect, injected in simulated data, is named and its gap at least halved.
+
+Small single-purpose datasets (the benchmark's are larger): round trips of one axis,
+three to train and one to test at another feed, acceleration and temperature; circles
+for servo dynamics, which round trips cannot see.
+"""
+
+import numpy as np
+import pytest
+
+from core.dataset import Dataset, MachineSpec
+from core.gap import diagnose
+from core.sim import (
+    AxisModel,
+    BacklashProfile,
+    Compliance,
+    CyclicError,
+    Effects,
+    Encoders,
+    Friction,
+    SamplingSkew,
+    ServoDynamics,
+    Thermal,
+    circle,
+    round_trip,
+    simulate,
+)
+
+ENC = Encoders(table_noise_um=0.2, motor_noise_um=0.2)
+TRAIN = ((600.0, 400.0, 17.0), (1000.0, 600.0, 20.0), (1500.0, 800.0, 23.0))  # feed, acceleration, temperature
+TEST = (2400.0, 1500.0, 30.0)
+
+EFFECTS = {
+    "thermal": Effects(thermal=Thermal(lead_growth_ppm_per_k=8.0, backlash_um_per_k=3.0)),
+    "backlash_profile": Effects(backlash_profile=BacklashProfile((0.0, 60.0, 110.0, 200.0), (50.0, 90.0, 70.0, 55.0))),
+    "cyclic_error": Effects(cyclic_error=CyclicError.of((16.0, 4.0, 30.0), (11.3, 3.0, 100.0))),
+    "friction": Effects(friction=Friction(coulomb_n=2500.0, static_n=3200.0, stribeck_velocity_mm_s=2.0,
+                                          viscous_n_s_per_mm=10.0)),
+    "compliance": Effects(compliance=Compliance(stiffness_n_per_um=100.0, table_mass_kg=1500.0, damping_ratio=0.3,
+                                                guide_damping_n_s_per_mm=5.0)),
+    "sampling_skew": Effects(sampling_skew=SamplingSkew(0.003)),
+}
+
+
+def _round_trips(effects: Effects, rng, conditions=(*TRAIN, TEST)) -> Dataset:
+    axis = AxisModel(name="y", transmission_mm_per_rev=6.857, backlash_um=60.0, effects=effects, encoders=ENC)
+    runs = []
+    for i, (feed, acc, temp) in enumerate(conditions):
+        start = (10.0, 40.0, 70.0, 30.0)[i]
+        prog = round_trip(start, start + 100.0, feed, acc, 0.5)
+        tr = simulate({"y": axis}, prog, temperature_c=temp, rate_hz=500.0, rng=rng)
+        runs.append(tr.to_run(f"rt_{i}.csv", split="test" if i == 3 else "train"))
+    return Dataset(MachineSpec("t", {"y": axis.to_axis_spec((0.0, 200.0))}), tuple(runs))
+
+
+@pytest.mark.parametrize("effect", sorted(EFFECTS))
+def test_round_trip_effect_is_named_and_its_gap_halved(effect):
+    conditions = (*TRAIN, TEST)
+    if effect == "compliance":
+        # The table floats across the backlash when braking harder than its guides hold it;
+        # when it does depends steeply on the guide friction, which the apparent backlash
+        # hides: a test braking harder than every train run is not predictable (see
+        # docs/gap-diagnosis.md), so the test run brakes within the train range (and runs
+        # slower than any train run: at a higher feed the float is as fragile).
+        conditions = ((600.0, 400.0, 17.0), (1000.0, 1500.0, 20.0), (1500.0, 800.0, 23.0), (400.0, 800.0, 30.0))
+    rep = diagnose(_round_trips(EFFECTS[effect], np.random.default_rng(7), conditions))
+    assert rep.effect == effect, rep.text()
+    assert rep.gap_after_um <= 0.5 * rep.gap_before_um, rep.text()
+    assert rep.candidates[0].effect == effect
+    assert rep.where.kind == "round_trip" and rep.where.axis == "y"
+
+
+def test_servo_dynamics_is_named_from_circles_and_its_gap_halved():
+    x = AxisModel(name="x", backlash_um=40.0, encoders=ENC,
+                  effects=Effects(servo_dynamics=ServoDynamics(velocity_lag_s=0.008, dead_time_s=0.0015)))
+    y = AxisModel(name="y", backlash_um=60.0, encoders=ENC)
+    rng = np.random.default_rng(5)
+    runs = []
+    for i, (r, feed) in enumerate(((40.0, 800.0), (60.0, 1200.0), (30.0, 2500.0))):
+        prog = circle(r, (100.0, 100.0), feed, "ccw" if i % 2 == 0 else "cw")
+        tr = simulate({"x": x, "y": y}, prog, rate_hz=250.0, rng=rng)
+        runs.append(tr.to_run(f"c_{i}.csv", split="test" if i == 2 else "train"))
+    m = MachineSpec("t", {"x": x.to_axis_spec((0.0, 200.0)), "y": y.to_axis_spec((0.0, 200.0))})
+    rep = diagnose(Dataset(m, tuple(runs)))
+    assert rep.effect == "servo_dynamics", rep.text()
+    assert rep.gap_after_um <= 0.5 * rep.gap_before_um
+    params = rep.candidates[0].params
+    assert params["x.velocity_lag_ms"] + params["x.dead_time_ms"] > 5.0  # the slow axis is x
+    assert params["y.velocity_lag_ms"] + params["y.dead_time_ms"] < 2.0
+    assert rep.where.kind == "circle"

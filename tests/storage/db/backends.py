@@ -1,0 +1,98 @@
+"""Database backends for the storage and API suites: SQLite and PostgreSQL.
+
+PostgreSQL: a uniquely named database is created from ``test`` on 127.0.0.1:5432
+(trust auth; user from MEBM_TEST_PG_USER, else postgres, else root) for the test
+session and dropped afterwards. When no server answers, the PostgreSQL run is skipped
+with a message saying so. MEBM_TEST_PG_URL overrides the server URL.
+"""
+
+from __future__ import annotations
+
+import os
+import uuid
+
+import pytest
+from sqlalchemy import create_engine, text
+
+from storage.db import make_engine, upgrade
+from storage.db.models import Base
+
+PG_SERVER = os.environ.get("MEBM_TEST_PG_URL", "postgresql+psycopg://{user}@127.0.0.1:5432/test")
+BACKENDS = ("sqlite", "postgresql")
+_skip_reason: str | None = None
+
+
+def _admin_engine():
+    last = None
+    for user in filter(None, (os.environ.get("MEBM_TEST_PG_USER"), "postgres", "root")):
+        url = PG_SERVER.format(user=user)
+        eng = create_engine(url, isolation_level="AUTOCOMMIT", connect_args={"connect_timeout": 3})
+        try:
+            with eng.connect() as c:
+                c.execute(text("SELECT 1"))
+            return eng, url
+        except Exception as exc:  # noqa: BLE001 - any failure means: no usable server
+            last = exc
+            eng.dispose()
+    raise RuntimeError(str(last).splitlines()[0] if last else "no user")
+
+
+class PgDatabase:
+    """A throw-away PostgreSQL database; ``url`` for the product's engine."""
+
+    def __init__(self):
+        self.admin, server_url = _admin_engine()
+        self.name = f"mebm_test_{uuid.uuid4().hex[:12]}"
+        with self.admin.connect() as c:
+            c.execute(text(f'CREATE DATABASE "{self.name}"'))
+        self.url = server_url.rsplit("/", 1)[0] + "/" + self.name
+
+    def drop(self) -> None:
+        with self.admin.connect() as c:
+            c.execute(text(f'DROP DATABASE IF EXISTS "{self.name}" WITH (FORCE)'))
+        self.admin.dispose()
+
+
+def make_database(backend: str, tmp_dir) -> tuple[str, object]:
+    """(url, handle) of a fresh empty database; ``handle.drop()`` removes a PG one."""
+    global _skip_reason
+    if backend == "sqlite":
+        return f"sqlite:///{tmp_dir}/mebm.sqlite3", None
+    if _skip_reason is not None:
+        pytest.skip(_skip_reason)
+    try:
+        db = PgDatabase()
+    except Exception as exc:  # noqa: BLE001
+        _skip_reason = f"PostgreSQL run skipped: no server reachable on 127.0.0.1:5432 ({exc})"
+        pytest.skip(_skip_reason)
+    return db.url, db
+
+
+def truncate_all(engine) -> None:
+    with engine.begin() as c:
+        if engine.dialect.name == "postgresql":
+            names = ", ".join(f'"{t.name}"' for t in Base.metadata.sorted_tables)
+            c.execute(text(f"TRUNCATE {names} RESTART IDENTITY CASCADE"))
+        else:
+            for t in reversed(Base.metadata.sorted_tables):
+                c.execute(t.delete())
+
+
+@pytest.fixture(scope="session", params=BACKENDS)
+def db_url(request, tmp_path_factory):
+    """A migrated database per backend for the whole session."""
+    url, handle = make_database(request.param, tmp_path_factory.mktemp(request.param))
+    eng = make_engine(url)
+    upgrade(eng)
+    eng.dispose()
+    yield url
+    if handle is not None:
+        handle.drop()
+
+
+@pytest.fixture
+def engine(db_url):
+    eng = make_engine(db_url)
+    truncate_all(eng)
+    yield eng
+    eng.dispose()

@@ -1,0 +1,1 @@
+from tests.storage.db.backends import db_url, engine  # noqa: F401 - fixtures
