@@ -1,0 +1,50 @@
+"""Benchmark: diagnosis time of a full-size dataset (8 round trips of ~30,000 samples + 6 circles).
+
+Generates one dataset per label with the benchmark generator (core.gap.benchmark,
+default CaseSize: 4 round trips per axis at 1 kHz over ~30 s, 6 circles at 500 Hz),
+diagnoses each and prints the wall time, samples and result; then the median.
+Goal (issue): under 60 s per dataset on the 2-core machine. The scoring benchmark
+(confusion matrix, fraction correct) is ``mebm gap benchmark --cases 40``.
+
+    .venv/bin/python benchmarks/bench_gap.py [--seed S] [--labels none,thermal,...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from core.gap import LABELS, GapSettings, diagnose, make_case  # noqa: E402
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--labels", default=",".join(LABELS))
+    args = ap.parse_args()
+    diagnose(make_case("none", np.random.default_rng(0)).dataset)  # numba compile / cache warm-up
+    times = []
+    for label in args.labels.split(","):
+        case = make_case(label, np.random.default_rng(args.seed))
+        ds = case.dataset
+        n_rt = sum(r.spec.kind == "round_trip" for r in ds.runs)
+        n_ct = len(ds.runs) - n_rt
+        rt_samples = [len(r) for r in ds.runs if r.spec.kind == "round_trip"]
+        t0 = time.perf_counter()
+        rep = diagnose(ds, GapSettings(keep_curves=False))
+        dt = time.perf_counter() - t0
+        times.append(dt)
+        print(f"{label:17s} {n_rt} round trips (median {int(np.median(rt_samples))} samples) + {n_ct} circles: "
+              f"{dt:5.1f} s -> {rep.effect} ({rep.gap_before_um:.2f} -> {rep.gap_after_um:.2f} µm)", flush=True)  # fmt: skip
+    print(f"median diagnosis time: {statistics.median(times):.1f} s, max {max(times):.1f} s (goal < 60 s)")
+
+
+if __name__ == "__main__":
+    main()
