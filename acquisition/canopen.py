@@ -316,10 +316,6 @@ class CanopenDriver(ControllerDriver):
             e = self._emcy
             raise DeviceFaultError(f"drive node {self.node_id} sent EMCY ({e.get_desc() or 'fault'})", code=e.code)
         self._check_link()
-        frames = []
-        while self._frames:
-            frames.append(self._frames.popleft())
-        frames = [f for f in frames if f[0] >= self._first]
         finished = False
         now = time.monotonic()
         if now - self._last_status >= self.status_interval_s:
@@ -332,6 +328,12 @@ class CanopenDriver(ControllerDriver):
                     e = self._emcy
                     raise DeviceFaultError(f"drive node {self.node_id} sent EMCY ({e.get_desc() or 'fault'})", code=e.code)
                 raise_device_fault(status, self.describe(), self.link_trouble)
+        # frames are taken only after the status read, which may time out: a retry then finds
+        # them still queued (nothing read is lost), and a DONE status covers every frame taken
+        frames = []
+        while self._frames:
+            frames.append(self._frames.popleft())
+        frames = [f for f in frames if f[0] >= self._first]
         if not frames:
             return SampleBlock.empty(finished)
         arr = np.asarray(frames, dtype=np.int64)

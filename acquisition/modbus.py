@@ -173,19 +173,22 @@ class ModbusDriver(ControllerDriver):
         prev = np.concatenate([[floor], counter[:-1]])
         ok = counter > prev
         k = int(np.argmin(ok)) if not ok.all() else n
-        if k:
-            self._next_w += k
-            self._next_counter = int(counter[k - 1]) + 1
         full = k == n
+        next_w = self._next_w + k
         finished = False
         if not full:
+            # may raise (timeout, busy): nothing is committed yet, so the retry re-reads these
+            # records from the ring instead of losing them
             s = await self._status()
-            behind = s["trace_count"] - self._next_w
+            behind = s["trace_count"] - next_w
             if behind >= self.ring_records:
                 # the ring lapped us: the records we read were whole laps newer (their counters
                 # jumped, reported as lost samples); count the laps so slots stay aligned
-                self._next_w += self.ring_records * (behind // self.ring_records)
-            finished = await self._finished(s, caught_up=self._next_w >= s["trace_count"])
+                next_w += self.ring_records * (behind // self.ring_records)
+            finished = await self._finished(s, caught_up=next_w >= s["trace_count"])
+        self._next_w = next_w
+        if k:
+            self._next_counter = int(counter[k - 1]) + 1
         return SampleBlock(counter[:k], motor[:k], table[:k], finished=finished, caught_up=not full)
 
     async def _poll_sample(self) -> SampleBlock:
