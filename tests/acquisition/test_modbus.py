@@ -10,8 +10,9 @@ import pytest
 
 from acquisition import modbus_map as mm
 from acquisition.cycle import run_cycle
-from acquisition.errors import ControllerConnectionError, ProtocolError
+from acquisition.errors import ControllerConnectionError, ControllerTimeoutError, ProtocolError
 from acquisition.modbus import ModbusDriver
+from acquisition.modbus import _new_records as mm_new
 from acquisition.scale import EncoderScale
 from acquisition.types import AxisState, RoundTripProgram
 from tests.acquisition.conftest import AXIS, PROGRAM, modbus_peer
@@ -115,6 +116,56 @@ def test_records_read_before_a_failed_status_read_are_not_lost():
         assert d.injected == 1
         assert r.ok, r.reason
         assert r.trace.lost_samples == 0 and np.all(np.diff(r.trace.counter) == 1)
+
+
+class _ReadFailsMidBatch(ModbusDriver):
+    """Fails the third trace-block read of one drain with a timeout, once."""
+
+    def __init__(self, *a, **kw):
+        super().__init__(*a, **kw)
+        self.reads_this_drain = 0
+        self.injected = 0
+
+    async def _drain_trace(self):
+        self.reads_this_drain = 0
+        return await super()._drain_trace()
+
+    async def _read(self, address, count, what):
+        if address >= mm.RING_BASE:
+            self.reads_this_drain += 1
+            if self.reads_this_drain == 3 and not self.injected:
+                self.injected += 1
+                raise ControllerTimeoutError("injected: no reply within 0.5 s while reading the trace buffer")
+        return await super()._read(address, count, what)
+
+
+def test_a_failed_read_mid_batch_loses_no_sample():
+    # time_scale 50: the controller runs ahead, so drains read several blocks at once
+    with modbus_peer(time_scale=50.0) as peer:
+        d = _ReadFailsMidBatch("127.0.0.1", peer.driver().port, timeout_s=0.5, retries=3)
+        r = run_cycle(d, AXIS, PROGRAM)
+        assert d.injected == 1
+        assert r.ok, r.reason
+        assert r.trace.lost_samples == 0 and np.all(np.diff(r.trace.counter) == 1)
+        assert abs(r.result.backlash_mean_um - 120.0) < 1.0
+
+
+def test_block_validity_from_first_and_last_counter():
+    def block(counters):
+        rec = np.array([[c, 10 * c, -c] for c in counters])
+        return mm.encode_records(rec).astype(int).tolist()
+
+    n = mm.RECORDS_PER_READ
+    assert mm_new(block(range(500, 500 + n)), n, 500) == (n, 500 + n)
+    # the ring's newest record is 506: the rest of the block is an older lap
+    assert mm_new(block([*range(500, 507), *range(507 - 2000, 507 - 2000 + n - 7)]), n, 500) == (7, 507)
+    assert mm_new(block(range(400, 400 + n)), n, 500) == (0, 500)  # nothing new yet
+    # across the u32 wrap of the counter
+    top = 2**32 - 5
+    wrapped = [(top + i) % 2**32 for i in range(n)]
+    assert mm_new(block(wrapped), n, top) == (n, top + n)
+    # a gap (samples never latched) is not hidden: the block is new, the base loop reports the gap
+    assert mm_new(block([*range(500, 505), *range(510, 510 + n - 5)]), n, 500) == (n, 510 + n - 5)
 
 
 def test_brief_drop_is_recovered_from_the_trace_buffer():
