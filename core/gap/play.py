@@ -14,6 +14,8 @@ import math
 import numpy as np
 from numba import njit
 
+from core.sim.kernels import flank_force
+
 
 @njit(cache=True)
 def play(u, half_width, x0):
@@ -85,16 +87,7 @@ def play_inertia(u, nut_v, t, half_width, w2, c_contact, c_guide, mu, nsub, x0):
         hb = half_width[i]
         for s in range(nsub):
             nut = u[i - 1] + du * s  # state at the start of the sub-step (symplectic Euler)
-            d = nut - x
-            f = 0.0
-            if d > hb:
-                f = w2 * (d - hb) + c_contact * (nv - v)
-                if f < 0.0:
-                    f = 0.0
-            elif d < -hb:
-                f = w2 * (d + hb) + c_contact * (nv - v)
-                if f > 0.0:
-                    f = 0.0
+            f = flank_force(nut - x, hb, w2, c_contact, nv - v)
             vf = v + h * f
             if v == 0.0:
                 if abs(f) <= mu:

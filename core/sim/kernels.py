@@ -1,4 +1,5 @@
-"""Time-stepping loops of one axis (numba). Called by :mod:`core.sim.engine` only.
+"""Time-stepping loops of one axis (numba). Called by :mod:`core.sim.engine` only
+(:func:`flank_force` is shared with :mod:`core.gap.play`).
 
 Positions in mm, velocities in mm/s, forces in N, masses in kg (so an acceleration
 in mm/s^2 is 1000 F/m), stiffness in N/mm, damping in N s/mm.
@@ -54,6 +55,24 @@ def _half(n, pos, hw):
             hi = mid
     slope = (hw[hi] - hw[lo]) / (pos[hi] - pos[lo])
     return hw[lo] + slope * (n - pos[lo]), slope
+
+
+@njit(cache=True)
+def flank_force(delta, hb, k, c, dv):
+    """Push of the nut on the table through a compliant flank contact (never a pull).
+
+    ``delta`` = nut - table, ``hb`` the half backlash, ``k`` the contact stiffness, ``c``
+    its damping and ``dv`` = nut velocity - table velocity: zero inside the play, the
+    spring-damper force on the flank reached, clipped so that the flank only pushes.
+    Units are the caller's (N/mm and N s/mm here, per unit mass in core.gap.play).
+    """
+    if delta > hb:
+        f = k * (delta - hb) + c * dv
+        return f if f > 0.0 else 0.0
+    if delta < -hb:
+        f = k * (delta + hb) + c * dv
+        return f if f < 0.0 else 0.0
+    return 0.0
 
 
 @njit(cache=True)
@@ -307,16 +326,7 @@ def run_dynamic(
                 elif x > n + hb:
                     x = n + hb
             else:
-                delta = n - x
-                f = 0.0
-                if delta > hb:
-                    f = k_n_mm * (delta - hb) + c_contact * (nv - v)
-                    if f < 0.0:
-                        f = 0.0
-                elif delta < -hb:
-                    f = k_n_mm * (delta + hb) + c_contact * (nv - v)
-                    if f > 0.0:
-                        f = 0.0
+                f = flank_force(n - x, hb, k_n_mm, c_contact, nv - v)
                 vf = v + h * acc * f
                 if fr_model == FRICTION_STRIBECK:
                     if v == 0.0:
