@@ -104,6 +104,10 @@ class FaultSchedule:
                 self.active.append(f)
         return self.active
 
+    def has(self, kind: str) -> bool:
+        """A fault of ``kind`` is configured (whether or not it has cycles left)."""
+        return any(f.kind == kind for f in self._faults)
+
     def startup(self, kind: str) -> Fault | None:
         for f in self._faults:
             if f.kind == kind:

@@ -15,6 +15,7 @@ from fastapi import APIRouter, FastAPI
 
 from api.rest import errors
 from api.rest.schemas import ERROR_RESPONSES
+from api.rest.status_body import StatusFastPath
 from api.rest.auth import KeyCache
 from api.rest.metrics import make_registry
 from api.service.config import Settings
@@ -61,9 +62,10 @@ def create_app(settings: Settings, *, service: Service | None = None, runner: Cy
                   openapi_url=f"{API_PREFIX}/openapi.json", docs_url="/docs", redoc_url=None)
     app.state.service = svc
     app.state.key_cache = KeyCache()
-    app.state.status_json = {}  # axis id -> (status object, its JSON body): see routers/axes.py
+    app.state.status_json = {}  # axis id -> (status object, its encoded JSON): see status_body.py
     app.state.metrics = make_registry(svc)
     errors.install(app)
+    app.add_middleware(StatusFastPath, state=app.state)
     api = APIRouter(prefix=API_PREFIX, responses=ERROR_RESPONSES)
     for name in ROUTERS:
         try:

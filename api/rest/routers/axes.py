@@ -7,12 +7,12 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query, Request, Response, status
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import JSONResponse
 
 from api.rest import convert, schemas as sc
 from api.rest.auth import AdminKey, OperateKey, ReadKey
 from api.rest.deps import AxisId, ServiceDep, SessionDep
 from api.rest.routers.machines import tasks_from
+from api.rest.status_body import cached_status, status_json
 from api.service.scheduler import make_trigger
 from storage.db import CycleRecord, Schedule, config_repo, results_repo, utcnow
 
@@ -36,30 +36,12 @@ def get_axis(axis_id: AxisId, s: SessionDep, svc: ServiceDep, _k: ReadKey):
 @router.get("/axes/{axis_id}/status", response_model=sc.AxisStatusOut,
             summary="Current TBE per task, backlash (also at 20 °C), limit, state and age of the last measurement")
 async def axis_status(axis_id: AxisId, svc: ServiceDep, _k: ReadKey, request: Request):
-    # The endpoint an MES polls: async with a cache fast path (no thread hop). A status
-    # older than the cache TTL (30 s) but not invalidated by a new cycle is served while one
-    # background thread recomputes it, so pollers never queue behind the recomputation.
-    st = svc.status.fresh(axis_id)
+    # The endpoint an MES polls: async, from the status cache when it can (no thread hop);
+    # api.rest.status_body.StatusFastPath answers most polls before they get here.
+    st = cached_status(svc, axis_id)
     if st is None:
-        st = svc.status.stale(axis_id)
-        if st is not None:
-            svc.status.refresh_in_background(axis_id)
-        else:
-            st = await run_in_threadpool(svc.status.get, axis_id)
-    # The validated body is built once per computed status; per request only the age of
-    # the measurement and the next run change (this endpoint is what an MES polls).
-    memos = request.app.state.status_json
-    memo = memos.get(axis_id)
-    if memo is None or memo[0] is not st:
-        body = convert.status(st, utcnow(), None).model_dump(mode="json")
-        memo = memos[axis_id] = (st, body)
-    body = dict(memo[1])
-    now = utcnow()
-    latest = st.latest
-    body["age_s"] = (now - latest.measured_at).total_seconds() if latest is not None else None
-    nxt = svc.scheduler.next_run(axis_id)
-    body["next_run_at"] = nxt.isoformat().replace("+00:00", "Z") if nxt is not None else None
-    return JSONResponse(body)
+        st = await run_in_threadpool(svc.status.get, axis_id)
+    return Response(status_json(request.app.state, svc, axis_id, st), media_type="application/json")
 
 
 
