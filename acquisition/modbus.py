@@ -184,9 +184,15 @@ class ModbusDriver(ControllerDriver):
             try:
                 regs = await self._read(mm.RING_BASE + slot * mm.RECORD_WORDS, n * mm.RECORD_WORDS,
                                         "reading the trace buffer")
-            except AcquisitionError:
+            except AcquisitionError as exc:
                 if i == 0:
                     raise
+                # hand over the good blocks; the base loop's retry handling meets this read
+                # again on the next drain. A timed-out or dropped link is closed first, as
+                # the base loop does, so a late reply can never answer the next request.
+                self.link_trouble = str(exc)
+                if isinstance(exc, (ControllerConnectionError, ControllerTimeoutError)):
+                    await self.close()
                 break
             k, expected = _new_records(regs, n, expected)
             regs_all.extend(regs[: k * mm.RECORD_WORDS] if k < n else regs)

@@ -14,10 +14,10 @@ import logging
 from fastapi import APIRouter, FastAPI
 
 from api.rest import errors
-from api.rest.schemas import ERROR_RESPONSES
-from api.rest.status_body import StatusFastPath
 from api.rest.auth import KeyCache
 from api.rest.metrics import make_registry
+from api.rest.schemas import ERROR_RESPONSES
+from api.rest.status_body import StatusFastPath
 from api.service.config import Settings
 from api.service.runner import CycleRunner
 from api.service.service import Service

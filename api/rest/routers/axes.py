@@ -14,7 +14,7 @@ from api.rest.deps import AxisId, ServiceDep, SessionDep
 from api.rest.routers.machines import tasks_from
 from api.rest.status_body import cached_status, status_json
 from api.service.scheduler import make_trigger
-from storage.db import CycleRecord, Schedule, config_repo, results_repo, utcnow
+from storage.db import CycleRecord, Schedule, config_repo, results_repo
 
 router = APIRouter(tags=["axes"])
 
