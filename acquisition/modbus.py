@@ -169,7 +169,9 @@ class ModbusDriver(ControllerDriver):
 
         Behind the controller (a full ring) several blocks are read per drain and decoded
         once, so the per-sample cost stays near a bare read loop's; each block's validity
-        is checked on its first and last counter (the base loop checks every counter).
+        is checked on its first and last counter, then the batch for a record older than
+        its predecessor (a torn read), where it is cut to be read again; the base loop
+        checks every counter for gaps.
         A failed read after good blocks ends the batch: those blocks are handed over and
         the read is retried on the next drain, so nothing read is lost.
         """
@@ -200,6 +202,17 @@ class ModbusDriver(ControllerDriver):
             if k < n:
                 full = False
                 break
+        if regs_all:
+            counter_u32, motor, table = mm.decode_records(regs_all, self.scale)
+            counter = mm.unwrap_u32(counter_u32, ref)
+            older = np.flatnonzero(counter[1:] <= counter[:-1])
+            if older.size:
+                # a block read while the controller was writing it (a "torn" read: a record
+                # older than its predecessor): keep the records before it, read the rest again
+                j = int(older[0]) + 1
+                counter, motor, table = counter[:j], motor[:j], table[:j]
+                next_w = self._next_w + j
+                full = False
         finished = False
         if not full:
             # may raise (timeout, busy): nothing is committed yet, so the retry re-reads these
@@ -214,8 +227,6 @@ class ModbusDriver(ControllerDriver):
         self._next_w = next_w
         if not regs_all:
             return SampleBlock.empty(finished)
-        counter_u32, motor, table = mm.decode_records(regs_all, self.scale)
-        counter = mm.unwrap_u32(counter_u32, ref)
         self._next_counter = int(counter[-1]) + 1
         return SampleBlock(counter, motor, table, finished=finished, caught_up=not full)
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import socket
 import time
 
@@ -166,6 +167,38 @@ def test_block_validity_from_first_and_last_counter():
     assert mm_new(block(wrapped), n, top) == (n, top + n)
     # a gap (samples never latched) is not hidden: the block is new, the base loop reports the gap
     assert mm_new(block([*range(500, 505), *range(510, 510 + n - 5)]), n, 500) == (n, 510 + n - 5)
+
+
+class _FakeRing(ModbusDriver):
+    """The trace-buffer wire without a server: ``ring[slot]`` is the record (counter, motor,
+    table) a read returns; ``torn`` = {slot: record} is returned once instead, as a read
+    racing the controller's write would."""
+
+    def __init__(self, ring, torn, trace_count):
+        super().__init__("127.0.0.1", 1)
+        self.ring, self.torn, self.trace_count = ring, dict(torn), trace_count
+        self.scale, self.ring_records, self._first_counter = EncoderScale(), len(ring), int(ring[0][0])
+
+    async def _read(self, address, count, what):
+        s0 = (address - mm.RING_BASE) // mm.RECORD_WORDS
+        rec = []
+        for slot in range(s0, s0 + count // mm.RECORD_WORDS):
+            rec.append(self.torn.pop(slot) if slot in self.torn else self.ring[slot])
+        return mm.encode_records(np.array(rec)).astype(int).tolist()
+
+    async def _status(self):
+        return {"state": AxisState.RUNNING, "fault_code": 0, "trace_count": self.trace_count}
+
+
+def test_a_torn_block_is_cut_at_the_older_record_and_read_again():
+    ring = [(1000 + i, 10 * i, -i) for i in range(100)]
+    # slot 25 still held a record of the previous lap when the read passed it
+    d = _FakeRing(ring, {25: (1000 + 25 - 100, 0, 0)}, trace_count=100)
+    first = asyncio.run(d._drain_trace())
+    assert first.counter.tolist() == list(range(1000, 1025)) and first.caught_up and not first.finished
+    second = asyncio.run(d._drain_trace())
+    assert second.counter.tolist() == list(range(1025, 1100))
+    assert second.table_mm.tolist() == pytest.approx([-i * 1e-5 for i in range(25, 100)])
 
 
 def test_brief_drop_is_recovered_from_the_trace_buffer():
