@@ -59,11 +59,12 @@ def status_json(state, svc, axis_id: int, st: AxisStatus) -> bytes:
 
 
 def _api_key(headers) -> str | None:
+    # the first of repeated headers, as Starlette's Headers.get (the route) takes it
     key = auth = None
     for name, value in headers:
-        if name == b"x-api-key":
+        if name == b"x-api-key" and key is None:
             key = value
-        elif name == b"authorization":
+        elif name == b"authorization" and auth is None:
             auth = value
     if key:
         return key.decode("latin-1")

@@ -67,7 +67,10 @@ def play_friction(u, half_width, lost_mm, breakaway_mm, x0):
     return out
 
 
-@njit(cache=True)
+# Not cached: it calls core.sim.kernels.flank_force, and numba's on-disk cache is keyed
+# by this file only, so an edit there would leave a stale compiled copy here (compiling
+# costs about 0.5 s once per process).
+@njit
 def play_inertia(u, nut_v, t, half_width, w2, c_contact, c_guide, mu, nsub, x0):
     """The table as a mass behind the nut (Compliance): per unit mass,
     x'' = w2 (n - x -+ b/2) + c_contact (n' - x')  in contact with a flank (pushing only),

@@ -68,10 +68,10 @@ def flank_force(delta, hb, k, c, dv):
     """
     if delta > hb:
         f = k * (delta - hb) + c * dv
-        return f if f > 0.0 else 0.0
+        return 0.0 if f < 0.0 else f  # a NaN stays NaN: bad input must show, not vanish
     if delta < -hb:
         f = k * (delta + hb) + c * dv
-        return f if f < 0.0 else 0.0
+        return 0.0 if f > 0.0 else f
     return 0.0
 
 
