@@ -213,16 +213,18 @@ class ModbusDriver(ControllerDriver):
                 counter, motor, table = counter[:j], motor[:j], table[:j]
                 next_w = self._next_w + j
                 full = False
+            # Record w sits in slot w mod N and carries counter first + w (one record per
+            # servo cycle). A reader more than N records behind finds newer records in its
+            # slots (their counters jump: lost samples, reported by the base loop); count the
+            # laps from the counter so the read position stays the record's own index.
+            laps = round((int(counter[-1]) - self._first_counter - (next_w - 1)) / self.ring_records)
+            if laps > 0:
+                next_w += laps * self.ring_records
         finished = False
         if not full:
             # may raise (timeout, busy): nothing is committed yet, so the retry re-reads these
             # records from the ring instead of losing them
             s = await self._status()
-            behind = s["trace_count"] - next_w
-            if behind >= self.ring_records:
-                # the ring lapped us: the records we read were whole laps newer (their counters
-                # jumped, reported as lost samples); count the laps so slots stay aligned
-                next_w += self.ring_records * (behind // self.ring_records)
             finished = await self._finished(s, caught_up=next_w >= s["trace_count"])
         self._next_w = next_w
         if not regs_all:

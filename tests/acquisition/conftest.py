@@ -39,9 +39,9 @@ class Peer:
 
 
 @contextlib.contextmanager
-def modbus_peer(faults=(), twin=None, *, time_scale=10.0, servo_rate_hz=500.0, mode="trace"):
+def modbus_peer(faults=(), twin=None, *, time_scale=10.0, servo_rate_hz=500.0, mode="trace", ring_records=2000):
     twin = twin or KinematicTwin(backlash_um=120.0, position_gain_per_s=30.0)
-    axis = SimAxis(twin, servo_rate_hz=servo_rate_hz, time_scale=time_scale,
+    axis = SimAxis(twin, servo_rate_hz=servo_rate_hz, time_scale=time_scale, ring_records=ring_records,
                    faults=[parse_fault(f) if isinstance(f, str) else f for f in faults])
     sim = SimModbusController(axis)
     port = sim.start_in_thread()

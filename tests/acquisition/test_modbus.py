@@ -174,9 +174,9 @@ class _FakeRing(ModbusDriver):
     table) a read returns; ``torn`` = {slot: record} is returned once instead, as a read
     racing the controller's write would."""
 
-    def __init__(self, ring, torn, trace_count):
+    def __init__(self, ring, torn, trace_count, state=AxisState.RUNNING):
         super().__init__("127.0.0.1", 1)
-        self.ring, self.torn, self.trace_count = ring, dict(torn), trace_count
+        self.ring, self.torn, self.trace_count, self.state = ring, dict(torn), trace_count, state
         self.scale, self.ring_records, self._first_counter = EncoderScale(), len(ring), int(ring[0][0])
 
     async def _read(self, address, count, what):
@@ -187,7 +187,7 @@ class _FakeRing(ModbusDriver):
         return mm.encode_records(np.array(rec)).astype(int).tolist()
 
     async def _status(self):
-        return {"state": AxisState.RUNNING, "fault_code": 0, "trace_count": self.trace_count}
+        return {"state": self.state, "fault_code": 0, "trace_count": self.trace_count}
 
 
 def test_a_torn_block_is_cut_at_the_older_record_and_read_again():
@@ -199,6 +199,81 @@ def test_a_torn_block_is_cut_at_the_older_record_and_read_again():
     second = asyncio.run(d._drain_trace())
     assert second.counter.tolist() == list(range(1025, 1100))
     assert second.table_mm.tolist() == pytest.approx([-i * 1e-5 for i in range(25, 100)])
+
+
+@pytest.mark.parametrize("behind", [99, 100, 101, 150, 199, 200, 201, 350])
+def test_a_reader_behind_the_ring_loses_nothing_silently(behind):
+    # a ring of 100 records; the reader has read records 0..9 when it looks again, and the
+    # program is DONE with 10 + behind records written (the ring holds the last 100)
+    n_ring, done_at = 100, 10 + behind
+    ring = [None] * n_ring
+    for w in range(done_at):
+        ring[w % n_ring] = (5000 + w, w, -w)
+    d = _FakeRing(ring, {}, trace_count=done_at, state=AxisState.DONE)
+    d._first_counter, d._next_w, d._next_counter = 5000, 10, 5010
+    got = []
+    for _ in range(20):
+        block = asyncio.run(d._drain_trace())
+        got += block.counter.tolist()
+        if block.finished:
+            break
+    assert block.finished  # it ends, it does not spin
+    assert got == sorted(set(got)) and got[-1] == 5000 + done_at - 1  # in order, up to the last record
+    if behind <= n_ring:  # nothing was overwritten: every record is read
+        assert got == list(range(5010, 5000 + done_at))
+    else:  # overwritten records show as a gap in the counters (the base loop reports them)
+        assert len(got) < done_at - 10 and (got[0] > 5010 or np.any(np.diff(got) > 1))
+
+
+class _SlowStatusRing(_FakeRing):
+    """The controller writes ``during`` more records and ends while one status read is
+    under way (a status reply slower than the ring's span)."""
+
+    def __init__(self, ring, trace_count, during):
+        super().__init__(ring, {}, trace_count)
+        self.during = during
+
+    async def _status(self):
+        if self.during:
+            for w in range(self.trace_count, self.trace_count + self.during):
+                self.ring[w % len(self.ring)] = (5000 + w, w, -w)
+            self.trace_count += self.during
+            self.during, self.state = 0, AxisState.DONE
+        return await super()._status()
+
+
+@pytest.mark.parametrize("during", [99, 100, 101])
+def test_records_written_during_a_slow_status_read_are_still_read(during):
+    n_ring = 100
+    ring = [(5000 + w - n_ring, 0, 0) for w in range(n_ring)]  # the previous trace's records
+    for w in range(30):
+        ring[w] = (5000 + w, w, -w)
+    d = _SlowStatusRing(ring, trace_count=30, during=during)
+    d._first_counter, d._next_w, d._next_counter = 5000, 10, 5010
+    got = []
+    for _ in range(20):
+        block = asyncio.run(d._drain_trace())
+        got += block.counter.tolist()
+        if block.finished:
+            break
+    assert block.finished
+    end = 5000 + 30 + during
+    if during <= n_ring:  # all of it still in the ring when the reader looks again
+        assert got == list(range(5010, end))
+    else:
+        assert got[-1] == end - 1 and np.any(np.diff(got) > 1)  # the overwritten ones show as a gap
+
+
+def test_a_ring_overrun_over_the_wire_is_counted_and_the_cycle_still_ends():
+    # replies slowed to 50 ms while the controller writes 5000 records/s into a 64-record
+    # ring: the reader is lapped again and again; with losses tolerated the trace must still
+    # run in order to the controller's last record, its gaps being exactly the lost count
+    with modbus_peer(faults=["slow:at=0.3,s=0.05"], ring_records=64) as peer:
+        tr = peer.driver(max_lost_samples=10**6).acquire(PROGRAM, AXIS)
+        c = tr.counter
+        assert tr.lost_samples > 0 and np.all(np.diff(c) >= 1)
+        assert int(np.sum(np.diff(c) - 1)) == tr.lost_samples
+        assert int(c[-1]) == peer.axis.trace_first + peer.axis.trace_count() - 1
 
 
 def test_brief_drop_is_recovered_from_the_trace_buffer():
