@@ -52,7 +52,8 @@ class ServiceCollector:
         tot.add_metric([], float(total))
         yield tot
         spooled = GaugeMetricFamily("mebm_spooled_cycles", "Cycles kept on disk waiting for the database")
-        spooled.add_metric([], float(len(self.service.executor.pending())))
+        ex = self.service.executor
+        spooled.add_metric([], float(len(ex.pending()) + len(ex.unsaved)))
         yield spooled
 
 

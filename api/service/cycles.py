@@ -8,10 +8,14 @@ Order of writes, so that a measurement is never lost:
 If the database is down at step 3, the spool file stays and :meth:`CycleExecutor.replay_spool`
 inserts it when the database is back (re-analysing the raw run from the dataset folder).
 Saving is idempotent on the cycle's uuid, so a crash between 3 and 4 stores it once.
+If the raw run cannot be written to the dataset folder, it is kept as
+``<data_dir>/unfiled/<uuid>.npz`` instead; if the spool file cannot be written either,
+the cycle is kept in memory and retried with the spool.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -28,7 +32,7 @@ from api.service.runner import CycleOutcome, CycleRunner, analyse
 from core.dataset import MachineSpec, Run, RunSpec
 from core.errors import MebmError
 from core.tbe import AxisDecision, MachiningTask, decide
-from storage.dataset import append_runs, next_run_name, read_dataset
+from storage.dataset import append_runs, next_run_name, read_dataset, read_run_csv
 from storage.db import (
     AlertRecord,
     AxisRecord,
@@ -90,11 +94,14 @@ class CycleExecutor:
         self.data_dir = Path(data_dir)
         self.spool_dir = self.data_dir / "spool"
         self.datasets_dir = self.data_dir / "datasets"
+        self.unfiled_dir = self.data_dir / "unfiled"
         self.runner = runner
         self.resolve_url = resolve_url
         self.on_saved = on_saved or (lambda axis_id, cycle, alerts: None)
         self._axes: dict[int, AxisRecord] = {}  # last known settings, for cycles during a DB outage
         self._spool_lock = threading.Lock()
+        self._in_flight: set[str] = set()  # uuids being finished by execute(): replay leaves them
+        self.unsaved: list[FinishedCycle] = []  # neither spooled nor stored: retried with the spool
 
     # -- the cycle ---------------------------------------------------------------------------
     def remember(self, axis: AxisRecord) -> None:
@@ -127,26 +134,40 @@ class CycleExecutor:
             log.exception("cycle %s on axis %s: runner crashed", req.uuid, axis.id)
             outcome = CycleOutcome.failed(f"internal error in the cycle runner: {type(exc).__name__}: {exc}")
         finished = utcnow()
+        with self._spool_lock:
+            self._in_flight.add(req.uuid)
         try:
             return self._finish(axis, req, outcome, started, finished)
         except Exception as exc:  # noqa: BLE001 - never leave a cycle "running" because of a bug
             log.exception("cycle %s: could not be finished normally", req.uuid)
+            reason = f"internal error while storing the cycle: {type(exc).__name__}: {exc}"
+            if outcome.time_s is not None:
+                kept = self._keep_trace(axis, req, outcome)
+                reason += f"; the raw run is kept in {kept}" if kept else "; the raw run could not be kept"
             fc = FinishedCycle(
                 uuid=req.uuid, axis_id=axis.id, trigger=req.trigger, requested_by=req.requested_by, status="failed",
                 requested_at=req.requested_at, started_at=started, finished_at=finished,
-                failure_reason=f"internal error while storing the cycle: {type(exc).__name__}: {exc}",
-                temperature_c=_fin(outcome.temperature_c),
+                failure_reason=reason, temperature_c=_fin(outcome.temperature_c),
             )
-            return self._save(fc, None)
+            try:
+                return self._save(fc, self._spool(fc, None, axis.tasks))
+            except StorageError:
+                log.exception("cycle %s: the failure could not be recorded", req.uuid)
+                return None
+        finally:
+            with self._spool_lock:
+                self._in_flight.discard(req.uuid)
 
     def _finish(self, axis: AxisRecord, req: CycleRequest, outcome: CycleOutcome, started: datetime,
                 finished: datetime) -> CycleRecord | None:
-        run_file, folder, note = None, None, None
+        run_file, folder, note, trace_file = None, None, None, None
         if outcome.time_s is not None:
             try:
                 folder, run_file = self._write_run(axis, outcome, req, finished)
             except (MebmError, OSError) as exc:
-                note = f"raw run not written to the dataset folder: {exc}"
+                trace_file = self._keep_trace(axis, req, outcome)
+                kept = f"kept in {trace_file}" if trace_file else "and it could not be kept anywhere else"
+                note = f"raw run not written to the dataset folder ({exc}); {kept}"
                 log.error("cycle %s: %s", req.uuid, note)
         decision = None
         if outcome.ok and outcome.round_trip is not None:
@@ -161,7 +182,7 @@ class CycleExecutor:
             utility_day=utility_day(axis, finished), uncertainty_um=_fin(outcome.uncertainty_um), run_file=run_file,
             round_trip=outcome.round_trip if outcome.ok else None, decision=decision,
         )
-        spool = self._spool(fc, folder, axis.tasks)
+        spool = self._spool(fc, folder, axis.tasks, trace_file=trace_file)
         return self._save(fc, spool)
 
     def _save(self, fc: FinishedCycle, spool: Path | None) -> CycleRecord | None:
@@ -169,7 +190,14 @@ class CycleExecutor:
             with session_scope(self.factory) as s:
                 cycle, alerts = results_repo.save_finished_cycle(s, fc)
         except DatabaseUnavailableError as exc:
-            log.warning("cycle %s kept on disk (%s): it is stored when the database is back", fc.uuid, exc)
+            if spool is None:
+                log.error("cycle %s could not be spooled and the database is down (%s): kept in memory "
+                          "until the database is back (lost if the service stops first)", fc.uuid, exc)
+                with self._spool_lock:
+                    if all(u.uuid != fc.uuid for u in self.unsaved):
+                        self.unsaved.append(fc)
+            else:
+                log.warning("cycle %s kept on disk (%s): it is stored when the database is back", fc.uuid, exc)
             return None
         if spool is not None:
             spool.unlink(missing_ok=True)
@@ -228,8 +256,27 @@ class CycleExecutor:
                 folder = folder.with_name(f"{folder.name}@{finished:%Y%m%dT%H%M%S}")
         raise AssertionError("unreachable")
 
+    def _keep_trace(self, axis: AxisRecord, req: CycleRequest, out: CycleOutcome) -> Path | None:
+        """The raw trace as ``unfiled/<uuid>.npz`` when the dataset folder cannot take it."""
+        try:
+            self.unfiled_dir.mkdir(parents=True, exist_ok=True)
+            path = self.unfiled_dir / f"{req.uuid}.npz"
+            arrays = {"time_s": out.time_s, "motor_rev": out.motor_rev, "table_mm": out.table_mm}
+            if out.command_mm is not None:
+                arrays["command_mm"] = out.command_mm
+            tmp = path.with_name(f".{path.name}")
+            with open(tmp, "wb") as fh:
+                np.savez(fh, axis=np.array(axis.name), **{k: np.asarray(v, float) for k, v in arrays.items()})
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+            return path
+        except (OSError, ValueError, TypeError) as exc:
+            log.error("cycle %s: raw trace not kept either (%s)", req.uuid, exc)
+            return None
+
     # -- spool -----------------------------------------------------------------------------------
-    def _spool(self, fc: FinishedCycle, folder: Path | None, tasks) -> Path | None:
+    def _spool(self, fc: FinishedCycle, folder: Path | None, tasks, *, trace_file: Path | None = None) -> Path | None:
         doc = {
             "uuid": fc.uuid, "axis_id": fc.axis_id, "trigger": fc.trigger, "requested_by": fc.requested_by,
             "status": fc.status, "requested_at": fc.requested_at.isoformat(),
@@ -237,6 +284,7 @@ class CycleExecutor:
             "finished_at": fc.finished_at.isoformat(), "failure_reason": fc.failure_reason,
             "temperature_c": fc.temperature_c, "utility_day": fc.utility_day, "uncertainty_um": fc.uncertainty_um,
             "dataset_folder": str(folder) if folder else None, "run_file": fc.run_file,
+            "trace_file": str(trace_file) if trace_file else None,
             "tasks": [_task_doc(t) for t in tasks],
         }
         try:
@@ -256,26 +304,54 @@ class CycleExecutor:
     def pending(self) -> list[Path]:
         return sorted(self.spool_dir.glob("*.json")) if self.spool_dir.is_dir() else []
 
+    def has_pending(self) -> bool:
+        return bool(self.unsaved) or bool(self.pending())
+
     def replay_spool(self) -> int:
-        """Store every spooled cycle the database does not have yet; returns how many were
-        stored. Stops at the first database outage (retried later)."""
+        """Store every spooled (or memory-kept) cycle the database does not have yet; returns
+        how many were stored. Stops at the first database outage (retried later)."""
         stored = 0
         with self._spool_lock:
-            for path in self.pending():
+            in_flight = set(self._in_flight)
+            for fc in list(self.unsaved):
                 try:
-                    fc = self._from_spool(path)
-                except (OSError, ValueError, KeyError, MebmError) as exc:
-                    log.error("spool file %s unreadable (%s): moved aside", path.name, exc)
-                    path.rename(path.with_suffix(".bad"))
-                    continue
-                try:
-                    if self._save(fc, path) is None:
-                        break
+                    if self._save_unlocked(fc) is None:
+                        return stored
                 except StorageError as exc:
-                    log.error("spooled cycle %s could not be stored: %s", path.name, exc)
+                    log.error("cycle %s kept in memory could not be stored: %s", fc.uuid, exc)
                     continue
+                self.unsaved.remove(fc)
                 stored += 1
+        for path in self.pending():
+            if path.stem in in_flight:
+                continue  # execute() is storing it right now
+            try:
+                fc = self._from_spool(path)
+            except DatabaseUnavailableError:
+                break  # the file stays for the next attempt
+            except Exception as exc:  # noqa: BLE001 - one bad file must not block the others or the start
+                log.error("spool file %s unreadable (%s): moved aside as .bad", path.name, exc)
+                with contextlib.suppress(OSError):
+                    path.rename(path.with_suffix(".bad"))
+                continue
+            try:
+                if self._save(fc, path) is None:
+                    break
+            except StorageError as exc:
+                log.error("spooled cycle %s could not be stored: %s", path.name, exc)
+                continue
+            stored += 1
         return stored
+
+    def _save_unlocked(self, fc: FinishedCycle) -> CycleRecord | None:
+        """Save a memory-kept cycle (the caller holds the spool lock)."""
+        try:
+            with session_scope(self.factory) as s:
+                cycle, alerts = results_repo.save_finished_cycle(s, fc)
+        except DatabaseUnavailableError:
+            return None
+        self._notify(fc.axis_id, cycle, alerts)
+        return cycle
 
     def _from_spool(self, path: Path) -> FinishedCycle:
         d = json.loads(path.read_text(encoding="utf-8"))
@@ -284,13 +360,13 @@ class CycleExecutor:
         status, reason = d["status"], d["failure_reason"]
         if status == "ok":
             try:
-                ds = read_dataset(d["dataset_folder"])
-                run = ds.run(d["run_file"])
-                name = run.spec.axes[0]
-                rt = analyse(axis, run.time_s, run.motor_rev(name), run.table_mm(name))
+                time_s, motor_rev, table_mm = self._spooled_trace(d)
+                rt = analyse(axis, time_s, motor_rev, table_mm)
                 tasks = [MachiningTask(**t) for t in d["tasks"]]
                 decision = make_decision(axis, tasks, rt.backlash.mean_um)
-            except MebmError as exc:
+            except DatabaseUnavailableError:
+                raise
+            except Exception as exc:  # noqa: BLE001 - recorded as the cycle's failure, never dropped
                 status, reason = "failed", f"stored run could not be re-read after a database outage: {exc}"
         ts = {k: as_utc(datetime.fromisoformat(d[k])) if d.get(k) else None
               for k in ("requested_at", "started_at", "finished_at")}
@@ -300,3 +376,20 @@ class CycleExecutor:
             failure_reason=reason, temperature_c=d.get("temperature_c"), utility_day=d.get("utility_day"),
             uncertainty_um=d.get("uncertainty_um"), run_file=d.get("run_file"), round_trip=rt, decision=decision,
         )
+
+    def _spooled_trace(self, d: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The raw trace of a spooled ok cycle: its run in the dataset folder (only that run
+        is read, so a damaged neighbour does not matter) or its ``unfiled`` copy."""
+        if d.get("dataset_folder") and d.get("run_file"):
+            root = Path(d["dataset_folder"])
+            ds = read_dataset(root, load_runs=False)
+            spec = next((r.spec for r in ds.runs if r.spec.file == d["run_file"]), None)
+            if spec is None:
+                raise MebmError(f"run {d['run_file']!r} is not listed in {root}/dataset.json")
+            run = Run(spec, read_run_csv(root / spec.file, spec))
+            name = spec.axes[0]
+            return run.time_s, run.motor_rev(name), run.table_mm(name)
+        if d.get("trace_file"):
+            with np.load(d["trace_file"]) as z:
+                return z["time_s"], z["motor_rev"], z["table_mm"]
+        raise MebmError("the raw run was not kept (neither in the dataset folder nor unfiled)")

@@ -152,7 +152,7 @@ class Service:
             self.engine.dispose()
 
     def _retry_spool(self) -> None:
-        if self.executor.pending():
+        if self.executor.has_pending():
             n = self.executor.replay_spool()
             if n:
                 log.info("stored %d cycle(s) kept on disk during a database outage", n)

@@ -21,7 +21,8 @@ VERSION = "0.1.0"
 def healthz(svc: ServiceDep):
     ok = svc.db_ok()
     body = sc.Health(status="ok" if ok else "degraded", database="ok" if ok else "unavailable", version=VERSION,
-                     uptime_s=time.time() - svc.started_at, spooled_cycles=len(svc.executor.pending()))
+                     uptime_s=time.time() - svc.started_at,
+                     spooled_cycles=len(svc.executor.pending()) + len(svc.executor.unsaved))
     return JSONResponse(body.model_dump(), status_code=200 if ok else 503)
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from dataclasses import replace
@@ -213,3 +214,91 @@ def test_driver_runner_reports_an_unreachable_controller_as_a_failed_outcome():
     assert time.monotonic() - t0 < 10
     bad = DriverRunner()(axis, "ftp://nowhere")
     assert not bad.ok and "scheme" in bad.reason
+
+
+def _outage(svc):
+    """Point the executor at an unreachable database; returns a function that ends the outage."""
+    real = svc.executor.factory
+    down = make_engine("postgresql://nobody@127.0.0.1:1/none")
+    svc.executor.factory = make_session_factory(down)
+
+    def restore():
+        svc.executor.factory = real
+        down.dispose()
+
+    return restore
+
+
+def _measure(svc):
+    svc.scheduler.request(svc.test_axis.id, "schedule")
+    assert svc.scheduler.idle(30)
+
+
+def test_a_run_the_dataset_folder_refuses_is_kept_unfiled_and_stored_after_an_outage(service, tmp_path):
+    svc, runner = service, service.test_runner
+    blocked = tmp_path / "not-a-folder"
+    blocked.write_text("a file where the datasets folder should be")
+    svc.executor.datasets_dir = blocked
+    restore = _outage(svc)
+    runner.backlash_um = 230.0
+    _measure(svc)
+    (spooled,) = svc.executor.pending()
+    assert list(svc.executor.unfiled_dir.glob("*.npz"))  # the trace is on disk, outside the folder
+    restore()
+    assert svc.executor.replay_spool() == 1
+    (c,) = cycles(svc, status="ok")
+    assert c.backlash_mean_um == pytest.approx(230.0, abs=3)
+    assert svc.executor.pending() == []
+
+
+def test_a_spool_file_without_its_run_is_recorded_as_failed_and_does_not_block_the_rest(service):
+    svc, runner = service, service.test_runner
+    restore = _outage(svc)
+    _measure(svc)
+    _measure(svc)
+    first, second = svc.executor.pending()
+    doc = json.loads(first.read_text())
+    doc["dataset_folder"], doc["run_file"] = None, None  # as an older version could leave it
+    first.write_text(json.dumps(doc))
+    restore()
+    assert svc.executor.replay_spool() == 2
+    assert len(cycles(svc, status="ok")) == 1
+    (failed,) = cycles(svc, status="failed")
+    assert "raw run was not kept" in failed.failure_reason
+    assert svc.executor.pending() == [] and not list(svc.executor.spool_dir.glob("*.bad"))
+
+
+def test_replay_keeps_the_spool_file_while_the_axis_cannot_be_read(service):
+    svc = service
+    restore = _outage(svc)
+    _measure(svc)
+    svc.executor._axes.clear()  # a fresh start during the outage: no axis settings cached
+    assert svc.executor.replay_spool() == 0
+    assert len(svc.executor.pending()) == 1 and not list(svc.executor.spool_dir.glob("*.bad"))
+    restore()
+    assert svc.executor.replay_spool() == 1 and len(cycles(svc, status="ok")) == 1
+
+
+def test_a_cycle_that_can_be_neither_spooled_nor_stored_is_kept_in_memory(service, tmp_path):
+    svc = service
+    blocked = tmp_path / "spool-blocked"
+    blocked.write_text("a file where the spool folder should be")
+    svc.executor.spool_dir = blocked
+    restore = _outage(svc)
+    _measure(svc)
+    assert len(svc.executor.unsaved) == 1 and svc.executor.has_pending()
+    restore()
+    svc._retry_spool()
+    assert svc.executor.unsaved == [] and len(cycles(svc, status="ok")) == 1
+
+
+def test_replay_reads_only_its_own_run(service):
+    svc = service
+    _measure(svc)  # stored normally; its run is the first in the folder
+    restore = _outage(svc)
+    _measure(svc)
+    (older,) = sorted(svc.executor.datasets_dir.glob("*/rt_y_*.csv"))[:1]
+    older.write_text("time_s,y_motor_rev,y_table_mm\n0,1,oops\n")  # a damaged neighbour
+    restore()
+    assert svc.executor.replay_spool() == 1
+    assert len(cycles(svc, status="ok")) == 2
