@@ -229,9 +229,13 @@ def analyze_round_trip(
         )
         for d, name in ((1, "positive"), (-1, "negative"))
     }
-    # differences over ~10 ms: sample-to-sample ones would turn encoder noise into speed
+    # differences over ~10 ms: sample-to-sample ones would turn encoder noise into speed;
+    # taken within the strokes only, so that a long dwell does not pull the percentile down
     lag = int(max(1, round(0.01 / float(np.median(np.diff(t))))))
     speed = np.abs(nominal[lag:] - nominal[:-lag]) / (t[lag:] - t[:-lag])
+    moving = np.concatenate([np.arange(s.engaged, max(s.engaged, s.end - lag)) for s in strokes] or [[]])
+    if moving.size:
+        speed = speed[moving.astype(np.intp)]
     return RoundTripResult(
         axis=axis.name,
         useful_travel_mm=(float(start), float(end)),

@@ -71,7 +71,11 @@ def find_strokes(
     window = int(max(1, round(settings.velocity_window_s / dt)))
     smooth = uniform_filter1d(travel_mm, size=window, mode="nearest") if window > 1 else travel_mm
     speed = np.gradient(smooth, time_s)
-    peak = float(np.percentile(np.abs(speed), 99.5))
+    # The peak: the k-th largest speed, k three smoothing windows. Robust to a glitch (one
+    # glitch raises about one window of samples) and, unlike a percentile, to a long dwell
+    # in which the motion is only a small fraction of the samples.
+    k = min(n, 3 * window + 1)
+    peak = float(np.partition(np.abs(speed), n - k)[n - k])
     if not peak > 0:
         raise TraceError("the motor does not move (zero speed throughout)")
     threshold = settings.speed_threshold_fraction * peak
@@ -81,21 +85,18 @@ def find_strokes(
         raise TraceError("no stroke found: the motor never moves faster than the noise")
     lengths = [float(np.ptp(travel_mm[a : b + 1])) for _, a, b in runs]
     keep_len = settings.min_stroke_fraction * max(lengths)
-    runs = [r for r, length in zip(runs, lengths) if length >= keep_len]
-    # merge neighbours of the same sign left adjacent after dropping jogs
-    merged: list[list[int]] = []
-    for s, a, b in runs:
-        if merged and merged[-1][0] == s:
-            merged[-1][2] = b
-        else:
-            merged.append([s, a, b])
-
+    # Jogs are dropped, and a stroke never reaches across one: its turning point is sought
+    # after the previous run of either sign and its end before the next, so a reversal
+    # mid-stroke splits it and the piece after starts with its own reversal transient
+    # (the table re-engaging), which the engagement test below finds and skips.
     strokes = []
-    for k, (s, a, b) in enumerate(merged):
-        lo = merged[k - 1][2] if k else 0
+    for k, ((s, a, b), length) in enumerate(zip(runs, lengths)):
+        if length < keep_len:
+            continue
+        lo = runs[k - 1][2] if k else 0
         seg = travel_mm[lo : a + 1]
         turn = lo + int(np.argmin(seg) if s > 0 else np.argmax(seg))
-        hi = merged[k + 1][1] if k + 1 < len(merged) else n - 1
+        hi = runs[k + 1][1] if k + 1 < len(runs) else n - 1
         seg_end = travel_mm[b : hi + 1]
         end = b + int(np.argmax(seg_end) if s > 0 else np.argmin(seg_end))
         moved = s * (table_mm[turn : end + 1] - table_mm[turn])
