@@ -43,16 +43,25 @@ class NotFittedError(MebmError, RuntimeError):
     """An estimator was used before ``fit()``."""
 
 
+def _number(name: str, value) -> float:
+    if isinstance(value, (str, bytes)) or value is None:
+        raise InputError(f"{name} (={value!r}) must be a number")
+    try:
+        return float(value)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{name} (={value!r}) must be a number") from exc
+
+
 def require_positive(name: str, value: float) -> float:
     """Return ``value`` as float, or raise :class:`InputError` naming it."""
-    v = float(value)
+    v = _number(name, value)
     if not v > 0 or v != v or v == float("inf"):
         raise InputError(f"{name} (={value}) must be a finite number > 0")
     return v
 
 
 def require_finite(name: str, value: float) -> float:
-    v = float(value)
+    v = _number(name, value)
     if v != v or v in (float("inf"), float("-inf")):
         raise InputError(f"{name} (={value}) must be finite")
     return v

@@ -97,7 +97,10 @@ class RoundTripResult:
 def _check_trace(time_s, motor_rev, table_mm) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     arrays = []
     for name, a in (("time_s", time_s), ("motor_rev", motor_rev), ("table_mm", table_mm)):
-        a = np.asarray(a, dtype=float)
+        try:
+            a = np.asarray(a, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise TraceError(f"{name} must hold numbers ({exc})") from None
         if a.ndim != 1:
             raise TraceError(f"{name} must be one-dimensional, got shape {a.shape}")
         bad = ~np.isfinite(a)

@@ -19,7 +19,10 @@ _SQRT3 = np.sqrt(3.0)
 
 
 def _backlash_mm(backlash_um: np.ndarray | float) -> np.ndarray:
-    b = np.asarray(backlash_um, dtype=float)
+    try:
+        b = np.asarray(backlash_um, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"backlash_um (={backlash_um!r}) must be a number or an array of numbers") from exc
     if not np.all(np.isfinite(b)):
         raise InputError("backlash_um contains NaN or inf")
     if np.any(b < 0):

@@ -240,3 +240,9 @@ def test_a_long_dwell_neither_hides_the_motion_nor_lowers_the_peak_speed():
     r = analyze_round_trip(t, motor_rev, table_mm, axis)
     assert r.backlash.mean_um == pytest.approx(20.0, abs=0.01)
     assert r.peak_speed_mm_min == pytest.approx(10000.0, rel=0.01)
+
+
+def test_text_in_a_trace_is_a_trace_error():
+    words = np.array(["time_s"] + ["1.0"] * 19)  # a header row read as data
+    with pytest.raises(TraceError, match="time_s must hold numbers"):
+        analyze_round_trip(words, np.zeros(20), np.zeros(20), AXIS)

@@ -3,7 +3,7 @@ import math
 import pytest
 
 from core.errors import InputError
-from core.tbe import MachiningTask, State, decide
+from core.tbe import MachiningTask, State, decide, tbe_line_um
 
 RING = MachiningTask("ring", profile="circle", radius_mm=200, feed_mm_min=200, gain_per_s=10, tolerance_um=45)
 
@@ -68,3 +68,16 @@ def test_decide_rejects_bad_arguments():
         decide(100.0, [])
     with pytest.raises(InputError, match="unique"):
         decide(100.0, [RING, RING])
+
+
+@pytest.mark.parametrize("call", [
+    lambda: tbe_line_um("x", 30, 1000, 30),
+    lambda: tbe_line_um(100, 30, None, 30),
+    lambda: decide(None, [MachiningTask("c", "circle", 200, 10, 45, radius_mm=200)]),
+    lambda: MachiningTask("c", "circle", "1000", 10, 45, radius_mm=200),
+    lambda: MachiningTask("c", "circle", 1000, 10, 45, radius_mm=None),
+])
+def test_non_numbers_are_typed_input_errors(call):
+    # once bare TypeError/ValueError from float(); a string is never stored as a feed
+    with pytest.raises(InputError, match="must be a number|needs radius_mm"):
+        call()
