@@ -99,7 +99,8 @@ class CycleExecutor:
         self.resolve_url = resolve_url
         self.on_saved = on_saved or (lambda axis_id, cycle, alerts: None)
         self._axes: dict[int, AxisRecord] = {}  # last known settings, for cycles during a DB outage
-        self._spool_lock = threading.Lock()
+        self._spool_lock = threading.Lock()  # guards _in_flight and unsaved
+        self._replay_lock = threading.Lock()
         self._in_flight: set[str] = set()  # uuids being finished by execute(): replay leaves them
         self.unsaved: list[FinishedCycle] = []  # neither spooled nor stored: retried with the spool
 
@@ -310,9 +311,12 @@ class CycleExecutor:
     def replay_spool(self) -> int:
         """Store every spooled (or memory-kept) cycle the database does not have yet; returns
         how many were stored. Stops at the first database outage (retried later)."""
+        with self._replay_lock:  # start-up and the retry job never replay at once
+            return self._replay()
+
+    def _replay(self) -> int:
         stored = 0
         with self._spool_lock:
-            in_flight = set(self._in_flight)
             for fc in list(self.unsaved):
                 try:
                     if self._save_unlocked(fc) is None:
@@ -323,8 +327,8 @@ class CycleExecutor:
                 self.unsaved.remove(fc)
                 stored += 1
         for path in self.pending():
-            if path.stem in in_flight:
-                continue  # execute() is storing it right now
+            if path.stem in self._in_flight:
+                continue  # execute() is storing it right now (saving is idempotent all the same)
             try:
                 fc = self._from_spool(path)
             except DatabaseUnavailableError:
