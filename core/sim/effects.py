@@ -263,21 +263,31 @@ class CyclicError:
 
 @dataclass(frozen=True)
 class ServoDynamics:
-    """Non-ideal inner loops: the motor velocity follows K e through a first-order lag
-    (velocity_lag_s) after a dead time (dead_time_s). Set per axis; unequal axes tilt
-    a circle into a 45° ellipse.
+    """Non-ideal loops: the motor velocity command K e(t - dead_time_s) + feedforward *
+    command velocity(t - dead_time_s), with e = command - table measured
+    feedback_delay_s late, followed through a first-order lag (velocity_lag_s). Set per
+    axis; unequal axes tilt a circle into a 45° ellipse. An effective position gain
+    other than the configured K is the axis model's ``position_gain_per_s``.
 
     Realistic ranges: velocity_lag_s 0..0.01 (velocity-loop bandwidth >= 16 Hz);
-    dead_time_s 0..0.002. With K <= 30 1/s the product K (velocity_lag_s + dead_time_s)
-    stays below 0.36 there, so the position loop keeps a well-damped response.
+    dead_time_s and feedback_delay_s 0..0.003; feedforward 0..1 (modern CNCs run
+    0.5-1). With K <= 30 1/s the product K (velocity_lag_s + dead times) stays below
+    0.4 there, so the position loop keeps a well-damped response. Every parameter
+    acts continuously (no value is rounded to zero).
     """
 
     velocity_lag_s: float = 0.002
     dead_time_s: float = 0.0
+    feedforward: float = 0.0
+    feedback_delay_s: float = 0.0
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "velocity_lag_s", _nonneg("servo_dynamics", "velocity_lag_s", self.velocity_lag_s))
-        object.__setattr__(self, "dead_time_s", _nonneg("servo_dynamics", "dead_time_s", self.dead_time_s))
+        for name in ("velocity_lag_s", "dead_time_s", "feedback_delay_s"):
+            object.__setattr__(self, name, _nonneg("servo_dynamics", name, getattr(self, name)))
+        ff = _finite("servo_dynamics", "feedforward", self.feedforward)
+        if not 0.0 <= ff <= 1.5:
+            raise InputError(f"servo_dynamics: feedforward (={ff!r}) must be within 0..1.5")
+        object.__setattr__(self, "feedforward", ff)
 
 
 @dataclass(frozen=True)

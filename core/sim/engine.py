@@ -54,6 +54,7 @@ from core.sim.programs import Program
 MAX_GRID_STEP_S = 2.5e-4
 MAX_SAMPLES = 20_000_000  # per axis and array: a guard against a mistyped rate or step
 MAX_DYNAMIC_STEP_S = 1e-4
+MIN_SERVO_STEP_S = 2.5e-5
 STEPS_PER_RADIAN = 20.0  # h <= 0.05 / omega_n
 DEFAULT_CHAIN = Compliance()  # used for friction when compliance is off
 
@@ -192,10 +193,11 @@ def _dynamic_step_s(axis: AxisModel) -> float:
         h = min(h, 1.0 / (STEPS_PER_RADIAN * math.sqrt(k_si / ch.table_mass_kg)))
     sd = fx.servo_dynamics
     if sd is not None:
-        if sd.velocity_lag_s > 0:
-            h = min(h, sd.velocity_lag_s / 10)
-        if sd.dead_time_s > 0:
-            h = min(h, sd.dead_time_s / 10)
+        # the lag is exact per step and the delays are interpolated: these bounds are for
+        # accuracy only, floored so that a tiny lag or delay does not cost a tiny step
+        for t_s in (sd.velocity_lag_s, sd.dead_time_s, sd.feedback_delay_s):
+            if t_s > 0:
+                h = min(h, max(t_s / 10, MIN_SERVO_STEP_S))
     return h
 
 
@@ -227,6 +229,8 @@ def _simulate_axis(axis, chain, cmd, t0, h, ts, ts_tab, side):
     sd = fx.servo_dynamics
     lag = sd.velocity_lag_s if sd else 0.0
     dead = sd.dead_time_s if sd else 0.0
+    ff = sd.feedforward if sd else 0.0
+    fb = sd.feedback_delay_s if sd else 0.0
     compliant = fx.compliance is not None or fx.friction is not None
     ch = fx.compliance or DEFAULT_CHAIN
     k_si = ch.stiffness_n_per_um * 1e6
@@ -244,7 +248,7 @@ def _simulate_axis(axis, chain, cmd, t0, h, ts, ts_tab, side):
     kernels.run_dynamic(
         t0, h, nsub, cmd, k, u0, x0, side, *args,
         lag, dead, compliant, ch.stiffness_n_per_um * 1000.0, ch.table_mass_kg, c_contact, visc,
-        model, fc, fs, vs, sig0, sig1, ts, ts_tab, out_u, out_x, out_xt,
+        model, fc, fs, vs, sig0, sig1, ts, ts_tab, out_u, out_x, out_xt, ff, fb,
     )  # fmt: skip
     return out_u, out_x, out_xt, h / nsub
 

@@ -257,12 +257,14 @@ def run_dynamic(
     t0, hc, nsub, cmd, gain, u0, x0, side0, fixed, lam, per, amp, pha, pos, hw,
     lag_s, dead_s, compliant, k_n_mm, mass_kg, c_contact, c_visc,
     fr_model, fc, fs, vs, sig0, sig1,
-    ts, ts_tab, out_u, out_x, out_xt,
+    ts, ts_tab, out_u, out_x, out_xt, kff=0.0, fb_s=0.0,
 ):  # fmt: skip
     """Servo dynamics and/or a compliant chain with friction, fixed step hc / nsub.
 
-    Motor: v_cmd = K e(t - dead_s), first-order lag solved exactly per step for a
-    constant input; u integrates the motor velocity exactly over the step.
+    Motor: v_cmd = (K e + kff c')(t - dead_s) with e = c - x(t - fb_s), first-order lag
+    solved exactly per step for a constant input; u integrates the motor velocity
+    exactly over the step. Both delays are interpolated linearly between sub-steps, so
+    the result is continuous in them.
     Rigid chain: the table is the play operator of the nut. Compliant chain:
     semi-implicit (symplectic) Euler on the table mass with a unilateral spring-damper
     contact at each flank; viscous terms implicit; Coulomb/static friction as a
@@ -285,6 +287,12 @@ def run_dynamic(
     nbuf = nd0 + 2
     buf = np.zeros(nbuf)
     bi = 0
+    nf = fb_s / h
+    nf0 = int(nf)
+    ffrac = nf - nf0
+    nfbuf = nf0 + 2
+    xbuf = np.full(nfbuf, x0)
+    xi = 0
     j = 0
     jt = 0
     nstep = cmd.size - 1
@@ -294,7 +302,13 @@ def run_dynamic(
         for s in range(nsub):
             ta = t0 + i * hc + s * h
             cc = c0 + dc * (s + 0.5)  # mid-step command: second-order accurate loop
-            e = cc - x
+            if fb_s > 0.0:
+                xbuf[xi] = x
+                xd = xbuf[(xi - nf0) % nfbuf] * (1.0 - ffrac) + xbuf[(xi - nf0 - 1) % nfbuf] * ffrac
+                xi = (xi + 1) % nfbuf
+                e = gain * (cc - xd) + kff * dc / h
+            else:
+                e = gain * (cc - x) + kff * dc / h
             if dead_s > 0.0:
                 buf[bi] = e
                 ia = (bi - nd0) % nbuf
@@ -303,7 +317,7 @@ def run_dynamic(
                 bi = (bi + 1) % nbuf
             else:
                 e_del = e
-            vc = gain * e_del
+            vc = e_del
             ua = u
             xa = x
             # chain state at the start of the step (symplectic Euler: the force at
