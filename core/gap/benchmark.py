@@ -1,26 +1,29 @@
 """Generated datasets whose effect is withheld, and the benchmark that scores the diagnosis.
 
-:func:`make_case` draws a two-axis machine, one effect (or none) with random parameters
-over realistic ranges, and simulates round trips and circles with ``core.sim``; test
-runs lie outside the train conditions (other temperatures, feeds, accelerations,
-radii and positions on the travel). Part of the data follows effect forms the
-candidates do not fit: LuGre friction (the candidate is Coulomb+Stribeck lost motion),
-an asymmetric non-Gaussian wear profile (the candidate is 5 linear knots), cyclic error
-with an unknown gear period besides a lead/k_a one, servo dynamics with dead time and
-lag together, compliance with guide damping and contact damping, thermal lead growth
-about a fixed bearing end together with a backlash change.
-:func:`run_benchmark` diagnoses each case without its label and scores it.
+Two plants generate the cases: ``twin`` (:func:`make_case`, the project's own twin,
+``core.sim``) and ``independent`` (:mod:`core.gap.plant`, a feed-drive simulator
+written separately, with its own integration scheme and its own forms of each
+effect). In both, a case draws a two-axis machine (K 8-40 1/s), no effect, one effect,
+or (a quarter of the cases) two effects, with random parameters over realistic ranges,
+and records round trips and circles; circles carry a feed-in arc and a lead-out of
+random length (0-180°), and a third of the datasets have no ``split`` field. Test runs
+lie outside the train conditions (other temperatures, feeds, accelerations, radii and
+positions on the travel). In the twin, part of the data follows forms the candidates do
+not fit exactly: LuGre friction, an asymmetric wear profile, a gear period beside a
+lead/k_a one, servo dynamics with feed-forward, an effective gain other than the
+configured K and a feedback delay. :func:`run_benchmark` diagnoses each case without
+its label and scores it.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from core.dataset import Dataset, MachineSpec
+from core.dataset import AxisSpec, Dataset, MachineSpec
 from core.sim import (
     AxisModel,
     BacklashProfile,
@@ -37,8 +40,10 @@ from core.sim import (
     simulate,
 )
 
-LABELS = ("none", "thermal", "backlash_profile", "cyclic_error", "friction", "compliance", "servo_dynamics",
-          "sampling_skew")  # fmt: skip
+from core.sim import CATEGORIES  # noqa: E402  (the one effect list)
+
+LABELS = ("none", *CATEGORIES)
+PLANTS = ("twin", "independent")
 TRAVEL_MM = (0.0, 800.0)
 
 
@@ -62,10 +67,11 @@ SMALL = CaseSize(2, 1, 2, 1, 250.0, 200.0, 14.0, 360.0)
 
 @dataclass(frozen=True)
 class Case:
-    label: str
+    label: str  # the first effect ("none" for none)
     axis: str  # a randomly named axis ("" for none); both axes carry the effect
     truth: dict
     dataset: Dataset = field(repr=False)
+    labels: tuple[str, ...] = ()  # every effect injected (empty for none)
 
 
 def _u(rng, lo, hi):
@@ -112,45 +118,68 @@ def draw_effect(label: str, rng: np.random.Generator, axis_model: AxisModel) -> 
                           damping_ratio=_u(rng, 0.2, 0.5), guide_damping_n_s_per_mm=_u(rng, 2, 10))  # fmt: skip
         return Effects(compliance=comp), {"compliance": dict(comp.__dict__)}
     if label == "servo_dynamics":
-        dead = _u(rng, 0.0008, 0.002)
-        lag = _u(rng, 0.004, 0.01)
-        sd = ServoDynamics(velocity_lag_s=lag, dead_time_s=dead)
-        return Effects(servo_dynamics=sd), {"velocity_lag_s": lag, "dead_time_s": dead}
+        dead = _u(rng, 0.0, 0.002)
+        lag = _u(rng, 0.001, 0.01)
+        ff = _u(rng, 0.3, 0.95) if rng.random() < 0.5 else 0.0
+        fb = _u(rng, 0.0005, 0.003) if rng.random() < 0.5 else 0.0
+        sd = ServoDynamics(velocity_lag_s=lag, dead_time_s=dead, feedforward=ff, feedback_delay_s=fb)
+        return Effects(servo_dynamics=sd), {"velocity_lag_s": lag, "dead_time_s": dead, "feedforward": ff,
+                                            "feedback_delay_s": fb}  # fmt: skip
     if label == "sampling_skew":
         tau = _sgn(rng) * _u(rng, 0.001, 0.005)
         return Effects(sampling_skew=SamplingSkew(tau)), {"table_delay_s": tau}
     return Effects(), {}
 
 
-def make_case(label: str, rng: np.random.Generator, size: CaseSize = CaseSize()) -> Case:
-    """A dataset with ``label`` (one of LABELS) injected on one random axis."""
-    if label not in LABELS:
-        raise ValueError(f"label (={label!r}) must be one of {LABELS}")
+def make_case(label: str | tuple[str, ...], rng: np.random.Generator, size: CaseSize = CaseSize(),
+              split_fields: bool = True) -> Case:
+    """A dataset with ``label`` (one of LABELS, or a tuple of two effects) on both axes."""
+    labels = tuple(x for x in ((label,) if isinstance(label, str) else tuple(label)) if x != "none")
+    for x in labels:
+        if x not in LABELS:
+            raise ValueError(f"label (={x!r}) must be one of {LABELS}")
+    label = labels[0] if labels else "none"
     axes = {}
+    configured_k = {}
     for name in ("x", "y"):
         lead = float(rng.choice([10.0, 16.0, 20.0]))
+        configured_k[name] = _u(rng, 8, 40)
         axes[name] = AxisModel(
             name=name, transmission_mm_per_rev=lead * _u(rng, 0.35, 0.9), screw_lead_mm=lead,
-            position_gain_per_s=_u(rng, 8, 25), backlash_um=_u(rng, 15, 150),
+            position_gain_per_s=configured_k[name], backlash_um=_u(rng, 15, 150),
             encoders=Encoders(table_noise_um=_u(rng, 0.1, 0.5), motor_noise_um=_u(rng, 0.1, 0.5)),
         )  # fmt: skip
     # A machine's effect acts on every axis (with its own parameters; a skew is one
     # acquisition delay): the "axis" of a case is the one with the larger effect draw.
     eff_axis = ""
     truth: dict = {}
-    if label != "none":
-        skew = None
+    skew = None
+    for lab in labels:
         for name in ("x", "y"):
-            fx, tr = draw_effect(label, rng, axes[name])
-            if label == "sampling_skew":
+            fx, tr = draw_effect(lab, rng, axes[name])
+            if lab == "sampling_skew":
                 skew = skew or fx
                 fx, tr = skew, {"table_delay_s": skew.sampling_skew.table_delay_s}
-            truth[name] = tr
             am = axes[name]
-            axes[name] = AxisModel(am.name, am.transmission_mm_per_rev, am.screw_lead_mm, am.position_gain_per_s,
-                                   am.backlash_um, effects=fx, encoders=am.encoders)  # fmt: skip
+            gain = am.position_gain_per_s
+            if lab == "servo_dynamics" and rng.random() < 0.5:  # the drive's real gain differs from the configured one
+                gain = configured_k[name] * _u(rng, 0.7, 1.4)
+                tr = dict(tr, effective_gain_per_s=gain)
+            truth.setdefault(name, {})[lab] = tr
+            eff = am.effects
+            for cat in fx.active:
+                eff = eff.with_effect(cat, getattr(fx, cat))
+            axes[name] = AxisModel(am.name, am.transmission_mm_per_rev, am.screw_lead_mm, gain,
+                                   am.backlash_um, effects=eff, encoders=am.encoders)  # fmt: skip
+    if labels:
         eff_axis = str(rng.choice(["x", "y"]))
-    machine = MachineSpec(id=f"bench-{label}", axes={a: m.to_axis_spec(TRAVEL_MM) for a, m in axes.items()})
+    label_name = "+".join(labels) or "none"
+    specs = {}
+    for a, m in axes.items():
+        sp = m.to_axis_spec(TRAVEL_MM)
+        specs[a] = AxisSpec(a, sp.transmission_mm_per_rev, sp.screw_lead_mm, configured_k[a], sp.travel_mm)
+    machine = MachineSpec(id=f"bench-{label_name}", axes=specs)
+    split = (lambda test: "test" if test else "train") if split_fields else (lambda test: None)
     runs = []
     k = 0
     for name in ("x", "y"):
@@ -182,7 +211,7 @@ def make_case(label: str, rng: np.random.Generator, size: CaseSize = CaseSize())
                 start = lo + (hi - lo - length) * (i / max(n_tr - 1, 1))
             prog = round_trip(start, start + length, feed, acc, 1.0, axis=name)
             tr = simulate({name: axes[name]}, prog, temperature_c=temp, rate_hz=size.rt_rate_hz, rng=rng)
-            runs.append(tr.to_run(f"rt_{name}_{k:02d}.csv", split="test" if test else "train"))
+            runs.append(tr.to_run(f"rt_{name}_{k:02d}.csv", split=split(test)))
             k += 1
     for i in range(size.circles_train + size.circles_test):
         test = i >= size.circles_train
@@ -195,52 +224,98 @@ def make_case(label: str, rng: np.random.Generator, size: CaseSize = CaseSize())
             feed = _u(rng, 500, 1500)
             temp = _u(rng, 17, 24)
         centre = (_u(rng, 200, 600), _u(rng, 200, 600))
-        prog = circle(radius, centre, feed, "ccw" if i % 2 == 0 else "cw", -90.0, size.circle_sweep_deg)
+        lead_in = 0.0 if rng.random() < 0.25 else _u(rng, 0, 180)  # 0: at rest on the data arc
+        lead_out = _u(rng, 0, 180)
+        prog = circle(radius, centre, feed, "ccw" if i % 2 == 0 else "cw", _u(rng, -180, 180), size.circle_sweep_deg,
+                      lead_in_deg=lead_in, lead_out_deg=lead_out, acceleration_mm_s2=_u(rng, 300, 2000))  # fmt: skip
+        prog = replace(prog, record_from_s=0.0, record_to_s=prog.duration_s)  # the whole program, feed-in included
         tr = simulate(axes, prog, temperature_c=temp, rate_hz=size.circle_rate_hz, rng=rng)
-        runs.append(tr.to_run(f"circle_{i:02d}.csv", split="test" if test else "train"))
-    return Case(label, eff_axis, truth, Dataset(machine, tuple(runs)))
+        extra = {"lead_in_deg": lead_in, "lead_out_deg": lead_out} if rng.random() < 0.5 else {}
+        runs.append(tr.to_run(f"circle_{i:02d}.csv", split=split(test), extra=extra))
+    return Case(label, eff_axis, truth, Dataset(machine, tuple(runs)), labels)
 
 
-def labels_for(n_cases: int, rng: np.random.Generator) -> list[str]:
-    """Balanced labels: each block of len(LABELS) cases holds every label once, shuffled."""
+def labels_for(n_cases: int, rng: np.random.Generator, mixed_fraction: float = 0.25) -> list[tuple[str, ...]]:
+    """Balanced labels: each block of len(LABELS) cases holds every label once, shuffled;
+    ``mixed_fraction`` of all cases (taken from the effect cases) get a second effect."""
     out: list[str] = []
     while len(out) < n_cases:
         out += [LABELS[i] for i in rng.permutation(len(LABELS))]
-    return out[:n_cases]
+    out = out[:n_cases]
+    effect_idx = [i for i, x in enumerate(out) if x != "none"]
+    n_mixed = min(len(effect_idx), int(round(mixed_fraction * n_cases)))
+    mixed = set(rng.choice(effect_idx, n_mixed, replace=False).tolist()) if n_mixed else set()
+    res: list[tuple[str, ...]] = []
+    for i, x in enumerate(out):
+        if x == "none":
+            res.append(())
+        elif i in mixed:
+            others = [e for e in LABELS[1:] if e != x]
+            res.append((x, str(rng.choice(others))))
+        else:
+            res.append((x,))
+    return res
 
 
 @dataclass(frozen=True)
 class CaseResult:
     index: int
-    label: str
+    label: str  # "none", an effect, or "a+b" for a mixed case
     diagnosed: str
     gap_before_um: float
     gap_after_um: float
     noise_floor_um: float
     seconds: float
     axis: str
+    labels: tuple[str, ...] = ()
+    diagnosed_effects: tuple[str, ...] = ()
+    plant: str = "twin"
+    split_given: bool = True
 
     @property
     def ratio(self) -> float:
         return self.gap_after_um / self.gap_before_um if self.gap_before_um > 0 else float("nan")
+
+    @property
+    def correct(self) -> bool:
+        """For a mixed case either effect counts."""
+        return self.diagnosed == "none" if not self.labels else self.diagnosed in self.labels
+
+    @property
+    def second_found(self) -> bool | None:
+        """Mixed cases: whether the diagnosis named both effects (None otherwise)."""
+        if len(self.labels) < 2:
+            return None
+        return set(self.labels) <= set(self.diagnosed_effects)
 
 
 @dataclass(frozen=True)
 class BenchmarkResult:
     cases: tuple[CaseResult, ...]
     seed: int
+    plant: str = "twin"
 
     @property
     def fraction_correct(self) -> float:
-        return float(np.mean([c.label == c.diagnosed for c in self.cases])) if self.cases else float("nan")
+        return float(np.mean([c.correct for c in self.cases])) if self.cases else float("nan")
 
     @property
     def false_effects_on_none(self) -> int:
-        return sum(1 for c in self.cases if c.label == "none" and c.diagnosed != "none")
+        return sum(1 for c in self.cases if not c.labels and c.diagnosed != "none")
+
+    @property
+    def none_within_2x_noise(self) -> tuple[int, int]:
+        none = [c for c in self.cases if not c.labels]
+        return sum(1 for c in none if c.gap_before_um <= 2 * c.noise_floor_um), len(none)
+
+    @property
+    def second_effect_recall(self) -> tuple[int, int]:
+        mixed = [c for c in self.cases if len(c.labels) > 1]
+        return sum(1 for c in mixed if c.second_found), len(mixed)
 
     @property
     def median_ratio_effect_cases(self) -> float:
-        r = [c.ratio for c in self.cases if c.label != "none"]
+        r = [c.ratio for c in self.cases if c.labels]
         return float(np.median(r)) if r else float("nan")
 
     @property
@@ -248,39 +323,67 @@ class BenchmarkResult:
         return float(np.median([c.seconds for c in self.cases])) if self.cases else float("nan")
 
     def confusion(self) -> dict[str, dict[str, int]]:
+        """Rows: the first injected effect (either counts for a mixed case: the row of the
+        one diagnosed, if any); columns: the diagnosed one."""
         m = {t: {p: 0 for p in LABELS} for t in LABELS}
         for c in self.cases:
-            m[c.label][c.diagnosed] += 1
+            row = c.diagnosed if c.labels and c.diagnosed in c.labels else (c.labels[0] if c.labels else "none")
+            m[row][c.diagnosed] += 1
         return m
 
     def to_dict(self) -> dict:
+        hit, n_none = self.none_within_2x_noise
+        rec, n_mixed = self.second_effect_recall
         return {
             "seed": self.seed,
+            "plant": self.plant,
             "n_cases": len(self.cases),
             "fraction_correct": self.fraction_correct,
             "none_diagnosed_as_effect": self.false_effects_on_none,
+            "none_gap_within_2x_noise": [hit, n_none],
+            "second_effect_recall": [rec, n_mixed],
             "median_gap_ratio_effect_cases": self.median_ratio_effect_cases,
             "median_seconds_per_case": self.median_seconds,
             "confusion": self.confusion(),
-            "cases": [c.__dict__ | {"ratio": c.ratio} for c in self.cases],
+            "cases": [c.__dict__ | {"ratio": c.ratio, "correct": c.correct} for c in self.cases],
         }
 
 
+def make_plant_case(plant: str, labels: tuple[str, ...], rng: np.random.Generator, size: CaseSize,
+                    split_fields: bool) -> tuple[Dataset, bool]:
+    """A dataset of ``plant`` with ``labels``; returns (dataset, whether it has split fields)."""
+    if plant == "twin":
+        return make_case(labels or "none", rng, size, split_fields=split_fields).dataset, split_fields
+    if plant == "independent":
+        from core.gap.plant import PlantSize, make_plant_case as make_independent
+
+        psize = PlantSize(size.rt_train_per_axis, size.rt_test_per_axis, size.circles_train, size.circles_test,
+                          size.rt_rate_hz, size.circle_rate_hz, size.rt_duration_s)  # fmt: skip
+        ds = make_independent(labels, rng, psize).dataset
+        return ds, any(r.spec.split is not None for r in ds.runs)
+    raise ValueError(f"plant (={plant!r}) must be one of {PLANTS}")
+
+
 def run_benchmark(n_cases: int, seed: int, size: CaseSize = CaseSize(),
-                  progress: Callable[[CaseResult], None] | None = None) -> BenchmarkResult:
-    """Generate ``n_cases`` datasets (balanced labels) and diagnose each without its label."""
+                  progress: Callable[[CaseResult], None] | None = None, plant: str = "twin") -> BenchmarkResult:
+    """Generate ``n_cases`` datasets of ``plant`` (balanced labels, a quarter mixed, a third
+    without split fields) and diagnose each without its label."""
     from core.gap.diagnose import GapSettings, diagnose
 
+    if plant not in PLANTS:
+        raise ValueError(f"plant (={plant!r}) must be one of {PLANTS}")
     rng = np.random.default_rng(seed)
     labels = labels_for(n_cases, rng)
+    no_split = set(rng.choice(n_cases, n_cases // 3, replace=False).tolist())
     out = []
-    for i, label in enumerate(labels):
-        case = make_case(label, np.random.default_rng([seed, i]), size)
+    for i, labs in enumerate(labels):
+        ds, split_given = make_plant_case(plant, labs, np.random.default_rng([seed, i]), size, i not in no_split)
         t0 = time.perf_counter()
-        rep = diagnose(case.dataset, GapSettings(keep_curves=False))
+        rep = diagnose(ds, GapSettings(keep_curves=False))
         dt = time.perf_counter() - t0
-        res = CaseResult(i, label, rep.effect, rep.gap_before_um, rep.gap_after_um, rep.noise_floor_um, dt, case.axis)
+        res = CaseResult(i, "+".join(labs) or "none", rep.effect, rep.gap_before_um, rep.gap_after_um,
+                         rep.noise_floor_um, dt, "", labs, tuple(rep.effects), plant, split_given)  # fmt: skip
         out.append(res)
         if progress is not None:
             progress(res)
-    return BenchmarkResult(tuple(out), seed)
+    return BenchmarkResult(tuple(out), seed, plant)

@@ -2,19 +2,26 @@
 
 A round trip becomes :class:`RoundTrip` (nut travel u = k_a x_m aligned to table
 coordinates, table x, decimated fit indices); a circle or line becomes
-:class:`Contour` (the commanded program rebuilt from the run's fields, samples aligned
-to the program's time). :func:`choose_split` uses the runs' ``split`` or, when none is
-given, holds out whole runs at the most extreme conditions.
+:class:`Contour`. A contour's program is the **recorded command** when the run has
+``<a>_command_mm`` columns (resampled linearly, as a CNC interpolator feeds its
+position loop; a run that starts in motion gets a pre-roll along the same path, so the
+loop is in steady state when the recording starts), and is rebuilt from the run's
+fields otherwise (``Contour.rebuilt``; the report says so). Only the samples on the
+data arc (circle) or segment (line) are scored (``Contour.score``): a feed-in before
+it and a lead-out after it drive the simulation but are not compared.
+:func:`choose_split` uses the runs' ``split`` or, when none is given, holds out whole
+runs at the most extreme conditions.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from core.dataset import Dataset, Run
+from core.dataset import AxisSpec, Dataset, Run
 from core.errors import InputError
 from core.sim import circle as circle_program
 from core.sim import line as line_program
@@ -63,6 +70,16 @@ class Contour:
     fit_idx: np.ndarray = field(default_factory=lambda: np.zeros(0, int), repr=False)
     rate_hz: float = 500.0
     meta: dict = field(default_factory=dict)
+    score: np.ndarray | None = field(default=None, repr=False)  # bool per sample: on the data arc/segment
+    rebuilt: bool = False  # True: no command columns, the program was rebuilt from the run's fields
+    command_mm: dict | None = field(default=None, repr=False)  # axis -> recorded command
+
+    @property
+    def scored(self) -> np.ndarray:
+        """Indices of the scored samples (all samples when no data arc is known)."""
+        if self.score is None:
+            return np.arange(self.t_s.size)
+        return np.flatnonzero(self.score)
 
     def deviation_um(self, pos: dict) -> np.ndarray:
         """Contour error of positions ``pos`` (axis -> mm): radial deviation for a circle,
@@ -76,14 +93,16 @@ class Contour:
         return (-(pos[a] - x0) * math.sin(th) + (pos[b] - y0) * math.cos(th)) * 1e3
 
     def angle_deg(self) -> np.ndarray:
-        """Angle of each measured sample about the centre (circle) or distance along (line)."""
+        """Angle of each scored sample about the centre (circle) or distance along (line)."""
         a, b = self.axes
+        k = self.scored
+        xa, xb = self.table_mm[a][k], self.table_mm[b][k]
         if self.kind == "circle":
             cx, cy = self.meta["centre_mm"]
-            return np.degrees(np.arctan2(self.table_mm[b] - cy, self.table_mm[a] - cx)) % 360.0
+            return np.degrees(np.arctan2(xb - cy, xa - cx)) % 360.0
         th = math.radians(self.meta["angle_deg"])
         x0, y0 = self.meta["start_mm"]
-        return (self.table_mm[a] - x0) * math.cos(th) + (self.table_mm[b] - y0) * math.sin(th)
+        return (xa - x0) * math.cos(th) + (xb - y0) * math.sin(th)
 
 
 def _fit_idx(n: int) -> np.ndarray:
@@ -165,20 +184,137 @@ def _align_time(run: Run, prog: Program) -> np.ndarray:
     return t + d
 
 
-def prepare_contour(run: Run, split: str) -> Contour:
-    prog = _program_of(run)
-    t = _align_time(run, prog)
-    dt = float(np.median(np.diff(t)))
+PRE_ROLL_TIME_CONSTANTS = 12.0  # a run that starts in motion: e^-12 of the loop's start-up transient remains
+MAX_PRE_ROLL_S = 3.0
+
+
+def _first_sides(cmd: np.ndarray) -> tuple[str, ...]:
+    """Each axis pushed in the direction it first moves (its natural engagement)."""
+    out = []
+    for c in cmd:
+        d = c - c[0]
+        tol = max(1e-6, 1e-4 * float(np.ptp(c)))
+        k = np.flatnonzero(np.abs(d) > tol)
+        out.append("positive" if k.size == 0 or d[k[0]] > 0 else "negative")
+    return tuple(out)
+
+
+def _recorded_program(run: Run, gains_per_s: tuple[float, ...]) -> tuple[Program, np.ndarray]:
+    """The recorded command as a program, and the program time of each sample.
+
+    When the command moves at the first sample, a pre-roll of PRE_ROLL_TIME_CONSTANTS
+    loop time constants is prepended: along the circle at the same angular speed for a
+    circle, along the same straight line otherwise."""
     s = run.spec
+    t = np.asarray(run.time_s, float)
+    cmd = np.stack([np.asarray(run.command_mm(a), float) for a in s.axes])
+    # moving at the first sample: the first interval's speed is a good part of the feed (a
+    # start from rest on an acceleration ramp covers a small fraction of it)
+    n0 = 1
+    v0 = (cmd[:, n0] - cmd[:, 0]) / (t[n0] - t[0])
+    feed = s.feed_mm_min / 60.0
+    moving = float(np.hypot(*v0) if v0.size == 2 else abs(v0[0])) > 0.3 * feed
+    pre = min(MAX_PRE_ROLL_S, PRE_ROLL_TIME_CONSTANTS / max(min(gains_per_s), 1e-3)) if moving else 0.0
+    tt = t - t[0]
+    if s.kind == "circle" and moving:
+        cx, cy = s.centre_mm or (0.0, 0.0)
+        th = np.unwrap(np.arctan2(cmd[1, : n0 + 1] - cy, cmd[0, : n0 + 1] - cx))
+        r0 = float(np.hypot(cmd[0, 0] - cx, cmd[1, 0] - cy))
+        w0 = (th[-1] - th[0]) / (t[n0] - t[0])
+
+        def before(tau):  # tau < 0: time before the first sample
+            a = th[0] + w0 * tau
+            return np.stack([cx + r0 * np.cos(a), cy + r0 * np.sin(a)])
+    else:
+
+        def before(tau):
+            return cmd[:, :1] + v0[:, None] * tau[None, :]
+
+    def path(tp, _cmd=cmd, _tt=tt, _pre=pre):
+        tau = np.atleast_1d(np.asarray(tp, float)) - _pre
+        out = np.stack([np.interp(tau, _tt, c) for c in _cmd])
+        early = tau < 0
+        if early.any():
+            out[:, early] = before(tau[early])
+        return out
+
+    prog = Program(
+        kind=s.kind, axes=tuple(s.axes), feed_mm_min=float(s.feed_mm_min), duration_s=float(tt[-1] + pre),
+        record_from_s=pre, record_to_s=float(tt[-1] + pre), initial_sides=_first_sides(path(np.array([0.0, 0.05, 0.5]))
+        if moving else cmd), path=path, meta={"acceleration_mm_s2": s.acceleration_mm_s2},
+    )  # fmt: skip
+    return prog, tt + pre
+
+
+def _data_arc_mask(run: Run, cmd: np.ndarray) -> tuple[np.ndarray, dict]:
+    """Samples whose command lies on the data arc (circle) or segment (line)."""
+    s = run.spec
+    if s.kind == "circle":
+        cx, cy = s.centre_mm or (0.0, 0.0)
+        d = 1.0 if (s.direction or "ccw") == "ccw" else -1.0
+        th = np.degrees(np.unwrap(np.arctan2(cmd[1] - cy, cmd[0] - cx)))
+        progress = d * (th - th[0])  # degrees travelled along the circle from the first sample
+        start = -90.0 if s.start_angle_deg is None else float(s.start_angle_deg)
+        sweep = 360.0 if s.sweep_deg is None else float(s.sweep_deg)
+        lead_in = s.extra.get("lead_in_deg")
+        how = "given (lead_in_deg)"
+        if lead_in is None:
+            lead_in = (d * (start - th[0])) % 360.0
+            if lead_in > 359.0:  # at rest on the start angle, a hair before it
+                lead_in = 0.0
+            how = "from the recorded command's angle"
+            if lead_in + sweep > float(progress.max()) + 1.0:
+                lead_in = max(0.0, float(progress.max()) - sweep)
+                how = "from the recorded command's angle (recording shorter than lead-in + sweep: aligned to its end)"
+        lead_in = float(lead_in)
+        mask = (progress >= lead_in - 1e-6) & (progress <= lead_in + sweep + 1e-6)
+        return mask, {"lead_in_deg": lead_in, "sweep_deg": sweep, "how": how,
+                      "lead_out_deg": float(progress.max()) - lead_in - sweep}  # fmt: skip
+    th = math.radians(s.angle_deg)
+    x0, y0 = s.start_mm or (0.0, 0.0)
+    along = (cmd[0] - x0) * math.cos(th) + (cmd[1] - y0) * math.sin(th)
+    across = -(cmd[0] - x0) * math.sin(th) + (cmd[1] - y0) * math.cos(th)
+    tol = 1e-3
+    mask = (along >= -tol) & (along <= s.length_mm + tol) & (np.abs(across) <= tol)
+    return mask, {"how": "samples whose command lies on the segment"}
+
+
+def prepare_contour(run: Run, split: str, axes: Mapping[str, AxisSpec] | None = None) -> Contour:
+    s = run.spec
+    has_cmd = all(run.command_mm(a) is not None for a in s.axes)
     meta = {"radius_mm": s.radius_mm, "centre_mm": tuple(s.centre_mm or (0.0, 0.0)),
             "angle_deg": s.angle_deg, "start_mm": tuple(s.start_mm or (0.0, 0.0))}  # fmt: skip
+    score = None
+    cmd_cols = None
+    if has_cmd:
+        gains = tuple(axes[a].position_gain_per_s for a in s.axes) if axes else (10.0,)
+        prog, t = _recorded_program(run, gains)
+        cmd_cols = {a: np.asarray(run.command_mm(a), float) for a in s.axes}
+        if s.kind == "line" and (s.angle_deg is None or s.length_mm is None):
+            raise GapError(f"line run {s.file!r} needs angle_deg and length_mm")
+        score, arc = _data_arc_mask(run, np.stack([cmd_cols[a] for a in s.axes]))
+        if score.sum() < 10:
+            raise GapError(f"{s.kind} run {s.file!r}: fewer than 10 samples of its command lie on the data "
+                           f"{'arc' if s.kind == 'circle' else 'segment'} its fields name ({arc['how']})")  # fmt: skip
+        meta["data_arc"] = arc
+    else:
+        prog = _program_of(run)
+        t = _align_time(run, prog)
+    dt = float(np.median(np.diff(t)))
     return Contour(
         file=s.file, kind=s.kind, axes=tuple(s.axes), split=split, t_s=t,
         table_mm={a: np.asarray(run.table_mm(a), float) for a in s.axes}, program=prog,
         temperature_c=float(s.temperature_c), feed_mm_min=float(s.feed_mm_min),
-        acceleration_mm_s2=s.acceleration_mm_s2, fit_idx=_fit_idx(t.size),
-        rate_hz=min(1000.0, 1.0 / dt), meta=meta,
+        acceleration_mm_s2=s.acceleration_mm_s2, fit_idx=_fit_idx_on(score, t.size),
+        rate_hz=min(1000.0, 1.0 / dt), meta=meta, score=score, rebuilt=not has_cmd, command_mm=cmd_cols,
     )  # fmt: skip
+
+
+def _fit_idx_on(score: np.ndarray | None, n: int) -> np.ndarray:
+    if score is None:
+        return _fit_idx(n)
+    k = np.flatnonzero(score)
+    return k[_fit_idx(k.size)]
 
 
 @dataclass(frozen=True)

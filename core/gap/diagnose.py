@@ -1,52 +1,59 @@
 """The gap diagnosis: :func:`diagnose` (dataset -> :class:`GapReport`).
 
-1. Split the runs (given, or held out by condition), prepare round trips and contours.
+1. Split the runs (given, or held out by condition), prepare round trips and contours
+   (contours driven by their recorded command and scored on the data arc).
 2. Fit the nominal model on the train runs: a constant backlash per axis (least squares
    on the table-given-motor play operator of the round trips, or on the train contours
    for an axis without round trips), K and k_a from the axis.
 3. Its test gap: RMS over all test samples of measured minus predicted (table given
    motor for round trips, contour error for circles/lines), and where it lies.
-4. Every effect category: the nominal model extended with it, fitted on the train runs
-   only, predicting the test runs. An axis takes the extension only if it passes a BIC
-   test on its train fit; contours take a round-trip fit through the simulator only if
-   it does not worsen the train contours.
-5. Rank by test gap times (1 + PENALTY_PER_PARAM * n_params); name the best unless it
-   fails to cut the gap by MIN_REDUCTION or the gap is within NOISE_FACTOR of the noise.
+4. Every registered candidate (:mod:`core.gap.candidates`): the nominal model extended
+   with it, fitted on the train runs only, predicting the test runs. A round-trip axis
+   takes the extension only if it passes a BIC test on its train fit; contours take the
+   round-trip fit through the twin only if it does not worsen the train contours.
+5. Rank by test gap times (1 + penalty_per_param * n_params); name the best unless it
+   fails to cut the gap by min_reduction or the gap is within noise_factor of the noise.
+6. Second effect: every other candidate on top of the best, fitted on the train runs;
+   accepted if it cuts the best's test gap by another min_reduction while that gap is
+   still above the noise floor.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from core.dataset import Dataset
 from core.gap import contour as ct
 from core.gap import roundtrip as rt
+from core.gap.candidates import EFFECTS, REGISTRY, SERVO_LOWER, SERVO_NAMES, SERVO_UPPER, compose, derived, servo_piece
+from core.gap.candidates import sim_piece, stage_starts, train_residuals
 from core.gap.data import Contour, GapError, RoundTrip, choose_split, prepare_contour, prepare_round_trip
 from core.gap.report import Candidate, GapReport
 from core.gap.where import locate
-from core.sim import Effects
+from core.sim import AxisModel, Effects
 
-EFFECTS = ("thermal", "backlash_profile", "cyclic_error", "friction", "compliance", "servo_dynamics", "sampling_skew")
+NOT_IDENTIFIABLE = "not identifiable"
 
 
 @dataclass(frozen=True)
 class GapSettings:
-    """Decision thresholds (tuned on generated data, seeds 101-130; see docs/gap-diagnosis.md)."""
+    """Decision thresholds (tuned on generated data, seeds 101-130 and 201-212; see
+    docs/gap-diagnosis.md)."""
 
-    penalty_per_param: float = 0.02
+    penalty_per_param: float = 0.01
     min_reduction: float = 0.25  # best candidate must cut the test gap by at least this fraction
     noise_factor: float = 1.5  # ... and the gap before must exceed this multiple of the noise floor
-    min_temperature_span_c: float = 1.0  # train temperatures needed for the thermal candidate
+    second_effect: bool = True
     keep_curves: bool = True
 
 
 def noise_floor_um(resid: list[np.ndarray]) -> float:
     """White-noise level of residuals: MAD of first differences / (0.6745 sqrt 2), pooled."""
-    d = np.concatenate([np.diff(r) for r in resid if r.size > 2])
+    d = np.concatenate([np.diff(r) for r in resid if r.size > 2]) if resid else np.zeros(0)
     if d.size == 0:
         return 0.0
     return float(np.median(np.abs(d - np.median(d))) / 0.6745 / math.sqrt(2))
@@ -69,11 +76,48 @@ def _bic_accepts(rss0: float, rss1: float, n: int, k: int) -> bool:
     return rss1 > 0 and n * math.log(max(rss0, 1e-12) / rss1) > k * math.log(max(n, 2))
 
 
-class _Fitter:
+def _rms_all(parts: Sequence[np.ndarray]) -> float:
+    allr = np.concatenate(parts) if len(parts) else np.zeros(0)
+    return rt.rms(allr)
+
+
+@dataclass
+class _AxisFit:
+    """A round-trip axis' accepted composed model."""
+
+    model: rt.RTModel
+    fit: rt.FitResult
+    stages: tuple
+    effects: tuple[str, ...]
+
+
+@dataclass
+class Fitted:
+    """One candidate (one or two effects) fitted on the train runs."""
+
+    effects: tuple[str, ...]
+    rt_fits: dict[str, _AxisFit] = field(default_factory=dict)
+    servo: dict[str, rt.FitResult] = field(default_factory=dict)
+    params: dict = field(default_factory=dict)
+    intervals: dict = field(default_factory=dict)
+    n_params: int = 0
+    notes: list[str] = field(default_factory=list)
+    identifiable: bool = True
+    rt_res: list = field(default_factory=list)
+    ct_res: list = field(default_factory=list)
+    gap_after_um: float = float("nan")
+    contour_effects: dict = field(default_factory=dict)
+
+    def score(self, penalty: float) -> float:
+        return self.gap_after_um * (1 + penalty * self.n_params)
+
+
+class _Diagnosis:
     def __init__(self, dataset: Dataset, settings: GapSettings):
         self.ds = dataset
         self.s = settings
         self.axes = dataset.machine.axes
+        self.memo = ct.SimMemo()
         split = choose_split(dataset)
         self.split = split
         self.rts: list[RoundTrip] = []
@@ -83,14 +127,13 @@ class _Fitter:
             if run.spec.kind == "round_trip":
                 self.rts.append(prepare_round_trip(run, self.axes[run.spec.axes[0]], sp))
             else:
-                self.cts.append(prepare_contour(run, sp))
+                self.cts.append(prepare_contour(run, sp, self.axes))
         self.rt_axes = sorted({r.axis for r in self.rts})
         self.train_rt = {a: [r for r in self.rts if r.axis == a and r.split == "train"] for a in self.rt_axes}
         for r in self.rts:
             if r.split == "test" and not self.train_rt[r.axis]:
                 raise GapError(f"test round trip {r.file!r} of axis {r.axis!r} has no train round trip of that axis")
         self.train_ct = [c for c in self.cts if c.split == "train"]
-        self.extra_params: dict = {}
         self.test_ct = [c for c in self.cts if c.split == "test"]
         self.test_rt = [r for r in self.rts if r.split == "test"]
         if not self.test_rt and not self.test_ct:
@@ -103,131 +146,175 @@ class _Fitter:
     # ---- nominal -------------------------------------------------------------------
     def fit_nominal(self) -> None:
         self.b_um: dict[str, float] = {}
-        self.rss_nom: dict[str, float] = {}
-        self.n_fit: dict[str, int] = {}
+        self.nom_fit: dict[str, rt.FitResult] = {}
+        self.nom_model: dict[str, rt.RTModel] = {}
         for a in self.rt_axes:
             runs = self.train_rt[a]
-            b0 = rt.estimate_backlash_um(runs)
-            theta, rss = rt.fit(rt.nominal_model(b0), runs)
-            self.b_um[a] = float(theta[0])
-            self.rss_nom[a] = rss
-            self.n_fit[a] = sum(r.fit_idx.size for r in runs)
-        for a in sorted({a for c in self.cts for a in c.axes}):
-            if a not in self.b_um:
-                self.b_um[a] = 0.0
-        for a in sorted({a for c in self.cts for a in c.axes}):
+            model = compose((), rt.estimate_backlash_um(runs), self.memo.misc)
+            fr = rt.fit_model(model, runs)
+            self.b_um[a] = float(fr.theta[0])
+            self.nom_fit[a] = fr
+            self.nom_model[a] = model
+        ct_axes = sorted({a for c in self.cts for a in c.axes})
+        for a in ct_axes:
+            self.b_um.setdefault(a, 0.0)
+        for a in ct_axes:
             if a not in self.rt_axes:
-                self.b_um[a] = ct.fit_backlash_on_contours(self.train_ct, self.axes, a, self.b_um)
+                self.b_um[a] = ct.fit_backlash_on_contours(self.memo, self.train_ct, self.axes, a, self.b_um)
         self.nominal_models = ct.models_for(self.axes, self.b_um)
-        self.sim_nom = {c.file: ct.simulate_table(c, self.nominal_models) for c in self.cts}
+        self.sim_nom = {c.file: self.memo.table(c, self.nominal_models) for c in self.cts}
+        self.rt_nom = [rt.residual_um(self.nom_model[r.axis].predict(self.nom_fit[r.axis].theta, r), r)
+                       for r in self.test_rt]  # fmt: skip
+        self.ct_nom = [ct.contour_residual_um(c, self.sim_nom[c.file]) for c in self.test_ct]
+        self.train_ct_rss_nom = self._ct_train_rss(self.sim_nom)
 
-    def rt_test_resid(self, predict_by_axis: Mapping[str, tuple]) -> list[np.ndarray]:
-        out = []
-        for r in self.test_rt:
-            fn, theta = predict_by_axis[r.axis]
-            out.append(rt.residual_um(fn(theta, r), r))
-        return out
-
-    def ct_resid(self, sims: Mapping[str, dict], which: list[Contour]) -> list[np.ndarray]:
-        return [ct.contour_residual_um(c, sims[c.file]) for c in which]
+    def _ct_train_rss(self, sims: Mapping[str, dict]) -> float:
+        return sum(float(np.sum(ct.tracking_residual_um(c, sims[c.file]) ** 2)) for c in self.train_ct)
 
     # ---- candidates ----------------------------------------------------------------
-    def rt_candidate(self, effect: str) -> tuple[dict, dict, dict, str]:
-        """Fit an effect per round-trip axis. Returns (predict_by_axis, params, used axes info, notes)."""
-        pred = {a: (rt.predict_nominal, np.array([self.b_um[a]])) for a in self.rt_axes}
-        params: dict = {}
-        used: dict = {}
-        notes = []
+    def fit_candidate(self, effects: tuple[str, ...], base: Fitted | None = None) -> Fitted:
+        f = Fitted(effects)
+        new = effects[-1]
+        # round trips, axis by axis
         for a in self.rt_axes:
             runs = self.train_rt[a]
-            b0 = self.b_um[a]
-            if effect == "thermal":
-                temps = [r.temperature_c for r in runs]
-                if max(temps) - min(temps) < self.s.min_temperature_span_c:
-                    notes.append(f"axis {a}: not identifiable (train round trips at one temperature)")
-                    continue
-                model = rt.thermal_model(b0)
-            elif effect == "backlash_profile":
-                lo = min(float(np.min(r.u_mm)) for r in runs)
-                hi = max(float(np.max(r.u_mm)) for r in runs)
-                model = rt.profile_model(b0, lo, hi)
-            elif effect == "cyclic_error":
-                res = [rt.residual_um(rt.predict_nominal(np.array([b0]), r), r, r.fit_idx) for r in runs]
-                spec = self.axes[a]
-                periods, _ = rt.residual_periods_mm(runs, res, spec.screw_lead_mm, spec.transmission_mm_per_rev)
-                model = rt.cyclic_model(b0, periods)
-            elif effect == "friction":
-                model = rt.friction_model(b0)
-            elif effect == "compliance":
-                model = rt.compliance_model(b0)
-            elif effect == "sampling_skew":
-                model = rt.skew_model(b0)
+            spec = self.axes[a]
+            bfit = base.rt_fits.get(a) if base else None
+            ref_model = bfit.model if bfit else self.nom_model[a]
+            ref_fit = bfit.fit if bfit else self.nom_fit[a]
+            strat = REGISTRY[new]
+            if strat.stage is None:
+                if bfit:
+                    f.rt_fits[a] = bfit
+                continue
+            resid = train_residuals(ref_model, ref_fit.theta, runs)
+            st = strat.stage(runs, spec, resid)
+            if st is None:
+                f.notes.append(f"{new} on axis {a}: {NOT_IDENTIFIABLE} (train round trips at one temperature)")
+                if bfit:
+                    f.rt_fits[a] = bfit
+                continue
+            stages = (bfit.stages if bfit else ()) + (st,)
+            if sum(1 for x in stages if x.kernel) > 1:
+                f.notes.append(f"axis {a}: {' and '.join(x.effect for x in stages)} both model the chain's dynamics; "
+                               "not composed")  # fmt: skip
+                if bfit:
+                    f.rt_fits[a] = bfit
+                continue
+            model = compose(stages, self.b_um[a], self.memo.misc)
+            if bfit:
+                x0 = np.concatenate([bfit.fit.theta, st.x0])
+                model = rt.RTModel(model.effect, model.names, x0, model.lower, model.upper, model.predict,
+                                   model.n_extra, model.info, model.prior)  # fmt: skip
+                starts = [np.concatenate([bfit.fit.theta, s0]) for s0 in st.starts]
             else:
-                raise AssertionError(effect)
-            starts = []
-            if effect == "compliance":
-                starts = [np.array([b0, fn, 0.3, g, mu]) for fn in (15.0, 40.0, 100.0) for g in (2.0, 10.0)
-                          for mu in (100.0, 1000.0)]
-            elif effect == "sampling_skew":
-                starts = [np.array([b0, tau]) for tau in (-6.0, -3.0, -1.0, 1.0, 3.0, 6.0)]
-            elif effect == "friction":
-                starts = [np.array([b0, ls, vs, cv]) for ls in (1.0, 4.0) for vs in (0.5, 3.0) for cv in (0.01, 0.05)]
-            theta, rss = rt.fit(model, runs, starts, n_starts=2 if effect == "friction" else 1)
-            if not _bic_accepts(self.rss_nom[a], rss, self.n_fit[a], model.n_extra):
-                notes.append(f"axis {a}: no train improvement (kept nominal)")
+                starts = stage_starts(stages, np.array([self.b_um[a]]))
+            fr = rt.fit_model(model, runs, starts, n_starts=2 if st.starts and not bfit else 1)
+            n = sum(r.fit_idx.size for r in runs)
+            if not _bic_accepts(ref_fit.rss, fr.rss, n, len(st.names)):
+                f.notes.append(f"{new} on axis {a}: no train improvement (kept {'+'.join(base.effects) if bfit else 'nominal'})")
+                if bfit:
+                    f.rt_fits[a] = bfit
                 continue
-            pred[a] = (model.predict, theta)
-            used[a] = (model, theta)
-            for k, v in zip(model.names, theta):
-                params[f"{a}.{k}" if len(self.rt_axes) > 1 else k] = float(v)
-            if effect == "compliance":
-                pre = f"{a}." if len(self.rt_axes) > 1 else ""
-                w2 = (2 * math.pi * theta[1]) ** 2
-                params[pre + "m_over_k_ms2"] = float(1e6 / w2)
-                params[pre + "backlash_um"] = float(max(0.0, theta[0] - 2e3 * theta[4] / w2))
-            if effect == "friction":
-                k = ct.ASSUMED_STIFFNESS_N_PER_UM
-                params[f"{a}.static_excess_n_at_200n_per_um" if len(self.rt_axes) > 1
-                       else "static_excess_n_at_200n_per_um"] = float(theta[1] * k)  # fmt: skip
-        return pred, params, used, "; ".join(notes)
+            f.rt_fits[a] = _AxisFit(model, fr, stages, tuple(s.effect for s in stages))
+        # parameters of the round-trip fits
+        for a, af in f.rt_fits.items():
+            ivals = rt.intervals(af.fit, af.model.names, af.model.lower, af.model.upper)
+            for name, v in zip(af.model.names, af.fit.theta):
+                key = f"{a}.{name}"
+                f.params[key] = float(v)
+                f.intervals[key] = ivals[name]
+            f.n_params += af.model.n_extra
+            vals = dict(zip(af.model.names, af.fit.theta))
+            for e in af.effects:
+                for k, v in derived(e, vals, float(af.fit.theta[0])).items():
+                    f.params[f"{a}.{k}"] = float(v)
+        # contours
+        if self.cts:
+            self._contours(f, base)
+        if not self.rts and any(REGISTRY[e].stage is not None for e in effects):
+            f.identifiable = False
+            f.notes.append(f"{NOT_IDENTIFIABLE} without round trips")
+        if new == "servo_dynamics" and not self.train_ct:
+            f.identifiable = False
+            f.notes.append(f"{NOT_IDENTIFIABLE} from round trips (acts between command and motor)")
+        if new == "thermal" and not any(a in f.rt_fits and "thermal" in f.rt_fits[a].effects for a in self.rt_axes):
+            if any(NOT_IDENTIFIABLE in n for n in f.notes):
+                f.identifiable = False
+        # test residuals
+        f.rt_res = []
+        for r in self.test_rt:
+            af = f.rt_fits.get(r.axis)
+            if af is None:
+                f.rt_res.append(rt.residual_um(self.nom_model[r.axis].predict(self.nom_fit[r.axis].theta, r), r))
+            else:
+                f.rt_res.append(rt.residual_um(af.model.predict(af.fit.theta, r), r))
+        f.gap_after_um = _rms_all(f.rt_res + f.ct_res)
+        return f
 
-    def contour_with(self, effect: str, used: dict) -> dict | None:
-        """Sim tables of all contours with the round-trip-fitted effect, or None if it has
-        no contour counterpart or worsens the train contours."""
-        if not self.cts or not used:
-            return None
-        effects: dict[str, Effects] = {}
+    def _contours(self, f: Fitted, base: Fitted | None) -> None:
+        pieces: dict[str, Effects] = {}
         bl = dict(self.b_um)
-        for a, (model, theta) in used.items():
-            info = dict(model.info)
-            if effect == "friction":
-                # The Coulomb share of the lost motion hides in the backlash of round trips and
-                # barely changes slow circles; assume static = 1.25 x Coulomb (guideways 1.1-1.5).
-                info["coulomb_um"] = min(ct.STATIC_TO_COULOMB_EXCESS * theta[1], 0.45 * theta[0])
-                self.extra_params[(effect, a)] = {"coulomb_lost_motion_um_assumed": info["coulomb_um"]}
-            fx, b = ct.effect_for_sim(effect, dict(zip(model.names, theta)), info, self.axes[a])
-            if fx.is_nominal:
-                continue
-            effects[a] = fx
-            if b is not None:
-                bl[a] = max(0.0, float(b))
-        if not effects:
-            return None
-        models = ct.models_for(self.axes, bl, effects)
-        sims = {c.file: ct.simulate_table(c, models) for c in self.train_ct}
-        if self.train_ct:
-            before = sum(float(np.sum(ct.tracking_residual_um(c, self.sim_nom[c.file]) ** 2)) for c in self.train_ct)
-            after = sum(float(np.sum(ct.tracking_residual_um(c, sims[c.file]) ** 2)) for c in self.train_ct)
-            if after > before:
-                return None
+        for a, af in f.rt_fits.items():
+            vals = dict(zip(af.model.names, af.fit.theta))
+            fx = Effects()
+            b = float(af.fit.theta[0])
+            for st in af.stages:
+                mine = {n: vals[n] for n in st.names}
+                piece, b_share = sim_piece(st.effect, mine, st.info, self.axes[a], b)
+                if piece is not None:
+                    fx = fx.with_effect(st.effect, piece)
+                b -= b_share
+            if not fx.is_nominal:
+                pieces[a] = fx
+                bl[a] = max(0.0, b)
+        gains = {a: spec.position_gain_per_s for a, spec in self.axes.items()}
+        servo_src = base.servo if base is not None and "servo_dynamics" in base.effects else {}
+        if f.effects[-1] == "servo_dynamics" and self.train_ct:
+            fits, _ = ct.fit_servo(self.memo, self.train_ct, self.axes, bl, pieces)
+            servo_src = fits
+        for a, fr in servo_src.items():
+            vals = dict(zip(SERVO_NAMES, fr.theta))
+            pieces[a] = (pieces.get(a) or Effects()).with_effect("servo_dynamics", servo_piece(vals))
+            gains[a] = float(fr.theta[0])
+            f.servo[a] = fr
+            ivals = rt.intervals(fr, SERVO_NAMES, SERVO_LOWER, SERVO_UPPER)
+            for n, v in vals.items():
+                f.params[f"{a}.{n}"] = float(v)
+                f.intervals[f"{a}.{n}"] = ivals[n]
+            f.n_params += len(SERVO_NAMES)
+        f.contour_effects = pieces
+        if not pieces:
+            f.ct_res = list(self.ct_nom)
+            return
+        models = {a: AxisModel.from_axis_spec(spec, max(0.0, float(bl.get(a, 0.0))), effects=pieces.get(a))
+                  for a, spec in self.axes.items()}  # fmt: skip
+        models = {a: _with_gain(m, gains[a]) for a, m in models.items()}
+        sims = {c.file: self.memo.table(c, models) for c in self.train_ct}
+        if self.train_ct and self._ct_train_rss(sims) > self.train_ct_rss_nom:
+            f.ct_res = list(self.ct_nom)
+            f.notes.append("contours kept nominal (the fit worsens the train contours)")
+            return
         for c in self.test_ct:
-            sims[c.file] = ct.simulate_table(c, models)
-        return sims
+            sims[c.file] = self.memo.table(c, models)
+        f.ct_res = [ct.contour_residual_um(c, sims[c.file]) for c in self.test_ct]
 
 
-def _rms_all(parts: list[np.ndarray]) -> float:
-    allr = np.concatenate(parts) if parts else np.zeros(0)
-    return rt.rms(allr)
+def _with_gain(m: AxisModel, gain: float) -> AxisModel:
+    if gain == m.position_gain_per_s:
+        return m
+    return AxisModel(m.name, m.transmission_mm_per_rev, m.screw_lead_mm, float(gain), m.backlash_um, m.initial_side,
+                     m.effects, m.encoders)  # fmt: skip
+
+
+def _candidate(f: Fitted, s: GapSettings) -> Candidate:
+    params: dict = {}
+    for k, v in f.params.items():
+        params[k] = NOT_IDENTIFIABLE if k in f.intervals and f.intervals[k] is None else v
+    ivals = {k: (list(v) if v is not None else NOT_IDENTIFIABLE) for k, v in f.intervals.items()}
+    axes_used = tuple(sorted(set(f.rt_fits) | set(f.servo)))
+    return Candidate("+".join(f.effects), f.gap_after_um, params, f.n_params, f.score(s.penalty_per_param),
+                     f.identifiable, "; ".join(f.notes), axes_used, ivals, dict(f.params))  # fmt: skip
 
 
 def diagnose(dataset: Dataset, settings: GapSettings | None = None) -> GapReport:
@@ -238,75 +325,22 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None) -> GapReport
     """
     s = settings or GapSettings()
     _check(dataset)
-    f = _Fitter(dataset, s)
-    f.fit_nominal()
-    nom_pred = {a: (rt.predict_nominal, np.array([f.b_um[a]])) for a in f.rt_axes}
-    rt_nom = f.rt_test_resid(nom_pred)
-    ct_nom = f.ct_resid(f.sim_nom, f.test_ct)
+    d = _Diagnosis(dataset, s)
+    d.fit_nominal()
+    rt_nom, ct_nom = d.rt_nom, d.ct_nom
     gap_before = _rms_all(rt_nom + ct_nom)
     by_kind = {}
     if rt_nom:
         by_kind["round_trip"] = _rms_all(rt_nom)
     for kind in ("circle", "line"):
-        parts = [r for c, r in zip(f.test_ct, ct_nom) if c.kind == kind]
+        parts = [r for c, r in zip(d.test_ct, ct_nom) if c.kind == kind]
         if parts:
             by_kind[kind] = _rms_all(parts)
     noise = noise_floor_um(rt_nom + ct_nom)
 
-    cands: list[Candidate] = []
-    curves_after: dict[str, tuple[list, list]] = {}
-    for effect in EFFECTS:
-        notes = ""
-        params: dict = {}
-        n_params = 0
-        ident = True
-        rt_res = rt_nom
-        ct_res = ct_nom
-        axes_used: tuple[str, ...] = ()
-        if effect == "servo_dynamics":
-            if f.train_ct:
-                sp, _ = ct.fit_servo(f.train_ct, f.axes, f.b_um)
-                fx = {a: Effects(servo_dynamics=ct.servo_effect(*v)) for a, v in sp.items()}
-                models = ct.models_for(f.axes, f.b_um, fx)
-                sims = {c.file: ct.simulate_table(c, models) for c in f.test_ct}
-                ct_res = f.ct_resid(sims, f.test_ct)
-                for a, (lag, dead) in sp.items():
-                    params[f"{a}.velocity_lag_ms"] = lag
-                    params[f"{a}.dead_time_ms"] = dead
-                n_params = 2 * len(sp)
-                axes_used = tuple(sp)
-                if f.rts:
-                    notes = "not identifiable from round trips (acts between command and motor): fitted on contours"
-            else:
-                ident = False
-                notes = "not identifiable from round trips (acts between command and motor)"
-        else:
-            pred, params, used, notes = f.rt_candidate(effect)
-            n_params = sum(m.n_extra for m, _ in used.values())
-            axes_used = tuple(used)
-            if f.test_rt:
-                rt_res = f.rt_test_resid(pred)
-            if used and f.test_ct:
-                sims = f.contour_with(effect, used)
-                for (e, a), extra in f.extra_params.items():
-                    if e == effect:
-                        for k, v in extra.items():
-                            params[f"{a}.{k}" if len(f.rt_axes) > 1 else k] = v
-                if sims is not None:
-                    ct_res = f.ct_resid(sims, f.test_ct)
-                elif effect != "sampling_skew":
-                    notes = (notes + "; " if notes else "") + "contours kept nominal"
-            if not f.rts:
-                ident = False
-                notes = "not identifiable without round trips"
-            elif effect == "thermal" and not used and "not identifiable" in notes:
-                ident = False
-        gap_after = _rms_all(rt_res + ct_res)
-        score = gap_after * (1 + s.penalty_per_param * n_params)
-        cands.append(Candidate(effect, gap_after, params, n_params, score, ident, notes, axes_used))
-        curves_after[effect] = (rt_res, ct_res)
-    cands.sort(key=lambda c: c.score)
-    best = cands[0]
+    fits = {e: d.fit_candidate((e,)) for e in EFFECTS}
+    ranked = sorted(fits.values(), key=lambda f: f.score(s.penalty_per_param))
+    best = ranked[0]
     if gap_before <= s.noise_factor * noise:
         effect, decision = "none", (
             f"The test gap {gap_before:.2f} µm is within {s.noise_factor:g}x the noise floor ({noise:.2f} µm)."
@@ -314,41 +348,72 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None) -> GapReport
     elif best.gap_after_um > (1 - s.min_reduction) * gap_before:
         effect, decision = "none", (
             f"No candidate cuts the test gap by {s.min_reduction * 100:.0f} % or more "
-            f"(best: {best.effect}, {best.gap_after_um:.2f} µm): the gap is not one of the modelled effects."
+            f"(best: {best.effects[0]}, {best.gap_after_um:.2f} µm): the gap is not one of the modelled effects."
         )
     else:
-        effect = best.effect
-        decision = f"{best.effect} cuts the test gap by {(1 - best.gap_after_um / gap_before) * 100:.0f} %."
-    gap_after = gap_before if effect == "none" else best.gap_after_um
+        effect = best.effects[0]
+        decision = f"{effect} cuts the test gap by {(1 - best.gap_after_um / gap_before) * 100:.0f} %."
+
+    second: Fitted | None = None
+    pairs: list[Fitted] = []
+    second_text = ""
+    if effect != "none" and s.second_effect:
+        if best.gap_after_um > s.noise_factor * noise:
+            for e2 in EFFECTS:
+                alone = fits[e2]
+                # a candidate that took no axis on its own and cut no test gap is not tried on top
+                if e2 == effect or (not alone.rt_fits and not alone.servo and alone.gap_after_um >= 0.98 * gap_before):
+                    continue
+                pairs.append(d.fit_candidate((effect, e2), base=best))
+            pairs.sort(key=lambda f: f.score(s.penalty_per_param))
+            if pairs and pairs[0].gap_after_um <= (1 - s.min_reduction) * best.gap_after_um:
+                second = pairs[0]
+                second_text = (f"A second effect remains: {second.effects[1]} (together the test gap falls to "
+                               f"{second.gap_after_um:.2f} µm, another {(1 - second.gap_after_um / best.gap_after_um) * 100:.0f} %).")  # fmt: skip
+            else:
+                second_text = "No second effect found (no other candidate on top cuts the remaining gap by " \
+                              f"{s.min_reduction * 100:.0f} %)."
+        else:
+            second_text = "No second effect found: the remaining gap is at the noise floor."
+    chosen = second or best
+    effects_list = [] if effect == "none" else list(chosen.effects)
+    gap_after = gap_before if effect == "none" else chosen.gap_after_um
+    cands = [_candidate(f, s) for f in ranked]
     none_c = Candidate("none", gap_before, {}, 0, gap_before, True, "the nominal model", ())
     ordered = ([none_c] + cands) if effect == "none" else cands[:1] + [none_c] + cands[1:]
+    if second is not None:
+        ordered = [_candidate(second, s)] + ordered
 
     all_runs = []
-    for r in f.rts:
-        fn, th = nom_pred[r.axis]
-        all_runs.append((r, rt.residual_um(fn(th, r), r)))
-    for c in f.cts:
-        all_runs.append((c, ct.contour_residual_um(c, f.sim_nom[c.file])))
+    for r in d.rts:
+        all_runs.append((r, rt.residual_um(d.nom_model[r.axis].predict(d.nom_fit[r.axis].theta, r), r)))
+    for c in d.cts:
+        all_runs.append((c, ct.contour_residual_um(c, d.sim_nom[c.file])))
     where = locate(
-        f.test_rt, rt_nom, f.test_ct, ct_nom, f.b_um,
-        {a: v.screw_lead_mm for a, v in f.axes.items()}, {a: v.transmission_mm_per_rev for a, v in f.axes.items()},
+        d.test_rt, rt_nom, d.test_ct, ct_nom, d.b_um,
+        {a: v.screw_lead_mm for a, v in d.axes.items()}, {a: v.transmission_mm_per_rev for a, v in d.axes.items()},
         all_runs,
     )  # fmt: skip
     quantity = {}
-    if f.test_rt:
+    if d.test_rt:
         quantity["round_trip"] = "table position given the motor position (per-run offset fitted)"
-    if any(c.kind == "circle" for c in f.test_ct):
-        quantity["circle"] = "radial contour error (measured minus simulated)"
-    if any(c.kind == "line" for c in f.test_ct):
-        quantity["line"] = "perpendicular contour error (measured minus simulated)"
+    if any(c.kind == "circle" for c in d.test_ct):
+        quantity["circle"] = "radial contour error on the data arc (measured minus simulated)"
+    if any(c.kind == "line" for c in d.test_ct):
+        quantity["line"] = "perpendicular contour error on the data segment (measured minus simulated)"
+    rebuilt = [c.file for c in d.cts if c.rebuilt]
+    program_source = (
+        "recorded command columns" if not rebuilt else
+        f"rebuilt from the run fields (no command columns) for {', '.join(rebuilt)}: the lead-in is assumed"
+    )  # fmt: skip
     curves = {}
     if s.keep_curves:
-        after = curves_after.get(effect, (rt_nom, ct_nom))
+        after = (chosen.rt_res, chosen.ct_res) if effect != "none" else (rt_nom, ct_nom)
         curves = {
             "round_trip": [{"file": r.file, "axis": r.axis, "u_mm": r.u_mm[r.start :], "nominal_um": a, "corrected_um": b}
-                           for r, a, b in zip(f.test_rt, rt_nom, after[0])],
+                           for r, a, b in zip(d.test_rt, rt_nom, after[0])],
             "contour": [{"file": c.file, "kind": c.kind, "angle_deg": c.angle_deg(), "nominal_um": a,
-                         "corrected_um": b} for c, a, b in zip(f.test_ct, ct_nom, after[1])],
+                         "corrected_um": b} for c, a, b in zip(d.test_ct, ct_nom, after[1])],
         }  # fmt: skip
     return GapReport(
         machine_id=dataset.machine.id,
@@ -357,11 +422,11 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None) -> GapReport
         gap_before_um=gap_before,
         gap_after_um=gap_after,
         noise_floor_um=noise,
-        train=f.split.train,
-        test=f.split.test,
-        split_how=f.split.how,
+        train=d.split.train,
+        test=d.split.test,
+        split_how=d.split.how,
         candidates=tuple(ordered),
-        nominal_backlash_um=dict(f.b_um),
+        nominal_backlash_um=dict(d.b_um),
         quantity=quantity,
         gap_before_by_kind_um=by_kind,
         n_test_samples=int(sum(r.size for r in rt_nom + ct_nom)),
@@ -369,4 +434,8 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None) -> GapReport
         thresholds={"penalty_per_param": s.penalty_per_param, "min_reduction": s.min_reduction,
                     "noise_factor": s.noise_factor},  # fmt: skip
         curves=curves,
+        effects=tuple(effects_list),
+        second_effect=second_text,
+        program_source=program_source,
+        pairs=tuple(_candidate(f, s) for f in pairs),
     )

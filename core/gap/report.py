@@ -54,6 +54,8 @@ class Candidate:
     identifiable: bool = True
     notes: str = ""
     axes: tuple[str, ...] = ()
+    intervals: Mapping = field(default_factory=dict)  # param -> [lo, hi] (95 %) or "not identifiable"
+    values: Mapping = field(default_factory=dict, compare=False, repr=False)  # every fitted number, identifiable or not
 
     def to_dict(self) -> dict:
         return {
@@ -65,6 +67,7 @@ class Candidate:
             "identifiable": self.identifiable,
             "axes": list(self.axes),
             "notes": self.notes,
+            "intervals": {k: (_num(v, 5) if not isinstance(v, str) else v) for k, v in self.intervals.items()},
         }
 
 
@@ -89,11 +92,18 @@ class GapReport:
     decision: str
     thresholds: Mapping[str, float]
     curves: Mapping = field(default_factory=dict, compare=False, repr=False)
+    effects: tuple[str, ...] = ()  # dominant first, then a second effect when one remains
+    second_effect: str = ""  # the sentence on a second effect
+    program_source: str = "recorded command columns"
+    pairs: tuple[Candidate, ...] = ()  # the dominant effect with each other candidate on top
 
     def to_dict(self) -> dict:
         return {
             "format": FORMAT,
             "effect": self.effect,
+            "effects": list(self.effects),
+            "second_effect": self.second_effect,
+            "program_source": self.program_source,
             "where": self.where.to_dict(),
             "gap_before_um": _num(self.gap_before_um, 3),
             "gap_after_um": _num(self.gap_after_um, 3),
@@ -107,6 +117,7 @@ class GapReport:
             "decision": self.decision,
             "thresholds": dict(self.thresholds),
             "machine_id": self.machine_id,
+            "pairs": [c.to_dict() for c in self.pairs],
         }
 
     def text(self) -> str:
@@ -126,7 +137,10 @@ class GapReport:
                 f"Diagnosis: {self.effect}. Adding it, fitted on the train runs only, brings the test gap to "
                 f"{ga:.2f} µm ({(ga / gb - 1) * 100:+.0f} %)."
             )
+        if self.second_effect:
+            lines.append(self.second_effect)
         lines.append(f"Where: {self.where.summary}")
+        lines.append(f"Contour programs: {self.program_source}.")
         q = "; ".join(f"{k}: {v}" for k, v in self.quantity.items())
         lines.append(f"Compared quantity: {q}. Gaps are RMS over all {self.n_test_samples} test samples.")
         lines.append(f"Split: {self.split_how}.")

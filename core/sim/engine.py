@@ -23,7 +23,8 @@ interpolator does); the grid step is ``step_s`` (default 1/(4 rate_hz), at most
   chosen so that h <= 0.05 / omega_n (omega_n = sqrt((chain + bristle stiffness) /
   mass), 126 steps per natural period: phase error of symplectic Euler
   (omega h)^2/24 < 1e-4, far inside its stability limit omega h < 2),
-  h <= velocity_lag_s / 10 and h <= dead_time_s / 10 (dead time interpolated
+  (servo lag exact per step, dead times interpolated, the loop's table taken at
+  mid-step: second order, no bound from the servo; dead time interpolated
   between steps), and h <= 0.1 ms. Stiff parts (viscous friction, LuGre bristles,
   velocity lag) are implicit or exact per step, so they do not limit h.
   The default 200 N/µm, 500 kg chain needs h <= 79 µs and runs at 62.5 µs (0.25 ms
@@ -54,7 +55,6 @@ from core.sim.programs import Program
 MAX_GRID_STEP_S = 2.5e-4
 MAX_SAMPLES = 20_000_000  # per axis and array: a guard against a mistyped rate or step
 MAX_DYNAMIC_STEP_S = 1e-4
-MIN_SERVO_STEP_S = 2.5e-5
 STEPS_PER_RADIAN = 20.0  # h <= 0.05 / omega_n
 DEFAULT_CHAIN = Compliance()  # used for friction when compliance is off
 
@@ -191,13 +191,10 @@ def _dynamic_step_s(axis: AxisModel) -> float:
         if fx.friction is not None and fx.friction.model == "lugre":
             k_si += fx.friction.bristle_stiffness_n_per_um * 1e6
         h = min(h, 1.0 / (STEPS_PER_RADIAN * math.sqrt(k_si / ch.table_mass_kg)))
-    sd = fx.servo_dynamics
-    if sd is not None:
-        # the lag is exact per step and the delays are interpolated: these bounds are for
-        # accuracy only, floored so that a tiny lag or delay does not cost a tiny step
-        for t_s in (sd.velocity_lag_s, sd.dead_time_s, sd.feedback_delay_s):
-            if t_s > 0:
-                h = min(h, max(t_s / 10, MIN_SERVO_STEP_S))
+    # Servo dynamics set no bound of their own: the lag is solved exactly per step, the
+    # delays are interpolated between steps and the loop sees the table at mid-step, so
+    # the result converges at second order (a lag of 0.5 ms at 0.1 ms steps is within
+    # 0.001 µm of 25 µs steps; zero servo dynamics match the exact nominal integrator).
     return h
 
 

@@ -293,6 +293,7 @@ def run_dynamic(
     nfbuf = nf0 + 2
     xbuf = np.full(nfbuf, x0)
     xi = 0
+    xprev = x0
     j = 0
     jt = 0
     nstep = cmd.size - 1
@@ -302,13 +303,17 @@ def run_dynamic(
         for s in range(nsub):
             ta = t0 + i * hc + s * h
             cc = c0 + dc * (s + 0.5)  # mid-step command: second-order accurate loop
+            # the table at mid-step (linear extrapolation), to match the mid-step command:
+            # without it the loop sees the table h/2 late, a first-order error of v h / 2
+            xm = 1.5 * x - 0.5 * xprev
+            xprev = x
             if fb_s > 0.0:
-                xbuf[xi] = x
+                xbuf[xi] = xm
                 xd = xbuf[(xi - nf0) % nfbuf] * (1.0 - ffrac) + xbuf[(xi - nf0 - 1) % nfbuf] * ffrac
                 xi = (xi + 1) % nfbuf
                 e = gain * (cc - xd) + kff * dc / h
             else:
-                e = gain * (cc - x) + kff * dc / h
+                e = gain * (cc - xm) + kff * dc / h
             if dead_s > 0.0:
                 buf[bi] = e
                 ia = (bi - nd0) % nbuf

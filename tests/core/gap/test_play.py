@@ -40,7 +40,8 @@ def test_inertia_model_lags_by_friction_and_damping_over_stiffness_at_constant_s
 
 
 def test_compliance_model_recovers_the_simulated_natural_frequency():
-    from core.gap.roundtrip import compliance_model, fit
+    from core.gap.candidates import compliance_stage, compose
+    from core.gap.roundtrip import fit
 
     comp = Compliance(stiffness_n_per_um=150.0, table_mass_kg=1200.0, damping_ratio=0.3, guide_damping_n_s_per_mm=5.0)
     axis = AxisModel(name="y", backlash_um=60.0, effects=Effects(compliance=comp))
@@ -49,6 +50,6 @@ def test_compliance_model_recovers_the_simulated_natural_frequency():
     for acc in (400.0, 900.0):
         tr = simulate({"y": axis}, round_trip(20.0, 120.0, 1500.0, acc, 0.5), rate_hz=1000.0)
         runs.append(prepare_round_trip(tr.to_run(f"rt{acc:.0f}.csv"), spec, "train"))
-    theta, _ = fit(compliance_model(60.0), runs, [np.array([60.0, 40.0, 0.3, 5.0, 200.0])])
+    theta, _ = fit(compose((compliance_stage(),), 60.0, {}), runs, [np.array([60.0, 40.0, 0.3, 5.0, 200.0])])
     f_true = np.sqrt(150e6 / 1200.0) / (2 * np.pi)
     assert abs(theta[1] - f_true) / f_true < 0.15

@@ -1,0 +1,382 @@
+"""The candidate effects of the gap diagnosis: one registered strategy per effect.
+
+Each strategy is a *family* of physical forms, not one equation. It owns:
+
+* its round-trip stage (how it changes the table given the motor): a map of the nut
+  travel (lead, cyclic), of the backlash half-width (thermal, profile), a dynamic
+  kernel (friction, compliance) or a map of the recorded table (skew). Stages compose,
+  so a second effect is fitted on top of the first in one model;
+* its start points, bounds and derived parameters;
+* its contour form: the twin (:mod:`core.sim`) effect that carries the fitted
+  parameters onto circles and lines, driven by the recorded command.
+
+``REGISTRY`` is keyed by the single effect list, :data:`core.sim.CATEGORIES`.
+``servo_dynamics`` has no round-trip stage (it acts between the command and the motor
+and leaves the table-given-motor relation unchanged); it is fitted on the contours,
+with a linearised start from the lag of the table behind the command.
+
+Forms covered and not covered are listed per strategy (``forms``); docs/gap-diagnosis.md
+repeats them with the benchmark figures.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import savgol_filter
+
+from core.dataset import AxisSpec
+from core.gap.data import RoundTrip
+from core.gap.play import play, play_friction, play_inertia
+from core.gap.roundtrip import REFERENCE_C, RTModel, residual_periods_mm, residual_um
+from core.sim import CATEGORIES, BacklashProfile, Compliance, CyclicError, Friction, ServoDynamics, Thermal
+
+N_KNOTS = 7  # backlash profile: knots over the characterised travel
+N_PERIODS = 2  # cyclic error: components
+ASSUMED_MASS_KG = 500.0  # to express a fitted natural frequency as a chain stiffness
+ASSUMED_STIFFNESS_N_PER_UM = 200.0  # to express friction lost motion as a force
+GUIDE_FRICTION_PRIOR_MM_S2 = 196.0
+GUIDE_FRICTION_PRIOR_WEIGHT = 100.0
+PROFILE_SMOOTHNESS_WEIGHT = 0.05  # µm of residual per µm of second difference between knots
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One effect's part of a composed round-trip model (parameters without axis prefix)."""
+
+    effect: str
+    names: tuple[str, ...]
+    x0: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    info: dict = field(default_factory=dict)
+    u_map: Callable | None = None  # (theta, run, u) -> u
+    width: Callable | None = None  # (theta, run, u, hb) -> hb   (mm)
+    kernel: str | None = None  # "friction" | "compliance"
+    out_map: Callable | None = None  # (theta, run, x) -> x
+    prior: Callable | None = None  # theta -> extra residuals
+    starts: tuple[np.ndarray, ...] = ()
+
+
+# ---- round-trip stages ------------------------------------------------------------
+
+
+def _dt_c(run: RoundTrip) -> float:
+    return run.temperature_c - REFERENCE_C
+
+
+def thermal_stage(runs: Sequence[RoundTrip], axis: AxisSpec) -> Stage | None:
+    """Lead growth with temperature about any bearing point (a bearing offset is a
+    constant shift, absorbed by the per-run offset), a temperature-independent lead
+    error, and a backlash that changes linearly with temperature. Not covered: a
+    gradient along the screw (non-uniform heating), hysteresis between warming and
+    cooling."""
+    temps = [r.temperature_c for r in runs]
+    if max(temps) - min(temps) < 1.0:
+        return None
+    fixed = axis.travel_mm[0]
+
+    def u_map(th, run, u):
+        return fixed + (u - fixed) * (1.0 + (th[1] + th[2] * _dt_c(run)) * 1e-6)
+
+    def width(th, run, u, hb):
+        return hb + 0.5e-3 * th[0] * _dt_c(run)
+
+    return Stage("thermal", ("backlash_um_per_k", "lead_error_um_per_m", "lead_growth_ppm_per_k"),
+                 np.zeros(3), np.array([-20.0, -500.0, -40.0]), np.array([20.0, 500.0, 40.0]),
+                 u_map=u_map, width=width)  # fmt: skip
+
+
+def profile_stage(runs: Sequence[RoundTrip], axis: AxisSpec) -> Stage:
+    """Backlash width along the travel, piecewise linear on N_KNOTS knots with a weak
+    smoothness prior: one or several wear bumps, a ramp. Not covered: features shorter
+    than the knot spacing (travel / 6), a width that differs between directions."""
+    lo = min(float(np.min(r.u_mm)) for r in runs)
+    hi = max(float(np.max(r.u_mm)) for r in runs)
+    knots = np.linspace(lo, hi, N_KNOTS)
+
+    def width(th, run, u, hb):
+        return hb + 0.5e-3 * np.interp(u, knots, np.r_[0.0, th])
+
+    def prior(th):
+        return PROFILE_SMOOTHNESS_WEIGHT * np.diff(np.r_[0.0, th], 2)
+
+    names = tuple(f"backlash_change_at_{k:.0f}mm_um" for k in knots[1:])
+    return Stage("backlash_profile", names, np.zeros(N_KNOTS - 1), np.full(N_KNOTS - 1, -500.0),
+                 np.full(N_KNOTS - 1, 1000.0), info={"positions_mm": knots.tolist()}, width=width,
+                 prior=prior)  # fmt: skip
+
+
+def cyclic_stage(periods_mm: Sequence[float]) -> Stage:
+    """Periodic transmission error u + sum a_i sin(2 pi u / p_i + phi_i) at the strongest
+    periods of the residual (0.5-60 mm, found freely: screw lead, k_a, a gear or belt
+    stage, their harmonics). Not covered: periods longer than a third of the stroke,
+    amplitudes that change along the travel."""
+    per = np.asarray(periods_mm, float)
+
+    def u_map(th, run, u):
+        out = u
+        for i, p in enumerate(per):
+            arg = 2 * np.pi * u / p
+            out = out + 1e-3 * (th[2 * i] * np.sin(arg) + th[2 * i + 1] * np.cos(arg))
+        return out
+
+    names: list[str] = []
+    for p in per:
+        names += [f"sin_{p:.3f}mm_um", f"cos_{p:.3f}mm_um"]
+    k = 2 * per.size
+    return Stage("cyclic_error", tuple(names), np.zeros(k), np.full(k, -50.0), np.full(k, 50.0),
+                 info={"periods_mm": per.tolist()}, u_map=u_map)  # fmt: skip
+
+
+def friction_stage() -> Stage:
+    """Lost motion of the chain under friction: a break-away threshold (stick until the
+    chain's stretch exceeds it, then slip: Karnopp-type static friction on a compliant
+    chain), a Stribeck part decaying with speed, a viscous part. The Coulomb part of the
+    lost motion is inseparable from the backlash on round trips (it is in
+    ``backlash_um``). Not covered: pre-sliding hysteresis below 0.1 µm, position-
+    dependent friction."""
+    return Stage(
+        "friction", ("breakaway_lost_motion_um", "stribeck_velocity_mm_s", "viscous_lost_motion_um_per_mm_s"),
+        np.array([1.0, 2.0, 0.0]), np.array([0.0, 0.05, 0.0]), np.array([100.0, 20.0, 0.3]), kernel="friction",
+        starts=tuple(np.array([ls, vs, cv]) for ls in (1.0, 4.0, 12.0) for vs in (0.5, 3.0) for cv in (0.01, 0.05)),
+    )  # fmt: skip
+
+
+def compliance_stage() -> Stage:
+    """The table as a mass on a spring-damper behind the nut, held by guide damping and
+    Coulomb guide friction (per unit mass): lag proportional to acceleration, ringing
+    after acceleration changes, the table floating across the backlash when braking. A
+    two-mass chain (motor and table inertias) shows the same first mode. Not covered:
+    a second resonance, stiffness that changes along the travel."""
+    return Stage(
+        "compliance", ("natural_frequency_hz", "damping_ratio", "guide_damping_per_s", "guide_friction_mm_s2"),
+        np.array([60.0, 0.3, 5.0, 300.0]), np.array([3.0, 0.02, 0.0, 0.0]), np.array([300.0, 2.0, 200.0, 20000.0]),
+        kernel="compliance",
+        prior=lambda th: np.array([GUIDE_FRICTION_PRIOR_WEIGHT * math.log(max(th[3], 1.0) / GUIDE_FRICTION_PRIOR_MM_S2)]),
+        starts=tuple(np.array([fn, 0.3, g, mu]) for fn in (15.0, 40.0, 100.0) for g, mu in ((2.0, 100.0), (10.0, 1000.0))),
+    )  # fmt: skip
+
+
+def skew_stage() -> Stage:
+    """The table encoder latched later (or earlier) than the motor: a delay that may
+    drift linearly over a run (clock drift, a changing bus load). Not covered: random
+    jitter (it shows as noise), a delay that jumps mid-run."""
+
+    def out_map(th, run, x):
+        t = run.t_s
+        span = max(float(t[-1] - t[0]), 1e-9)
+        tau = 1e-3 * (th[0] + th[1] * ((t - t[0]) / span - 0.5))
+        return np.interp(t + tau, t, x)
+
+    return Stage("sampling_skew", ("table_delay_ms", "delay_drift_ms"), np.zeros(2), np.array([-20.0, -20.0]),
+                 np.array([20.0, 20.0]), out_map=out_map,
+                 starts=tuple(np.array([tau, 0.0]) for tau in (-6.0, -3.0, -1.0, 1.0, 3.0, 6.0)))  # fmt: skip
+
+
+# ---- composition ------------------------------------------------------------------
+
+
+def _speed_mm_s(run: RoundTrip) -> np.ndarray:
+    n = max(1, int(round(0.01 / run.dt_s)))
+    u = run.u_mm
+    if n > 1:
+        k = np.ones(n) / n
+        u = np.convolve(np.pad(u, (n // 2, n - 1 - n // 2), mode="edge"), k, mode="valid")
+    return np.abs(np.gradient(u, run.t_s))
+
+
+def smooth_u(run: RoundTrip, memo: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Nut travel and velocity with the motor encoder noise averaged out (Savitzky-Golay),
+    kept in the diagnosis' memo."""
+    key = ("smooth", run.file)
+    hit = memo.get(key)
+    if hit is not None:
+        return hit
+    u = run.u_mm
+    n = 2 * int(round(0.016 / run.dt_s / 2)) + 1
+    nv = 2 * int(round(0.03 / run.dt_s / 2)) + 1
+    us = savgol_filter(u, n, 2) if 5 <= n < u.size else u
+    vs = savgol_filter(u, nv, 2, deriv=1, delta=run.dt_s) if 5 <= nv < u.size else np.gradient(u, run.t_s)
+    memo[key] = (us, vs)
+    return us, vs
+
+
+def _x0(run: RoundTrip, hb: float) -> float:
+    return float(run.u_mm[0] - run.side0 * hb)
+
+
+def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
+    """One round-trip model: the nominal backlash plus ``stages`` (at most one kernel)."""
+    kernels = [s for s in stages if s.kernel]
+    if len(kernels) > 1:
+        raise ValueError(f"stages {[s.effect for s in kernels]} both replace the play kernel")
+    cuts = np.cumsum([1] + [len(s.names) for s in stages])
+    names = ("backlash_um",) + tuple(n for s in stages for n in s.names)
+
+    def parts(theta):
+        return [theta[cuts[i] : cuts[i + 1]] for i in range(len(stages))]
+
+    def predict(theta, run):
+        ths = parts(theta)
+        u = run.u_mm
+        for st, th in zip(stages, ths):
+            if st.u_map is not None:
+                u = st.u_map(th, run, u)
+        hb = np.full(u.size, 0.5e-3 * theta[0])
+        for st, th in zip(stages, ths):
+            if st.width is not None:
+                hb = st.width(th, run, u, hb)
+        hb = np.maximum(hb, 0.0)
+        kern = next(((st, th) for st, th in zip(stages, ths) if st.kernel), None)
+        if kern is None:
+            x = play(u, hb, _x0(run, float(hb[0])))
+        elif kern[0].kernel == "friction":
+            ls, vs, cv = kern[1]
+            v = _speed_mm_s(run)
+            lost = 1e-3 * (ls * np.exp(-((v / vs) ** 2)) + cv * v)
+            x = play_friction(u, hb, lost, 1e-3 * ls, _x0(run, float(hb[0])))
+        else:
+            fn, zeta, c_guide, mu = kern[1]
+            w = 2 * np.pi * fn
+            hbc = np.maximum(0.0, hb - mu / (w * w))  # backlash_um is the apparent one
+            nsub = max(1, int(math.ceil(run.dt_s * w / 0.05)))
+            us, vs_ = smooth_u(run, memo)
+            if u is not run.u_mm:
+                us = us + (u - run.u_mm)
+            x = play_inertia(us, vs_, run.t_s, hbc, w * w, 2 * zeta * w, c_guide, mu, nsub, _x0(run, float(hbc[0])))
+        for st, th in zip(stages, ths):
+            if st.out_map is not None:
+                x = st.out_map(th, run, x)
+        return x
+
+    priors = [(i, s.prior) for i, s in enumerate(stages) if s.prior is not None]
+
+    def prior(theta):
+        ths = parts(theta)
+        return np.concatenate([p(ths[i]) for i, p in priors])
+
+    return RTModel(
+        "+".join(s.effect for s in stages) or "none", names,
+        np.r_[b0_um, *[s.x0 for s in stages]] if stages else np.array([b0_um]),
+        np.r_[0.0, *[s.lower for s in stages]] if stages else np.array([0.0]),
+        np.r_[2000.0, *[s.upper for s in stages]] if stages else np.array([2000.0]),
+        predict, int(sum(len(s.names) for s in stages)), {s.effect: s.info for s in stages},
+        prior=prior if priors else None,
+    )  # fmt: skip
+
+
+def stage_starts(stages: Sequence[Stage], base_theta: np.ndarray) -> list[np.ndarray]:
+    """Start points of a composed fit: the base's fitted values, each stage's own starts."""
+    out = []
+    for k, st in enumerate(stages):
+        for s0 in st.starts:
+            th = [base_theta]
+            for j, other in enumerate(stages):
+                th.append(s0 if j == k else other.x0)
+            out.append(np.concatenate(th))
+    return out
+
+
+# ---- contour forms ----------------------------------------------------------------
+
+
+def sim_piece(effect: str, params: Mapping[str, float], info: Mapping, axis: AxisSpec,
+              b_um: float) -> tuple[object | None, float]:
+    """The twin's effect for fitted round-trip parameters of ``effect`` (names without the
+    axis prefix), and how much of the round-trip backlash it accounts for itself (µm)."""
+    p = params
+    if effect == "thermal":
+        return Thermal(lead_error_um_per_m=p["lead_error_um_per_m"], lead_growth_ppm_per_k=p["lead_growth_ppm_per_k"],
+                       backlash_um_per_k=p["backlash_um_per_k"], fixed_end_mm=axis.travel_mm[0]), 0.0  # fmt: skip
+    if effect == "backlash_profile":
+        pos = info["positions_mm"]
+        deltas = [0.0] + [p[k] for k in p if k.startswith("backlash_change_at_")]
+        return BacklashProfile(tuple(pos), tuple(max(0.0, b_um + d) for d in deltas)), 0.0
+    if effect == "cyclic_error":
+        comps = []
+        for per in info["periods_mm"]:
+            a, b = p[f"sin_{per:.3f}mm_um"], p[f"cos_{per:.3f}mm_um"]
+            if math.hypot(a, b) > 0:
+                comps.append((per, math.hypot(a, b), math.degrees(math.atan2(b, a))))
+        return (CyclicError.of(*comps) if comps else None), 0.0
+    if effect == "friction":
+        k = ASSUMED_STIFFNESS_N_PER_UM
+        coulomb_um = min(4.0 * p["breakaway_lost_motion_um"], 0.45 * b_um)  # static = 1.25 Coulomb assumed
+        fr = Friction(coulomb_n=coulomb_um * k, static_n=(coulomb_um + p["breakaway_lost_motion_um"]) * k,
+                      stribeck_velocity_mm_s=p["stribeck_velocity_mm_s"],
+                      viscous_n_s_per_mm=p["viscous_lost_motion_um_per_mm_s"] * k)  # fmt: skip
+        return fr, 2 * coulomb_um
+    if effect == "compliance":
+        w = 2 * math.pi * p["natural_frequency_hz"]
+        m = ASSUMED_MASS_KG  # every force scales with it: any mass gives the same motion
+        mu = p["guide_friction_mm_s2"]
+        comp = Compliance(stiffness_n_per_um=w * w * m * 1e-6, table_mass_kg=m, damping_ratio=p["damping_ratio"],
+                          guide_damping_n_s_per_mm=p["guide_damping_per_s"] * m * 1e-3,
+                          guide_friction_n=mu * m * 1e-3)  # fmt: skip
+        return comp, 2e3 * mu / (w * w)
+    return None, 0.0
+
+
+def derived(effect: str, params: Mapping[str, float], b_um: float) -> dict[str, float]:
+    """Parameters derived from a fit, in the units an engineer asks for."""
+    if effect == "compliance":
+        w2 = (2 * math.pi * params["natural_frequency_hz"]) ** 2
+        return {"m_over_k_ms2": 1e6 / w2, "clearance_um": max(0.0, b_um - 2e3 * params["guide_friction_mm_s2"] / w2)}
+    if effect == "friction":
+        return {"static_excess_n_at_200n_per_um": params["breakaway_lost_motion_um"] * ASSUMED_STIFFNESS_N_PER_UM}
+    if effect == "servo_dynamics":
+        return {}
+    return {}
+
+
+def servo_piece(params: Mapping[str, float]) -> ServoDynamics:
+    return ServoDynamics(velocity_lag_s=1e-3 * params["velocity_lag_ms"], dead_time_s=1e-3 * params["dead_time_ms"],
+                         feedforward=params["feedforward"], feedback_delay_s=1e-3 * params["feedback_delay_ms"])  # fmt: skip
+
+
+SERVO_NAMES = ("position_gain_per_s", "feedforward", "velocity_lag_ms", "dead_time_ms", "feedback_delay_ms")
+SERVO_LOWER = np.array([2.0, 0.0, 0.0, 0.0, 0.0])
+SERVO_UPPER = np.array([120.0, 1.2, 20.0, 6.0, 6.0])
+SERVO_FORMS = (
+    "servo_dynamics: effective position gain on both sides of the configured K, velocity feed-forward "
+    "fraction, a first-order velocity-loop lag, dead time in the forward and in the feedback path "
+    "(interpolated, continuous). Not covered: a resonant velocity loop (it is approximated by the lag), "
+    "acceleration feed-forward, friction compensation pulses."
+)
+
+
+@dataclass(frozen=True)
+class Strategy:
+    """One effect family: its round-trip stage factory and its documentation."""
+
+    effect: str
+    forms: str
+    stage: Callable | None  # (runs, axis_spec, residuals) -> Stage | None; None: contour-only
+
+
+def _cyclic_factory(runs, axis, resid):
+    periods, _ = residual_periods_mm(runs, resid, axis.screw_lead_mm, axis.transmission_mm_per_rev, N_PERIODS)
+    return cyclic_stage(periods)
+
+
+REGISTRY: dict[str, Strategy] = {
+    "friction": Strategy("friction", friction_stage.__doc__, lambda runs, axis, resid: friction_stage()),
+    "compliance": Strategy("compliance", compliance_stage.__doc__, lambda runs, axis, resid: compliance_stage()),
+    "thermal": Strategy("thermal", thermal_stage.__doc__, lambda runs, axis, resid: thermal_stage(runs, axis)),
+    "backlash_profile": Strategy("backlash_profile", profile_stage.__doc__,
+                                 lambda runs, axis, resid: profile_stage(runs, axis)),  # fmt: skip
+    "cyclic_error": Strategy("cyclic_error", cyclic_stage.__doc__, _cyclic_factory),
+    "servo_dynamics": Strategy("servo_dynamics", SERVO_FORMS, None),
+    "sampling_skew": Strategy("sampling_skew", skew_stage.__doc__, lambda runs, axis, resid: skew_stage()),
+}
+if tuple(sorted(REGISTRY)) != tuple(sorted(CATEGORIES)):  # one effect list: the twin's
+    raise ImportError(f"gap candidates {sorted(REGISTRY)} differ from core.sim.CATEGORIES {sorted(CATEGORIES)}")
+EFFECTS: tuple[str, ...] = tuple(CATEGORIES)
+
+
+def train_residuals(model: RTModel, theta: np.ndarray, runs: Sequence[RoundTrip]) -> list[np.ndarray]:
+    return [residual_um(model.predict(theta, r), r, r.fit_idx) for r in runs]
