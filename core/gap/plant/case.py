@@ -92,8 +92,11 @@ def _check_labels(labels: tuple[str, ...]) -> tuple[str, ...]:
 
 
 def _record(prog: Program, axes: tuple[str, ...], temp_c: float, rate_hz: float, nominal: dict, effects: dict,
-            skew: dict | None, rng: np.random.Generator) -> dict[str, np.ndarray]:  # fmt: skip
-    """Simulate the program on each axis and sample both encoders and the command."""
+            skew: dict | None, rng: np.random.Generator, noise: bool = True) -> dict[str, np.ndarray]:  # fmt: skip
+    """Simulate the program on each axis and sample both encoders and the command.
+
+    ``noise=False`` leaves out encoder noise and quantisation (for checks of the physics).
+    """
     dur = prog.duration_s
     t = np.arange(int(np.floor(dur * rate_hz)) + 1) / rate_hz
     delay = skew_s(skew, t, rng)
@@ -106,10 +109,16 @@ def _record(prog: Program, axes: tuple[str, ...], temp_c: float, rate_hz: float,
         traj = simulate_axis(drive_params(nom, eff), cmd, dur + 0.05, nut_error_lut(nom, eff, temp_c),
                              backlash_lut(nom, eff, temp_c), side)  # fmt: skip
         k_a = nom["transmission_mm_per_rev"]
-        u = traj.motor_at(t) + nom["motor_noise_um"] * 1e-3 * rng.standard_normal(t.shape)
-        rev = u / k_a + nom["motor_zero_rev"]
-        x = traj.table_at(np.clip(t + delay, 0.0, dur)) + nom["table_noise_um"] * 1e-3 * rng.standard_normal(t.shape)
+        u = traj.motor_at(t)
+        x = traj.table_at(np.clip(t + delay, 0.0, dur))
         cols[f"{a}_command_mm"] = np.interp(t, np.arange(cmd.shape[0]) * IPO_DT_S, cmd)
+        if not noise:
+            cols[f"{a}_motor_rev"] = u / k_a + nom["motor_zero_rev"]
+            cols[f"{a}_table_mm"] = x
+            continue
+        u = u + nom["motor_noise_um"] * 1e-3 * rng.standard_normal(t.shape)
+        x = x + nom["table_noise_um"] * 1e-3 * rng.standard_normal(t.shape)
+        rev = u / k_a + nom["motor_zero_rev"]
         cols[f"{a}_motor_rev"] = np.round(rev * MOTOR_COUNTS_PER_REV) / MOTOR_COUNTS_PER_REV
         cols[f"{a}_table_mm"] = np.round(x / TABLE_QUANT_MM) * TABLE_QUANT_MM
     clock0 = round(_u(rng, 1.0, 3600.0), 3)

@@ -106,7 +106,7 @@ def draw_effect(label: str, rng: np.random.Generator, nominal: dict) -> dict:
     if label == "compliance":
         m = _u(rng, 300.0, 1500.0)
         return {"table_mass_kg": m, "chain_stiffness_n_per_um": _u(rng, 60.0, 200.0),
-                "chain_damping_ratio": _u(rng, 0.05, 0.2), "guide_friction_n": _u(rng, 0.005, 0.015) * m * 9.81}  # fmt: skip
+                "chain_damping_ratio": _u(rng, 0.05, 0.2), "guide_friction_n": _u(rng, 0.02, 0.05) * m * 9.81}  # fmt: skip
     if label == "thermal":
         return {"lead_growth_ppm_per_k": _u(rng, 5.0, 15.0), "bearing_mm": _u(rng, 100.0, 400.0),
                 "bearing_shift_mm_per_k": _pm(rng, 2.0, 10.0), "backlash_pct_per_k": _pm(rng, 0.5, 2.0)}  # fmt: skip
