@@ -145,9 +145,9 @@ def param_vector(p: DriveParams, h_s: float) -> np.ndarray:
         v[P_VS] = 0.5
         if p.friction == "dahl":
             v[P_SIG] = p.coulomb_n / (p.presliding_um * 1e-3)
-        # the band must catch a zero crossing within one step of the fastest slip
-        a_max = (v[P_FS] + kc * 0.05) / m
-        v[P_DV] = max(0.5, 2.0 * a_max * h_s)
+        # the band must catch a zero crossing within one step: near zero speed the table's
+        # acceleration is at most about F_s / m; wider would stop a merely slow table
+        v[P_DV] = max(0.1, 1.5 * v[P_FS] / m * h_s)
     return v
 
 
