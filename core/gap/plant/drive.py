@@ -46,11 +46,14 @@ or Dahl (``F_f = sigma0 z``, ``dz/dx = 1 - sigma0 z sgn(dx) / F_c``, rate indepe
 Integration scheme
 ------------------
 Classical fixed-step RK4 for the motor states (and the table states in mass mode) at a
-step ``h`` that divides the IPO cycle (:func:`internal_step_s`): 0.1 ms by default (the
-fastest non-stiff mode, an 80 Hz velocity loop or a ~160 Hz chain resonance, then has
-``omega h <= 0.1``); smaller when a chain or a Dahl pre-sliding spring is stiffer
-(``omega h <= 0.2``); 0.25 ms for the rigid chain with an ideal velocity loop and no
-feedback delay, whose fastest time constant is ``1/K >= 18 ms`` (``K h <= 0.014``). Two parts are taken out of RK4 and stepped exactly instead:
+step ``h`` that divides the IPO cycle (:func:`internal_step_s`): ``omega h <= 0.2`` for the
+fastest rate of the model (RK4's local error is then ~ (omega h)^5 / 120 < 3e-6 of the
+motion per step), at most 0.25 ms. So: 0.25 ms for the rigid chain with an ideal or an
+80 Hz velocity loop (rates K <= 56 1/s, wn <= 503 rad/s), 0.1-0.25 ms for a compliant
+chain (omega = sqrt(k/m) <= 820 rad/s), down to ~0.07 ms for a stiff Dahl pre-sliding
+spring (sqrt(sigma0/m) up to ~2900 rad/s), and at most 0.1 ms under Karnopp friction,
+whose zero-velocity band must be crossed within one step but stay well below the feeds.
+Two parts are taken out of RK4 and stepped exactly instead:
 the rigid contact (backward Euler, see above; its lag ``v tau_c`` is below 0.1 um) and the
 Dahl state (the closed-form solution of the rate-independent Dahl equation over the
 step's table displacement, with ``z`` held within the RK4 stages: a Lie splitting). In
@@ -66,8 +69,9 @@ import numpy as np
 from numba import njit
 
 IPO_DT_S = 1e-3
-DEFAULT_STEP_S = 1e-4
-RIGID_STEP_S = 2.5e-4
+MAX_STEP_S = 2.5e-4
+KARNOPP_STEP_S = 1e-4
+GUIDE_SMOOTH_MM_S = 0.5
 CONTACT_TAU_S = 1e-6
 
 # indices into the parameter vector handed to the kernel
@@ -103,20 +107,24 @@ class DriveParams:
 
 
 def internal_step_s(p: DriveParams) -> float:
-    """The RK4 step: 0.1 ms unless a stiff spring needs less (omega*h <= 0.2); divides 1 ms."""
-    omega = 0.0
+    """The RK4 step: the largest divisor of the 1 ms IPO cycle with ``omega h <= 0.2`` for the
+    fastest rate ``omega`` of the model, at most 0.25 ms, and at most 0.1 ms under Karnopp
+    friction (whose zero-velocity band is tied to the step)."""
+    rates = [p.gain_per_s]
+    if p.vloop_bandwidth_hz > 0:
+        rates.append(2 * np.pi * p.vloop_bandwidth_hz)
+    cap = MAX_STEP_S
     if p.mass_mode:
         m = p.table_mass_kg / 1000.0
-        omega = np.sqrt(p.chain_stiffness_n_per_um * 1000.0 / m)
+        kc = p.chain_stiffness_n_per_um * 1000.0
+        rates.append(np.sqrt(kc / m))
+        rates.append(2.0 * p.chain_damping_ratio * np.sqrt(kc / m))
+        rates.append(p.guide_friction_n / (GUIDE_SMOOTH_MM_S * m))
         if p.friction == "dahl":
-            sigma = p.coulomb_n / (p.presliding_um * 1e-3)
-            omega = max(omega, np.sqrt(sigma / m))
-    if p.vloop_bandwidth_hz > 0:
-        omega = max(omega, 2 * np.pi * p.vloop_bandwidth_hz)
-    if omega == 0.0 and p.feedback_delay_s == 0.0:
-        # rigid chain, ideal velocity loop: the fastest time constant is 1/K >= 18 ms
-        return RIGID_STEP_S
-    h = min(DEFAULT_STEP_S, 0.2 / omega)
+            rates.append(np.sqrt(p.coulomb_n / (p.presliding_um * 1e-3) / m))
+        if p.friction == "karnopp":
+            cap = KARNOPP_STEP_S
+    h = min(cap, 0.2 / max(rates))
     return IPO_DT_S / np.ceil(IPO_DT_S / h - 1e-9)
 
 
@@ -142,7 +150,7 @@ def param_vector(p: DriveParams, h_s: float) -> np.ndarray:
         v[P_FS] = max(p.static_n, p.coulomb_n)
         v[P_TST] = 2.0 * h_s
         v[P_FG] = p.guide_friction_n
-        v[P_VS] = 0.5
+        v[P_VS] = GUIDE_SMOOTH_MM_S
         if p.friction == "dahl":
             v[P_SIG] = p.coulomb_n / (p.presliding_um * 1e-3)
         # the band must catch a zero crossing within one step: near zero speed the table's
