@@ -22,14 +22,22 @@ Effect forms (each other than a simple twin's); temperatures ``dT = T - 20 degC`
     ``F_c = U(800, 2500) N``, static ``F_s = F_c * U(2, 4)``, zero-velocity band ``dv``
     (:mod:`.drive`). (b) Dahl pre-sliding friction ``dF/dx = sigma0 (1 - F sgn(dx) / F_c)``
     with the same chain, ``F_c = U(800, 2500) N`` and pre-sliding distance
-    ``F_c / sigma0 = U(1, 5) um``.
+    ``F_c / sigma0 = U(1, 5) um``. Signatures at these ranges: Coulomb lost motion
+    ``2 F_c / k`` = 5-100 um on top of ``b``; Karnopp break-away overshoot ``(F_s - F_c) / k``
+    = 3-150 um; below the critical speed ``(F_s - F_c) / sqrt(k m)`` (3-27 mm/s) a Karnopp
+    stroke stick-slips throughout; circle spikes after the quadrant reversals of 15-65 um
+    peak (R 60 mm, 1000 mm/min).
 ``compliance``
     Two-mass chain: the motor/screw side held by the velocity loop, the table mass
     ``m = U(300, 1500) kg`` behind a nut-table spring ``k = U(60, 200) N/um`` with
     structural damping ``zeta_c = U(0.05, 0.2)`` (raised to ``K / omega`` if needed, so the
-    position loop stays stable with ``K / (2 zeta_c omega) <= 0.5``), rolling-guide
-    friction ``F_g = mu m g``, ``mu = U(0.005, 0.015)``. The gap grows with the drive
-    force ``m a``, and a decelerating table overruns the nut across the backlash.
+    position loop stays stable with ``K / (2 zeta_c omega) <= 0.5``), rolling-guide and
+    seal friction ``F_g = mu m g``, ``mu = U(0.02, 0.05)`` (smoothed over 0.5 mm/s), and an
+    oil-film damper ``c_g = m / 2 s`` (both also under ``friction``, where ``F_g = 0``).
+    The gap grows with the drive force ``m a``: 2-30 um of chain deflection at
+    0.3-2 m/s^2, and a table decelerating faster than ``mu g`` overruns the nut across the
+    backlash. (With ``mu`` below ~0.01 a table floating in a wide gap rattles between the
+    flanks at constant feed: real tables do not, so the guide friction is drawn above it.)
 ``thermal``
     Screw growth about a bearing point that moves with temperature, and a backlash that
     changes with it: ``e(u) = alpha dT (u - p_b - gamma dT)``, ``alpha = U(5, 15) ppm/K``,

@@ -135,3 +135,11 @@ def test_the_plant_imports_neither_the_twin_nor_the_diagnosis():
             for n in names:
                 if n.startswith("core"):
                     assert n in ("core.dataset", "core.errors"), f"{path.name} imports {n}"
+
+
+def test_truth_is_plain_json(cases):
+    import json
+
+    for case in cases.values():
+        back = json.loads(json.dumps(case.truth))
+        assert back["labels"] == list(case.labels)
