@@ -357,17 +357,17 @@ def simulate_axis(p: DriveParams, command_mm: np.ndarray, duration_s: float, nut
     h = internal_step_s(p)
     n = int(np.ceil(duration_s / h)) + 1
     x0 = float(command_mm[0])
-    b0 = float(np.interp(x0, nut_error_grid(backlash_mm), backlash_mm.values))
+    b0 = float(np.interp(x0, lut_grid(backlash_mm), backlash_mm.values))
     # the nut position n = u + e(u) sits at x0 + side * b/2; solve for u by two fixed-point steps
     target = x0 + first_side * 0.5 * b0
     u0 = target
     for _ in range(3):
-        u0 = target - float(np.interp(u0, nut_error_grid(nut_error_mm), nut_error_mm.values))
+        u0 = target - float(np.interp(u0, lut_grid(nut_error_mm), nut_error_mm.values))
     u_h, x_h = integrate(param_vector(p, h), h, n, IPO_DT_S, np.ascontiguousarray(command_mm, dtype=float),
                          nut_error_mm.x0_mm, nut_error_mm.dx_mm, nut_error_mm.values,
                          backlash_mm.x0_mm, backlash_mm.dx_mm, backlash_mm.values, u0, x0)  # fmt: skip
     return Trajectory(h, u_h, x_h)
 
 
-def nut_error_grid(lut: Lut) -> np.ndarray:
+def lut_grid(lut: Lut) -> np.ndarray:
     return lut.x0_mm + lut.dx_mm * np.arange(lut.values.shape[0])
