@@ -199,7 +199,8 @@ def _first_sides(cmd: np.ndarray) -> tuple[str, ...]:
     return tuple(out)
 
 
-def _recorded_program(run: Run, gains_per_s: tuple[float, ...]) -> tuple[Program, np.ndarray]:
+def _recorded_program(run: Run, gains_per_s: tuple[float, ...],
+                      ka_mm: tuple[float, ...] | None = None) -> tuple[Program, np.ndarray]:
     """The recorded command as a program, and the program time of each sample.
 
     When the command moves at the first sample, a pre-roll of PRE_ROLL_TIME_CONSTANTS
@@ -238,12 +239,38 @@ def _recorded_program(run: Run, gains_per_s: tuple[float, ...]) -> tuple[Program
             out[:, early] = before(tau[early])
         return out
 
+    sides = _first_sides(path(np.array([0.0, 0.05, 0.5])) if moving else cmd)
+    if not moving and ka_mm is not None:
+        sides = tuple(_measured_side(run, a, ka_mm[i], sides[i]) for i, a in enumerate(s.axes))
     prog = Program(
         kind=s.kind, axes=tuple(s.axes), feed_mm_min=float(s.feed_mm_min), duration_s=float(tt[-1] + pre),
-        record_from_s=pre, record_to_s=float(tt[-1] + pre), initial_sides=_first_sides(path(np.array([0.0, 0.05, 0.5]))
-        if moving else cmd), path=path, meta={"acceleration_mm_s2": s.acceleration_mm_s2},
+        record_from_s=pre, record_to_s=float(tt[-1] + pre), initial_sides=sides, path=path,
+        meta={"acceleration_mm_s2": s.acceleration_mm_s2},
     )  # fmt: skip
     return prog, tt + pre
+
+
+def _measured_side(run: Run, axis: str, ka_mm: float, natural: str):
+    """Where the table rests in the backlash at the first sample of a run that starts at
+    rest, from the encoders: d = table - k_a motor is c - b/2 while the nut pushes in +,
+    c + b/2 in -, so (c - d0) / (b/2) is the place (+1: against the + flank). The
+    natural engagement when the run never moves steadily both ways or b is below 2 µm."""
+    t = np.asarray(run.time_s, float)
+    x = np.asarray(run.table_mm(axis), float)
+    d = x - ka_mm * np.asarray(run.motor_rev(axis), float)
+    cmd = np.asarray(run.command_mm(axis), float)
+    v = np.gradient(cmd, t)
+    vmax = float(np.max(np.abs(v))) if v.size else 0.0
+    pos, neg = d[v > 0.3 * vmax], d[v < -0.3 * vmax]
+    if vmax <= 0 or pos.size < 20 or neg.size < 20:
+        return natural
+    hb = 0.5 * (float(np.median(neg)) - float(np.median(pos)))
+    if hb < 1e-3:
+        return natural
+    c = 0.5 * (float(np.median(neg)) + float(np.median(pos)))
+    n0 = max(1, min(10, int(np.argmax(np.abs(cmd - cmd[0]) > 1e-4)) or 1))  # samples still at rest
+    f = (c - float(np.mean(d[:n0]))) / hb
+    return float(np.clip(f, -1.0, 1.0))
 
 
 def _data_arc_mask(run: Run, cmd: np.ndarray) -> tuple[np.ndarray, dict]:
@@ -288,7 +315,8 @@ def prepare_contour(run: Run, split: str, axes: Mapping[str, AxisSpec] | None = 
     cmd_cols = None
     if has_cmd:
         gains = tuple(axes[a].position_gain_per_s for a in s.axes) if axes else (10.0,)
-        prog, t = _recorded_program(run, gains)
+        kas = tuple(axes[a].transmission_mm_per_rev for a in s.axes) if axes else None
+        prog, t = _recorded_program(run, gains, kas)
         cmd_cols = {a: np.asarray(run.command_mm(a), float) for a in s.axes}
         if s.kind == "line" and (s.angle_deg is None or s.length_mm is None):
             raise GapError(f"line run {s.file!r} needs angle_deg and length_mm")

@@ -204,13 +204,27 @@ def is_rigid(axis: AxisModel) -> bool:
     return fx.compliance is None and fx.friction is None and fx.servo_dynamics is None
 
 
-def _simulate_axis(axis, chain, cmd, t0, h, ts, ts_tab, side):
-    n0 = float(cmd[0])  # the table rests on the command; the nut against flank `side`
+def _initial_side(side) -> float:
+    """+1 / -1 for "positive" / "negative"; a number in [-1, 1] is the table's place in
+    the backlash (the nut at table + side b/2: a measured start inside the gap)."""
+    if side == "positive":
+        return 1.0
+    if side == "negative":
+        return -1.0
+    f = float(side)
+    if not (math.isfinite(f) and -1.0 <= f <= 1.0):
+        raise InputError(f"initial side (={side!r}) must be 'positive', 'negative' or a number in [-1, 1]")
+    return f
+
+
+def _simulate_axis(axis, chain, cmd, t0, h, ts, ts_tab, frac):
+    n0 = float(cmd[0])  # the table rests on the command; the nut at table + frac b/2
     nut = n0
     for _ in range(20):
-        nut = n0 + side * float(chain.half_width_at(nut))
+        nut = n0 + frac * float(chain.half_width_at(nut))
     u0 = chain.motor_for_nut(nut)
-    x0 = nut - side * float(chain.half_width_at(nut))
+    x0 = nut - frac * float(chain.half_width_at(nut))
+    side = 1 if frac >= 0.999 else (-1 if frac <= -0.999 else 0)  # engaged, or resting in the gap
     out_u = np.empty(ts.size)
     out_x = np.empty(ts.size)
     out_xt = np.empty(ts_tab.size)
@@ -295,7 +309,7 @@ def simulate(
         axis = axes[name]
         chain = Chain.of(axis, temp)
         side_name = program.initial_sides[i] if axis.initial_side == "auto" else axis.initial_side
-        side = 1 if side_name == "positive" else -1
+        side = _initial_side(side_name)
         skew = axis.effects.sampling_skew.table_delay_s if axis.effects.sampling_skew else 0.0
         ts_tab = ts + skew
         u, x, xt, h_used = _simulate_axis(axis, chain, np.ascontiguousarray(commands[i]), t0, h, ts, ts_tab, side)
