@@ -32,7 +32,16 @@ from core.dataset import AxisSpec
 from core.gap.data import RoundTrip
 from core.gap.play import play, play_friction, play_inertia
 from core.gap.roundtrip import REFERENCE_C, RTModel, residual_periods_mm, residual_um
-from core.sim import CATEGORIES, BacklashProfile, Compliance, CyclicError, Friction, ServoDynamics, Thermal
+from core.sim import (
+    CATEGORIES,
+    BacklashProfile,
+    Compliance,
+    CyclicError,
+    Friction,
+    SamplingSkew,
+    ServoDynamics,
+    Thermal,
+)
 
 N_KNOTS = 7  # backlash profile: knots over the characterised travel
 N_PERIODS = 2  # cyclic error: components
@@ -318,6 +327,8 @@ def sim_piece(effect: str, params: Mapping[str, float], info: Mapping, axis: Axi
                           guide_damping_n_s_per_mm=p["guide_damping_per_s"] * m * 1e-3,
                           guide_friction_n=mu * m * 1e-3)  # fmt: skip
         return comp, 2e3 * mu / (w * w)
+    if effect == "sampling_skew":  # on contours the mean delay (a drift within a run is left out)
+        return SamplingSkew(table_delay_s=1e-3 * p["table_delay_ms"]), 0.0
     return None, 0.0
 
 

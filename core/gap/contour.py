@@ -32,6 +32,9 @@ def models_for(axes: Mapping[str, AxisSpec], backlash_um: Mapping[str, float],
             for a, spec in axes.items()}  # fmt: skip
 
 
+SIM_STEP_S = 5e-4  # command grid of the diagnosis' simulations: chord error < 0.01 µm on R >= 10 mm at 3 m/min
+
+
 class SimMemo:
     """Simulations of one diagnosis, keyed by (run file, axis, axis model). Made anew for
     every diagnosis: two diagnoses never share one, whatever their file names."""
@@ -48,8 +51,10 @@ class SimMemo:
         if hit is not None:
             return hit
         prog = _one_axis(c.program, c.axes.index(axis))
-        tr = simulate({axis: model}, prog, temperature_c=c.temperature_c, rate_hz=c.rate_hz)
-        out = np.interp(c.t_s, tr.time_s, tr.table_true_mm[axis])
+        tr = simulate({axis: model}, prog, temperature_c=c.temperature_c, rate_hz=c.rate_hz, step_s=SIM_STEP_S)
+        skew = model.effects.sampling_skew
+        tau = skew.table_delay_s if skew is not None else 0.0  # the table latched tau after the motor
+        out = np.interp(c.t_s + tau, tr.time_s, tr.table_true_mm[axis])
         self.n_simulations += 1
         self._sims[key] = out
         return out

@@ -27,7 +27,7 @@ from core.gap.play import play
 
 REFERENCE_C = 20.0
 N_PERIODS = 2  # cyclic error: components fitted
-MAX_PERIODOGRAM_SAMPLES = 6000
+MAX_PERIODOGRAM_SAMPLES = 3000
 
 
 @dataclass(frozen=True)
