@@ -6,7 +6,7 @@ diagnoses each and prints the wall time, samples and result; then the median.
 Goal (issue): under 60 s per dataset on the 2-core machine. The scoring benchmark
 (confusion matrix, fraction correct) is ``mebm gap benchmark --cases 40``.
 
-    .venv/bin/python benchmarks/bench_gap.py [--seed S] [--labels none,thermal,...]
+    .venv/bin/python benchmarks/bench_gap.py [--seed S] [--plant twin|independent] [--labels none,thermal,...]
 """
 
 from __future__ import annotations
@@ -21,19 +21,21 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from core.gap import LABELS, GapSettings, diagnose, make_case  # noqa: E402
+from core.gap import LABELS, GapSettings, diagnose  # noqa: E402
+from core.gap.benchmark import CaseSize, make_plant_case  # noqa: E402
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--labels", default=",".join(LABELS))
+    ap.add_argument("--plant", choices=("twin", "independent"), default="twin")
     args = ap.parse_args()
-    diagnose(make_case("none", np.random.default_rng(0)).dataset)  # numba compile / cache warm-up
+    diagnose(make_plant_case(args.plant, (), np.random.default_rng(0), CaseSize(), True)[0])  # numba warm-up
     times = []
     for label in args.labels.split(","):
-        case = make_case(label, np.random.default_rng(args.seed))
-        ds = case.dataset
+        labs = tuple(x for x in label.split("+") if x != "none")
+        ds, _ = make_plant_case(args.plant, labs, np.random.default_rng(args.seed), CaseSize(), True)
         n_rt = sum(r.spec.kind == "round_trip" for r in ds.runs)
         n_ct = len(ds.runs) - n_rt
         rt_samples = [len(r) for r in ds.runs if r.spec.kind == "round_trip"]
@@ -43,7 +45,8 @@ def main() -> None:
         times.append(dt)
         print(f"{label:17s} {n_rt} round trips (median {int(np.median(rt_samples))} samples) + {n_ct} circles: "
               f"{dt:5.1f} s -> {rep.effect} ({rep.gap_before_um:.2f} -> {rep.gap_after_um:.2f} µm)", flush=True)  # fmt: skip
-    print(f"median diagnosis time: {statistics.median(times):.1f} s, max {max(times):.1f} s (goal < 60 s)")
+    print(f"plant {args.plant}: median diagnosis time: {statistics.median(times):.1f} s, max {max(times):.1f} s "
+          "(goal < 60 s)")
 
 
 if __name__ == "__main__":

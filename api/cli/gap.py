@@ -30,6 +30,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--seed", type=int, default=2024, help="random seed (default 2024)")
     b.add_argument("--json", metavar="FILE", help="write the per-case results and the summary to FILE")
     b.add_argument("--small", action="store_true", help="small, fast datasets (for a smoke test)")
+    b.add_argument("--jobs", type=int, default=1, help="cases diagnosed in parallel processes (default 1; the "
+                   "per-case time is then measured under that load)")
     b.add_argument("--plant", choices=("twin", "independent", "both"), default="twin",
                    help="which plant generates the cases: the project's twin, the independent simulator, or both "
                         "(default twin)")  # fmt: skip
@@ -125,7 +127,7 @@ def run_benchmark_cmd(a: argparse.Namespace) -> int:
                   f"{c.gap_after_um:6.2f} µm (noise {c.noise_floor_um:.2f}) {c.seconds:5.1f} s"
                   f"{'' if c.split_given else ' [no split field]'}", flush=True)  # fmt: skip
 
-        res = run_benchmark(a.cases, a.seed, size, progress=progress, plant=plant)
+        res = run_benchmark(a.cases, a.seed, size, progress=progress, plant=plant, jobs=a.jobs)
         print()
         print(format_summary(res))
         print()

@@ -136,8 +136,10 @@ def cyclic_stage(periods_mm: Sequence[float]) -> Stage:
     names: list[str] = []
     for p in per:
         names += [f"sin_{p:.3f}mm_um", f"cos_{p:.3f}mm_um"]
-    k = 2 * per.size
-    return Stage("cyclic_error", tuple(names), np.zeros(k), np.full(k, -50.0), np.full(k, 50.0),
+    # amplitude bound: 50 µm, and a slope of the error (2 pi A / p) below 0.2, so the
+    # nut never nearly stops (the twin refuses 0.5)
+    lim = np.repeat(np.minimum(50.0, 0.2 * per * 1e3 / (2 * np.pi) / math.sqrt(2)), 2)
+    return Stage("cyclic_error", tuple(names), np.zeros(2 * per.size), -lim, lim,
                  info={"periods_mm": per.tolist()}, u_map=u_map)  # fmt: skip
 
 

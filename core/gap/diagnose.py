@@ -29,12 +29,12 @@ import numpy as np
 from core.dataset import Dataset
 from core.gap import contour as ct
 from core.gap import roundtrip as rt
-from core.gap.candidates import EFFECTS, REGISTRY, SERVO_LOWER, SERVO_NAMES, SERVO_UPPER, compose, derived, servo_piece
+from core.gap.candidates import ASSUMED_STIFFNESS_N_PER_UM, EFFECTS, REGISTRY, SERVO_LOWER, SERVO_NAMES, SERVO_UPPER, compose, derived, servo_piece
 from core.gap.candidates import sim_piece, stage_starts, train_residuals
 from core.gap.data import Contour, GapError, RoundTrip, choose_split, prepare_contour, prepare_round_trip
 from core.gap.report import Candidate, GapReport
 from core.gap.where import locate
-from core.sim import AxisModel, Effects
+from core.sim import AxisModel, Effects, Friction
 
 NOT_IDENTIFIABLE = "not identifiable"
 
@@ -268,6 +268,13 @@ class _Diagnosis:
             if not fx.is_nominal:
                 pieces[a] = fx
                 bl[a] = max(0.0, b)
+        for a, af in f.rt_fits.items():
+            if "friction" in af.effects and a in pieces and self.train_ct:
+                fr, b_sim = self._friction_on_contours(a, pieces, bl, float(af.fit.theta[0]))
+                pieces[a] = pieces[a].with_effect("friction", fr)
+                bl[a] = b_sim
+                f.params[f"{a}.coulomb_lost_motion_um"] = fr.coulomb_n / ASSUMED_STIFFNESS_N_PER_UM
+                f.params[f"{a}.static_to_coulomb"] = fr.static_n / max(fr.coulomb_n, 1e-9)
         gains = {a: spec.position_gain_per_s for a, spec in self.axes.items()}
         servo_src = base.servo if base is not None and "servo_dynamics" in base.effects else {}
         if f.effects[-1] == "servo_dynamics" and self.train_ct:
@@ -298,6 +305,35 @@ class _Diagnosis:
         for c in self.test_ct:
             sims[c.file] = self.memo.table(c, models)
         f.ct_res = [ct.contour_residual_um(c, sims[c.file]) for c in self.test_ct]
+
+
+    def _friction_on_contours(self, a: str, pieces: dict, bl: dict, b_rt_um: float):
+        """Friction on contours, fitted on the train contours' tracking error of axis ``a``:
+        the Coulomb lost motion (which round trips cannot separate from the backlash) and
+        the static excess, on the assumed chain; the round trips' Stribeck velocity and
+        viscous part are kept. Returns (Friction, backlash for the twin)."""
+        base = pieces[a].friction
+        k = ASSUMED_STIFFNESS_N_PER_UM
+        mine = [c for c in self.train_ct if a in c.axes]
+        spec = self.axes[a]
+
+        def make(th):
+            lc, ex = float(th[0]), float(th[1])
+            fr = Friction(coulomb_n=lc * k, static_n=(lc + ex) * k, stribeck_velocity_mm_s=base.stribeck_velocity_mm_s,
+                          viscous_n_s_per_mm=base.viscous_n_s_per_mm)  # fmt: skip
+            return fr, max(0.0, b_rt_um - 2 * lc)
+
+        def res(th):
+            fr, b = make(th)
+            m = AxisModel.from_axis_spec(spec, b, effects=pieces[a].with_effect("friction", fr))
+            return np.concatenate([(c.table_mm[a][c.fit_idx] - self.memo.axis(c, a, m)[c.fit_idx]) * 1e3 for c in mine])
+
+        hi = max(0.45 * b_rt_um, 0.2)
+        x0 = np.array([base.coulomb_n / k, (base.static_n - base.coulomb_n) / k])
+        starts = [x0, np.array([0.1 * hi, 2.0]), np.array([0.5 * hi, 0.3 * hi])]
+        r = rt.fit_ls(res, starts, np.array([0.0, 0.0]), np.array([hi, 150.0]), n_starts=1, max_nfev=12,
+                      diff_step=1e-2)  # fmt: skip
+        return make(r.theta)
 
 
 def _with_gain(m: AxisModel, gain: float) -> AxisModel:

@@ -53,14 +53,27 @@ def test_a_single_run_is_one_error_line_and_a_failure_code(tmp_path, capsys):
     assert len(err) == 1 and err[0].startswith("mebm gap: error:") and "at least 2" in err[0]
 
 
-def test_benchmark_prints_the_confusion_matrix_and_scores(tmp_path, capsys):
+@pytest.mark.parametrize("plant", ["twin", "independent"])
+def test_benchmark_prints_the_confusion_matrix_and_scores(tmp_path, capsys, plant):
     out = tmp_path / "bench.json"
-    assert main(["gap", "benchmark", "--cases", "1", "--seed", "4", "--small", "--json", str(out)]) == 0
+    assert main(["gap", "benchmark", "--cases", "1", "--seed", "4", "--small", "--plant", plant,
+                 "--json", str(out)]) == 0
     text = capsys.readouterr().out
+    assert f"plant {plant}" in text
     assert "confusion matrix" in text and "named correctly" in text and "median gap_after/gap_before" in text
+    assert "second effect recall" in text and "within 2x the noise floor" in text
     doc = json.loads(out.read_text())
-    assert doc["n_cases"] == 1 and len(doc["cases"]) == 1
+    assert doc["n_cases"] == 1 and len(doc["cases"]) == 1 and doc["plant"] == plant
     assert doc["cases"][0]["label"] in doc["confusion"]
+
+
+def test_benchmark_labels_are_balanced_and_a_quarter_mixed():
+    from core.gap.benchmark import LABELS, labels_for
+
+    labs = labels_for(48, np.random.default_rng(3))
+    assert sum(1 for x in labs if not x) == 48 // len(LABELS)  # every label equally often
+    mixed = [x for x in labs if len(x) == 2]
+    assert len(mixed) == 12 and all(a != b and "none" not in x for x in mixed for a, b in [x])
 
 
 @pytest.mark.parametrize("cases", ["0", "-3"])
