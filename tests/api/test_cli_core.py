@@ -24,6 +24,14 @@ def test_tbe_limit_gives_paper_236(capsys):
     assert json.loads(out)["backlash_limit_um"] == pytest.approx(236.0, abs=0.1)
 
 
+def test_tbe_limit_answers_at_the_edge_of_eq_8(capsys):
+    # issue 16 item 7: the domain edge landed just past ωT = π/2 and the command refused
+    code, out, err = run_cli(capsys, "tbe", "limit", "--tolerance-um", "10", "--radius-mm", "5",
+                             "--feed-mm-min", "2226.5", "--gain-per-s", "5", "--json")
+    assert (code, err) == (0, "")
+    assert json.loads(out)["backlash_limit_um"] == pytest.approx(10.233, abs=0.001)
+
+
 def test_tbe_circle_json_and_text(capsys):
     code, out, _ = run_cli(capsys, "tbe", "circle", "--backlash-um", "240.1", "--radius-mm", "200",
                            "--feed-mm-min", "200", "--gain-per-s", "10", "--json")
