@@ -24,8 +24,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--useful-travel-mm", nargs=2, type=float, metavar=("START", "END"),
         help="useful travel (table coordinates); default: the axis' travel_mm",
     )
-    p.add_argument("--grid-step-mm", type=float, default=RoundTripSettings.grid_step_mm,
-                   help="resolution of b(x) and the lead curves (mm)")
+    p.add_argument("--grid-step-mm", type=float, default=None,
+                   help="resolution of b(x) and the lead curves (mm); default: chosen from the axis and reported")
     p.set_defaults(func=run)
 
 

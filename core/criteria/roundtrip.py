@@ -25,13 +25,17 @@ from core.errors import InputError, TraceError
 @dataclass(frozen=True)
 class RoundTripSettings:
     """How a round trip is reduced. ``grid_step_mm`` is the resolution of b(x) and of
-    the lead curves; ``smoothing_mm`` the Savitzky-Golay (cubic) window applied to
-    the binned curves (0 disables it); ``max_gap_mm`` the largest stretch without
-    samples that may be interpolated over; ``max_ratio_error`` how far table and
-    motor travel may disagree before k_a or the units are declared wrong."""
+    the lead curves (None: chosen from the axis, 0.25 mm or 1/64 of a short screw
+    lead); ``smoothing_mm`` the smallest Savitzky-Golay (cubic) window applied to the
+    binned curves (0 disables it): on sparse traces it widens to
+    ``smoothing_samples`` sample spacings, never beyond a quarter of the screw lead so
+    that v_2π keeps its feature; ``max_gap_mm`` the largest stretch between two
+    samples of a stroke that may be interpolated over; ``max_ratio_error`` how far
+    table and motor travel may disagree before k_a or the units are declared wrong."""
 
-    grid_step_mm: float = 0.25
+    grid_step_mm: float | None = None
     smoothing_mm: float = 2.0
+    smoothing_samples: float = 4.0
     max_gap_mm: float = 2.0
     max_ratio_error: float = 0.05
     min_motion_mm: float = 0.1
@@ -58,6 +62,9 @@ class RoundTripResult:
     strokes: dict[str, LeadCriteria]
     n_samples: int
     peak_speed_mm_min: float
+    grid_step_mm: float = 0.25
+    smoothing_mm: float = 2.0
+    sample_spacing_mm: float = 0.0
 
     @property
     def backlash_mean_um(self) -> float:
@@ -71,6 +78,10 @@ class RoundTripResult:
             "useful_travel_mm": list(self.useful_travel_mm),
             "n_samples": self.n_samples,
             "peak_speed_mm_min": self.peak_speed_mm_min,
+            "grid_step_mm": self.grid_step_mm,
+            "grid_points": int(self.backlash.position_mm.size),
+            "smoothing_mm": self.smoothing_mm,
+            "sample_spacing_mm": self.sample_spacing_mm,
             "backlash_mean_um": self.backlash.mean_um,
             "backlash_min_um": self.backlash.min_um,
             "backlash_max_um": self.backlash.max_um,
@@ -120,24 +131,72 @@ def _check_trace(time_s, motor_rev, table_mm) -> tuple[np.ndarray, np.ndarray, n
     return t, m, x
 
 
+def _grid_crossings(
+    u: np.ndarray, val: np.ndarray, pair_ok: np.ndarray, grid0: float, step: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Linear interpolation between consecutive samples onto every grid point they
+    straddle (grid index, value). ``pair_ok[i]`` allows the pair (i, i + 1): pairs
+    across strokes or across a hole are never interpolated over."""
+    a = (u[:-1] - grid0) / step
+    b = (u[1:] - grid0) / step
+    lo = np.floor(np.minimum(a, b))
+    hi = np.floor(np.maximum(a, b))
+    count = np.where(pair_ok, hi - lo, 0).astype(np.int64)  # grid points in (min, max]
+    total = int(count.sum())
+    if total == 0:
+        return np.empty(0, np.int64), np.empty(0)
+    pair = np.repeat(np.arange(count.size), count)
+    first = np.cumsum(count) - count
+    j = lo[pair].astype(np.int64) + 1 + (np.arange(total) - first[pair])
+    g = grid0 + step * j
+    u0, u1 = u[pair], u[pair + 1]
+    w = (g - u0) / (u1 - u0)
+    return j, val[pair] + w * (val[pair + 1] - val[pair])
+
+
 def _bin_direction(
-    strokes: list[Stroke], travel: np.ndarray, dev: np.ndarray, grid: np.ndarray, step: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    strokes: list[Stroke],
+    travel: np.ndarray,
+    dev: np.ndarray,
+    grid: np.ndarray,
+    step: float,
+    max_gap_mm: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[float, float]]]:
     """Centroids (mean travel, mean deviation) per grid bin over all strokes of one
-    direction, and the sample counts. Averaging the travel too removes the bias of
-    where the samples fall inside a bin (lead slope x half a bin) to second order."""
+    direction, the number of contributions per bin, and the holes (travel spans
+    longer than ``max_gap_mm`` between consecutive samples of a stroke).
+
+    Each bin averages the samples that fall into it *and* the linear interpolation
+    between consecutive samples of a stroke at every grid point they straddle: dense
+    traces are averaged (noise drops as 1/√n), sparse ones (more than a bin between
+    samples, e.g. 0.67 mm at 8000 mm/min and 200 Hz) are interpolated, and neither
+    needs a sample in every bin. Averaging the travel too removes the bias of where
+    the samples fall inside a bin (lead slope x half a bin) to second order."""
     n = grid.size
     sel = [slice(s.engaged, s.end + 1) for s in strokes]
     u = np.concatenate([travel[k] for k in sel])
     val = np.concatenate([dev[k] for k in sel])
+    gap = np.abs(np.diff(u))
+    same_stroke = np.ones(gap.size, bool)
+    ends = np.cumsum([k.stop - k.start for k in sel])[:-1]
+    same_stroke[ends - 1] = False
+    hole = same_stroke & (gap > max_gap_mm)
+    holes = [
+        (float(min(u[i], u[i + 1])), float(max(u[i], u[i + 1])))
+        for i in np.flatnonzero(hole)
+    ]
+    j, v = _grid_crossings(u, val, same_stroke & ~hole, float(grid[0]), step)
     idx = np.rint((u - grid[0]) / step).astype(np.int64)
     inside = (idx >= 0) & (idx < n)
-    idx, u, val = idx[inside], u[inside], val[inside]
+    j_in = (j >= 0) & (j < n)
+    idx = np.concatenate((idx[inside], j[j_in]))
+    u_all = np.concatenate((u[inside], grid[0] + step * j[j_in]))
+    val = np.concatenate((val[inside], v[j_in]))
     counts = np.bincount(idx, minlength=n)
     with np.errstate(invalid="ignore", divide="ignore"):
-        u_c = np.bincount(idx, weights=u - grid[idx], minlength=n) / counts + grid
+        u_c = np.bincount(idx, weights=u_all - grid[idx], minlength=n) / counts + grid
         d_c = np.bincount(idx, weights=val, minlength=n) / counts
-    return u_c, d_c, counts
+    return u_c, d_c, counts, holes
 
 
 def analyze_round_trip(
@@ -158,7 +217,10 @@ def analyze_round_trip(
     start, end = useful_travel_mm if useful_travel_mm is not None else axis.travel_mm
     if not end > start:
         raise InputError(f"useful_travel_mm (={[start, end]}) must be [start, end] with end > start")
-    if not settings.grid_step_mm > 0:
+    step = settings.grid_step_mm
+    if step is None:
+        step = min(0.25, axis.screw_lead_mm / 64.0)
+    elif not step > 0:
         raise InputError(f"grid_step_mm (={settings.grid_step_mm}) must be > 0")
     nominal = motor * axis.transmission_mm_per_rev  # l_0 = k_a x_m, arbitrary zero
     motor_span = float(np.ptp(nominal))
@@ -185,12 +247,23 @@ def analyze_round_trip(
     travel = nominal + offset
     dev = raw_dev - offset
 
-    step = settings.grid_step_mm
+    # travel between consecutive kept samples: what the grid and the smoothing must bridge
+    spacing = float(np.median(np.concatenate([np.abs(np.diff(travel[s.engaged : s.end + 1])) for s in strokes])))
+    smoothing_mm = settings.smoothing_mm
+    if smoothing_mm > 0:
+        smoothing_mm = max(smoothing_mm, min(settings.smoothing_samples * spacing, axis.screw_lead_mm / 4.0))
     n = int(round((end - start) / step)) + 1
     grid = start + step * np.arange(n)
     curves = {}
     for d, name in ((1, "positive"), (-1, "negative")):
-        u_c, d_c, counts = _bin_direction(by_dir[d], travel, dev, grid, step)
+        u_c, d_c, counts, holes = _bin_direction(by_dir[d], travel, dev, grid, step, settings.max_gap_mm)
+        holes = [h for h in holes if h[1] > start and h[0] < end]
+        if holes:
+            lo, hi = max(holes, key=lambda h: h[1] - h[0])
+            raise TraceError(
+                f"the {name} stroke has no samples between {lo:.2f} and {hi:.2f} mm "
+                f"({hi - lo:.2f} mm > max_gap_mm {settings.max_gap_mm:g} mm): samples lost?"
+            )
         filled = counts > 0
         covered = grid[filled]
         if not filled[0] or not filled[-1]:
@@ -200,16 +273,16 @@ def analyze_round_trip(
                 f"the {name} stroke covers {lo:.2f}..{hi:.2f} mm outside its reversal transient, "
                 f"shorter than the useful travel {start:g}..{end:g} mm asked for"
             )
-        holes = np.diff(covered)
-        if holes.size and holes.max() > settings.max_gap_mm:
-            i = int(np.argmax(holes))
+        empty = np.diff(covered)
+        if empty.size and empty.max() > settings.max_gap_mm:  # strokes that cover disjoint pieces
+            i = int(np.argmax(empty))
             raise TraceError(
-                f"the {name} stroke has no samples between {covered[i]:.2f} and {covered[i + 1]:.2f} mm "
-                f"(> {settings.max_gap_mm} mm): samples lost?"
+                f"the {name} strokes leave {covered[i]:.2f}..{covered[i + 1]:.2f} mm uncovered "
+                f"(> max_gap_mm {settings.max_gap_mm:g} mm)"
             )
         mean = np.interp(grid, u_c[filled], d_c[filled])
-        window = int(round(settings.smoothing_mm / step)) | 1
-        if settings.smoothing_mm > 0 and window >= 5 and window < n:
+        window = int(round(smoothing_mm / step)) | 1
+        if smoothing_mm > 0 and window >= 5 and window < n:
             mean = savgol_filter(mean, window, polyorder=3, mode="interp")
         curves[name] = mean
 
@@ -246,4 +319,7 @@ def analyze_round_trip(
         strokes=criteria,
         n_samples=int(t.size),
         peak_speed_mm_min=float(np.percentile(speed, 99) * 60.0),
+        grid_step_mm=float(step),
+        smoothing_mm=float(smoothing_mm),
+        sample_spacing_mm=spacing,
     )

@@ -108,6 +108,22 @@ def test_analyze_reports_bad_run_by_name_and_keeps_the_good_one(tmp_path, capsys
     assert code == 1
     assert [r["file"] for r in json.loads(out)] == ["good.csv"]
     assert "short.csv (axis y)" in err and "shorter than the useful travel" in err
+    # the cause once, on one line that ends the output
+    assert err.count("shorter than the useful travel") == 1 and err.endswith("\n")
+    assert err.count("\n") == 1
+
+
+def test_analyze_sparse_trace_is_not_refused_and_reports_its_grid(tmp_path, capsys):
+    # issue 16: 8000 mm/min at 200 Hz (0.67 mm between samples) was refused
+    s = round_trip(start_mm=-20.0, end_mm=320.0, feed_mm_min=8000, rate_hz=200.0, backlash_um=lambda u: 6 + 0 * u,
+                   lead_error_um=lambda u: 3 * np.sin(2 * np.pi * u / 16), rng=np.random.default_rng(1))
+    spec = RunSpec(file="sparse.csv", kind="round_trip", axes=("y",), feed_mm_min=8000, temperature_c=20.0)
+    folder = _dataset(tmp_path, Run(spec, {"time_s": s.time_s, "y_motor_rev": s.motor_rev, "y_table_mm": s.table_mm}))
+    code, out, err = run_cli(capsys, "analyze", str(folder), "--json")
+    assert (code, err) == (0, "")
+    row = json.loads(out)[0]
+    assert row["backlash_mean_um"] == pytest.approx(6.0, abs=0.5)
+    assert row["grid_step_mm"] == 0.25 and row["sample_spacing_mm"] == pytest.approx(0.667, abs=0.01)
 
 
 def test_analyze_malformed_dataset_names_file_and_row(tmp_path, capsys):
