@@ -17,6 +17,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from core.criteria.lead import LeadCriteria, lead_criteria
+from core.criteria.outliers import OutlierSettings, check_outlier_fraction, encoder_outliers, noise_sigma_mm
 from core.criteria.segmentation import SegmentationSettings, Stroke, find_strokes
 from core.dataset import AxisSpec
 from core.errors import InputError, TraceError
@@ -40,6 +41,7 @@ class RoundTripSettings:
     max_ratio_error: float = 0.05
     min_motion_mm: float = 0.1
     segmentation: SegmentationSettings = field(default_factory=SegmentationSettings)
+    outliers: OutlierSettings = field(default_factory=OutlierSettings)
 
 
 @dataclass(frozen=True)
@@ -65,6 +67,8 @@ class RoundTripResult:
     grid_step_mm: float = 0.25
     smoothing_mm: float = 2.0
     sample_spacing_mm: float = 0.0
+    outliers_removed: int = 0
+    noise_um: float = 0.0
 
     @property
     def backlash_mean_um(self) -> float:
@@ -82,6 +86,8 @@ class RoundTripResult:
             "grid_points": int(self.backlash.position_mm.size),
             "smoothing_mm": self.smoothing_mm,
             "sample_spacing_mm": self.sample_spacing_mm,
+            "outliers_removed": self.outliers_removed,
+            "noise_um": self.noise_um,
             "backlash_mean_um": self.backlash.mean_um,
             "backlash_min_um": self.backlash.min_um,
             "backlash_max_um": self.backlash.max_um,
@@ -131,33 +137,8 @@ def _check_trace(time_s, motor_rev, table_mm) -> tuple[np.ndarray, np.ndarray, n
     return t, m, x
 
 
-def _grid_crossings(
-    u: np.ndarray, val: np.ndarray, pair_ok: np.ndarray, grid0: float, step: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Linear interpolation between consecutive samples onto every grid point they
-    straddle (grid index, value). ``pair_ok[i]`` allows the pair (i, i + 1): pairs
-    across strokes or across a hole are never interpolated over."""
-    a = (u[:-1] - grid0) / step
-    b = (u[1:] - grid0) / step
-    lo = np.floor(np.minimum(a, b))
-    hi = np.floor(np.maximum(a, b))
-    count = np.where(pair_ok, hi - lo, 0).astype(np.int64)  # grid points in (min, max]
-    total = int(count.sum())
-    if total == 0:
-        return np.empty(0, np.int64), np.empty(0)
-    pair = np.repeat(np.arange(count.size), count)
-    first = np.cumsum(count) - count
-    j = lo[pair].astype(np.int64) + 1 + (np.arange(total) - first[pair])
-    g = grid0 + step * j
-    u0, u1 = u[pair], u[pair + 1]
-    w = (g - u0) / (u1 - u0)
-    return j, val[pair] + w * (val[pair + 1] - val[pair])
-
-
 def _bin_direction(
-    strokes: list[Stroke],
-    travel: np.ndarray,
-    dev: np.ndarray,
+    pieces: list[tuple[np.ndarray, np.ndarray]],
     grid: np.ndarray,
     step: float,
     max_gap_mm: float,
@@ -166,36 +147,73 @@ def _bin_direction(
     direction, the number of contributions per bin, and the holes (travel spans
     longer than ``max_gap_mm`` between consecutive samples of a stroke).
 
+    ``pieces`` holds (travel, deviation) of each stroke's kept samples, in time order.
     Each bin averages the samples that fall into it *and* the linear interpolation
     between consecutive samples of a stroke at every grid point they straddle: dense
     traces are averaged (noise drops as 1/√n), sparse ones (more than a bin between
     samples, e.g. 0.67 mm at 8000 mm/min and 200 Hz) are interpolated, and neither
-    needs a sample in every bin. Averaging the travel too removes the bias of where
-    the samples fall inside a bin (lead slope x half a bin) to second order."""
+    needs a sample in every bin. Never across strokes or a hole. Averaging the travel
+    too removes the bias of where the samples fall inside a bin (lead slope x half a
+    bin) to second order."""
     n = grid.size
-    sel = [slice(s.engaged, s.end + 1) for s in strokes]
-    u = np.concatenate([travel[k] for k in sel])
-    val = np.concatenate([dev[k] for k in sel])
-    gap = np.abs(np.diff(u))
-    same_stroke = np.ones(gap.size, bool)
-    ends = np.cumsum([k.stop - k.start for k in sel])[:-1]
-    same_stroke[ends - 1] = False
-    hole = same_stroke & (gap > max_gap_mm)
-    holes = [
-        (float(min(u[i], u[i + 1])), float(max(u[i], u[i + 1])))
-        for i in np.flatnonzero(hole)
-    ]
-    j, v = _grid_crossings(u, val, same_stroke & ~hole, float(grid[0]), step)
-    idx = np.rint((u - grid[0]) / step).astype(np.int64)
-    inside = (idx >= 0) & (idx < n)
-    j_in = (j >= 0) & (j < n)
-    idx = np.concatenate((idx[inside], j[j_in]))
-    u_all = np.concatenate((u[inside], grid[0] + step * j[j_in]))
-    val = np.concatenate((val[inside], v[j_in]))
-    counts = np.bincount(idx, minlength=n)
+    g0, inv = float(grid[0]), 1.0 / step
+    idx_parts, du_parts, val_parts, holes = [], [], [], []
+    j_parts, jv_parts = [], []
+    for u, val in pieces:
+        if u.size == 0:
+            continue
+        a = u - g0
+        a *= inv  # travel in grid steps
+        nearest = np.floor(a + 0.5)  # the bin of the sample: its nearest grid point
+        du = a - nearest  # offset from the bin centre, in steps
+        idx = nearest.astype(np.int64)
+        below = np.floor(a)
+        k = below.astype(np.int64)
+        # pairs that straddle grid points: k changes between them (grid points in (min, max])
+        pair = np.flatnonzero(k[1:] != k[:-1])
+        if pair.size:
+            gap = np.abs(u[pair + 1] - u[pair])
+            hole = gap > max_gap_mm
+            if hole.any():
+                holes += [(float(min(u[i], u[i + 1])), float(max(u[i], u[i + 1]))) for i in pair[hole]]
+                pair = pair[~hole]
+            lo = np.minimum(k[pair], k[pair + 1])
+            count = np.abs(k[pair + 1] - k[pair])
+            total = int(count.sum())
+            rep = np.repeat(np.arange(pair.size), count)
+            first = np.cumsum(count) - count
+            j = lo[rep] + 1 + (np.arange(total) - first[rep])
+            p0 = pair[rep]
+            w = (j - a[p0]) / (a[p0 + 1] - a[p0])
+            j_parts.append(j)
+            jv_parts.append(val[p0] + w * (val[p0 + 1] - val[p0]))
+        idx_parts.append(idx)
+        du_parts.append(du)
+        val_parts.append(val)
+    if step > max_gap_mm:  # pairs inside one bin were not examined above
+        for u, _ in pieces:
+            big = np.flatnonzero(np.abs(np.diff(u)) > max_gap_mm)
+            holes += [(float(min(u[i], u[i + 1])), float(max(u[i], u[i + 1]))) for i in big]
+    idx = np.concatenate(idx_parts) if idx_parts else np.empty(0, np.int64)
+    du = np.concatenate(du_parts) if du_parts else np.empty(0)
+    val = np.concatenate(val_parts) if val_parts else np.empty(0)
+    # samples beyond the grid go to two overflow bins, dropped after counting: cheaper
+    # than selecting the inside ones from a million
+    np.clip(idx, -1, n, out=idx)
+    idx += 1
+    counts = np.bincount(idx, minlength=n + 2)[1:-1]
+    sum_du = np.bincount(idx, weights=du, minlength=n + 2)[1:-1]  # interpolated points sit on the grid
+    sum_val = np.bincount(idx, weights=val, minlength=n + 2)[1:-1]
+    if j_parts:
+        j = np.concatenate(j_parts)
+        jv = np.concatenate(jv_parts)
+        ok = (j >= 0) & (j < n)
+        j, jv = j[ok], jv[ok]
+        counts = counts + np.bincount(j, minlength=n)
+        sum_val = sum_val + np.bincount(j, weights=jv, minlength=n)
     with np.errstate(invalid="ignore", divide="ignore"):
-        u_c = np.bincount(idx, weights=u_all - grid[idx], minlength=n) / counts + grid
-        d_c = np.bincount(idx, weights=val, minlength=n) / counts
+        u_c = grid + step * sum_du / counts
+        d_c = sum_val / counts
     return u_c, d_c, counts, holes
 
 
@@ -222,7 +240,17 @@ def analyze_round_trip(
         step = min(0.25, axis.screw_lead_mm / 64.0)
     elif not step > 0:
         raise InputError(f"grid_step_mm (={settings.grid_step_mm}) must be > 0")
+    n_samples = int(t.size)
     nominal = motor * axis.transmission_mm_per_rev  # l_0 = k_a x_m, arbitrary zero
+    # Glitches first: a 5 mm spike of one encoder would otherwise pass for motion, for
+    # a reversal, or for a lead error of 5 mm in one bin. Dropped, counted, and refused
+    # past max_fraction: the same rule the acquisition applies online.
+    outliers = encoder_outliers(nominal, table, settings.outliers)
+    n_out = int(np.count_nonzero(outliers))
+    check_outlier_fraction(n_out, n_samples, settings.outliers, "of the round trip")
+    if n_out:
+        keep = ~outliers
+        t, motor, table, nominal = t[keep], motor[keep], table[keep], nominal[keep]
     motor_span = float(np.ptp(nominal))
     if motor_span < settings.min_motion_mm:
         raise TraceError(f"the motor does not move (nominal travel span {motor_span * 1e3:.1f} µm)")
@@ -242,13 +270,20 @@ def analyze_round_trip(
 
     # Align l_0 with table coordinates: the midline between the two directions.
     raw_dev = table - nominal
-    med = [np.median(np.concatenate([raw_dev[s.engaged : s.end + 1] for s in by_dir[d]])) for d in (1, -1)]
+    # Robust levels (an alignment offset, a typical spacing) from a strided subsample of
+    # at most ~200,000 samples: their exact value does not matter, a median of millions costs.
+    stride = max(1, t.size // 200_000)
+    med = [float(np.median(np.concatenate([raw_dev[s.engaged : s.end + 1 : stride] for s in by_dir[d]])))
+           for d in (1, -1)]
     offset = 0.5 * (med[0] + med[1])
     travel = nominal + offset
     dev = raw_dev - offset
 
     # travel between consecutive kept samples: what the grid and the smoothing must bridge
-    spacing = float(np.median(np.concatenate([np.abs(np.diff(travel[s.engaged : s.end + 1])) for s in strokes])))
+    spacing = float(np.median(np.abs(np.concatenate(
+        [travel[s.engaged + 1 : s.end + 1 : stride] - travel[s.engaged : s.end : stride] for s in strokes]))))
+    # noise of l_a - l_0 about its smooth part: the median over the strokes
+    noise_mm = float(np.median([noise_sigma_mm(dev[s.engaged : s.end + 1]) for s in strokes]))
     smoothing_mm = settings.smoothing_mm
     if smoothing_mm > 0:
         smoothing_mm = max(smoothing_mm, min(settings.smoothing_samples * spacing, axis.screw_lead_mm / 4.0))
@@ -256,7 +291,8 @@ def analyze_round_trip(
     grid = start + step * np.arange(n)
     curves = {}
     for d, name in ((1, "positive"), (-1, "negative")):
-        u_c, d_c, counts, holes = _bin_direction(by_dir[d], travel, dev, grid, step, settings.max_gap_mm)
+        pieces = [(travel[s.engaged : s.end + 1], dev[s.engaged : s.end + 1]) for s in by_dir[d]]
+        u_c, d_c, counts, holes = _bin_direction(pieces, grid, step, settings.max_gap_mm)
         holes = [h for h in holes if h[1] > start and h[0] < end]
         if holes:
             lo, hi = max(holes, key=lambda h: h[1] - h[0])
@@ -307,19 +343,23 @@ def analyze_round_trip(
     }
     # differences over ~10 ms: sample-to-sample ones would turn encoder noise into speed;
     # taken within the strokes only, so that a long dwell does not pull the percentile down
-    lag = int(max(1, round(0.01 / float(np.median(np.diff(t))))))
-    speed = np.abs(nominal[lag:] - nominal[:-lag]) / (t[lag:] - t[:-lag])
-    moving = np.concatenate([np.arange(s.engaged, max(s.engaged, s.end - lag)) for s in strokes] or [[]])
-    if moving.size:
-        speed = speed[moving.astype(np.intp)]
+    lag = int(max(1, round(0.01 / float(np.median(t[1::stride] - t[:-1:stride])))))
+    # (on every stride-th sample: a percentile of a million speeds costs a full sort pass)
+    at = np.concatenate([np.arange(s.engaged, max(s.engaged, s.end - lag), stride) for s in strokes] or [[]])
+    at = at.astype(np.intp)
+    if at.size == 0:
+        at = np.arange(0, t.size - lag, stride)
+    speed = np.abs(nominal[at + lag] - nominal[at]) / (t[at + lag] - t[at])
     return RoundTripResult(
         axis=axis.name,
         useful_travel_mm=(float(start), float(end)),
         backlash=profile,
         strokes=criteria,
-        n_samples=int(t.size),
+        n_samples=n_samples,
         peak_speed_mm_min=float(np.percentile(speed, 99) * 60.0),
         grid_step_mm=float(step),
         smoothing_mm=float(smoothing_mm),
         sample_spacing_mm=spacing,
+        outliers_removed=n_out,
+        noise_um=noise_mm * 1e3,
     )

@@ -98,3 +98,4 @@ def test_slow_replies_time_out(peer_factory):
         assert time.monotonic() - t0 < 15.0
         time.sleep(2.5)  # delayed replies drain
         _ok(peer)
+
