@@ -120,6 +120,10 @@ class TbeRecord:
     tbe_um: float
     backlash_limit_um: float  # inf: the task never reaches its tolerance
     state: str
+    tbe_uncertainty_um: float | None = None  # expanded, k = 2
+    backlash_limit_uncertainty_um: float | None = None
+    decision_rule: str | None = None
+    reason: str | None = None
 
 
 @dataclass(frozen=True)
@@ -139,6 +143,7 @@ class ResultRecord:
     backlash_limit_um: float | None
     message: str | None
     tbe: tuple[TbeRecord, ...]
+    decision_rule: str | None = None
 
 
 @dataclass(frozen=True)
