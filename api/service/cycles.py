@@ -65,16 +65,24 @@ def utility_day(axis: AxisRecord, when: datetime) -> float:
     return round(max((when - since).total_seconds(), 0.0) / 86400.0, 4)
 
 
-def make_decision(axis: AxisRecord, tasks, backlash_um: float) -> AxisDecision | None:
-    """The maintenance decision, or None without tasks or when the TBE model cannot be
-    evaluated at this backlash for some task (the measurement is stored all the same)."""
+def make_decision(axis: AxisRecord, tasks, backlash_um: float,
+                  backlash_uncertainty_um: float = 0.0) -> AxisDecision | None:
+    """The maintenance decision by the axis' decision rule, or None without tasks or when
+    the TBE model cannot be evaluated at this backlash for some task (the measurement
+    is stored all the same). ``backlash_uncertainty_um``: expanded, k = 2."""
     if not tasks:
         return None
     try:
-        return decide(max(backlash_um, 0.0), tasks, warning_fraction=axis.settings.warning_fraction)
+        return decide(max(backlash_um, 0.0), tasks, warning_fraction=axis.settings.warning_fraction,
+                      backlash_uncertainty_um=backlash_uncertainty_um, rule=axis.settings.decision_rule)
     except MebmError as exc:
         log.warning("axis %s: no decision at b = %.1f µm: %s", axis.id, backlash_um, exc)
         return None
+
+
+def _expanded(rt) -> float:
+    """Expanded uncertainty of b̄ of a round trip (0 for one stored without a budget)."""
+    return rt.backlash_mean_uncertainty_um if rt.budgets else 0.0
 
 
 def _task_doc(t: MachiningTask) -> dict:
@@ -172,7 +180,8 @@ class CycleExecutor:
                 log.error("cycle %s: %s", req.uuid, note)
         decision = None
         if outcome.ok and outcome.round_trip is not None:
-            decision = make_decision(axis, axis.tasks, outcome.round_trip.backlash.mean_um)
+            decision = make_decision(axis, axis.tasks, outcome.round_trip.backlash.mean_um,
+                                     _expanded(outcome.round_trip))
         reason = outcome.reason if not outcome.ok else None
         if note and not outcome.ok:
             reason = f"{reason}; {note}"
@@ -367,7 +376,7 @@ class CycleExecutor:
                 time_s, motor_rev, table_mm = self._spooled_trace(d)
                 rt = analyse(axis, time_s, motor_rev, table_mm)
                 tasks = [MachiningTask(**t) for t in d["tasks"]]
-                decision = make_decision(axis, tasks, rt.backlash.mean_um)
+                decision = make_decision(axis, tasks, rt.backlash.mean_um, _expanded(rt))
             except DatabaseUnavailableError:
                 raise
             except Exception as exc:  # noqa: BLE001 - recorded as the cycle's failure, never dropped

@@ -407,9 +407,12 @@ def analyze_round_trip(
 
 
 def _min_step_um(x: np.ndarray, stride: int) -> float:
-    """The encoder's resolution as the data show it: the smallest non-zero step
-    between consecutive readings (on every stride-th pair), µm."""
-    d = np.abs(x[1::stride] - x[:-1:stride])
+    """The encoder's resolution as the data show it, µm: the smallest gap between the
+    distinct readings of (a subsample of) the trace. Quantised readings sit on a lattice
+    of pitch q that a round trip visits densely, so the smallest gap is q; readings that
+    are not quantised (simulated, interpolated) give a gap of ~0."""
+    sub = np.unique(x[:: max(stride, x.size // 50_000, 1)])
+    d = np.diff(sub)
     d = d[d > 0]
     return float(d.min() * 1e3) if d.size else 0.0
 
@@ -417,8 +420,14 @@ def _min_step_um(x: np.ndarray, stride: int) -> float:
 def _budgets(inputs: UncertaintyInputs, *, table, nominal, stride, noise_mm, spacing_mm, smoothing_mm,
              length_mm, screw_lead_mm, n_dir) -> dict[str, UncertaintyBudget]:
     """GUM budgets of b̄ and of each lead criterion (see core.criteria.uncertainty)."""
-    q_t = inputs.table_resolution_um if inputs.table_resolution_um is not None else _min_step_um(table, stride)
-    q_m = inputs.motor_resolution_um if inputs.motor_resolution_um is not None else _min_step_um(nominal, stride)
+    # An estimated resolution is bounded by the noise it would put into l_a - l_0
+    # (q/√12): a lattice the motion only revisits (a simulated trace replaying the
+    # same commanded positions) does not disturb the measurement.
+    cap_um = math.sqrt(12.0) * noise_mm * 1e3
+    q_t = inputs.table_resolution_um if inputs.table_resolution_um is not None else min(
+        _min_step_um(table, stride), cap_um)
+    q_m = inputs.motor_resolution_um if inputs.motor_resolution_um is not None else min(
+        _min_step_um(nominal, stride), cap_um)
     res = resolution_component(q_t, q_m)
     sigma_um = noise_mm * 1e3
     n_pos, n_neg = max(n_dir["positive"], 1), max(n_dir["negative"], 1)

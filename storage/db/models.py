@@ -61,6 +61,7 @@ class Axis(Base):
     measure_feed_mm_min: Mapped[float] = mapped_column(Float)
     measure_acceleration_mm_s2: Mapped[float] = mapped_column(Float)
     warning_fraction: Mapped[float] = mapped_column(Float)
+    decision_rule: Mapped[str] = mapped_column(String(10), default="guarded", server_default="guarded")
     schedule_interval_s: Mapped[float | None] = mapped_column(Float, nullable=True)
     schedule_cron: Mapped[str | None] = mapped_column(String(120), nullable=True)
     schedule_enabled: Mapped[bool] = mapped_column(Boolean, default=True)

@@ -70,6 +70,7 @@ class AxisSettings:
     measure_acceleration_mm_s2: float = 500.0
     warning_fraction: float = 0.9
     schedule: Schedule = field(default_factory=Schedule)
+    decision_rule: str = "guarded"  # ISO 14253-1: "simple" or "guarded" (core.tbe.decision)
     tasks: tuple[MachiningTask, ...] = ()
     in_service_since: datetime | None = None
 

@@ -93,6 +93,12 @@ def test_analyze_json_has_the_contract_keys(tmp_path, capsys):
         assert r["backlash_mean_um"] == pytest.approx(b, abs=0.5)
         assert set(r["strokes"]) == {"positive", "negative"}
         assert r["temperature_c"] == 21.5
+        # issue 16: the GUM budget's expanded (k = 2) figures
+        assert 0 < r["backlash_mean_uncertainty_um"] < 0.5
+        for key in ("e_p", "v_u", "v_300", "v_2pi"):
+            assert r[f"{key}_uncertainty_um"] > 0
+        assert r["uncertainty_budget"]["backlash_mean"]["coverage_factor"] == 2.0
+        assert r["outliers_removed"] == 0 and r["grid_step_mm"] == 0.25
 
 
 def test_analyze_table_output(tmp_path, capsys):

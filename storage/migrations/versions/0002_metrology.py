@@ -35,6 +35,9 @@ def _tbe():
 
 
 def upgrade() -> None:
+    with op.batch_alter_table('axes') as batch:
+        batch.add_column(sa.Column('decision_rule', sa.String(length=10), nullable=False,
+                                   server_default='guarded'))
     # batch mode: SQLite cannot ALTER much; on PostgreSQL these are plain ADD COLUMNs
     with op.batch_alter_table('results') as batch:
         for col in _results():
@@ -51,3 +54,5 @@ def downgrade() -> None:
     with op.batch_alter_table('results') as batch:
         for col in reversed(_results()):
             batch.drop_column(col.name)
+    with op.batch_alter_table('axes') as batch:
+        batch.drop_column('decision_rule')
