@@ -59,12 +59,14 @@ def run(a: argparse.Namespace) -> int:
         print_json(results)
     elif results:
         print_table(
-            ["run", "axis", "b̄ (µm)", "b min (µm)", "b max (µm)", "e_p (µm)", "e_p (µm/1000mm)",
-             "v_u (µm)", "v_300 (µm)", "v_2π (µm)"],
-            [[x["file"], x["axis"], x["backlash_mean_um"], x["backlash_min_um"], x["backlash_max_um"],
-              x["e_p_um"], x["e_p_um_per_1000mm"], x["v_u_um"], x["v_300_um"], x["v_2pi_um"]] for x in results],
+            ["run", "axis", "b̄ (µm)", "U(b̄) (µm)", "b min (µm)", "b max (µm)", "e_p (µm)", "e_p (µm/1000mm)",
+             "v_u (µm)", "v_300 (µm)", "v_2π (µm)", "outliers"],
+            [[x["file"], x["axis"], x["backlash_mean_um"], x["backlash_mean_uncertainty_um"], x["backlash_min_um"],
+              x["backlash_max_um"], x["e_p_um"], x["e_p_um_per_1000mm"], x["v_u_um"], x["v_300_um"], x["v_2pi_um"],
+              x["outliers_removed"]] for x in results],
         )
-        print("lead criteria of the positive stroke; --json gives both directions")
+        print("lead criteria of the positive stroke; --json gives both directions, the GUM budgets and "
+              "U for each criterion; U: expanded uncertainty, k = 2")
     if skipped and not a.json:
         print(f"skipped {len(skipped)} run(s) that are not round trips: {', '.join(skipped)}")
     for f in failures:
