@@ -30,7 +30,7 @@ import numpy as np
 from core.errors import InputError, OutlierError
 
 _MAD_TO_SIGMA = 1.4826
-_SUBSAMPLE = 200_000  # the global noise scale is a median: a strided subsample is enough
+_SUBSAMPLE = 20_000  # the global noise scale is a median: a strided subsample is enough (MAD ±1 %)
 
 
 @dataclass(frozen=True)

@@ -304,8 +304,8 @@ def analyze_round_trip(
     # Align l_0 with table coordinates: the midline between the two directions.
     raw_dev = table - nominal
     # Robust levels (an alignment offset, a typical spacing) from a strided subsample of
-    # at most ~200,000 samples: their exact value does not matter, a median of millions costs.
-    stride = max(1, t.size // 200_000)
+    # at most ~20,000 samples: their exact value does not matter, a median of millions costs.
+    stride = max(1, t.size // 20_000)
     med = [float(np.median(np.concatenate([raw_dev[s.engaged : s.end + 1 : stride] for s in by_dir[d]])))
            for d in (1, -1)]
     offset = 0.5 * (med[0] + med[1])

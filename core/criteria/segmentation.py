@@ -67,7 +67,7 @@ def find_strokes(
 ) -> list[Stroke]:
     """Strokes of a trace, given the nominal travel k_a x_m and the table position (mm)."""
     n = travel_mm.shape[0]
-    stride = max(1, n // 200_000)  # a typical interval needs no median of a million
+    stride = max(1, n // 20_000)  # a typical interval needs no median of a million
     dt = float(np.median(time_s[1::stride] - time_s[:-1:stride]))
     window = int(max(1, round(settings.velocity_window_s / dt)))
     smooth = uniform_filter1d(travel_mm, size=window, mode="nearest") if window > 1 else travel_mm
