@@ -63,7 +63,7 @@ class EncoderMonitor:
         self._anchor = {"table": None, "motor": None}  # other encoder's position at last change
         empty = np.zeros(0)
         self._held = (np.zeros(0, dtype=np.int64), empty, empty)  # not yet judged: c, motor mm, table mm
-        self._context = (empty, empty)  # the last judged samples (motor mm, table mm), for the windows
+        self._context = (np.zeros(0, dtype=np.int64), empty, empty)  # last judged samples (c, motor, table)
 
     def check(self, counter: np.ndarray, motor_rev: np.ndarray, table_mm: np.ndarray, skew_s: float = 0.0) -> None:
         """``skew_s``: worst-case time between the motor and table readings (unlatched modes)."""
@@ -83,8 +83,11 @@ class EncoderMonitor:
             return
         half = self.outlier_settings.window_samples // 2
         ready = c.size if final else max(0, c.size - half)
-        cm, ct = self._context
-        bad = encoder_outliers(np.concatenate([cm, m]), np.concatenate([ct, t]), self.outlier_settings)
+        cc, cm, ct = self._context
+        # the counter is the clock: polled modes skip servo cycles irregularly
+        bad = encoder_outliers(np.concatenate([cm, m]), np.concatenate([ct, t]), self.outlier_settings,
+                               time_s=np.concatenate([cc, c]).astype(float),
+                               sampling_bound_um=self.v_mm_s * skew_s * 1e3)
         bad = bad[cm.size : cm.size + ready]
         self.outliers += int(np.count_nonzero(bad))
         self.seen += ready
@@ -98,7 +101,8 @@ class EncoderMonitor:
         keep = ~bad
         jc, jm, jt = c[:ready][keep], m[:ready][keep], t[:ready][keep]
         self._held = (c[ready:], m[ready:], t[ready:])
-        self._context = (np.concatenate([cm, jm])[-2 * half :], np.concatenate([ct, jt])[-2 * half :])
+        self._context = (np.concatenate([cc, jc])[-2 * half :], np.concatenate([cm, jm])[-2 * half :],
+                         np.concatenate([ct, jt])[-2 * half :])
         if jc.size:
             self._check_motion(jc, jm, jt, skew_s)
 

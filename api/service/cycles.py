@@ -85,6 +85,14 @@ def _expanded(rt) -> float:
     return rt.backlash_mean_uncertainty_um if rt.budgets else 0.0
 
 
+def _sampling_bound_um(rt) -> float:
+    """The sampling bound (skew x speed) a round trip was analysed with, for its replay."""
+    if rt is None or not rt.budgets:
+        return 0.0
+    c = next((c for c in rt.budgets["backlash_mean"].components if c.name == "sampling"), None)
+    return 0.0 if c is None else c.standard_um * math.sqrt(3.0)
+
+
 def _task_doc(t: MachiningTask) -> dict:
     return {"name": t.name, "profile": t.profile, "feed_mm_min": t.feed_mm_min, "gain_per_s": t.gain_per_s,
             "tolerance_um": t.tolerance_um, "radius_mm": t.radius_mm, "angle_deg": t.angle_deg}
@@ -293,6 +301,7 @@ class CycleExecutor:
             "started_at": fc.started_at.isoformat() if fc.started_at else None,
             "finished_at": fc.finished_at.isoformat(), "failure_reason": fc.failure_reason,
             "temperature_c": fc.temperature_c, "utility_day": fc.utility_day, "uncertainty_um": fc.uncertainty_um,
+            "sampling_bound_um": _sampling_bound_um(fc.round_trip),
             "dataset_folder": str(folder) if folder else None, "run_file": fc.run_file,
             "trace_file": str(trace_file) if trace_file else None,
             "tasks": [_task_doc(t) for t in tasks],
@@ -374,7 +383,7 @@ class CycleExecutor:
         if status == "ok":
             try:
                 time_s, motor_rev, table_mm = self._spooled_trace(d)
-                rt = analyse(axis, time_s, motor_rev, table_mm)
+                rt = analyse(axis, time_s, motor_rev, table_mm, sampling_bound_um=d.get("sampling_bound_um") or 0.0)
                 tasks = [MachiningTask(**t) for t in d["tasks"]]
                 decision = make_decision(axis, tasks, rt.backlash.mean_um, _expanded(rt))
             except DatabaseUnavailableError:

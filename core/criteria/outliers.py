@@ -23,7 +23,7 @@ settings, so a glitch the file path would drop is not a fault online either.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -70,12 +70,13 @@ def noise_sigma_mm(values_mm: np.ndarray) -> float:
 
 
 def hampel_mask(values_mm: np.ndarray, settings: OutlierSettings = OutlierSettings(), *,
-                detrend: bool = False, noise_mm: float | None = None) -> np.ndarray:
+                detrend: bool = False, noise_mm: float | None = None, time_s: np.ndarray | None = None) -> np.ndarray:
     """Boolean mask of the outliers of one contiguous signal (mm).
 
     ``detrend``: compare each sample with the window's median after removing the
-    window's median velocity (for an encoder's position while the axis moves).
-    ``noise_mm``: the global noise scale, estimated when not given.
+    window's median velocity (for an encoder's position while the axis moves), per
+    unit of ``time_s`` when given (polled or decimated samples are irregular), else
+    per sample. ``noise_mm``: the global noise scale, estimated when not given.
     """
     v = np.asarray(values_mm, dtype=float)
     n = v.size
@@ -84,7 +85,14 @@ def hampel_mask(values_mm: np.ndarray, settings: OutlierSettings = OutlierSettin
         return mask
     sigma = noise_sigma_mm(v) if noise_mm is None else float(noise_mm)
     thr_global = max(settings.n_sigmas * sigma, settings.floor_um * 1e-3)
-    if detrend:
+    t = None if time_s is None else np.asarray(time_s, dtype=float)
+    if t is not None and t.shape != v.shape:
+        raise InputError(f"time_s and the values differ in length: {t.size}, {v.size}")
+    if detrend and t is not None:
+        # distance from the line through the neighbours: a glitch G stands out by G, the motion not
+        w = (t[1:-1] - t[:-2]) / (t[2:] - t[:-2])
+        step = np.abs(v[1:-1] - (v[:-2] + w * (v[2:] - v[:-2])))
+    elif detrend:
         # distance from the neighbours' midpoint: a glitch G stands out by G, the motion not
         step = np.abs(v[1:-1] - 0.5 * (v[2:] + v[:-2]))
     else:
@@ -100,9 +108,16 @@ def hampel_mask(values_mm: np.ndarray, settings: OutlierSettings = OutlierSettin
     test = np.flatnonzero(near)
     idx = np.clip(test[:, None] + offsets, 0, n - 1)
     win = v[idx]
-    if detrend:
+    if detrend and t is not None:
+        tw = t[idx]
+        dt = np.diff(tw, axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            vel = np.nanmedian(np.where(dt > 0, np.diff(win, axis=1) / np.where(dt > 0, dt, 1.0), np.nan), axis=1)
+        vel = np.nan_to_num(vel)
+        win = win - (tw - tw[:, h : h + 1]) * vel[:, None]  # each window's values brought to its centre
+    elif detrend:
         vel = np.median(np.diff(win, axis=1), axis=1)
-        win = win - offsets[None, :] * vel[:, None]  # each window's values brought to its centre
+        win = win - offsets[None, :] * vel[:, None]
     ref = np.median(win, axis=1)
     mad = np.median(np.abs(win - ref[:, None]), axis=1)
     thr = np.maximum(settings.n_sigmas * _MAD_TO_SIGMA * mad, thr_global)
@@ -112,20 +127,26 @@ def hampel_mask(values_mm: np.ndarray, settings: OutlierSettings = OutlierSettin
 
 
 def encoder_outliers(motor_mm: np.ndarray, table_mm: np.ndarray,
-                     settings: OutlierSettings = OutlierSettings()) -> np.ndarray:
+                     settings: OutlierSettings = OutlierSettings(), *, time_s: np.ndarray | None = None,
+                     sampling_bound_um: float = 0.0) -> np.ndarray:
     """Outliers of one contiguous stretch of motion: on the motor-table difference and
     on each encoder's smoothness. ``motor_mm`` is the motor position as table travel
-    (k_a x_m). Returns a boolean mask over the samples."""
+    (k_a x_m); ``time_s`` (or any clock, e.g. a servo-cycle counter) the sampling
+    instants when they are irregular. ``sampling_bound_um``: the known scatter of the
+    readings from sampling (skew x speed when the encoders are read separately); no
+    deviation within twice that is called an outlier. Returns a boolean mask."""
     m = np.asarray(motor_mm, dtype=float)
     t = np.asarray(table_mm, dtype=float)
     if m.shape != t.shape:
         raise InputError(f"motor_mm and table_mm differ in length: {m.size}, {t.size}")
     if not settings.enabled:
         return np.zeros(m.size, dtype=bool)
+    if sampling_bound_um > 0:
+        settings = replace(settings, floor_um=max(settings.floor_um, 2.0 * sampling_bound_um))
     return (
         hampel_mask(t - m, settings)
-        | hampel_mask(m, settings, detrend=True)
-        | hampel_mask(t, settings, detrend=True)
+        | hampel_mask(m, settings, detrend=True, time_s=time_s)
+        | hampel_mask(t, settings, detrend=True, time_s=time_s)
     )
 
 

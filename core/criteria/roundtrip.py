@@ -278,7 +278,8 @@ def analyze_round_trip(
     # Glitches first: a 5 mm spike of one encoder would otherwise pass for motion, for
     # a reversal, or for a lead error of 5 mm in one bin. Dropped, counted, and refused
     # past max_fraction: the same rule the acquisition applies online.
-    outliers = encoder_outliers(nominal, table, settings.outliers)
+    outliers = encoder_outliers(nominal, table, settings.outliers, time_s=t,
+                                sampling_bound_um=uncertainty.sampling_bound_um)
     n_out = int(np.count_nonzero(outliers))
     check_outlier_fraction(n_out, n_samples, settings.outliers, "of the round trip")
     if n_out:

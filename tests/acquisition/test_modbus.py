@@ -288,7 +288,9 @@ def test_latched_poll_mode_is_latched_but_decimated():
     with modbus_peer(mode="latched", time_scale=1.0) as peer:
         r = run_cycle(peer.driver(), AXIS, PROGRAM)
         assert r.ok, r.reason
-        assert r.trace.mode == "latched" and r.trace.latched and r.uncertainty_um == 0.0
+        assert r.trace.mode == "latched" and r.trace.latched
+        sampling = next(c for c in r.result.budgets["backlash_mean"].components if c.name == "sampling")
+        assert sampling.standard_um == 0.0 and r.uncertainty_um == r.result.budgets["backlash_mean"].combined_um
         assert abs(r.result.backlash_mean_um - 120.0) < 1.0
 
 

@@ -99,3 +99,18 @@ def test_outlier_settings_are_validated():
         OutlierSettings(max_fraction=1.5)
     with pytest.raises(InputError, match="differ in length"):
         encoder_outliers(np.zeros(5), np.zeros(6))
+
+
+def test_sampling_scatter_within_its_bound_is_not_an_outlier():
+    # separate (unlatched) reads: the table lags the motor by 0-2 servo cycles at random,
+    # l_a - l_0 jumps on a lattice of speed x cycle (33 µm at 1000 mm/min and 500 Hz)
+    rng = np.random.default_rng(4)
+    n, v_mm_s, dt = 2000, 1000.0 / 60.0, 2e-3
+    t = np.arange(n) * dt
+    motor = v_mm_s * t
+    table = motor - v_mm_s * dt * rng.choice([1] * 30 + [0, 2], n)  # mostly one cycle, now and then 0 or 2
+    assert encoder_outliers(motor, table, time_s=t).sum() > 0.01 * n  # unexplained, they look like glitches
+    bound_um = v_mm_s * 2 * dt * 1e3  # skew x speed
+    assert not encoder_outliers(motor, table, time_s=t, sampling_bound_um=bound_um).any()
+    table[700] += 5.0  # a real glitch still is one
+    assert np.flatnonzero(encoder_outliers(motor, table, time_s=t, sampling_bound_um=bound_um)).tolist() == [700]
