@@ -20,6 +20,7 @@ from acquisition.driver import ControllerDriver
 from acquisition.errors import AcquisitionError, IncompleteTraceError
 from acquisition.types import AcquiredTrace, RoundTripProgram
 from core.criteria import RoundTripResult, RoundTripSettings, analyze_round_trip
+from core.criteria.uncertainty import UncertaintyInputs
 from core.dataset import AxisSpec, Run, RunSpec
 from core.errors import MebmError
 from core.tbe import AxisDecision, MachiningTask, decide
@@ -50,8 +51,9 @@ def reason_code(exc: BaseException) -> str:
 class CycleResult:
     """Outcome of one measurement cycle. ``status`` is ``ok`` or ``failed``.
 
-    ``uncertainty_um`` is the stated uncertainty of the backlash from the acquisition
-    (worst-case skew times speed for unlatched modes, 0 when latched).
+    ``uncertainty_um`` is the combined standard uncertainty of b̄ (GUM budget in
+    ``result.budgets``; the acquisition's skew times speed enters as its sampling
+    component in unlatched modes).
     """
 
     status: str
@@ -100,11 +102,15 @@ class CycleResult:
             if self.decision is not None:
                 d = self.decision
                 out["decision"] = {
-                    "state": d.state.value, "binding_task": d.binding_task,
+                    "state": d.state.value, "binding_task": d.binding_task, "decision_rule": d.rule,
                     "backlash_limit_um": d.backlash_limit_um if math.isfinite(d.backlash_limit_um) else None,
                     "message": d.message(),
-                    "tasks": [{"name": a.task.name, "tbe_um": a.tbe_um, "tolerance_um": a.task.tolerance_um,
-                               "state": a.state.value} for a in d.assessments],
+                    "tasks": [{"name": a.task.name, "tbe_um": a.tbe_um, "tbe_uncertainty_um": a.tbe_uncertainty_um,
+                               "tolerance_um": a.task.tolerance_um, "state": a.state.value,
+                               "decision_rule": a.rule, "reason": a.reason,
+                               "backlash_limit_um": a.backlash_limit_um if math.isfinite(a.backlash_limit_um) else None,
+                               "backlash_limit_uncertainty_um": a.backlash_limit_uncertainty_um}
+                              for a in d.assessments],
                 }
         return out
 
@@ -178,12 +184,15 @@ def _evaluate(driver, axis, program, trace, tasks, useful_travel_mm, settings, t
     try:
         validate_trace(trace, program, axis, useful_travel_mm)
         result = analyze_round_trip(trace.time_s, trace.motor_rev, trace.table_mm, axis,
-                                    useful_travel_mm=useful_travel_mm, settings=settings)
-        decision = decide(result.backlash_mean_um, tasks) if tasks else None
+                                    useful_travel_mm=useful_travel_mm, settings=settings,
+                                    uncertainty=UncertaintyInputs(sampling_bound_um=trace.skew_uncertainty_um))
+        decision = decide(result.backlash_mean_um, tasks,
+                          backlash_uncertainty_um=result.backlash_mean_uncertainty_um) if tasks else None
     except MebmError as exc:
         return _failed(driver, axis, program, exc, t0, wall0, trace)
     return CycleResult(status="ok", controller=driver.describe(), axis=axis.name, program=program, trace=trace,
-                       result=result, decision=decision, uncertainty_um=trace.skew_uncertainty_um,
+                       result=result, decision=decision,
+                       uncertainty_um=result.budgets["backlash_mean"].combined_um,
                        started_at=wall0, duration_s=time.monotonic() - t0)
 
 

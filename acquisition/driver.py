@@ -29,6 +29,7 @@ from acquisition.errors import (
     ProtocolError,
 )
 from acquisition.types import AcquiredTrace, AxisState, ControllerStatus, RoundTripProgram, SampleBlock
+from core.criteria.outliers import OutlierSettings, encoder_outliers
 from core.dataset import AxisSpec
 from core.errors import InputError, require_positive
 
@@ -36,26 +37,76 @@ from core.errors import InputError, require_positive
 class EncoderMonitor:
     """Online plausibility of the two encoders (vectorised per block).
 
+    *Glitches*: single samples and short bursts off both their neighbours, by the rule
+    the analysis applies to files (:func:`core.criteria.outliers.encoder_outliers`):
+    dropped before the checks below, counted in ``outliers``, and a fault only past
+    ``outliers.max_fraction`` of the programmed samples. The last few samples of a
+    block are judged with the next one (the rule looks at both neighbours);
+    :meth:`finish` judges the rest.
     *Jumping*: a step between consecutive samples larger than twice the programmed
     speed allows, plus ``jump_margin_mm``. *Stuck*: one encoder does not change while
     the other travels more than ``stuck_travel_mm`` (well beyond any backlash).
     """
 
     def __init__(self, program: RoundTripProgram, transmission_mm_per_rev: float, servo_rate_hz: float, *,
-                 jump_margin_mm: float, stuck_travel_mm: float):
+                 jump_margin_mm: float, stuck_travel_mm: float, outliers: OutlierSettings = OutlierSettings()):
         self.v_mm_s = program.speed_mm_s
         self.k_a = transmission_mm_per_rev
         self.rate = servo_rate_hz
         self.margin = jump_margin_mm
         self.stuck = stuck_travel_mm
+        self.outlier_settings = outliers
+        self.outliers = 0  # glitch samples dropped so far
+        self.seen = 0  # samples judged so far
+        self._expected = max(1.0, program.duration_s * servo_rate_hz)
         self._prev: tuple[int, float, float] | None = None  # counter, motor mm, table mm
         self._anchor = {"table": None, "motor": None}  # other encoder's position at last change
+        empty = np.zeros(0)
+        self._held = (np.zeros(0, dtype=np.int64), empty, empty)  # not yet judged: c, motor mm, table mm
+        self._context = (np.zeros(0, dtype=np.int64), empty, empty)  # last judged samples (c, motor, table)
 
     def check(self, counter: np.ndarray, motor_rev: np.ndarray, table_mm: np.ndarray, skew_s: float = 0.0) -> None:
         """``skew_s``: worst-case time between the motor and table readings (unlatched modes)."""
-        if counter.size == 0:
+        self._judge(np.asarray(counter), np.asarray(motor_rev, dtype=float) * self.k_a,
+                    np.asarray(table_mm, dtype=float), skew_s, final=False)
+
+    def finish(self, skew_s: float = 0.0) -> None:
+        """Judge the samples held back for their right-hand neighbours (end of the trace)."""
+        self._judge(np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0), skew_s, final=True)
+
+    def _judge(self, counter, motor_mm, table_mm, skew_s, *, final: bool) -> None:
+        hc, hm, ht = self._held
+        c = np.concatenate([hc, counter])
+        m = np.concatenate([hm, motor_mm])
+        t = np.concatenate([ht, table_mm])
+        if c.size == 0:
             return
-        motor_mm = motor_rev * self.k_a
+        half = self.outlier_settings.window_samples // 2
+        ready = c.size if final else max(0, c.size - half)
+        cc, cm, ct = self._context
+        # the counter is the clock: polled modes skip servo cycles irregularly
+        bad = encoder_outliers(np.concatenate([cm, m]), np.concatenate([ct, t]), self.outlier_settings,
+                               time_s=np.concatenate([cc, c]).astype(float),
+                               sampling_bound_um=self.v_mm_s * skew_s * 1e3)
+        bad = bad[cm.size : cm.size + ready]
+        self.outliers += int(np.count_nonzero(bad))
+        self.seen += ready
+        if self.outliers > self.outlier_settings.max_fraction * max(self._expected, self.seen):
+            raise EncoderFaultError(
+                f"{self.outliers} glitch samples on the encoders in {self.seen} "
+                f"(> max_fraction {self.outlier_settings.max_fraction * 100:g} % of the round trip): "
+                "check the scales, reading heads and cables",
+                encoder="both",
+            )
+        keep = ~bad
+        jc, jm, jt = c[:ready][keep], m[:ready][keep], t[:ready][keep]
+        self._held = (c[ready:], m[ready:], t[ready:])
+        self._context = (np.concatenate([cc, jc])[-2 * half :], np.concatenate([cm, jm])[-2 * half :],
+                         np.concatenate([ct, jt])[-2 * half :])
+        if jc.size:
+            self._check_motion(jc, jm, jt, skew_s)
+
+    def _check_motion(self, counter: np.ndarray, motor_mm: np.ndarray, table_mm: np.ndarray, skew_s: float) -> None:
         if self._prev is not None:
             c = np.concatenate([[self._prev[0]], counter])
             m = np.concatenate([[self._prev[1]], motor_mm])
@@ -403,6 +454,7 @@ class ControllerDriver(ABC):
             raise ControllerTimeoutError(f"the round trip did not finish ({max_iter} reads)")
         if pending:
             monitor.check(*_join(pending), skew_s=skew_s)
+        monitor.finish(skew_s=skew_s)
         counter = np.concatenate(counters) if counters else np.zeros(0, dtype=np.int64)
         if counter.size < 2:
             raise ControllerTimeoutError(f"{self.describe()} reported the round trip done with {counter.size} sample(s)")

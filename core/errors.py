@@ -35,6 +35,10 @@ class TraceError(InputError):
     """A measured round trip cannot be analysed (single stroke, motor still, too short...)."""
 
 
+class OutlierError(TraceError):
+    """Too many samples of a trace are glitches to clean them away (a faulty encoder?)."""
+
+
 class ModelDomainError(InputError):
     """A question the model cannot answer (tolerance unreachable, outside validity)."""
 

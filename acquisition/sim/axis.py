@@ -102,6 +102,9 @@ class SimAxis:
                     table[i:] = table[i]
                 elif f.kind == "jump":
                     table[i:] += int(self.scale.table_counts(f.value("mm")))
+                elif f.kind == "glitch":
+                    at = i + (n // 100) * np.arange(int(f.value("n")))
+                    table[at[at < n]] += int(self.scale.table_counts(f.value("mm")))
                 elif f.kind == "lost":
                     written[i : i + int(f.value("n"))] = False
                 elif f.kind == "emcy":

@@ -9,6 +9,8 @@ and kind-specific values:
 ====================  =============================================================
 ``stuck``             table encoder value freezes at ``at``
 ``jump``              table encoder value jumps by ``mm`` (default 0.5) at ``at``
+``glitch``            one table encoder sample is off by ``mm`` (default 5) at
+                      ``at``; ``n`` such samples (default 1), 1 % of the trace apart
 ``lost``              ``n`` (default 5) samples are not latched/sent at ``at``
 ``emcy``              drive/controller fault with ``code`` (default 0x7305) at ``at``
 ``drop``              connection dropped at ``at``; new connections refused ``for`` s
@@ -26,8 +28,8 @@ from dataclasses import dataclass, field
 
 from core.errors import InputError
 
-KINDS = ("stuck", "jump", "lost", "emcy", "drop", "slow", "exception", "refuse")
-_DEFAULTS = {"jump": {"mm": 0.5}, "lost": {"n": 5}, "emcy": {"code": 0x7305}, "slow": {"s": 2.0},
+KINDS = ("stuck", "jump", "glitch", "lost", "emcy", "drop", "slow", "exception", "refuse")
+_DEFAULTS = {"jump": {"mm": 0.5}, "glitch": {"mm": 5.0, "n": 1}, "lost": {"n": 5}, "emcy": {"code": 0x7305}, "slow": {"s": 2.0},
              "exception": {"code": 4}}
 
 

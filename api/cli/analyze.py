@@ -7,6 +7,7 @@ import sys
 
 from api.cli.output import print_json, print_table
 from core.criteria import RoundTripSettings, analyze_round_trip
+from core.criteria.uncertainty import UncertaintyInputs
 from core.errors import MebmError, TraceError
 from storage.dataset import read_dataset
 
@@ -24,8 +25,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--useful-travel-mm", nargs=2, type=float, metavar=("START", "END"),
         help="useful travel (table coordinates); default: the axis' travel_mm",
     )
-    p.add_argument("--grid-step-mm", type=float, default=RoundTripSettings.grid_step_mm,
-                   help="resolution of b(x) and the lead curves (mm)")
+    p.add_argument("--grid-step-mm", type=float, default=None,
+                   help="resolution of b(x) and the lead curves (mm); default: chosen from the axis and reported")
     p.set_defaults(func=run)
 
 
@@ -40,10 +41,12 @@ def run(a: argparse.Namespace) -> int:
         for axis_name in r.spec.axes:
             axis = ds.machine.axes[axis_name]
             try:
+                # a run measured with separate (unlatched) reads states its skew x speed
+                skew = r.spec.extra.get("skew_uncertainty_um") or 0.0
                 res = analyze_round_trip(
                     r.time_s, r.motor_rev(axis_name), r.table_mm(axis_name), axis,
                     useful_travel_mm=tuple(a.useful_travel_mm) if a.useful_travel_mm else None,
-                    settings=settings,
+                    settings=settings, uncertainty=UncertaintyInputs(sampling_bound_um=float(skew)),
                 )
             except MebmError as exc:
                 failures.append(f"{r.spec.file} (axis {axis_name}): {exc}")
@@ -59,12 +62,14 @@ def run(a: argparse.Namespace) -> int:
         print_json(results)
     elif results:
         print_table(
-            ["run", "axis", "b̄ (µm)", "b min (µm)", "b max (µm)", "e_p (µm)", "e_p (µm/1000mm)",
-             "v_u (µm)", "v_300 (µm)", "v_2π (µm)"],
-            [[x["file"], x["axis"], x["backlash_mean_um"], x["backlash_min_um"], x["backlash_max_um"],
-              x["e_p_um"], x["e_p_um_per_1000mm"], x["v_u_um"], x["v_300_um"], x["v_2pi_um"]] for x in results],
+            ["run", "axis", "b̄ (µm)", "U(b̄) (µm)", "b min (µm)", "b max (µm)", "e_p (µm)", "e_p (µm/1000mm)",
+             "v_u (µm)", "v_300 (µm)", "v_2π (µm)", "outliers"],
+            [[x["file"], x["axis"], x["backlash_mean_um"], x["backlash_mean_uncertainty_um"], x["backlash_min_um"],
+              x["backlash_max_um"], x["e_p_um"], x["e_p_um_per_1000mm"], x["v_u_um"], x["v_300_um"], x["v_2pi_um"],
+              x["outliers_removed"]] for x in results],
         )
-        print("lead criteria of the positive stroke; --json gives both directions")
+        print("lead criteria of the positive stroke; --json gives both directions, the GUM budgets and "
+              "U for each criterion; U: expanded uncertainty, k = 2")
     if skipped and not a.json:
         print(f"skipped {len(skipped)} run(s) that are not round trips: {', '.join(skipped)}")
     for f in failures:

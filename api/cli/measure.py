@@ -102,7 +102,7 @@ def run(a: argparse.Namespace) -> int:
     acq = doc["acquisition"]
     print(f"measured axis {axis_name} on {result.controller}: {acq['samples']} samples "
           f"({acq['mode']}, {'latched' if acq['latched'] else 'UNLATCHED'}, {acq['lost_samples']} lost)")
-    unc = f" ± {result.uncertainty_um:.1f} (skew)" if result.uncertainty_um > 0 else ""
+    unc = f" ± {result.result.backlash_mean_uncertainty_um:.2f} (k = 2)" if result.result.budgets else ""
     print(f"  mean backlash b̄ = {r['backlash_mean_um']:.2f} µm{unc} (min {r['backlash_min_um']:.2f}, "
           f"max {r['backlash_max_um']:.2f})")
     print(f"  e_p = {r['e_p_um']:.2f} µm, v_u = {r['v_u_um']:.2f} µm, v_300 = {r['v_300_um']:.2f} µm, "

@@ -36,7 +36,7 @@ def axis(a: AxisRecord, next_run: datetime | None = None) -> sc.AxisOut:
         position_gain_per_s=st.spec.position_gain_per_s, travel_mm=st.spec.travel_mm,
         controller_url=st.controller_url, measure_feed_mm_min=st.measure_feed_mm_min,
         measure_acceleration_mm_s2=st.measure_acceleration_mm_s2, warning_fraction=st.warning_fraction,
-        schedule=sc.ScheduleOut(interval_s=st.schedule.interval_s, cron=st.schedule.cron,
+        decision_rule=st.decision_rule, schedule=sc.ScheduleOut(interval_s=st.schedule.interval_s, cron=st.schedule.cron,
                                 enabled=st.schedule.enabled, next_run_at=next_run),
         tasks=[task(t) for t in st.tasks],
     )
@@ -50,8 +50,16 @@ def status(s: AxisStatus, now: datetime, next_run: datetime | None) -> sc.AxisSt
             tasks.append(sc.TaskStatus(
                 name=x.task.name, profile=x.task.profile, tolerance_um=x.task.tolerance_um,
                 warning_threshold_um=d.warning_fraction * x.task.tolerance_um, tbe_um=x.tbe_um,
-                backlash_limit_um=sc.fin(x.backlash_limit_um), state=x.state.value, utilisation=x.utilisation,
+                tbe_uncertainty_um=x.tbe_uncertainty_um, backlash_limit_um=sc.fin(x.backlash_limit_um),
+                backlash_limit_uncertainty_um=sc.fin(x.backlash_limit_uncertainty_um), state=x.state.value,
+                decision_rule=x.rule, reason=x.reason, utilisation=x.utilisation,
             ))
+    rt = latest.round_trip if latest else None
+    unc = {}
+    if rt is not None and rt.budgets:
+        unc["backlash_mean_uncertainty_um"] = rt.backlash_mean_uncertainty_um
+        for key in ("e_p", "v_u", "v_300", "v_2pi"):
+            unc[f"{key}_uncertainty_um"] = rt.criterion_uncertainty_um("positive", key)
     b = latest.round_trip.backlash.mean_um if latest else None
     limit = sc.fin(d.backlash_limit_um) if d else None
     if latest is None:
@@ -72,6 +80,8 @@ def status(s: AxisStatus, now: datetime, next_run: datetime | None) -> sc.AxisSt
         temperature_c=latest.temperature_c if latest else None, utility_day=latest.utility_day if latest else None,
         backlash_mean_um=b, backlash_mean_20c_um=sc.fin(s.backlash_mean_20c_um),
         thermal_beta_um_per_k=sc.fin(s.thermal_beta_um_per_k), uncertainty_um=latest.uncertainty_um if latest else None,
+        **unc, outliers_removed=rt.outliers_removed if rt is not None and rt.budgets else None,
+        decision_rule=d.rule if d else a.settings.decision_rule,
         backlash_limit_um=limit,
         backlash_reduction_needed_um=max(b - limit, 0.0) if (b is not None and limit is not None) else None,
         binding_task=d.binding_task if d else None, tasks=tasks, active_alert_id=s.active_alert_id,

@@ -147,9 +147,11 @@ def _safe_tbe(task: MachiningTask, b: np.ndarray) -> np.ndarray:
 
 
 def tbe_vs_backlash(tasks: Sequence[MachiningTask], limits_um: Sequence[float | None], *,
-                    backlash_um: float | None, title: str) -> bytes:
+                    backlash_um: float | None, title: str, backlash_uncertainty_um: float = 0.0,
+                    rule: str = "guarded") -> bytes:
     """Fig. 14: TBE against backlash width for each task, its tolerance (warning
-    threshold of the TBE, red dash-dot) and the backlash limit (blue dash-dot)."""
+    threshold of the TBE, red dash-dot) and the backlash limit (blue dash-dot); the
+    measured b̄ with its expanded uncertainty (shaded) and the decision rule applied."""
     finite = [v for v in limits_um if v is not None]
     top = max([*finite, backlash_um or 0.0, 100.0]) * 1.3
     b = np.linspace(0.0, top, 300)
@@ -173,12 +175,16 @@ def tbe_vs_backlash(tasks: Sequence[MachiningTask], limits_um: Sequence[float | 
                 ax.plot([backlash_um], _safe_tbe(task, np.array([backlash_um])), "o", color=c_curve if len(tasks) > 1
                         else "#ff7f0e", ms=8, mec="black")
         if backlash_um is not None:
-            ax.axvline(backlash_um, color="black", ls=":", lw=1.0, label=f"measured b̄ = {backlash_um:.1f} µm")
+            u = f" ± {backlash_uncertainty_um:.1f}" if backlash_uncertainty_um > 0 else ""
+            ax.axvline(backlash_um, color="black", ls=":", lw=1.0, label=f"measured b̄ = {backlash_um:.1f}{u} µm (k = 2)")
+            if backlash_uncertainty_um > 0:
+                ax.axvspan(backlash_um - backlash_uncertainty_um, backlash_um + backlash_uncertainty_um,
+                           color="grey", alpha=0.2)
         ax.set_xlabel("backlash width b (µm)")
         ax.set_ylabel("transient backlash error ε_b (µm)")
         ax.set_xlim(0, top)
         ax.set_ylim(bottom=0)
-        ax.set_title(f"TBE vs backlash and their warning thresholds — {title}")
+        ax.set_title(f"TBE vs backlash and their warning thresholds ({rule} decision rule) — {title}")
         ax.legend(loc="upper left", fontsize=8)
         return _png(fig)
 

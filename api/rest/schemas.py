@@ -100,6 +100,8 @@ class AxisIn(In):
     measure_feed_mm_min: float = Field(2000.0, ge=0.1, le=100000)
     measure_acceleration_mm_s2: float = Field(500.0, ge=0.1, le=100000)
     warning_fraction: float = Field(0.9, ge=0.01, le=1)
+    decision_rule: Literal["simple", "guarded"] = Field(
+        "guarded", description="ISO 14253-1: 'guarded' needs TBE ± U clear of a threshold to call it")
     schedule: ScheduleIn = Field(default_factory=ScheduleIn)
     tasks: list[TaskIn] = Field(default_factory=list, max_length=50)
 
@@ -124,6 +126,7 @@ class AxisOut(BaseModel):
     measure_feed_mm_min: float
     measure_acceleration_mm_s2: float
     warning_fraction: float
+    decision_rule: str = "guarded"
     schedule: ScheduleOut
     tasks: list[TaskOut]
 
@@ -135,8 +138,12 @@ class TaskStatus(BaseModel):
     tolerance_um: float
     warning_threshold_um: float
     tbe_um: float
+    tbe_uncertainty_um: float = Field(0.0, description="expanded (k = 2), from b̄'s through Eq. 7/8")
     backlash_limit_um: float | None
+    backlash_limit_uncertainty_um: float | None = Field(None, description="expanded (k = 2), from the gain")
     state: Literal["OK", "WARNING", "ALARM"]
+    decision_rule: Literal["simple", "guarded"] = "guarded"
+    reason: str = ""
     utilisation: float = Field(description="TBE / tolerance")
 
 
@@ -155,7 +162,14 @@ class AxisStatusOut(BaseModel):
     backlash_mean_um: float | None
     backlash_mean_20c_um: float | None = Field(description="b̄ normalised to 20 °C with the axis' thermal model")
     thermal_beta_um_per_k: float | None
-    uncertainty_um: float | None
+    uncertainty_um: float | None = Field(description="combined standard uncertainty of b̄ (GUM)")
+    backlash_mean_uncertainty_um: float | None = Field(None, description="expanded (k = 2) uncertainty of b̄")
+    e_p_uncertainty_um: float | None = None
+    v_u_uncertainty_um: float | None = None
+    v_300_uncertainty_um: float | None = None
+    v_2pi_uncertainty_um: float | None = None
+    outliers_removed: int | None = None
+    decision_rule: Literal["simple", "guarded"] | None = None
     backlash_limit_um: float | None
     backlash_reduction_needed_um: float | None = Field(
         description="how much the mean backlash must be reduced to get below the limit (0 when below)")

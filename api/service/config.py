@@ -136,7 +136,7 @@ def _task(t: Mapping, gain: float, where: str) -> MachiningTask:
 def _axis(a: Mapping, machine: str, where: str) -> AxisConfig:
     allowed = {"name", "transmission_mm_per_rev", "screw_lead_mm", "position_gain_per_s", "travel_mm",
                "controller", "measure_feed_mm_min", "measure_acceleration_mm_s2", "warning_fraction",
-               "schedule_interval_s", "schedule_cron", "schedule_enabled", "tasks"}
+               "decision_rule", "schedule_interval_s", "schedule_cron", "schedule_enabled", "tasks"}
     _unknown(a, allowed, where)
     travel = a.get("travel_mm")
     if not (isinstance(travel, list) and len(travel) == 2 and all(isinstance(x, (int, float)) for x in travel)):
@@ -165,7 +165,10 @@ def _axis(a: Mapping, machine: str, where: str) -> AxisConfig:
         measure_feed_mm_min=_get(a, "measure_feed_mm_min", float, where, 2000.0),
         measure_acceleration_mm_s2=_get(a, "measure_acceleration_mm_s2", float, where, 500.0),
         warning_fraction=_get(a, "warning_fraction", float, where, 0.9), schedule=schedule, tasks=tasks,
+        decision_rule=_get(a, "decision_rule", str, where, "guarded"),
     )
+    if st.decision_rule not in ("simple", "guarded"):
+        raise ConfigError(f"{where}.decision_rule (={st.decision_rule!r}) must be 'simple' or 'guarded'")
     if not st.measure_feed_mm_min > 0 or not st.measure_acceleration_mm_s2 > 0:
         raise ConfigError(f"{where}: measure_feed_mm_min and measure_acceleration_mm_s2 must be > 0")
     if not 0 < st.warning_fraction <= 1:

@@ -65,16 +65,32 @@ def utility_day(axis: AxisRecord, when: datetime) -> float:
     return round(max((when - since).total_seconds(), 0.0) / 86400.0, 4)
 
 
-def make_decision(axis: AxisRecord, tasks, backlash_um: float) -> AxisDecision | None:
-    """The maintenance decision, or None without tasks or when the TBE model cannot be
-    evaluated at this backlash for some task (the measurement is stored all the same)."""
+def make_decision(axis: AxisRecord, tasks, backlash_um: float,
+                  backlash_uncertainty_um: float = 0.0) -> AxisDecision | None:
+    """The maintenance decision by the axis' decision rule, or None without tasks or when
+    the TBE model cannot be evaluated at this backlash for some task (the measurement
+    is stored all the same). ``backlash_uncertainty_um``: expanded, k = 2."""
     if not tasks:
         return None
     try:
-        return decide(max(backlash_um, 0.0), tasks, warning_fraction=axis.settings.warning_fraction)
+        return decide(max(backlash_um, 0.0), tasks, warning_fraction=axis.settings.warning_fraction,
+                      backlash_uncertainty_um=backlash_uncertainty_um, rule=axis.settings.decision_rule)
     except MebmError as exc:
         log.warning("axis %s: no decision at b = %.1f µm: %s", axis.id, backlash_um, exc)
         return None
+
+
+def _expanded(rt) -> float:
+    """Expanded uncertainty of b̄ of a round trip (0 for one stored without a budget)."""
+    return rt.backlash_mean_uncertainty_um if rt.budgets else 0.0
+
+
+def _sampling_bound_um(rt) -> float:
+    """The sampling bound (skew x speed) a round trip was analysed with, for its replay."""
+    if rt is None or not rt.budgets:
+        return 0.0
+    c = next((c for c in rt.budgets["backlash_mean"].components if c.name == "sampling"), None)
+    return 0.0 if c is None else c.standard_um * math.sqrt(3.0)
 
 
 def _task_doc(t: MachiningTask) -> dict:
@@ -172,7 +188,8 @@ class CycleExecutor:
                 log.error("cycle %s: %s", req.uuid, note)
         decision = None
         if outcome.ok and outcome.round_trip is not None:
-            decision = make_decision(axis, axis.tasks, outcome.round_trip.backlash.mean_um)
+            decision = make_decision(axis, axis.tasks, outcome.round_trip.backlash.mean_um,
+                                     _expanded(outcome.round_trip))
         reason = outcome.reason if not outcome.ok else None
         if note and not outcome.ok:
             reason = f"{reason}; {note}"
@@ -284,6 +301,7 @@ class CycleExecutor:
             "started_at": fc.started_at.isoformat() if fc.started_at else None,
             "finished_at": fc.finished_at.isoformat(), "failure_reason": fc.failure_reason,
             "temperature_c": fc.temperature_c, "utility_day": fc.utility_day, "uncertainty_um": fc.uncertainty_um,
+            "sampling_bound_um": _sampling_bound_um(fc.round_trip),
             "dataset_folder": str(folder) if folder else None, "run_file": fc.run_file,
             "trace_file": str(trace_file) if trace_file else None,
             "tasks": [_task_doc(t) for t in tasks],
@@ -365,9 +383,9 @@ class CycleExecutor:
         if status == "ok":
             try:
                 time_s, motor_rev, table_mm = self._spooled_trace(d)
-                rt = analyse(axis, time_s, motor_rev, table_mm)
+                rt = analyse(axis, time_s, motor_rev, table_mm, sampling_bound_um=d.get("sampling_bound_um") or 0.0)
                 tasks = [MachiningTask(**t) for t in d["tasks"]]
-                decision = make_decision(axis, tasks, rt.backlash.mean_um)
+                decision = make_decision(axis, tasks, rt.backlash.mean_um, _expanded(rt))
             except DatabaseUnavailableError:
                 raise
             except Exception as exc:  # noqa: BLE001 - recorded as the cycle's failure, never dropped

@@ -20,6 +20,7 @@ from acquisition import cycle as acq_cycle
 from acquisition.driver import ControllerDriver
 from acquisition.url import driver_from_url
 from core.criteria import RoundTripResult, analyze_round_trip
+from core.criteria.uncertainty import UncertaintyInputs
 from core.errors import MebmError
 from storage.db import AxisRecord
 
@@ -63,7 +64,7 @@ def useful_travel_mm(axis: AxisRecord) -> tuple[float, float]:
     return a + inset, b - inset
 
 
-def analyse(axis: AxisRecord, time_s, motor_rev, table_mm) -> RoundTripResult:
+def analyse(axis: AxisRecord, time_s, motor_rev, table_mm, *, sampling_bound_um: float = 0.0) -> RoundTripResult:
     """Backlash profile and lead criteria of a raw round trip (core, Section 3).
 
     A trace programmed with over-travel (``acquisition.cycle.default_program``) is
@@ -73,7 +74,8 @@ def analyse(axis: AxisRecord, time_s, motor_rev, table_mm) -> RoundTripResult:
     x = np.asarray(table_mm, dtype=float)
     lo, hi = axis.spec.travel_mm
     travel = (lo, hi) if x.size and x.min() < lo - 0.5 and x.max() > hi + 0.5 else useful_travel_mm(axis)
-    return analyze_round_trip(time_s, motor_rev, table_mm, axis.spec, useful_travel_mm=travel)
+    return analyze_round_trip(time_s, motor_rev, table_mm, axis.spec, useful_travel_mm=travel,
+                              uncertainty=UncertaintyInputs(sampling_bound_um=sampling_bound_um))
 
 
 class DriverRunner:

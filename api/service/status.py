@@ -45,7 +45,9 @@ def compute_status(s, axis_id: int) -> AxisStatus:
         b = latest.round_trip.backlash.mean_um
         if axis.tasks:
             try:
-                decision = decide(max(b, 0.0), axis.tasks, warning_fraction=axis.settings.warning_fraction)
+                u = latest.round_trip.backlash_mean_uncertainty_um if latest.round_trip.budgets else 0.0
+                decision = decide(max(b, 0.0), axis.tasks, warning_fraction=axis.settings.warning_fraction,
+                                  backlash_uncertainty_um=u, rule=axis.settings.decision_rule)
             except MebmError as exc:
                 decision_error = str(exc)
         temps, backlash = results_repo.backlash_history(s, axis_id)

@@ -11,31 +11,50 @@ From time, motor position (rev) and table position (mm) of one axis:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.signal import savgol_filter
 
 from core.criteria.lead import LeadCriteria, lead_criteria
+from core.criteria.outliers import OutlierSettings, check_outlier_fraction, encoder_outliers, noise_sigma_mm
 from core.criteria.segmentation import SegmentationSettings, Stroke, find_strokes
+from core.criteria.uncertainty import (
+    UncertaintyBudget,
+    UncertaintyComponent,
+    UncertaintyInputs,
+    history_components,
+    resolution_component,
+    sampling_component,
+)
 from core.dataset import AxisSpec
 from core.errors import InputError, TraceError
+
+
+CRITERIA = ("e_p", "v_u", "v_300", "v_2pi")
+REDUCTION_BOUND_UM = 0.01  # see _budgets
 
 
 @dataclass(frozen=True)
 class RoundTripSettings:
     """How a round trip is reduced. ``grid_step_mm`` is the resolution of b(x) and of
-    the lead curves; ``smoothing_mm`` the Savitzky-Golay (cubic) window applied to
-    the binned curves (0 disables it); ``max_gap_mm`` the largest stretch without
-    samples that may be interpolated over; ``max_ratio_error`` how far table and
-    motor travel may disagree before k_a or the units are declared wrong."""
+    the lead curves (None: chosen from the axis, 0.25 mm or 1/64 of a short screw
+    lead); ``smoothing_mm`` the smallest Savitzky-Golay (cubic) window applied to the
+    binned curves (0 disables it): on sparse traces it widens to
+    ``smoothing_samples`` sample spacings, never beyond a quarter of the screw lead so
+    that v_2π keeps its feature; ``max_gap_mm`` the largest stretch between two
+    samples of a stroke that may be interpolated over; ``max_ratio_error`` how far
+    table and motor travel may disagree before k_a or the units are declared wrong."""
 
-    grid_step_mm: float = 0.25
+    grid_step_mm: float | None = None
     smoothing_mm: float = 2.0
+    smoothing_samples: float = 4.0
     max_gap_mm: float = 2.0
     max_ratio_error: float = 0.05
     min_motion_mm: float = 0.1
     segmentation: SegmentationSettings = field(default_factory=SegmentationSettings)
+    outliers: OutlierSettings = field(default_factory=OutlierSettings)
 
 
 @dataclass(frozen=True)
@@ -58,6 +77,22 @@ class RoundTripResult:
     strokes: dict[str, LeadCriteria]
     n_samples: int
     peak_speed_mm_min: float
+    grid_step_mm: float = 0.25
+    smoothing_mm: float = 2.0
+    sample_spacing_mm: float = 0.0
+    outliers_removed: int = 0
+    noise_um: float = 0.0
+    # GUM budgets: "backlash_mean", and "<stroke>.<criterion>" (e.g. "positive.v_2pi")
+    budgets: dict[str, UncertaintyBudget] = field(default_factory=dict)
+
+    @property
+    def backlash_mean_uncertainty_um(self) -> float:
+        """Expanded (k = 2) uncertainty of b̄, µm."""
+        return self.budgets["backlash_mean"].expanded_um
+
+    def criterion_uncertainty_um(self, stroke: str, criterion: str) -> float:
+        """Expanded (k = 2) uncertainty of a lead criterion (e_p, v_u, v_300, v_2pi), µm."""
+        return self.budgets[f"{stroke}.{criterion}"].expanded_um
 
     @property
     def backlash_mean_um(self) -> float:
@@ -71,6 +106,12 @@ class RoundTripResult:
             "useful_travel_mm": list(self.useful_travel_mm),
             "n_samples": self.n_samples,
             "peak_speed_mm_min": self.peak_speed_mm_min,
+            "grid_step_mm": self.grid_step_mm,
+            "grid_points": int(self.backlash.position_mm.size),
+            "smoothing_mm": self.smoothing_mm,
+            "sample_spacing_mm": self.sample_spacing_mm,
+            "outliers_removed": self.outliers_removed,
+            "noise_um": self.noise_um,
             "backlash_mean_um": self.backlash.mean_um,
             "backlash_min_um": self.backlash.min_um,
             "backlash_max_um": self.backlash.max_um,
@@ -82,6 +123,13 @@ class RoundTripResult:
             "v_2pi_um": pos.v_2pi_um,
             "strokes": {name: s.to_dict() for name, s in self.strokes.items()},
         }
+        if self.budgets:
+            out["backlash_mean_uncertainty_um"] = self.backlash_mean_uncertainty_um
+            for key in CRITERIA:
+                out[f"{key}_uncertainty_um"] = self.criterion_uncertainty_um("positive", key)
+                for name in self.strokes:
+                    out["strokes"][name][f"{key}_uncertainty_um"] = self.criterion_uncertainty_um(name, key)
+            out["uncertainty_budget"] = {k: b.to_dict() for k, b in self.budgets.items()}
         if curves:
             out["curves"] = {
                 "position_mm": self.backlash.position_mm.tolist(),
@@ -121,23 +169,83 @@ def _check_trace(time_s, motor_rev, table_mm) -> tuple[np.ndarray, np.ndarray, n
 
 
 def _bin_direction(
-    strokes: list[Stroke], travel: np.ndarray, dev: np.ndarray, grid: np.ndarray, step: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    pieces: list[tuple[np.ndarray, np.ndarray]],
+    grid: np.ndarray,
+    step: float,
+    max_gap_mm: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[float, float]]]:
     """Centroids (mean travel, mean deviation) per grid bin over all strokes of one
-    direction, and the sample counts. Averaging the travel too removes the bias of
-    where the samples fall inside a bin (lead slope x half a bin) to second order."""
+    direction, the number of contributions per bin, and the holes (travel spans
+    longer than ``max_gap_mm`` between consecutive samples of a stroke).
+
+    ``pieces`` holds (travel, deviation) of each stroke's kept samples, in time order.
+    Each bin averages the samples that fall into it *and* the linear interpolation
+    between consecutive samples of a stroke at every grid point they straddle: dense
+    traces are averaged (noise drops as 1/√n), sparse ones (more than a bin between
+    samples, e.g. 0.67 mm at 8000 mm/min and 200 Hz) are interpolated, and neither
+    needs a sample in every bin. Never across strokes or a hole. Averaging the travel
+    too removes the bias of where the samples fall inside a bin (lead slope x half a
+    bin) to second order."""
     n = grid.size
-    sel = [slice(s.engaged, s.end + 1) for s in strokes]
-    u = np.concatenate([travel[k] for k in sel])
-    val = np.concatenate([dev[k] for k in sel])
-    idx = np.rint((u - grid[0]) / step).astype(np.int64)
-    inside = (idx >= 0) & (idx < n)
-    idx, u, val = idx[inside], u[inside], val[inside]
-    counts = np.bincount(idx, minlength=n)
+    g0, inv = float(grid[0]), 1.0 / step
+    idx_parts, du_parts, val_parts, holes = [], [], [], []
+    j_parts, jv_parts = [], []
+    for u, val in pieces:
+        if u.size == 0:
+            continue
+        a = u - g0
+        a *= inv  # travel in grid steps
+        nearest = np.floor(a + 0.5)  # the bin of the sample: its nearest grid point
+        du = a - nearest  # offset from the bin centre, in steps
+        idx = nearest.astype(np.int64)
+        below = np.floor(a)
+        k = below.astype(np.int64)
+        # pairs that straddle grid points: k changes between them (grid points in (min, max])
+        pair = np.flatnonzero(k[1:] != k[:-1])
+        if pair.size:
+            gap = np.abs(u[pair + 1] - u[pair])
+            hole = gap > max_gap_mm
+            if hole.any():
+                holes += [(float(min(u[i], u[i + 1])), float(max(u[i], u[i + 1]))) for i in pair[hole]]
+                pair = pair[~hole]
+            lo = np.minimum(k[pair], k[pair + 1])
+            count = np.abs(k[pair + 1] - k[pair])
+            total = int(count.sum())
+            rep = np.repeat(np.arange(pair.size), count)
+            first = np.cumsum(count) - count
+            j = lo[rep] + 1 + (np.arange(total) - first[rep])
+            p0 = pair[rep]
+            w = (j - a[p0]) / (a[p0 + 1] - a[p0])
+            j_parts.append(j)
+            jv_parts.append(val[p0] + w * (val[p0 + 1] - val[p0]))
+        idx_parts.append(idx)
+        du_parts.append(du)
+        val_parts.append(val)
+    if step > max_gap_mm:  # pairs inside one bin were not examined above
+        for u, _ in pieces:
+            big = np.flatnonzero(np.abs(np.diff(u)) > max_gap_mm)
+            holes += [(float(min(u[i], u[i + 1])), float(max(u[i], u[i + 1]))) for i in big]
+    idx = np.concatenate(idx_parts) if idx_parts else np.empty(0, np.int64)
+    du = np.concatenate(du_parts) if du_parts else np.empty(0)
+    val = np.concatenate(val_parts) if val_parts else np.empty(0)
+    # samples beyond the grid go to two overflow bins, dropped after counting: cheaper
+    # than selecting the inside ones from a million
+    np.clip(idx, -1, n, out=idx)
+    idx += 1
+    counts = np.bincount(idx, minlength=n + 2)[1:-1]
+    sum_du = np.bincount(idx, weights=du, minlength=n + 2)[1:-1]  # interpolated points sit on the grid
+    sum_val = np.bincount(idx, weights=val, minlength=n + 2)[1:-1]
+    if j_parts:
+        j = np.concatenate(j_parts)
+        jv = np.concatenate(jv_parts)
+        ok = (j >= 0) & (j < n)
+        j, jv = j[ok], jv[ok]
+        counts = counts + np.bincount(j, minlength=n)
+        sum_val = sum_val + np.bincount(j, weights=jv, minlength=n)
     with np.errstate(invalid="ignore", divide="ignore"):
-        u_c = np.bincount(idx, weights=u - grid[idx], minlength=n) / counts + grid
-        d_c = np.bincount(idx, weights=val, minlength=n) / counts
-    return u_c, d_c, counts
+        u_c = grid + step * sum_du / counts
+        d_c = sum_val / counts
+    return u_c, d_c, counts, holes
 
 
 def analyze_round_trip(
@@ -148,8 +256,10 @@ def analyze_round_trip(
     *,
     useful_travel_mm: tuple[float, float] | None = None,
     settings: RoundTripSettings = RoundTripSettings(),
+    uncertainty: UncertaintyInputs = UncertaintyInputs(),
 ) -> RoundTripResult:
-    """Backlash profile and lead criteria of one axis from one round trip.
+    """Backlash profile and lead criteria of one axis from one round trip, each with
+    its GUM uncertainty budget (``uncertainty`` gives what the samples cannot show).
 
     ``useful_travel_mm`` defaults to the axis' ``travel_mm`` and is in table
     coordinates. Raises :class:`TraceError` for a trace that cannot be trusted.
@@ -158,9 +268,23 @@ def analyze_round_trip(
     start, end = useful_travel_mm if useful_travel_mm is not None else axis.travel_mm
     if not end > start:
         raise InputError(f"useful_travel_mm (={[start, end]}) must be [start, end] with end > start")
-    if not settings.grid_step_mm > 0:
+    step = settings.grid_step_mm
+    if step is None:
+        step = min(0.25, axis.screw_lead_mm / 64.0)
+    elif not step > 0:
         raise InputError(f"grid_step_mm (={settings.grid_step_mm}) must be > 0")
+    n_samples = int(t.size)
     nominal = motor * axis.transmission_mm_per_rev  # l_0 = k_a x_m, arbitrary zero
+    # Glitches first: a 5 mm spike of one encoder would otherwise pass for motion, for
+    # a reversal, or for a lead error of 5 mm in one bin. Dropped, counted, and refused
+    # past max_fraction: the same rule the acquisition applies online.
+    outliers = encoder_outliers(nominal, table, settings.outliers, time_s=t,
+                                sampling_bound_um=uncertainty.sampling_bound_um)
+    n_out = int(np.count_nonzero(outliers))
+    check_outlier_fraction(n_out, n_samples, settings.outliers, "of the round trip")
+    if n_out:
+        keep = ~outliers
+        t, motor, table, nominal = t[keep], motor[keep], table[keep], nominal[keep]
     motor_span = float(np.ptp(nominal))
     if motor_span < settings.min_motion_mm:
         raise TraceError(f"the motor does not move (nominal travel span {motor_span * 1e3:.1f} µm)")
@@ -180,17 +304,36 @@ def analyze_round_trip(
 
     # Align l_0 with table coordinates: the midline between the two directions.
     raw_dev = table - nominal
-    med = [np.median(np.concatenate([raw_dev[s.engaged : s.end + 1] for s in by_dir[d]])) for d in (1, -1)]
+    # Robust levels (an alignment offset, a typical spacing) from a strided subsample of
+    # at most ~20,000 samples: their exact value does not matter, a median of millions costs.
+    stride = max(1, t.size // 20_000)
+    med = [float(np.median(np.concatenate([raw_dev[s.engaged : s.end + 1 : stride] for s in by_dir[d]])))
+           for d in (1, -1)]
     offset = 0.5 * (med[0] + med[1])
     travel = nominal + offset
     dev = raw_dev - offset
 
-    step = settings.grid_step_mm
+    # travel between consecutive kept samples: what the grid and the smoothing must bridge
+    spacing = float(np.median(np.abs(np.concatenate(
+        [travel[s.engaged + 1 : s.end + 1 : stride] - travel[s.engaged : s.end : stride] for s in strokes]))))
+    # noise of l_a - l_0 about its smooth part: the median over the strokes
+    noise_mm = float(np.median([noise_sigma_mm(dev[s.engaged : s.end + 1]) for s in strokes]))
+    smoothing_mm = settings.smoothing_mm
+    if smoothing_mm > 0:
+        smoothing_mm = max(smoothing_mm, min(settings.smoothing_samples * spacing, axis.screw_lead_mm / 4.0))
     n = int(round((end - start) / step)) + 1
     grid = start + step * np.arange(n)
     curves = {}
     for d, name in ((1, "positive"), (-1, "negative")):
-        u_c, d_c, counts = _bin_direction(by_dir[d], travel, dev, grid, step)
+        pieces = [(travel[s.engaged : s.end + 1], dev[s.engaged : s.end + 1]) for s in by_dir[d]]
+        u_c, d_c, counts, holes = _bin_direction(pieces, grid, step, settings.max_gap_mm)
+        holes = [h for h in holes if h[1] > start and h[0] < end]
+        if holes:
+            lo, hi = max(holes, key=lambda h: h[1] - h[0])
+            raise TraceError(
+                f"the {name} stroke has no samples between {lo:.2f} and {hi:.2f} mm "
+                f"({hi - lo:.2f} mm > max_gap_mm {settings.max_gap_mm:g} mm): samples lost?"
+            )
         filled = counts > 0
         covered = grid[filled]
         if not filled[0] or not filled[-1]:
@@ -200,16 +343,16 @@ def analyze_round_trip(
                 f"the {name} stroke covers {lo:.2f}..{hi:.2f} mm outside its reversal transient, "
                 f"shorter than the useful travel {start:g}..{end:g} mm asked for"
             )
-        holes = np.diff(covered)
-        if holes.size and holes.max() > settings.max_gap_mm:
-            i = int(np.argmax(holes))
+        empty = np.diff(covered)
+        if empty.size and empty.max() > settings.max_gap_mm:  # strokes that cover disjoint pieces
+            i = int(np.argmax(empty))
             raise TraceError(
-                f"the {name} stroke has no samples between {covered[i]:.2f} and {covered[i + 1]:.2f} mm "
-                f"(> {settings.max_gap_mm} mm): samples lost?"
+                f"the {name} strokes leave {covered[i]:.2f}..{covered[i + 1]:.2f} mm uncovered "
+                f"(> max_gap_mm {settings.max_gap_mm:g} mm)"
             )
         mean = np.interp(grid, u_c[filled], d_c[filled])
-        window = int(round(settings.smoothing_mm / step)) | 1
-        if settings.smoothing_mm > 0 and window >= 5 and window < n:
+        window = int(round(smoothing_mm / step)) | 1
+        if smoothing_mm > 0 and window >= 5 and window < n:
             mean = savgol_filter(mean, window, polyorder=3, mode="interp")
         curves[name] = mean
 
@@ -234,16 +377,95 @@ def analyze_round_trip(
     }
     # differences over ~10 ms: sample-to-sample ones would turn encoder noise into speed;
     # taken within the strokes only, so that a long dwell does not pull the percentile down
-    lag = int(max(1, round(0.01 / float(np.median(np.diff(t))))))
-    speed = np.abs(nominal[lag:] - nominal[:-lag]) / (t[lag:] - t[:-lag])
-    moving = np.concatenate([np.arange(s.engaged, max(s.engaged, s.end - lag)) for s in strokes] or [[]])
-    if moving.size:
-        speed = speed[moving.astype(np.intp)]
+    lag = int(max(1, round(0.01 / float(np.median(t[1::stride] - t[:-1:stride])))))
+    # (on every stride-th sample: a percentile of a million speeds costs a full sort pass)
+    at = np.concatenate([np.arange(s.engaged, max(s.engaged, s.end - lag), stride) for s in strokes] or [[]])
+    at = at.astype(np.intp)
+    if at.size == 0:
+        at = np.arange(0, t.size - lag, stride)
+    speed = np.abs(nominal[at + lag] - nominal[at]) / (t[at + lag] - t[at])
+    budgets = _budgets(
+        uncertainty, table=table, nominal=nominal, stride=stride, noise_mm=noise_mm, spacing_mm=spacing,
+        smoothing_mm=smoothing_mm, length_mm=float(end - start), screw_lead_mm=axis.screw_lead_mm,
+        n_dir={name: sum(int(np.count_nonzero((travel[s.engaged : s.end + 1] >= start)
+                                               & (travel[s.engaged : s.end + 1] <= end))) for s in by_dir[d])
+               for d, name in ((1, "positive"), (-1, "negative"))},
+    )
     return RoundTripResult(
         axis=axis.name,
         useful_travel_mm=(float(start), float(end)),
         backlash=profile,
         strokes=criteria,
-        n_samples=int(t.size),
+        n_samples=n_samples,
         peak_speed_mm_min=float(np.percentile(speed, 99) * 60.0),
+        grid_step_mm=float(step),
+        smoothing_mm=float(smoothing_mm),
+        sample_spacing_mm=spacing,
+        outliers_removed=n_out,
+        noise_um=noise_mm * 1e3,
+        budgets=budgets,
     )
+
+
+def _min_step_um(x: np.ndarray, stride: int) -> float:
+    """The encoder's resolution as the data show it, µm: the smallest gap between the
+    distinct readings of (a subsample of) the trace. Quantised readings sit on a lattice
+    of pitch q that a round trip visits densely, so the smallest gap is q; readings that
+    are not quantised (simulated, interpolated) give a gap of ~0."""
+    sub = np.unique(x[:: max(stride, x.size // 50_000, 1)])
+    d = np.diff(sub)
+    d = d[d > 0]
+    return float(d.min() * 1e3) if d.size else 0.0
+
+
+def _budgets(inputs: UncertaintyInputs, *, table, nominal, stride, noise_mm, spacing_mm, smoothing_mm,
+             length_mm, screw_lead_mm, n_dir) -> dict[str, UncertaintyBudget]:
+    """GUM budgets of b̄ and of each lead criterion (see core.criteria.uncertainty)."""
+    # An estimated resolution is bounded by the noise it would put into l_a - l_0
+    # (q/√12): a lattice the motion only revisits (a simulated trace replaying the
+    # same commanded positions) does not disturb the measurement.
+    cap_um = math.sqrt(12.0) * noise_mm * 1e3
+    q_t = inputs.table_resolution_um if inputs.table_resolution_um is not None else min(
+        _min_step_um(table, stride), cap_um)
+    q_m = inputs.motor_resolution_um if inputs.motor_resolution_um is not None else min(
+        _min_step_um(nominal, stride), cap_um)
+    res = resolution_component(q_t, q_m)
+    sigma_um = noise_mm * 1e3
+    n_pos, n_neg = max(n_dir["positive"], 1), max(n_dir["negative"], 1)
+    history = history_components(inputs)
+    # the reduction itself (grid, interpolation, smoothing): within ±0.01 µm of b̄ over the
+    # accuracy envelope on exact synthetic round trips (tests/core/criteria), rectangular
+    method = UncertaintyComponent("reduction", REDUCTION_BOUND_UM / math.sqrt(3.0),
+                                  f"grid and interpolation, bound ±{REDUCTION_BOUND_UM} µm (validated)")
+    out = {
+        "backlash_mean": UncertaintyBudget("backlash_mean", (
+            res,
+            UncertaintyComponent("noise", sigma_um * math.sqrt(1.0 / n_pos + 1.0 / n_neg),
+                                 f"σ {sigma_um:.3g} µm over {n_pos} + {n_neg} samples"),
+            sampling_component(inputs.sampling_bound_um),
+            method,
+        ) + history),
+    }
+    # a point of a smoothed lead curve averages the samples of one smoothing window; a
+    # cubic Savitzky-Golay filter passes 1.5x the noise of a plain mean of as many
+    per_window = max(1.0, smoothing_mm / max(spacing_mm, 1e-12))
+    sigma_point = 1.5 * sigma_um / math.sqrt(per_window)
+    ka = UncertaintyComponent("transmission", length_mm * 1e3 * inputs.transmission_rel_tolerance / math.sqrt(3.0),
+                              f"k_a ±{inputs.transmission_rel_tolerance:.3g} relative over {length_mm:g} mm")
+    for name, n in (("positive", n_pos), ("negative", n_neg)):
+        slope = UncertaintyComponent("noise", sigma_um * math.sqrt(12.0 / n), f"least-squares slope over {n} samples")
+        out[f"{name}.e_p"] = UncertaintyBudget(f"{name}.e_p", (res, slope, ka))
+        for key, window_mm in (("v_u", length_mm), ("v_300", min(300.0, length_mm)),
+                               ("v_2pi", min(screw_lead_mm, length_mm))):
+            # A band is a maximum minus a minimum: two smoothed points, two readings each.
+            # Noise also widens it, as the extremes are picked from ~window/smoothing
+            # independent points: the expected largest of N normals is σ √(2 ln N).
+            n_ind = max(2.0, window_mm / max(smoothing_mm, spacing_mm, 1e-9))
+            extreme = math.sqrt(2.0 * math.log(n_ind))
+            out[f"{name}.{key}"] = UncertaintyBudget(f"{name}.{key}", (
+                UncertaintyComponent("resolution", math.sqrt(2.0) * res.standard_um, res.note),
+                UncertaintyComponent("noise", math.sqrt(2.0) * sigma_point * extreme,
+                                     f"extremes of the smoothed curve, σ {sigma_point:.3g} µm each, "
+                                     f"~{n_ind:.0f} independent points"),
+            ))
+    return out

@@ -1,6 +1,14 @@
 """TBE from backlash (Eqs. 7-11), its inverse, and the maintenance decision."""
 
-from core.tbe.decision import AxisDecision, MachiningTask, State, TaskAssessment, decide
+from core.tbe.decision import (
+    DECISION_RULES,
+    DEFAULT_RULE,
+    AxisDecision,
+    MachiningTask,
+    State,
+    TaskAssessment,
+    decide,
+)
 from core.tbe.formulas import (
     backlash_limit_um,
     circle_delay_s,
@@ -10,6 +18,6 @@ from core.tbe.formulas import (
 )
 
 __all__ = [
-    "AxisDecision", "MachiningTask", "State", "TaskAssessment", "decide",
+    "DECISION_RULES", "DEFAULT_RULE", "AxisDecision", "MachiningTask", "State", "TaskAssessment", "decide",
     "backlash_limit_um", "circle_delay_s", "circle_steady_lag_um", "tbe_circle_um", "tbe_line_um",
 ]

@@ -4,6 +4,14 @@ A task is what the shop makes with the axis: a circle (radius, feed) or a line
 (angle, feed), the axis gain K = k_a k_p and the permissible error. The decision
 maps the measured mean backlash to the TBE of every task, names the binding task,
 and gives the backlash the mechanical chain must be restored to.
+
+Decision rules (ISO 14253-1, ILAC-G8:2019), with U the expanded uncertainty of the
+TBE (the backlash's, through the derivative of Eq. 7/8):
+
+- ``simple``: ALARM when TBE > tolerance, WARNING when TBE > warning threshold, else OK;
+- ``guarded`` (default): ALARM only when TBE - U > tolerance (nonconformity proven),
+  OK only when TBE + U <= warning threshold (conformity proven), otherwise WARNING,
+  "within uncertainty of the limit" where the simple rule would have said otherwise.
 """
 
 from __future__ import annotations
@@ -23,6 +31,17 @@ class State(str, Enum):
     ALARM = "ALARM"
 
 
+DECISION_RULES = ("simple", "guarded")
+DEFAULT_RULE = "guarded"
+WITHIN_UNCERTAINTY = "within uncertainty of the limit"
+
+
+def _check_rule(rule: str, where: str = "decision_rule") -> str:
+    if rule not in DECISION_RULES:
+        raise InputError(f"{where} (={rule!r}) must be one of {DECISION_RULES}")
+    return rule
+
+
 @dataclass(frozen=True)
 class MachiningTask:
     """One machining task of an axis. ``profile`` is ``circle`` (needs ``radius_mm``)
@@ -35,8 +54,17 @@ class MachiningTask:
     tolerance_um: float
     radius_mm: float | None = None
     angle_deg: float | None = None
+    # Type B half-width of how well K of the real loop is known (relative, rectangular):
+    # the backlash limit's uncertainty
+    gain_rel_uncertainty: float = 0.01
+    decision_rule: str | None = None  # None: the axis' rule
 
     def __post_init__(self) -> None:
+        if self.decision_rule is not None:
+            _check_rule(self.decision_rule, f"task {self.name!r}: decision_rule")
+        g = require_finite(f"task {self.name!r}: gain_rel_uncertainty", self.gain_rel_uncertainty)
+        if not 0.0 <= g < 1.0:
+            raise InputError(f"task {self.name!r}: gain_rel_uncertainty (={g}) must be in [0, 1)")
         if self.profile not in ("circle", "line"):
             raise InputError(f"task {self.name!r}: profile (={self.profile!r}) must be 'circle' or 'line'")
         require_positive(f"task {self.name!r}: feed_mm_min", self.feed_mm_min)
@@ -74,6 +102,51 @@ class MachiningTask:
                 return math.inf
             raise
 
+    def tbe_uncertainty_um(self, backlash_um: float, backlash_uncertainty_um: float) -> float:
+        """Expanded uncertainty of the TBE from that of the backlash: |dTBE/db| U_b
+        (central difference; one-sided at b = 0 and at the edge of Eq. 8's domain).
+        Where the slope changes much within ±U_b (Eq. 7 near b = 0 goes as √b) the
+        secant over [b - U_b, b + U_b] is taken instead, which bounds the change."""
+        u = float(backlash_uncertainty_um)
+        if not u > 0:
+            return 0.0
+        b = float(backlash_um)
+        centre = float(self.tbe_um(b))
+        lo_b = max(0.0, b - u)
+        lo = float(self.tbe_um(lo_b))
+        try:
+            hi_b, hi = b + u, float(self.tbe_um(b + u))
+        except ModelDomainError:
+            hi_b, hi = b, centre
+        secant = (hi - lo) / (hi_b - lo_b) * u if hi_b > lo_b else 0.0
+        h = max(1e-6, 1e-4 * u)
+        try:
+            slope = (float(self.tbe_um(b + h)) - float(self.tbe_um(max(0.0, b - h)))) / (b + h - max(0.0, b - h))
+        except ModelDomainError:
+            slope = (centre - float(self.tbe_um(max(0.0, b - h)))) / (b - max(0.0, b - h)) if b > 0 else 0.0
+        return max(abs(slope) * u, abs(secant))
+
+    def backlash_limit_uncertainty_um(self) -> float:
+        """Expanded (k = 2) uncertainty of the backlash limit from ``gain_rel_uncertainty``
+        (rectangular half-width), by the limits at K (1 ± δ); 0 for an infinite limit."""
+        from dataclasses import replace
+
+        limit = self.backlash_limit_um()
+        if not math.isfinite(limit) or self.gain_rel_uncertainty == 0:
+            return 0.0
+        out = []
+        for sign in (1.0, -1.0):
+            try:
+                out.append(replace(self, gain_per_s=self.gain_per_s * (1 + sign * self.gain_rel_uncertainty))
+                           .backlash_limit_um())
+            except ModelDomainError:
+                continue
+        finite = [x for x in out if math.isfinite(x)]
+        if not finite:
+            return 0.0
+        half_width = max(abs(x - limit) for x in finite)
+        return 2.0 * half_width / math.sqrt(3.0)
+
     def steady_lag_um(self) -> float:
         """For circles: how far the backlash-free loop already runs inside the circle (µm)."""
         if self.profile != "circle":
@@ -87,6 +160,10 @@ class TaskAssessment:
     tbe_um: float
     backlash_limit_um: float
     state: State
+    tbe_uncertainty_um: float = 0.0  # expanded, k = 2
+    backlash_limit_uncertainty_um: float = 0.0  # expanded, k = 2
+    rule: str = DEFAULT_RULE
+    reason: str = ""
 
     @property
     def utilisation(self) -> float:
@@ -104,13 +181,18 @@ class AxisDecision:
     binding_task: str
     state: State
     backlash_limit_um: float
+    backlash_uncertainty_um: float = 0.0  # expanded, k = 2
+    rule: str = DEFAULT_RULE
 
     def message(self) -> str:
         binding = next(a for a in self.assessments if a.task.name == self.binding_task)
+        unc = f" ± {binding.tbe_uncertainty_um:.2f}" if binding.tbe_uncertainty_um > 0 else ""
+        b_unc = f" ± {self.backlash_uncertainty_um:.1f}" if self.backlash_uncertainty_um > 0 else ""
         head = (
-            f"{self.state.value}: mean backlash {self.backlash_um:.1f} µm gives TBE "
-            f"{binding.tbe_um:.2f} µm on task {self.binding_task!r} "
-            f"(tolerance {binding.task.tolerance_um:g} µm)"
+            f"{self.state.value}: mean backlash {self.backlash_um:.1f}{b_unc} µm gives TBE "
+            f"{binding.tbe_um:.2f}{unc} µm (k = 2) on task {self.binding_task!r} "
+            f"(tolerance {binding.task.tolerance_um:g} µm, {binding.rule} decision rule"
+            + (f": {binding.reason}" if binding.reason == WITHIN_UNCERTAINTY else "") + ")"
         )
         if self.state is State.ALARM:
             return head + f"; restore the chain to a backlash below {self.backlash_limit_um:.1f} µm"
@@ -119,17 +201,43 @@ class AxisDecision:
         return head + f"; backlash limit {self.backlash_limit_um:.1f} µm"
 
 
-def decide(
-    backlash_um: float, tasks: Sequence[MachiningTask], *, warning_fraction: float = 0.9
-) -> AxisDecision:
-    """TBE per task, the binding task (highest TBE/tolerance), and the state.
+def _state(tbe: float, u: float, tolerance: float, warning: float, rule: str) -> tuple[State, str]:
+    if tbe > tolerance:
+        simple = State.ALARM
+    elif tbe > warning:
+        simple = State.WARNING
+    else:
+        simple = State.OK
+    if rule == "simple":
+        return simple, "" if simple is State.OK else (
+            "above the tolerance" if simple is State.ALARM else "above the warning threshold")
+    if tbe - u > tolerance:
+        return State.ALARM, "above the tolerance by more than the uncertainty"
+    if tbe + u <= warning:
+        return State.OK, ""
+    if simple is State.WARNING and tbe - u > warning and tbe + u <= tolerance:
+        return State.WARNING, "above the warning threshold"
+    return State.WARNING, WITHIN_UNCERTAINTY
 
-    ALARM when a TBE exceeds its tolerance, WARNING above ``warning_fraction`` of it,
-    else OK. The backlash limit is the smallest over the tasks.
+
+def decide(
+    backlash_um: float, tasks: Sequence[MachiningTask], *, warning_fraction: float = 0.9,
+    backlash_uncertainty_um: float = 0.0, rule: str = DEFAULT_RULE,
+) -> AxisDecision:
+    """TBE per task with its uncertainty, the binding task (highest TBE/tolerance), and
+    the state by the decision rule (``simple`` or ``guarded``; a task's own
+    ``decision_rule`` overrides the axis' ``rule``).
+
+    ``backlash_uncertainty_um`` is the expanded (k = 2) uncertainty of the backlash.
+    The backlash limit is the smallest over the tasks.
     """
     b = require_finite("backlash_um", backlash_um)
     if b < 0:
         raise InputError(f"backlash_um (={b}) must be >= 0")
+    u_b = require_finite("backlash_uncertainty_um", backlash_uncertainty_um)
+    if u_b < 0:
+        raise InputError(f"backlash_uncertainty_um (={u_b}) must be >= 0")
+    _check_rule(rule)
     if not 0.0 < warning_fraction <= 1.0:
         raise InputError(f"warning_fraction (={warning_fraction}) must be in (0, 1]")
     if not tasks:
@@ -140,13 +248,12 @@ def decide(
     out = []
     for task in tasks:
         tbe = float(task.tbe_um(b))
-        if tbe > task.tolerance_um:
-            state = State.ALARM
-        elif tbe > warning_fraction * task.tolerance_um:
-            state = State.WARNING
-        else:
-            state = State.OK
-        out.append(TaskAssessment(task, tbe, task.backlash_limit_um(), state))
+        u_tbe = task.tbe_uncertainty_um(b, u_b)
+        task_rule = task.decision_rule or rule
+        state, reason = _state(tbe, u_tbe, task.tolerance_um, warning_fraction * task.tolerance_um, task_rule)
+        out.append(TaskAssessment(task, tbe, task.backlash_limit_um(), state, tbe_uncertainty_um=u_tbe,
+                                  backlash_limit_uncertainty_um=task.backlash_limit_uncertainty_um(),
+                                  rule=task_rule, reason=reason))
     binding = max(out, key=lambda a: a.utilisation)
     worst = max((a.state for a in out), key=[State.OK, State.WARNING, State.ALARM].index)
     return AxisDecision(
@@ -156,4 +263,6 @@ def decide(
         binding_task=binding.task.name,
         state=worst,
         backlash_limit_um=min(a.backlash_limit_um for a in out),
+        backlash_uncertainty_um=u_b,
+        rule=rule,
     )

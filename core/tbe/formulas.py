@@ -104,17 +104,24 @@ def circle_backlash_domain_um(radius_mm: float, feed_mm_min: float, gain_per_s: 
     """Largest backlash (µm) for which Eq. 8 is valid (ωT = π/2 after the quadrant point)."""
     r = require_positive("radius_mm", radius_mm)
     omega = require_positive("feed_mm_min", feed_mm_min) / 60.0 / r
-    quarter_s = np.pi / 2 / omega
 
     def excess(b_um: float) -> float:
-        return float(circle_delay_s(b_um, r, feed_mm_min, gain_per_s)) - quarter_s
+        # the very expression tbe_circle_um tests, so the edge found here is accepted there
+        return float(omega * circle_delay_s(b_um, r, feed_mm_min, gain_per_s)) - np.pi / 2
 
     hi = 1.0
     while excess(hi) < 0:
         hi *= 2.0
         if hi > 1e12:  # pragma: no cover - T grows without bound in b
             raise ModelDomainError("could not bound the validity domain of Eq. 8")
-    return brentq(excess, 0.0, hi, xtol=1e-9, rtol=1e-12)
+    edge = brentq(excess, 0.0, hi, xtol=1e-9, rtol=1e-12)
+    # brentq's root may land a few ulps past ωT = π/2, where tbe_circle_um refuses;
+    # step back onto the valid side so the edge itself can be evaluated (issue 16).
+    step = np.spacing(edge)
+    while excess(edge) > 0.0:
+        edge -= step
+        step *= 2.0
+    return edge
 
 
 def backlash_limit_um(
@@ -151,7 +158,7 @@ def backlash_limit_um(
 
     if tbe(0.0) > tol:
         raise ModelDomainError(f"tolerance_um (={tol}) cannot be met even with zero backlash")
-    if tbe(b_hi) <= tol:
+    if tbe(b_hi) < tol:
         raise ModelDomainError(
             f"tolerance_um (={tol}) is met by any backlash up to {b_hi:.1f} µm "
             f"(TBE there {tbe(b_hi):.2f} µm): the task does not limit the backlash"

@@ -13,7 +13,7 @@ from sqlalchemy.orm import Session, selectinload
 
 from core.dataset import AxisSpec
 from core.errors import InputError
-from core.tbe import MachiningTask
+from core.tbe import DECISION_RULES, MachiningTask
 from storage.db.errors import ConflictError, NotFoundError
 from storage.db.models import ApiKey, Axis, Machine, MachiningTaskRow
 from storage.db.records import ROLES, AxisRecord, AxisSettings, KeyRecord, MachineRecord, Schedule, as_utc, utcnow
@@ -71,6 +71,7 @@ def _axis(a: Axis) -> AxisRecord:
     settings = AxisSettings(
         spec=spec, controller_url=a.controller_url, measure_feed_mm_min=a.measure_feed_mm_min,
         measure_acceleration_mm_s2=a.measure_acceleration_mm_s2, warning_fraction=a.warning_fraction,
+        decision_rule=a.decision_rule or "guarded",
         schedule=Schedule(a.schedule_interval_s, a.schedule_cron, a.schedule_enabled),
         tasks=tuple(_task(t, a.position_gain_per_s) for t in a.tasks),
         in_service_since=as_utc(a.in_service_since),
@@ -85,6 +86,8 @@ def _check_settings(st: AxisSettings) -> None:
         raise InputError(f"measure_acceleration_mm_s2 (={st.measure_acceleration_mm_s2}) must be > 0")
     if not 0.0 < st.warning_fraction <= 1.0:
         raise InputError(f"warning_fraction (={st.warning_fraction}) must be in (0, 1]")
+    if st.decision_rule not in DECISION_RULES:
+        raise InputError(f"decision_rule (={st.decision_rule!r}) must be one of {DECISION_RULES}")
     if not st.controller_url:
         raise InputError("controller_url must not be empty")
 
@@ -104,7 +107,7 @@ def create_axis(s: Session, machine_id: int, st: AxisSettings) -> AxisRecord:
         travel_start_mm=st.spec.travel_mm[0], travel_end_mm=st.spec.travel_mm[1],
         controller_url=st.controller_url, measure_feed_mm_min=st.measure_feed_mm_min,
         measure_acceleration_mm_s2=st.measure_acceleration_mm_s2, warning_fraction=st.warning_fraction,
-        schedule_interval_s=st.schedule.interval_s, schedule_cron=st.schedule.cron,
+        decision_rule=st.decision_rule, schedule_interval_s=st.schedule.interval_s, schedule_cron=st.schedule.cron,
         schedule_enabled=st.schedule.enabled, in_service_since=st.in_service_since or now, created_at=now,
     )
     s.add(a)
@@ -151,6 +154,7 @@ def update_axis(s: Session, axis_id: int, st: AxisSettings) -> AxisRecord:
     a.measure_feed_mm_min = st.measure_feed_mm_min
     a.measure_acceleration_mm_s2 = st.measure_acceleration_mm_s2
     a.warning_fraction = st.warning_fraction
+    a.decision_rule = st.decision_rule
     a.schedule_interval_s, a.schedule_cron, a.schedule_enabled = (
         st.schedule.interval_s, st.schedule.cron, st.schedule.enabled)
     _replace_tasks(s, a, st.tasks)

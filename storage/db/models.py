@@ -61,6 +61,7 @@ class Axis(Base):
     measure_feed_mm_min: Mapped[float] = mapped_column(Float)
     measure_acceleration_mm_s2: Mapped[float] = mapped_column(Float)
     warning_fraction: Mapped[float] = mapped_column(Float)
+    decision_rule: Mapped[str] = mapped_column(String(10), default="guarded", server_default="guarded")
     schedule_interval_s: Mapped[float | None] = mapped_column(Float, nullable=True)
     schedule_cron: Mapped[str | None] = mapped_column(String(120), nullable=True)
     schedule_enabled: Mapped[bool] = mapped_column(Boolean, default=True)
@@ -140,6 +141,13 @@ class Result(Base):
     binding_task: Mapped[str | None] = mapped_column(String(100), nullable=True)
     backlash_limit_um: Mapped[float | None] = mapped_column(Float, nullable=True)
     message: Mapped[str | None] = mapped_column(Text, nullable=True)
+    # issue 16: metrology of the result (NULL on results stored before migration 0002)
+    backlash_mean_uncertainty_um: Mapped[float | None] = mapped_column(Float, nullable=True)  # expanded, k = 2
+    outliers_removed: Mapped[int | None] = mapped_column(Integer, nullable=True)
+    grid_step_mm: Mapped[float | None] = mapped_column(Float, nullable=True)
+    noise_um: Mapped[float | None] = mapped_column(Float, nullable=True)
+    uncertainty_budget: Mapped[str | None] = mapped_column(Text, nullable=True)  # JSON: the GUM budgets
+    decision_rule: Mapped[str | None] = mapped_column(String(10), nullable=True)
 
     cycle: Mapped[Cycle] = relationship(back_populates="result")
     lead: Mapped[list[LeadCriteriaRow]] = relationship(order_by="LeadCriteriaRow.id", cascade="all, delete-orphan")
@@ -197,6 +205,10 @@ class TbeRow(Base):
     tbe_um: Mapped[float] = mapped_column(Float)
     backlash_limit_um: Mapped[float | None] = mapped_column(Float, nullable=True)  # NULL: no limit
     state: Mapped[str] = mapped_column(String(10))
+    tbe_uncertainty_um: Mapped[float | None] = mapped_column(Float, nullable=True)  # expanded, k = 2
+    backlash_limit_uncertainty_um: Mapped[float | None] = mapped_column(Float, nullable=True)
+    decision_rule: Mapped[str | None] = mapped_column(String(10), nullable=True)
+    reason: Mapped[str | None] = mapped_column(Text, nullable=True)
 
 
 class Alert(Base):

@@ -70,6 +70,7 @@ class AxisSettings:
     measure_acceleration_mm_s2: float = 500.0
     warning_fraction: float = 0.9
     schedule: Schedule = field(default_factory=Schedule)
+    decision_rule: str = "guarded"  # ISO 14253-1: "simple" or "guarded" (core.tbe.decision)
     tasks: tuple[MachiningTask, ...] = ()
     in_service_since: datetime | None = None
 
@@ -120,6 +121,10 @@ class TbeRecord:
     tbe_um: float
     backlash_limit_um: float  # inf: the task never reaches its tolerance
     state: str
+    tbe_uncertainty_um: float | None = None  # expanded, k = 2
+    backlash_limit_uncertainty_um: float | None = None
+    decision_rule: str | None = None
+    reason: str | None = None
 
 
 @dataclass(frozen=True)
@@ -139,6 +144,7 @@ class ResultRecord:
     backlash_limit_um: float | None
     message: str | None
     tbe: tuple[TbeRecord, ...]
+    decision_rule: str | None = None
 
 
 @dataclass(frozen=True)

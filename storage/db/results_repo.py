@@ -7,6 +7,7 @@ the cycle's uuid.
 
 from __future__ import annotations
 
+import json
 import math
 from datetime import datetime
 
@@ -15,6 +16,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session, selectinload
 
 from core.criteria import BacklashProfile, LeadCriteria, RoundTripResult
+from core.criteria.uncertainty import UncertaintyBudget, UncertaintyComponent
 from core.errors import InputError
 from core.tbe import MachiningTask, State
 from storage.db import curves as curve_codec
@@ -148,6 +150,10 @@ def _insert_result(s: Session, c: Cycle, fc: FinishedCycle) -> Result:
         n_samples=rt.n_samples, peak_speed_mm_min=rt.peak_speed_mm_min, uncertainty_um=_fin(fc.uncertainty_um),
         state=d.state.value if d else None, binding_task=d.binding_task if d else None,
         backlash_limit_um=_fin(d.backlash_limit_um) if d else None, message=d.message() if d else None,
+        backlash_mean_uncertainty_um=_fin(rt.backlash_mean_uncertainty_um) if rt.budgets else None,
+        outliers_removed=rt.outliers_removed, grid_step_mm=_fin(rt.grid_step_mm), noise_um=_fin(rt.noise_um),
+        uncertainty_budget=json.dumps({k: b.to_dict() for k, b in rt.budgets.items()}) if rt.budgets else None,
+        decision_rule=d.rule if d else None,
     )
     s.add(r)
     s.flush()
@@ -171,6 +177,9 @@ def _insert_result(s: Session, c: Cycle, fc: FinishedCycle) -> Result:
                 result_id=r.id, task_name=t.name, profile=t.profile, radius_mm=t.radius_mm, angle_deg=t.angle_deg,
                 feed_mm_min=t.feed_mm_min, gain_per_s=t.gain_per_s, tolerance_um=t.tolerance_um, tbe_um=a.tbe_um,
                 backlash_limit_um=_fin(a.backlash_limit_um), state=a.state.value,
+                tbe_uncertainty_um=_fin(a.tbe_uncertainty_um),
+                backlash_limit_uncertainty_um=_fin(a.backlash_limit_uncertainty_um),
+                decision_rule=a.rule, reason=a.reason or None,
             ))
     s.flush()
     return r
@@ -239,7 +248,21 @@ def _round_trip(r: Result, lead: list[LeadCriteriaRow], curves: list[Curve] | No
     return RoundTripResult(
         axis="", useful_travel_mm=(r.useful_travel_start_mm, r.useful_travel_end_mm), backlash=profile,
         strokes=strokes, n_samples=r.n_samples, peak_speed_mm_min=r.peak_speed_mm_min,
+        grid_step_mm=r.grid_step_mm if r.grid_step_mm is not None else 0.25,
+        outliers_removed=r.outliers_removed or 0, noise_um=r.noise_um or 0.0,
+        budgets=_budgets(r.uncertainty_budget),
     )
+
+
+def _budgets(text: str | None) -> dict[str, UncertaintyBudget]:
+    if not text:
+        return {}
+    out = {}
+    for key, b in json.loads(text).items():
+        comps = tuple(UncertaintyComponent(c["name"], float(c["standard_um"]), c.get("note", ""))
+                      for c in b["components"])
+        out[key] = UncertaintyBudget(b.get("quantity", key), comps, float(b.get("coverage_factor", 2.0)))
+    return out
 
 
 def _tbe(row: TbeRow) -> TbeRecord:
@@ -247,7 +270,10 @@ def _tbe(row: TbeRow) -> TbeRecord:
                          gain_per_s=row.gain_per_s, tolerance_um=row.tolerance_um, radius_mm=row.radius_mm,
                          angle_deg=row.angle_deg)
     limit = math.inf if row.backlash_limit_um is None else row.backlash_limit_um
-    return TbeRecord(task=task, tbe_um=row.tbe_um, backlash_limit_um=limit, state=row.state)
+    return TbeRecord(task=task, tbe_um=row.tbe_um, backlash_limit_um=limit, state=row.state,
+                     tbe_uncertainty_um=row.tbe_uncertainty_um,
+                     backlash_limit_uncertainty_um=row.backlash_limit_uncertainty_um,
+                     decision_rule=row.decision_rule, reason=row.reason)
 
 
 def _result(s: Session, r: Result, *, curves: bool) -> ResultRecord:
@@ -259,7 +285,7 @@ def _result(s: Session, r: Result, *, curves: bool) -> ResultRecord:
         id=r.id, cycle_id=r.cycle_id, axis_id=r.axis_id, measured_at=as_utc(r.measured_at),
         temperature_c=r.temperature_c, utility_day=r.utility_day, uncertainty_um=r.uncertainty_um,
         round_trip=_round_trip(r, lead, cv), state=r.state, binding_task=r.binding_task,
-        backlash_limit_um=r.backlash_limit_um, message=r.message, tbe=tuple(tbe),
+        backlash_limit_um=r.backlash_limit_um, message=r.message, tbe=tuple(tbe), decision_rule=r.decision_rule,
     )
 
 

@@ -21,7 +21,10 @@ def test_clean_cycle_is_latched_continuous_and_measures_b(peer_factory):
     with peer_factory() as peer:
         r = _ok(peer)
         t = r.trace
-        assert t.latched and t.lost_samples == 0 and r.uncertainty_um == 0.0
+        assert t.latched and t.lost_samples == 0
+        # the combined standard uncertainty of b̄ (GUM), no sampling term when latched
+        budget = {c.name: c.standard_um for c in r.result.budgets["backlash_mean"].components}
+        assert budget["sampling"] == 0.0 and r.uncertainty_um == r.result.budgets["backlash_mean"].combined_um > 0
         assert np.all(np.diff(t.counter) == 1)
         assert np.all(np.diff(t.time_s) > 0)
         assert abs(r.result.backlash_mean_um - 120.0) < 1.0
@@ -98,3 +101,4 @@ def test_slow_replies_time_out(peer_factory):
         assert time.monotonic() - t0 < 15.0
         time.sleep(2.5)  # delayed replies drain
         _ok(peer)
+

@@ -105,3 +105,33 @@ def test_program_is_frozen():
     with pytest.raises(dataclasses.FrozenInstanceError):
         PROGRAM.feed_mm_min = 5.0  # type: ignore[misc]
     assert isinstance(PROGRAM, RoundTripProgram)
+
+
+def test_one_glitch_is_dropped_online_and_in_the_analysis():
+    # issue 16: EncoderMonitor and the analysis share one outlier rule; one glitch is no fault
+    with modbus_peer(faults=["glitch:at=0.3,mm=5"]) as peer:
+        r = run_cycle(peer.driver(timeout_s=3.0), AXIS, PROGRAM)  # a cold twin starts slowly
+        assert r.ok, r.reason
+        assert r.result.outliers_removed == 1
+        assert abs(r.result.backlash_mean_um - 120.0) < 1.0
+
+
+def test_many_glitches_are_an_encoder_fault_online():
+    with modbus_peer(faults=["glitch:at=0.1,mm=5,n=60"]) as peer:
+        r = run_cycle(peer.driver(timeout_s=3.0), AXIS, PROGRAM)  # a cold twin starts slowly
+        assert not r.ok and r.reason_code == "encoder_fault", r.reason
+        assert "glitch samples" in r.reason and "max_fraction 1 %" in r.reason
+
+
+def test_encoder_monitor_judges_a_glitch_on_a_block_edge_with_the_next_block():
+    from acquisition.driver import EncoderMonitor
+
+    mon = EncoderMonitor(PROGRAM, 6.857, 500.0, jump_margin_mm=0.05, stuck_travel_mm=1.0)
+    x = -2.0 + np.arange(600) * (1000.0 / 60.0 / 500.0)  # 1000 mm/min at 500 Hz
+    table = x.copy()
+    table[299] += 5.0  # the last sample of the first block
+    c = np.arange(600)
+    mon.check(c[:300], x[:300] / 6.857, table[:300])
+    mon.check(c[300:], x[300:] / 6.857, table[300:])
+    mon.finish()
+    assert (mon.outliers, mon.seen) == (1, 600)

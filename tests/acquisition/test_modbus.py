@@ -288,7 +288,9 @@ def test_latched_poll_mode_is_latched_but_decimated():
     with modbus_peer(mode="latched", time_scale=1.0) as peer:
         r = run_cycle(peer.driver(), AXIS, PROGRAM)
         assert r.ok, r.reason
-        assert r.trace.mode == "latched" and r.trace.latched and r.uncertainty_um == 0.0
+        assert r.trace.mode == "latched" and r.trace.latched
+        sampling = next(c for c in r.result.budgets["backlash_mean"].components if c.name == "sampling")
+        assert sampling.standard_um == 0.0 and r.uncertainty_um == r.result.budgets["backlash_mean"].combined_um
         assert abs(r.result.backlash_mean_um - 120.0) < 1.0
 
 
@@ -299,7 +301,11 @@ def test_separate_reads_are_labelled_and_carry_skew_uncertainty():
         t = r.trace
         assert t.mode == "separate" and not t.latched
         # worst-case skew times the programmed speed (16.7 mm/s): > 0, and stated as the uncertainty
-        assert t.skew_uncertainty_um > 0 and r.uncertainty_um == t.skew_uncertainty_um
+        assert t.skew_uncertainty_um > 0
+        # the skew bound enters the GUM budget of b̄ as its (rectangular) sampling component
+        budget = {c.name: c.standard_um for c in r.result.budgets["backlash_mean"].components}
+        assert budget["sampling"] == pytest.approx(t.skew_uncertainty_um / 3**0.5)
+        assert r.uncertainty_um == r.result.budgets["backlash_mean"].combined_um >= budget["sampling"]
         assert r.to_run("rt.csv").spec.extra["latched"] is False
 
 

@@ -24,6 +24,14 @@ def test_tbe_limit_gives_paper_236(capsys):
     assert json.loads(out)["backlash_limit_um"] == pytest.approx(236.0, abs=0.1)
 
 
+def test_tbe_limit_answers_at_the_edge_of_eq_8(capsys):
+    # issue 16 item 7: the domain edge landed just past ωT = π/2 and the command refused
+    code, out, err = run_cli(capsys, "tbe", "limit", "--tolerance-um", "10", "--radius-mm", "5",
+                             "--feed-mm-min", "2226.5", "--gain-per-s", "5", "--json")
+    assert (code, err) == (0, "")
+    assert json.loads(out)["backlash_limit_um"] == pytest.approx(10.233, abs=0.001)
+
+
 def test_tbe_circle_json_and_text(capsys):
     code, out, _ = run_cli(capsys, "tbe", "circle", "--backlash-um", "240.1", "--radius-mm", "200",
                            "--feed-mm-min", "200", "--gain-per-s", "10", "--json")
@@ -85,6 +93,12 @@ def test_analyze_json_has_the_contract_keys(tmp_path, capsys):
         assert r["backlash_mean_um"] == pytest.approx(b, abs=0.5)
         assert set(r["strokes"]) == {"positive", "negative"}
         assert r["temperature_c"] == 21.5
+        # issue 16: the GUM budget's expanded (k = 2) figures
+        assert 0 < r["backlash_mean_uncertainty_um"] < 0.5
+        for key in ("e_p", "v_u", "v_300", "v_2pi"):
+            assert r[f"{key}_uncertainty_um"] > 0
+        assert r["uncertainty_budget"]["backlash_mean"]["coverage_factor"] == 2.0
+        assert r["outliers_removed"] == 0 and r["grid_step_mm"] == 0.25
 
 
 def test_analyze_table_output(tmp_path, capsys):
@@ -100,6 +114,22 @@ def test_analyze_reports_bad_run_by_name_and_keeps_the_good_one(tmp_path, capsys
     assert code == 1
     assert [r["file"] for r in json.loads(out)] == ["good.csv"]
     assert "short.csv (axis y)" in err and "shorter than the useful travel" in err
+    # the cause once, on one line that ends the output
+    assert err.count("shorter than the useful travel") == 1 and err.endswith("\n")
+    assert err.count("\n") == 1
+
+
+def test_analyze_sparse_trace_is_not_refused_and_reports_its_grid(tmp_path, capsys):
+    # issue 16: 8000 mm/min at 200 Hz (0.67 mm between samples) was refused
+    s = round_trip(start_mm=-20.0, end_mm=320.0, feed_mm_min=8000, rate_hz=200.0, backlash_um=lambda u: 6 + 0 * u,
+                   lead_error_um=lambda u: 3 * np.sin(2 * np.pi * u / 16), rng=np.random.default_rng(1))
+    spec = RunSpec(file="sparse.csv", kind="round_trip", axes=("y",), feed_mm_min=8000, temperature_c=20.0)
+    folder = _dataset(tmp_path, Run(spec, {"time_s": s.time_s, "y_motor_rev": s.motor_rev, "y_table_mm": s.table_mm}))
+    code, out, err = run_cli(capsys, "analyze", str(folder), "--json")
+    assert (code, err) == (0, "")
+    row = json.loads(out)[0]
+    assert row["backlash_mean_um"] == pytest.approx(6.0, abs=0.5)
+    assert row["grid_step_mm"] == 0.25 and row["sample_spacing_mm"] == pytest.approx(0.667, abs=0.01)
 
 
 def test_analyze_malformed_dataset_names_file_and_row(tmp_path, capsys):

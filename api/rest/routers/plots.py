@@ -85,9 +85,12 @@ def plot(
                 except MebmError:
                     v = math.inf
                 lims.append(v if math.isfinite(v) else None)
+            rt = latest.round_trip if latest else None
             png = plots.tbe_vs_backlash(axis.tasks, lims,
-                                        backlash_um=latest.round_trip.backlash.mean_um if latest else None,
-                                        title=title)
+                                        backlash_um=rt.backlash.mean_um if rt else None,
+                                        backlash_uncertainty_um=rt.backlash_mean_uncertainty_um
+                                        if rt is not None and rt.budgets else 0.0,
+                                        rule=axis.settings.decision_rule, title=title)
     elif name is PlotName.tbe_history:
         rows = results_repo.tbe_history(s, axis_id, since=utc(since))
         if not rows:

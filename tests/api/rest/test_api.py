@@ -205,3 +205,19 @@ def test_backlash_outside_the_tbe_model_is_stored_without_a_decision(app_env, ru
     assert st["state"] == "UNKNOWN" and "cannot evaluate" in st["message"]
     r = client.get(f"{V1}/axes/{axis_id}/plots/tbe_vs_backlash.png", headers=hdr(keys["read"]))
     assert r.status_code == 200 and r.content[:4] == b"\x89PNG"
+
+
+def test_status_carries_the_uncertainty_and_the_decision_rule(app_env, runner):
+    # issue 16: no more bare 'uncertainty_um: 0.0'; the rule that decided is named
+    client, svc, keys, axis_id = app_env
+    runner.backlash_um = 200.0
+    run_cycle(client, svc, keys, axis_id)
+    st = client.get(f"{V1}/axes/{axis_id}/status", headers=hdr(keys["read"])).json()
+    assert st["decision_rule"] == "guarded" and "guarded decision rule" in st["message"]
+    assert st["backlash_mean_uncertainty_um"] > 0
+    for key in ("e_p", "v_u", "v_300", "v_2pi"):
+        assert st[f"{key}_uncertainty_um"] > 0
+    assert st["outliers_removed"] == 0
+    (task,) = st["tasks"]
+    assert task["decision_rule"] == "guarded" and task["tbe_uncertainty_um"] > 0
+    assert task["backlash_limit_uncertainty_um"] > 0

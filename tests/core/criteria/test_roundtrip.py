@@ -246,3 +246,54 @@ def test_text_in_a_trace_is_a_trace_error():
     words = np.array(["time_s"] + ["1.0"] * 19)  # a header row read as data
     with pytest.raises(TraceError, match="time_s must hold numbers"):
         analyze_round_trip(words, np.zeros(20), np.zeros(20), AXIS)
+
+
+# ---- any sampling density (issue 16, item 1) ----
+
+AXIS_200 = AxisSpec("y", 6.857, 16.0, 10.0, (0.0, 200.0))
+TRUE_B_200, TRUE_POS_200, TRUE_NEG_200 = true_criteria(0.0, 200.0, backlash, lead_error)
+
+
+@pytest.mark.parametrize("noise_um", [0.05, 0.3])
+@pytest.mark.parametrize(
+    ("feed_mm_min", "rate_hz"),
+    [(100, 100), (100, 1000), (2000, 4000), (4000, 250), (8000, 200), (10000, 100)],
+)
+def test_accuracy_envelope_over_feeds_rates_and_noise(feed_mm_min, rate_hz, noise_um):
+    # 8000 mm/min at 200 Hz puts 0.67 mm between samples, 10,000 at 100 Hz 1.67 mm:
+    # most 0.25 mm bins hold no sample, so the curve is interpolated within each stroke.
+    s = round_trip(
+        start_mm=-3.0, end_mm=203.0, feed_mm_min=feed_mm_min, rate_hz=rate_hz,
+        backlash_um=backlash, lead_error_um=lead_error,
+        table_noise_um=noise_um, motor_noise_um=noise_um, rng=np.random.default_rng(feed_mm_min + rate_hz),
+    )
+    r = analyze_round_trip(s.time_s, s.motor_rev, s.table_mm, AXIS_200)
+    assert r.backlash.mean_um == pytest.approx(TRUE_B_200, abs=0.5)
+    for name, truth in (("positive", TRUE_POS_200), ("negative", TRUE_NEG_200)):
+        for key in CRITERIA:
+            assert getattr(r.strokes[name], key) == pytest.approx(getattr(truth, key), abs=1.0), (name, key)
+    d = r.to_dict()
+    assert d["grid_step_mm"] == 0.25 and d["grid_points"] == 801
+    assert d["sample_spacing_mm"] == pytest.approx(feed_mm_min / 60.0 / rate_hz, rel=0.05)
+
+
+def test_sparse_samples_widen_the_smoothing_but_not_beyond_a_quarter_lead():
+    s = round_trip(start_mm=-3.0, end_mm=203.0, feed_mm_min=10000, rate_hz=100, backlash_um=backlash,
+                   lead_error_um=lead_error)
+    r = analyze_round_trip(s.time_s, s.motor_rev, s.table_mm, AXIS_200)
+    assert r.smoothing_mm == pytest.approx(4.0)  # 4 x 1.67 mm, capped at 16 mm / 4
+    dense = round_trip(start_mm=-3.0, end_mm=203.0, feed_mm_min=1000, rate_hz=1000, backlash_um=backlash,
+                       lead_error_um=lead_error)
+    assert analyze_round_trip(dense.time_s, dense.motor_rev, dense.table_mm, AXIS_200).smoothing_mm == 2.0
+
+
+def test_a_hole_just_over_max_gap_is_refused_even_on_a_sparse_trace():
+    s = round_trip(start_mm=-3.0, end_mm=203.0, feed_mm_min=8000, rate_hz=200, backlash_um=backlash,
+                   lead_error_um=lead_error)
+    keep = np.ones(s.time_s.size, bool)
+    i0 = int(np.searchsorted(s.time_s, 1.0))
+    keep[i0 : i0 + 3] = False  # 4 x 0.67 mm = 2.67 mm between two kept samples
+    with pytest.raises(TraceError, match=r"no samples between .* > max_gap_mm 2 mm"):
+        analyze_round_trip(s.time_s[keep], s.motor_rev[keep], s.table_mm[keep], AXIS_200)
+    keep[i0 + 2] = True  # now 2.0 mm: interpolated over
+    analyze_round_trip(s.time_s[keep], s.motor_rev[keep], s.table_mm[keep], AXIS_200)

@@ -81,3 +81,79 @@ def test_non_numbers_are_typed_input_errors(call):
     # once bare TypeError/ValueError from float(); a string is never stored as a feed
     with pytest.raises(InputError, match="must be a number|needs radius_mm"):
         call()
+
+
+# ---- decision rules (issue 16, item 4) ----
+
+from scipy.optimize import brentq  # noqa: E402
+
+from core.tbe.decision import WITHIN_UNCERTAINTY  # noqa: E402
+
+U_B = 4.0  # expanded uncertainty of the backlash, µm
+
+
+def _edge(f):
+    """The backlash where f changes sign, to 1e-9 µm."""
+    return brentq(f, 150.0, 260.0, xtol=1e-10)
+
+
+def test_guarded_rule_flips_exactly_at_the_guard_bands():
+    tol, warn = RING.tolerance_um, 0.9 * RING.tolerance_um
+
+    def tbe_and_u(b):
+        return float(RING.tbe_um(b)), RING.tbe_uncertainty_um(b, U_B)
+
+    alarm_edge = _edge(lambda b: tbe_and_u(b)[0] - tbe_and_u(b)[1] - tol)
+    ok_edge = _edge(lambda b: tbe_and_u(b)[0] + tbe_and_u(b)[1] - warn)
+    eps = 1e-6
+    states = {b: decide(b, [RING], backlash_uncertainty_um=U_B) for b in
+              (ok_edge - eps, ok_edge + eps, alarm_edge - eps, alarm_edge + eps)}
+    assert states[ok_edge - eps].state is State.OK
+    assert states[ok_edge + eps].state is State.WARNING
+    assert states[alarm_edge - eps].state is State.WARNING
+    assert states[alarm_edge + eps].state is State.ALARM
+    # just past the tolerance but not by the uncertainty: a warning that says why
+    just_over = _edge(lambda b: float(RING.tbe_um(b)) - tol) + 0.1
+    d = decide(just_over, [RING], backlash_uncertainty_um=U_B)
+    assert d.state is State.WARNING and d.assessments[0].reason == WITHIN_UNCERTAINTY
+    assert "guarded decision rule: within uncertainty of the limit" in d.message()
+    assert decide(just_over, [RING], backlash_uncertainty_um=U_B, rule="simple").state is State.ALARM
+
+
+def test_simple_rule_ignores_the_uncertainty_and_is_today_s_behaviour():
+    for b in (200.0, 230.0, 239.5):
+        assert decide(b, [RING], backlash_uncertainty_um=U_B, rule="simple").state is decide(b, [RING]).state
+
+
+def test_task_rule_overrides_the_axis_rule_and_rules_are_validated():
+    from dataclasses import replace
+
+    simple_ring = replace(RING, decision_rule="simple")
+    d = decide(236.5, [simple_ring], backlash_uncertainty_um=U_B, rule="guarded")
+    assert d.assessments[0].rule == "simple" and d.state is State.ALARM
+    with pytest.raises(InputError, match="decision_rule"):
+        decide(200.0, [RING], rule="lenient")
+    with pytest.raises(InputError, match="decision_rule"):
+        replace(RING, decision_rule="strict")
+
+
+def test_tbe_uncertainty_is_the_derivative_times_the_backlash_uncertainty():
+    b = 200.0
+    slope = (float(RING.tbe_um(b + 1e-3)) - float(RING.tbe_um(b - 1e-3))) / 2e-3
+    assert RING.tbe_uncertainty_um(b, 2.0) == pytest.approx(abs(slope) * 2.0, rel=1e-3)
+    assert RING.tbe_uncertainty_um(b, 0.0) == 0.0
+    d = decide(b, [RING], backlash_uncertainty_um=2.0)
+    assert d.assessments[0].tbe_uncertainty_um == pytest.approx(abs(slope) * 2.0, rel=1e-3)
+
+
+def test_backlash_limit_uncertainty_follows_the_gain_uncertainty():
+    from dataclasses import replace
+
+    a = decide(200.0, [RING]).assessments[0]
+    assert a.backlash_limit_uncertainty_um > 0
+    exact = replace(RING, gain_rel_uncertainty=0.0)
+    assert decide(200.0, [exact]).assessments[0].backlash_limit_uncertainty_um == 0.0
+    lo = replace(RING, gain_per_s=10 * 0.99).backlash_limit_um()
+    hi = replace(RING, gain_per_s=10 * 1.01).backlash_limit_um()
+    assert a.backlash_limit_uncertainty_um == pytest.approx(
+        2 * max(abs(lo - a.backlash_limit_um), abs(hi - a.backlash_limit_um)) / 3**0.5)

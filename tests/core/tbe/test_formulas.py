@@ -2,10 +2,11 @@
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from core.errors import InputError, ModelDomainError
+from core.tbe.formulas import circle_backlash_domain_um
 from core.tbe import backlash_limit_um, circle_steady_lag_um, tbe_circle_um, tbe_line_um
 
 PAPER = dict(radius_mm=200.0, feed_mm_min=200.0, gain_per_s=10.0)
@@ -93,12 +94,48 @@ def test_line_tbe_monotone_in_backlash(angle, feed, k, b1, b2):
     assert float(tbe_line_um(hi, angle, feed, k)) > float(tbe_line_um(lo, angle, feed, k))
 
 
-@settings(max_examples=60, deadline=None)
-@given(circle_cases, st.floats(5.0, 400.0))
-def test_limit_inverts_circle_tbe(case, b):
+def _circle_edge_um(r, f, k):
+    """The largest backlash Eq. 8 covers, capped at backlash_limit_um's default search bound."""
+    return min(circle_backlash_domain_um(r, f, k), 5000.0)
+
+
+@settings(max_examples=200, deadline=None)
+@given(circle_cases, st.floats(1e-4, 1.0))
+@example((5.0, 2226.5, 5.0), 1.0)  # the domain edge itself (issue 16, item 7)
+@example((500.0, 50.0, 5.0), 1.0)
+def test_limit_inverts_circle_tbe_over_whole_domain(case, fraction):
+    # b is drawn as a fraction of the whole validity domain of Eq. 8, edge included,
+    # not from a fixed range that misses the edge on small, fast circles.
     r, f, k = case
+    b = fraction * _circle_edge_um(r, f, k)
     tol = float(tbe_circle_um(b, r, f, k))
-    assert backlash_limit_um(tol, feed_mm_min=f, gain_per_s=k, radius_mm=r) == pytest.approx(b, rel=1e-6, abs=1e-6)
+    got = backlash_limit_um(tol, feed_mm_min=f, gain_per_s=k, radius_mm=r)
+    # Eq. 8 is flat in b at the edge (d sin(ωT) = 0 at ωT = π/2): compare in TBE there.
+    assert float(tbe_circle_um(got, r, f, k)) == pytest.approx(tol, rel=1e-9, abs=1e-9)
+    if fraction < 0.9:
+        assert got == pytest.approx(b, rel=1e-6, abs=1e-6)
+
+
+@settings(max_examples=200, deadline=None)
+@given(circle_cases, st.floats(0.01, 1000.0))
+@example((5.0, 2226.5, 5.0), 10.0)  # issue 16 item 7: refused with "outside Eq. 8"
+def test_limit_answers_every_circle_tolerance(case, tol):
+    r, f, k = case
+    edge = _circle_edge_um(r, f, k)
+    top = float(tbe_circle_um(edge, r, f, k))
+    if tol > top:
+        with pytest.raises(ModelDomainError, match="met by any backlash"):
+            backlash_limit_um(tol, feed_mm_min=f, gain_per_s=k, radius_mm=r)
+        return
+    got = backlash_limit_um(tol, feed_mm_min=f, gain_per_s=k, radius_mm=r)
+    assert 0.0 < got <= edge
+    assert float(tbe_circle_um(got, r, f, k)) == pytest.approx(tol, rel=1e-9, abs=1e-9)
+
+
+def test_limit_of_issue_16_counterexample_answers():
+    got = backlash_limit_um(10.0, feed_mm_min=2226.5, gain_per_s=5.0, radius_mm=5.0)
+    assert float(tbe_circle_um(got, 5.0, 2226.5, 5.0)) == pytest.approx(10.0, rel=1e-9)
+    assert got == pytest.approx(10.233, abs=0.001)
 
 
 @settings(max_examples=60, deadline=None)

@@ -192,3 +192,26 @@ def test_schedule_validation():
     assert not Schedule().active
     assert replace(Schedule(interval_s=5), enabled=False).active is False
     assert math.isfinite(Schedule(interval_s=5).interval_s)
+
+
+def test_metrology_of_a_result_is_stored_and_read_back(factory, axis_id):
+    # issue 16: the GUM budgets, outliers, grid, TBE uncertainty and the decision rule
+    from core.tbe import decide
+
+    fc = f.finished(axis_id, 180.0, tasks=())
+    rt = fc.round_trip
+    dec = decide(rt.backlash.mean_um, (f.CIRCLE,), backlash_uncertainty_um=rt.backlash_mean_uncertainty_um)
+    fc = replace(fc, decision=dec)
+    with session_scope(factory) as s:
+        cycle, _ = results_repo.save_finished_cycle(s, fc)
+    with session_scope(factory) as s:
+        _, r = results_repo.get_measurement(s, cycle.id)
+    got = r.round_trip
+    assert got.budgets.keys() == rt.budgets.keys()
+    assert got.backlash_mean_uncertainty_um == pytest.approx(rt.backlash_mean_uncertainty_um)
+    assert got.criterion_uncertainty_um("negative", "v_2pi") == pytest.approx(rt.criterion_uncertainty_um("negative", "v_2pi"))
+    assert got.outliers_removed == rt.outliers_removed and got.grid_step_mm == rt.grid_step_mm
+    assert r.decision_rule == "guarded" and r.tbe[0].decision_rule == "guarded"
+    assert r.tbe[0].tbe_uncertainty_um == pytest.approx(dec.assessments[0].tbe_uncertainty_um)
+    assert r.tbe[0].backlash_limit_uncertainty_um == pytest.approx(dec.assessments[0].backlash_limit_uncertainty_um)
+    assert r.tbe[0].tbe_uncertainty_um > 0
