@@ -116,7 +116,7 @@ def apparent_gain_per_s(contours: Sequence[Contour], axis: str) -> float | None:
         if ok.sum() > 20:
             e = cmd - c.table_mm[axis]
             vs.append(v[ok])
-            es.append(e[ok] - np.mean(e[ok]) * 0)  # keep the offsets: they cancel between directions
+            es.append(e[ok])  # the backlash-like offsets are fitted as +-c below
     if not vs:
         return None
     v = np.concatenate(vs)

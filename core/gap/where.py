@@ -45,6 +45,22 @@ def rt_phases(run: RoundTrip, backlash_um: float) -> np.ndarray:
 
 
 PHASE_NAMES = {0: "rest", 1: "reversal", 2: "acceleration", 3: "constant_velocity"}
+START_UP_DEG = 20.0  # a circle that starts from rest on its data arc: its first degrees are the start-up
+
+
+def _start_up_mask(c: Contour, n: int) -> np.ndarray:
+    """Scored samples of a circle in its start-up transient: the first START_UP_DEG of a
+    data arc entered from rest (no feed-in arc)."""
+    arc = c.meta.get("data_arc") or {}
+    out = np.zeros(n, bool)
+    if arc.get("lead_in_deg", 1.0) > 0.5 or c.command_mm is None:
+        return out
+    a, b = c.axes
+    k = c.scored
+    cx, cy = c.meta["centre_mm"]
+    th = np.degrees(np.unwrap(np.arctan2(c.command_mm[b][k] - cy, c.command_mm[a][k] - cx)))
+    out[: k.size] = np.abs(th - th[0]) <= START_UP_DEG
+    return out
 
 
 def _sentence_conditions(rs: Mapping[str, float | None]) -> str:
@@ -123,13 +139,28 @@ def locate(
         )
     elif contours:
         by_axis: dict[str, float] = {}
-        angs, rr = [], []
+        angs, rr, starts = [], [], []
         for c, r in zip(contours, ct_resid):
             if c.kind != "circle":
                 continue
             angs.append(c.angle_deg())
             rr.append(r)
+            starts.append(_start_up_mask(c, r.size))
         if angs:
+            st = np.concatenate(starts)
+            r_cat = np.concatenate(rr)
+            if st.any() and (~st).any():
+                rms_st, rms_else = rms(r_cat[st]), rms(r_cat[~st])
+                details["rms_start_up_um"] = round(rms_st, 3)
+                details["rms_after_start_up_um"] = round(rms_else, 3)
+                if rms_st > 1.5 * rms_else and float(np.sum(r_cat[st] ** 2)) > 0.5 * float(np.sum(r_cat**2)):
+                    summary = (
+                        f"circles: in the start-up transient at the beginning of the data arc (the first "
+                        f"{START_UP_DEG:g}° after a start from rest: RMS {rms_st:.2f} µm vs {rms_else:.2f} µm after "
+                        f"it){cond_text}."
+                    )
+                    return Where(kind=kind, phase="start_up", axis=None, angle_deg=None, position_mm=None,
+                                 summary=summary, details=details)  # fmt: skip
             ang = np.concatenate(angs)
             r_all = np.concatenate(rr)
             win = {}
