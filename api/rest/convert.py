@@ -76,7 +76,7 @@ def status(s: AxisStatus, now: datetime, next_run: datetime | None) -> sc.AxisSt
         backlash_reduction_needed_um=max(b - limit, 0.0) if (b is not None and limit is not None) else None,
         binding_task=d.binding_task if d else None, tasks=tasks, active_alert_id=s.active_alert_id,
         last_cycle_status=s.last_cycle_status, last_cycle_at=s.last_cycle_at,
-        last_failure_reason=s.last_failure_reason, next_run_at=next_run,
+        last_failure_reason=s.last_failure_reason, next_run_at=next_run, last_raw_run_lost=s.last_raw_run_lost,
     )
 
 
@@ -86,6 +86,7 @@ def summary(c: CycleRecord) -> sc.MeasurementSummary:
         requested_at=c.requested_at, started_at=c.started_at, finished_at=c.finished_at,
         failure_reason=c.failure_reason, temperature_c=c.temperature_c, utility_day=c.utility_day,
         uncertainty_um=c.uncertainty_um, backlash_mean_um=c.backlash_mean_um, state=c.state,
+        raw_run_lost=c.raw_run_lost,
     )
 
 

@@ -51,6 +51,11 @@ class ServiceCollector:
         tot = GaugeMetricFamily("mebm_active_alerts_total", "Active alerts over all axes")
         tot.add_metric([], float(total))
         yield tot
+        lost = CounterMetricFamily("mebm_raw_runs_lost", "Cycles whose raw run could not be kept anywhere",
+                                   labels=["axis_id"])
+        for axis_id, n in sorted(snap.get("raw_runs_lost", {}).items()):
+            lost.add_metric([str(axis_id)], float(n))
+        yield lost
         spooled = GaugeMetricFamily("mebm_spooled_cycles", "Cycles kept on disk waiting for the database")
         ex = self.service.executor
         spooled.add_metric([], float(len(ex.pending()) + len(ex.unsaved)))

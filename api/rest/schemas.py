@@ -165,6 +165,8 @@ class AxisStatusOut(BaseModel):
     last_cycle_status: str | None
     last_cycle_at: datetime | None
     last_failure_reason: str | None
+    last_raw_run_lost: str | None = Field(
+        None, description="why the raw run of the last finished cycle could not be kept (null: it was kept)")
     next_run_at: datetime | None
 
 
@@ -184,6 +186,7 @@ class MeasurementSummary(BaseModel):
     uncertainty_um: float | None
     backlash_mean_um: float | None
     state: str | None
+    raw_run_lost: str | None = Field(None, description="why the raw run could not be kept (null: it was kept)")
 
 
 class MeasurementPage(BaseModel):

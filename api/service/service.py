@@ -109,6 +109,8 @@ class Service:
         self.executor = CycleExecutor(self.factory, Path(st.data_dir), self.runner, self.resolve_url,
                                       on_saved=self._on_saved)
         self.scheduler = CycleScheduler(self.executor, self.factory)
+        with session_scope(self.factory) as s:
+            self.executor.migrate_folders(config_repo.list_axes(s))
         replayed = self.executor.replay_spool()
         with session_scope(self.factory) as s:
             interrupted = results_repo.close_stale_cycles(s)

@@ -111,6 +111,7 @@ class Cycle(Base):
     utility_day: Mapped[float | None] = mapped_column(Float, nullable=True)
     uncertainty_um: Mapped[float | None] = mapped_column(Float, nullable=True)
     run_file: Mapped[str | None] = mapped_column(String(200), nullable=True)
+    raw_run_lost: Mapped[str | None] = mapped_column(Text, nullable=True)  # why the raw run was not kept
 
     result: Mapped[Result | None] = relationship(back_populates="cycle", uselist=False)
 

@@ -35,6 +35,7 @@ from storage.db.records import (
 
 DIRECTIONS = ("positive", "negative")
 ALERT_KIND = "tbe_exceeded"
+RAW_RUN_LOST = "raw_run_lost"  # alert kind: a cycle's raw run could not be kept; cleared by the next kept run
 
 
 def _fin(x: float | None) -> float | None:
@@ -48,7 +49,7 @@ def _cycle(c: Cycle, result: Result | None = None) -> CycleRecord:
         failure_reason=c.failure_reason, temperature_c=c.temperature_c, utility_day=c.utility_day,
         uncertainty_um=c.uncertainty_um, run_file=c.run_file,
         backlash_mean_um=result.backlash_mean_um if result is not None else None,
-        state=result.state if result is not None else None,
+        state=result.state if result is not None else None, raw_run_lost=c.raw_run_lost,
     )
 
 
@@ -64,6 +65,14 @@ def queue_cycle(s: Session, axis_id: int, uuid: str, trigger: str, *, requested_
     s.add(c)
     s.flush()
     return _cycle(c)
+
+
+def axis_of_cycles(s: Session, uuids: list[str]) -> dict[str, int]:
+    """{cycle uuid: axis id} of the given uuids that are stored."""
+    out: dict[str, int] = {}
+    for i in range(0, len(uuids), 500):
+        out.update({u: a for u, a in s.execute(select(Cycle.uuid, Cycle.axis_id).where(Cycle.uuid.in_(uuids[i:i + 500])))})
+    return out
 
 
 def mark_running(s: Session, uuid: str, started_at: datetime | None = None) -> CycleRecord:
@@ -126,6 +135,7 @@ def save_finished_cycle(s: Session, fc: FinishedCycle) -> tuple[CycleRecord, lis
     c.utility_day = _fin(fc.utility_day)
     c.uncertainty_um = _fin(fc.uncertainty_um)
     c.run_file = fc.run_file
+    c.raw_run_lost = fc.raw_run_lost
     s.flush()
     changes: list[AlertRecord] = []
     result = None
@@ -133,8 +143,27 @@ def save_finished_cycle(s: Session, fc: FinishedCycle) -> tuple[CycleRecord, lis
         result = _insert_result(s, c, fc)
         if fc.decision is not None:
             changes = _update_alerts(s, fc, result)
+    changes += _update_lost_run_alert(s, fc, c)
     s.flush()
     return _cycle(c, result), changes
+
+
+def _update_lost_run_alert(s: Session, fc: FinishedCycle, c: Cycle) -> list[AlertRecord]:
+    """A lost raw run raises a ``raw_run_lost`` alert (one per axis while active); the
+    next cycle whose run is kept clears it."""
+    active = s.scalar(select(Alert).where(Alert.axis_id == fc.axis_id, Alert.kind == RAW_RUN_LOST,
+                                          Alert.cleared_at.is_(None)))
+    if fc.raw_run_lost and active is None:
+        a = Alert(axis_id=fc.axis_id, kind=RAW_RUN_LOST, raised_at=fc.finished_at,
+                  message=f"the raw run of cycle {c.id} ({fc.uuid}) was lost: {fc.raw_run_lost}")
+        s.add(a)
+        s.flush()
+        return [_alert_full(s, a)]
+    if not fc.raw_run_lost and fc.run_file and active is not None:
+        active.cleared_at = fc.finished_at
+        s.flush()
+        return [_alert_full(s, active)]
+    return []
 
 
 def _insert_result(s: Session, c: Cycle, fc: FinishedCycle) -> Result:
@@ -199,7 +228,8 @@ def _alert_full(s: Session, a: Alert) -> AlertRecord:
 
 def _update_alerts(s: Session, fc: FinishedCycle, r: Result) -> list[AlertRecord]:
     d = fc.decision
-    active = s.scalar(select(Alert).where(Alert.axis_id == fc.axis_id, Alert.cleared_at.is_(None)))
+    active = s.scalar(select(Alert).where(Alert.axis_id == fc.axis_id, Alert.kind == ALERT_KIND,
+                                          Alert.cleared_at.is_(None)))
     if d.state is State.ALARM and active is None:
         binding = next(a for a in d.assessments if a.task.name == d.binding_task)
         a = Alert(
@@ -400,6 +430,8 @@ def metrics_snapshot(s: Session) -> dict:
         select(Result.axis_id, func.max(Result.measured_at)).group_by(Result.axis_id)).all()}
     alerts = {a: n for a, n in s.execute(
         select(Alert.axis_id, func.count()).where(Alert.cleared_at.is_(None)).group_by(Alert.axis_id)).all()}
-    return {"cycles": cycles, "last_success": last_ok, "active_alerts": alerts}
+    lost = {a: n for a, n in s.execute(
+        select(Cycle.axis_id, func.count()).where(Cycle.raw_run_lost.is_not(None)).group_by(Cycle.axis_id)).all()}
+    return {"cycles": cycles, "last_success": last_ok, "active_alerts": alerts, "raw_runs_lost": lost}
 
 
