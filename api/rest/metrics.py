@@ -14,6 +14,7 @@ class ServiceCollector:
         self.service = service
 
     def collect(self):
+        yield from self._health()
         up = GaugeMetricFamily("mebm_database_up", "1 when the database answers")
         try:
             with session_scope(self.service.factory) as s:
@@ -60,6 +61,30 @@ class ServiceCollector:
         ex = self.service.executor
         spooled.add_metric([], float(len(ex.pending()) + len(ex.unsaved)))
         yield spooled
+
+
+    def _health(self):
+        rep = self.service.health.report()
+        healthy = GaugeMetricFamily("mebm_healthy", "1 when /healthz is ok; 0 when degraded (see mebm_degraded)")
+        healthy.add_metric([], 1.0 if rep.ok else 0.0)
+        yield healthy
+        degraded = GaugeMetricFamily("mebm_degraded", "1 per reason the service is degraded", labels=["reason"])
+        for reason in rep.problems:
+            degraded.add_metric([reason], 1.0)
+        yield degraded
+        writable = GaugeMetricFamily("mebm_database_writable", "1 when a write to the database succeeds")
+        writable.add_metric([], 1.0 if rep.database == "ok" else 0.0)
+        yield writable
+        folder = GaugeMetricFamily("mebm_data_dir_writable", "1 when the data folders take a new file")
+        folder.add_metric([], 1.0 if rep.data_dir_writable else 0.0)
+        yield folder
+        if rep.free_disk_bytes is not None:
+            free = GaugeMetricFamily("mebm_disk_free_bytes", "Free disk under the data folder")
+            free.add_metric([], float(rep.free_disk_bytes))
+            yield free
+        floor = GaugeMetricFamily("mebm_disk_free_floor_bytes", "Configured floor of free disk (degraded below)")
+        floor.add_metric([], float(rep.min_free_disk_bytes))
+        yield floor
 
 
 def make_registry(service) -> CollectorRegistry:

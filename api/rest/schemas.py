@@ -351,7 +351,10 @@ ERROR_RESPONSES = {
 
 class Health(BaseModel):
     status: Literal["ok", "degraded"]
-    database: Literal["ok", "unavailable"]
+    database: Literal["ok", "read-only", "unavailable"]
+    data_dir: Literal["ok", "not writable"]
+    free_disk_mb: float | None
+    problems: list[str] = Field(description="why the status is degraded, one line each (empty when ok)")
     version: str
     uptime_s: float
     spooled_cycles: int

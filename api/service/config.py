@@ -56,6 +56,7 @@ class Settings:
     port: int = 8000
     data_dir: Path = Path("data")
     database_url: str | None = None
+    min_free_disk_mb: float = 500.0  # /healthz is degraded below this much free disk under data_dir
     bootstrap_admin_key: str | None = None
     demo_keys: bool = True
     scheduler_enabled: bool = True
@@ -180,7 +181,7 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
     server = doc.get("server", {})
     _unknown(server, {"host", "port"}, "server")
     storage = doc.get("storage", {})
-    _unknown(storage, {"data_dir", "database_url"}, "storage")
+    _unknown(storage, {"data_dir", "database_url", "min_free_disk_mb"}, "storage")
     auth = doc.get("auth", {})
     _unknown(auth, {"bootstrap_admin_key", "demo_keys"}, "auth")
     sched = doc.get("scheduler", {})
@@ -211,11 +212,15 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
                 axes.append(_axis(a, name, f"{where}.axes[{j}]"))
         machines, axes = tuple(machines), tuple(axes)
     data_dir = _get(storage, "data_dir", str, "storage")
+    min_free_disk_mb = _get(storage, "min_free_disk_mb", float, "storage", base.min_free_disk_mb)
+    if min_free_disk_mb < 0:
+        raise ConfigError(f"storage.min_free_disk_mb (={min_free_disk_mb}) must be >= 0")
     return replace(
         base,
         host=_get(server, "host", str, "server", base.host), port=port,
         data_dir=Path(data_dir) if data_dir else base.data_dir,
         database_url=_get(storage, "database_url", str, "storage", base.database_url) or None,
+        min_free_disk_mb=min_free_disk_mb,
         bootstrap_admin_key=_get(auth, "bootstrap_admin_key", str, "auth", base.bootstrap_admin_key) or None,
         demo_keys=_get(auth, "demo_keys", bool, "auth", base.demo_keys),
         scheduler_enabled=_get(sched, "enabled", bool, "scheduler", base.scheduler_enabled),

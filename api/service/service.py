@@ -19,6 +19,7 @@ from sqlalchemy import text
 from api.service.config import SIM_CONTROLLER, Settings
 from api.service.cycles import CycleExecutor
 from api.service.demo import DemoController
+from api.service.health import HealthProbe
 from api.service.runner import CycleRunner, DriverRunner
 from api.service.scheduler import CycleScheduler
 from api.service.status import StatusCache
@@ -65,6 +66,7 @@ class Service:
         self.simulators: dict[int, DemoController] = {}
         self.started_at = time.time()
         self.report: StartReport | None = None
+        self.health = HealthProbe(self)
 
     # -- wiring ----------------------------------------------------------------------------------
     def resolve_url(self, axis: AxisRecord) -> str:
