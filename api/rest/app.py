@@ -15,6 +15,7 @@ from fastapi import APIRouter, FastAPI
 
 from api.rest import errors
 from api.rest.auth import KeyCache
+from api.rest.limits import BodyLimit, TokenBucket
 from api.rest.metrics import make_registry
 from api.rest.schemas import ERROR_RESPONSES
 from api.rest.status_body import StatusFastPath
@@ -66,6 +67,10 @@ def create_app(settings: Settings, *, service: Service | None = None, runner: Cy
     app.state.metrics = make_registry(svc)
     errors.install(app)
     app.add_middleware(StatusFastPath, state=app.state)
+    lim = settings.limits
+    app.state.trigger_limit = TokenBucket(lim.triggers_per_minute, lim.trigger_burst)
+    app.state.auth_throttle = TokenBucket(lim.auth_failures_per_minute, lim.auth_failure_burst)
+    app.add_middleware(BodyLimit, max_bytes=lim.max_body_bytes)  # outermost: before anything reads the body
     api = APIRouter(prefix=API_PREFIX, responses=ERROR_RESPONSES)
     for name in ROUTERS:
         try:

@@ -344,7 +344,11 @@ ERROR_RESPONSES = {
     403: {"model": ErrorOut, "description": "the key's role does not allow this"},
     404: {"model": ErrorOut, "description": "unknown id"},
     409: {"model": ErrorOut, "description": "conflicts with what is stored"},
+    413: {"model": ErrorOut, "description": "request body larger than limits.max_body_bytes"},
     422: {"model": ErrorOut, "description": "invalid input; the message names the field"},
+    429: {"model": ErrorOut, "description": "too many failed authentications from this address, too many "
+                                            "triggers for this key, or a manual measurement waits already; "
+                                            "see Retry-After"},
     503: {"model": ErrorOut, "description": "database unavailable; retry later"},
 }
 

@@ -45,6 +45,17 @@ class SimulatorSettings:
 
 
 @dataclass(frozen=True)
+class LimitSettings:
+    """What one client can make the service do (``[limits]``)."""
+
+    max_body_bytes: int = 1_000_000  # larger request bodies: 413 before they are read, key or no key
+    triggers_per_minute: float = 6.0  # manual measurements per key (a token bucket)...
+    trigger_burst: int = 3  # ...of which this many at once
+    auth_failures_per_minute: float = 10.0  # failed authentications per client address...
+    auth_failure_burst: int = 20  # ...before it is answered 429 for a while
+
+
+@dataclass(frozen=True)
 class AxisConfig:
     machine: str
     settings: AxisSettings
@@ -66,6 +77,7 @@ class Settings:
     axes: tuple[AxisConfig, ...] = ()
     simulator: SimulatorSettings = field(default_factory=SimulatorSettings)
     log_level: str = "info"
+    limits: LimitSettings = field(default_factory=LimitSettings)
 
     @property
     def db_url(self) -> str:
@@ -97,7 +109,7 @@ def default_settings() -> Settings:
 
 
 # -- parsing -----------------------------------------------------------------------------------
-_TOP = {"server", "storage", "auth", "scheduler", "simulator", "machines", "logging"}
+_TOP = {"server", "storage", "auth", "scheduler", "simulator", "machines", "logging", "limits"}
 
 
 def _get(table: Mapping, key: str, kind, where: str, default=None):
@@ -191,6 +203,7 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
     _unknown(sim, sim_fields, "simulator")
     logging_ = doc.get("logging", {})
     _unknown(logging_, {"level"}, "logging")
+    limits = _limits(doc.get("limits", {}), base.limits)
     port = _get(server, "port", int, "server", base.port)
     if not 0 <= port <= 65535:
         raise ConfigError(f"server.port (={port}) must be 0..65535 (0: a free port)")
@@ -227,8 +240,19 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
         catch_up_missed=_get(sched, "catch_up_missed", bool, "scheduler", base.catch_up_missed),
         spool_retry_s=_get(sched, "spool_retry_s", float, "scheduler", base.spool_retry_s),
         machines=machines, axes=axes, simulator=simulator,
-        log_level=_get(logging_, "level", str, "logging", base.log_level),
+        log_level=_get(logging_, "level", str, "logging", base.log_level), limits=limits,
     )
+
+
+def _limits(table: Mapping, base: LimitSettings) -> LimitSettings:
+    kinds = {"max_body_bytes": int, "triggers_per_minute": float, "trigger_burst": int,
+             "auth_failures_per_minute": float, "auth_failure_burst": int}
+    _unknown(table, set(kinds), "limits")
+    out = replace(base, **{k: _get(table, k, kinds[k], "limits") for k in table})
+    for k in kinds:
+        if not getattr(out, k) > 0:
+            raise ConfigError(f"limits.{k} (={getattr(out, k)}) must be > 0")
+    return out
 
 
 def apply_env(settings: Settings, env: Mapping[str, str] | None = None) -> Settings:

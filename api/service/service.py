@@ -27,6 +27,7 @@ from storage.db import (
     AxisRecord,
     DatabaseUnavailableError,
     StorageError,
+    WaitingCycleError,
     config_repo,
     make_engine,
     make_session_factory,
@@ -222,9 +223,26 @@ class Service:
 
     # -- operations for the API ------------------------------------------------------------------
     def trigger(self, axis_id: int, requested_by: str | None):
+        """Queue a manual cycle. :class:`WaitingCycleError` (with ``retry_after_s``, the
+        length of the axis' last cycle) if one waits already."""
         with session_scope(self.factory) as s:
             config_repo.get_axis(s, axis_id)  # 404 before anything moves
-        return self.scheduler.request(axis_id, "manual", requested_by)
+        try:
+            return self.scheduler.request(axis_id, "manual", requested_by)
+        except WaitingCycleError as exc:
+            exc.retry_after_s = self._cycle_length_s(axis_id)
+            raise
+
+    def _cycle_length_s(self, axis_id: int) -> float:
+        try:
+            with session_scope(self.factory) as s:
+                _, rows = results_repo.list_measurements(s, axis_id, status="ok", limit=1)
+        except StorageError:
+            rows = []
+        c = rows[0] if rows else None
+        if c is not None and c.started_at is not None and c.finished_at is not None:
+            return max((c.finished_at - c.started_at).total_seconds(), 1.0)
+        return 30.0
 
     def axis_changed(self, axis: AxisRecord) -> None:
         self.status.invalidate(axis.id)

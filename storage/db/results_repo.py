@@ -12,13 +12,14 @@ from datetime import datetime
 
 import numpy as np
 from sqlalchemy import func, select
+from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, selectinload
 
 from core.criteria import BacklashProfile, LeadCriteria, RoundTripResult
 from core.errors import InputError
 from core.tbe import MachiningTask, State
 from storage.db import curves as curve_codec
-from storage.db.errors import NotFoundError
+from storage.db.errors import NotFoundError, WaitingCycleError
 from storage.db.models import Alert, Axis, Curve, Cycle, LeadCriteriaRow, Result, TbeRow
 from storage.db.records import (
     CYCLE_STATES,
@@ -62,8 +63,18 @@ def queue_cycle(s: Session, axis_id: int, uuid: str, trigger: str, *, requested_
         raise NotFoundError("axis", axis_id)
     c = Cycle(uuid=uuid, axis_id=axis_id, trigger=trigger, requested_by=requested_by, status="queued",
               requested_at=requested_at or utcnow())
-    s.add(c)
-    s.flush()
+    if trigger != "manual":
+        s.add(c)
+        s.flush()
+        return _cycle(c)
+    try:
+        with s.begin_nested():  # the unique index decides, atomically, whether another manual one waits
+            s.add(c)
+            s.flush()
+    except IntegrityError as exc:
+        waiting = s.scalar(select(Cycle).where(Cycle.axis_id == axis_id, Cycle.status == "queued",
+                                               Cycle.trigger == "manual").limit(1))
+        raise WaitingCycleError(axis_id, None if waiting is None else _cycle(waiting)) from exc
     return _cycle(c)
 
 

@@ -11,6 +11,7 @@ from fastapi.concurrency import run_in_threadpool
 from api.rest import convert, schemas as sc
 from api.rest.auth import AdminKey, OperateKey, ReadKey
 from api.rest.deps import AxisId, ServiceDep, SessionDep
+from api.rest.errors import TooManyRequestsError
 from api.rest.routers.machines import tasks_from
 from api.rest.status_body import cached_status, status_json
 from api.service.scheduler import make_trigger
@@ -67,7 +68,11 @@ def put_schedule(axis_id: AxisId, body: sc.ScheduleIn, s: SessionDep, svc: Servi
 
 @router.post("/axes/{axis_id}/measurements", response_model=sc.TriggerOut, status_code=status.HTTP_202_ACCEPTED,
              summary="Trigger a measurement cycle (operate: the axis will move)")
-def trigger(axis_id: AxisId, svc: ServiceDep, key: OperateKey, response: Response):
+def trigger(axis_id: AxisId, svc: ServiceDep, key: OperateKey, response: Response, request: Request):
+    wait_s = request.app.state.trigger_limit.take(key.name)
+    if wait_s > 0:
+        raise TooManyRequestsError(f"key {key.name!r} triggered too many measurements "
+                                   f"(limits.triggers_per_minute); retry in {wait_s:.0f} s", wait_s)
     rec = svc.trigger(axis_id, key.name)
     stored = rec if isinstance(rec, CycleRecord) else None
     if stored is not None:

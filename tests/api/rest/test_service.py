@@ -14,6 +14,7 @@ from api.service.scheduler import missed_since
 from api.service.service import Service
 from storage.db import (
     Schedule,
+    WaitingCycleError,
     config_repo,
     integrity_problems,
     make_engine,
@@ -95,8 +96,9 @@ def test_never_two_cycles_at_once_and_manual_queues_behind(service):
     first = svc.trigger(svc.test_axis.id, "op")
     assert runner.running.wait(5)
     second = svc.trigger(svc.test_axis.id, "op")
-    third = svc.trigger(svc.test_axis.id, "op")  # the waiting one is returned, not stacked
-    assert third.id == second.id != first.id
+    with pytest.raises(WaitingCycleError) as refused:  # one waits already: not stacked
+        svc.trigger(svc.test_axis.id, "op")
+    assert refused.value.cycle.id == second.id != first.id
     assert svc.scheduler.request(svc.test_axis.id, "schedule") is not None
     assert svc.scheduler.request(svc.test_axis.id, "schedule") is None  # previous scheduled one still waits
     statuses = {c.id: c.status for c in cycles(svc)}
