@@ -37,7 +37,7 @@ class TaskIn(In):
     """A machining task. ``circle`` needs ``radius_mm``; ``line`` needs ``angle_deg``
     (to the reversely engaged axis, -90..90)."""
 
-    name: str = Field(min_length=1, max_length=100)
+    name: str = Field(min_length=1, max_length=100, pattern=r"\S", description="not blank")
     profile: Literal["circle", "line"]
     feed_mm_min: float = Field(ge=0.1, le=100000)
     tolerance_um: float = Field(ge=0.01, le=10000)
@@ -90,6 +90,27 @@ class ScheduleOut(BaseModel):
     next_run_at: datetime | None
 
 
+MAX_TRAVEL_MM = 100_000.0  # 100 m: beyond the largest gantry
+MAX_PROGRAM_MIN = 60.0  # one measurement round trip: an hour at most
+
+
+def link_local_problem(url: str) -> str | None:
+    """Why a controller URL points at a link-local address (169.254.0.0/16, fe80::/10:
+    where cloud metadata services live), or None. Only literal addresses are checked."""
+    import ipaddress
+    from urllib.parse import urlsplit
+
+    try:
+        host = urlsplit(url).hostname or ""
+        addr = ipaddress.ip_address(host)
+    except ValueError:
+        return None
+    if addr.is_link_local:
+        return (f"controller_url (={url!r}) points at the link-local address {addr}; set "
+                "limits.allow_link_local_controllers = true if the controller really is there")
+    return None
+
+
 class AxisIn(In):
     name: str = Field(min_length=1, max_length=20, pattern=r"^[a-z][a-z0-9_]*$")
     transmission_mm_per_rev: float = Field(ge=0.001, le=10000)
@@ -106,8 +127,13 @@ class AxisIn(In):
     @model_validator(mode="after")
     def _travel(self):
         a, b = self.travel_mm
-        if not (abs(a) < 1e6 and abs(b) < 1e6 and b - a >= 10):
-            raise ValueError("travel_mm must be [start, end] with end - start >= 10 mm (|values| < 1e6)")
+        if not (abs(a) <= MAX_TRAVEL_MM and abs(b) <= MAX_TRAVEL_MM and b - a >= 10):
+            raise ValueError(f"travel_mm (={[a, b]}) must be [start, end] with end - start >= 10 mm and "
+                             f"|start|, |end| <= {MAX_TRAVEL_MM:g} mm")
+        round_trip_min = 2 * (b - a) / self.measure_feed_mm_min
+        if round_trip_min > MAX_PROGRAM_MIN:
+            raise ValueError(f"measure_feed_mm_min (={self.measure_feed_mm_min:g}) over travel_mm (={[a, b]}) makes a "
+                             f"measurement program of {round_trip_min:.0f} min; at most {MAX_PROGRAM_MIN:g} min")
         return self
 
 
@@ -310,7 +336,7 @@ class AlertPage(BaseModel):
 
 
 class KeyIn(In):
-    name: str = Field(min_length=1, max_length=100)
+    name: str = Field(min_length=1, max_length=100, pattern=r"\S", description="not blank")
     role: Literal["read", "operate", "admin"]
 
 

@@ -53,6 +53,7 @@ class LimitSettings:
     trigger_burst: int = 3  # ...of which this many at once
     auth_failures_per_minute: float = 10.0  # failed authentications per client address...
     auth_failure_burst: int = 20  # ...before it is answered 429 for a while
+    allow_link_local_controllers: bool = False  # 169.254.x.x / fe80:: controllers (cloud metadata lives there)
 
 
 @dataclass(frozen=True)
@@ -246,10 +247,12 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
 
 def _limits(table: Mapping, base: LimitSettings) -> LimitSettings:
     kinds = {"max_body_bytes": int, "triggers_per_minute": float, "trigger_burst": int,
-             "auth_failures_per_minute": float, "auth_failure_burst": int}
+             "auth_failures_per_minute": float, "auth_failure_burst": int, "allow_link_local_controllers": bool}
     _unknown(table, set(kinds), "limits")
     out = replace(base, **{k: _get(table, k, kinds[k], "limits") for k in table})
     for k in kinds:
+        if kinds[k] is bool:
+            continue
         if not getattr(out, k) > 0:
             raise ConfigError(f"limits.{k} (={getattr(out, k)}) must be > 0")
     return out

@@ -11,6 +11,7 @@ import json
 import logging
 import os
 import time
+from urllib.parse import parse_qsl, urlencode, urlsplit, urlunsplit
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,6 +30,7 @@ from storage.db import (
     StorageError,
     WaitingCycleError,
     config_repo,
+    is_sqlite,
     make_engine,
     make_session_factory,
     ping,
@@ -107,7 +109,13 @@ class Service:
     def start(self) -> StartReport:
         st = self.settings
         Path(st.data_dir).mkdir(parents=True, exist_ok=True)
+        _restrict(Path(st.data_dir), 0o700)  # raw runs, spool, keys: the service's own
         self._connect()
+        if is_sqlite(self.engine):
+            db_file = Path(self.engine.url.database or "")
+            for p in (db_file, db_file.with_name(db_file.name + "-wal"), db_file.with_name(db_file.name + "-shm")):
+                if p.is_file():
+                    _restrict(p, 0o600)
         self.status = StatusCache(self.factory)
         self.executor = CycleExecutor(self.factory, Path(st.data_dir), self.runner, self.resolve_url,
                                       on_saved=self._on_saved)
@@ -185,8 +193,13 @@ class Service:
         if not secret:
             return None
         with session_scope(self.factory) as s:
-            if config_repo.authenticate(s, secret) is not None:
-                return "bootstrap-admin"
+            known = config_repo.find_key_by_secret(s, secret)
+            if known is not None and known.revoked_at is None:
+                return known.name
+            if known is not None:
+                log.warning("MEBM_BOOTSTRAP_ADMIN_KEY is the key %r, revoked on %s: it stays revoked "
+                            "(unset the variable)", known.name, known.revoked_at.isoformat())
+                return None
             if any(k.role == "admin" and k.revoked_at is None for k in config_repo.list_keys(s)):
                 log.warning("MEBM_BOOTSTRAP_ADMIN_KEY ignored: an admin key exists already")
                 return None
@@ -197,29 +210,38 @@ class Service:
             return name
 
     def _demo_keys(self) -> dict:
-        """Demo keys (read, operate, admin), created hashed on first start; the secrets
-        are kept in ``<data_dir>/demo-keys.json`` (mode 600) so every start can print them."""
+        """Demo keys (read, operate, admin), created hashed at first start. Returns the keys
+        created by this start only: they are printed once. The read and operate secrets are
+        kept in ``<data_dir>/demo-keys.json`` (mode 600) for the demo's examples; the admin
+        secret is never written anywhere (a file of an older version loses it)."""
         path = Path(self.settings.data_dir) / DEMO_KEYS_FILE
-        keys = {}
+        kept = {}
         if path.is_file():
             try:
-                keys = json.loads(path.read_text(encoding="utf-8"))
+                kept = json.loads(path.read_text(encoding="utf-8"))
             except ValueError:
-                keys = {}
+                kept = {}
+        if not isinstance(kept, dict):
+            kept = {}
+        created = {}
         with session_scope(self.factory) as s:
-            valid = {r: k for r, k in keys.items() if config_repo.authenticate(s, k) is not None}
+            live = [k for k in config_repo.list_keys(s) if k.revoked_at is None]
+            valid = {r: kept[r] for r in ("read", "operate")
+                     if isinstance(kept.get(r), str) and config_repo.authenticate(s, kept[r]) is not None}
             for role in ("read", "operate", "admin"):
-                if role in valid:
+                if role in valid or (role == "admin" and any(k.role == "admin" and k.name.startswith("demo-admin")
+                                                             for k in live)):
                     continue
                 name = f"demo-{role}"
                 if config_repo.find_key(s, name) is not None:
                     name = f"demo-{role}-{int(time.time())}"
-                _, valid[role] = config_repo.create_key(s, name, role)
-        if valid != keys:
+                _, created[role] = config_repo.create_key(s, name, role)
+        keep = {**valid, **{r: k for r, k in created.items() if r != "admin"}}
+        if keep != kept:
             fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
             with os.fdopen(fd, "w", encoding="utf-8") as fh:
-                json.dump(valid, fh, indent=2)
-        return valid
+                json.dump(keep, fh, indent=2)
+        return created
 
     # -- operations for the API ------------------------------------------------------------------
     def trigger(self, axis_id: int, requested_by: str | None):
@@ -259,10 +281,39 @@ class Service:
             return False
 
 
+_SECRET_WORDS = ("password", "passwd", "pwd", "pass", "secret", "token", "key", "auth", "credential")
+
+
+def _restrict(path: Path, mode: int) -> None:
+    """chmod ``path`` to ``mode`` when it is more open (logged; a failure is only logged)."""
+    try:
+        current = path.stat().st_mode & 0o777
+        if current & ~mode:
+            os.chmod(path, mode)
+            log.info("%s: mode %o -> %o", path, current, mode)
+    except OSError as exc:
+        log.warning("could not restrict %s to mode %o: %s", path, mode, exc)
+
+
 def _redact(url: str) -> str:
-    if "@" in url and "://" in url:
-        scheme, rest = url.split("://", 1)
-        creds, host = rest.rsplit("@", 1)
-        user = creds.split(":", 1)[0]
-        return f"{scheme}://{user}:***@{host}" if ":" in creds else url
-    return url
+    """``url`` with every password-like part replaced by ``***``: the user info's password,
+    query parameters and fragment parameters named like a secret (``?password=``,
+    ``sslpassword``, ``api_key``...)."""
+    try:
+        parts = urlsplit(url)
+    except ValueError:
+        return "***"
+    netloc = parts.netloc
+    if "@" in netloc:
+        creds, host = netloc.rsplit("@", 1)
+        if ":" in creds:
+            netloc = f"{creds.split(':', 1)[0]}:***@{host}"
+
+    def clean(qs: str) -> str:
+        if not qs:
+            return qs
+        pairs = parse_qsl(qs, keep_blank_values=True)
+        return urlencode([(k, "***" if any(w in k.lower() for w in _SECRET_WORDS) else v) for k, v in pairs],
+                         safe="*")
+
+    return urlunsplit((parts.scheme, netloc, parts.path, clean(parts.query), clean(parts.fragment)))

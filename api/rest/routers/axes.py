@@ -6,6 +6,7 @@ from datetime import datetime, timezone
 from typing import Annotated
 
 from fastapi import APIRouter, Query, Request, Response, status
+from pydantic import AfterValidator
 from fastapi.concurrency import run_in_threadpool
 
 from api.rest import convert, schemas as sc
@@ -19,14 +20,19 @@ from storage.db import CycleRecord, Schedule, config_repo, results_repo
 
 router = APIRouter(tags=["axes"])
 
-Since = Annotated[datetime | None, Query(description="from this time (ISO 8601; UTC if no offset)")]
-Until = Annotated[datetime | None, Query(description="up to this time (ISO 8601; UTC if no offset)")]
-
-
 def utc(t: datetime | None) -> datetime | None:
+    """``t`` in UTC (naive: taken as UTC). A time that leaves years 1-9999 once converted
+    (``9999-12-31T23:59:59-23:59``) is a ValueError: a 422 naming the parameter."""
     if t is None:
         return None
-    return t.replace(tzinfo=timezone.utc) if t.tzinfo is None else t.astimezone(timezone.utc)
+    try:
+        return t.replace(tzinfo=timezone.utc) if t.tzinfo is None else t.astimezone(timezone.utc)
+    except OverflowError:
+        raise ValueError(f"{t.isoformat()} is out of range once converted to UTC (years 1 to 9999)") from None
+
+
+Since = Annotated[datetime | None, AfterValidator(utc), Query(description="from this time (ISO 8601; UTC if no offset)")]
+Until = Annotated[datetime | None, AfterValidator(utc), Query(description="up to this time (ISO 8601; UTC if no offset)")]
 
 
 @router.get("/axes/{axis_id}", response_model=sc.AxisOut, summary="An axis and its configuration")
