@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import gzip
 import json
 import os
 import tempfile
@@ -107,11 +108,20 @@ def _parse_run_spec(r: object, i: int, src: str) -> RunSpec:
     return RunSpec(**kw, extra={k: v for k, v in r.items() if k not in _RUN_FIELDS})
 
 
+def _open_text(path: Path):
+    if path.suffix == ".gz":
+        return gzip.open(path, "rt", newline="", encoding="utf-8")
+    return path.open(newline="", encoding="utf-8")
+
+
 def read_run_csv(path: Path, spec: RunSpec) -> dict[str, np.ndarray]:
-    """Read one run CSV into float columns and validate them against ``spec``."""
+    """Read one run CSV into float columns and validate them against ``spec``. A run
+    compressed by retention (``<file>.gz`` next to where ``<file>`` was) is read as well."""
+    if not path.is_file() and path.with_name(path.name + ".gz").is_file():
+        path = path.with_name(path.name + ".gz")
     if not path.is_file():
         raise DatasetError("run file is missing from the dataset folder", source=str(path))
-    with path.open(newline="", encoding="utf-8") as fh:
+    with _open_text(path) as fh:
         reader = csv.reader(fh)
         try:
             header = [h.strip() for h in next(reader)]
@@ -136,7 +146,7 @@ def read_run_csv(path: Path, spec: RunSpec) -> dict[str, np.ndarray]:
 
 
 def _raise_bad_row(path: Path, n_cols: int) -> None:
-    with path.open(newline="", encoding="utf-8") as fh:
+    with _open_text(path) as fh:
         reader = csv.reader(fh)
         next(reader)
         for row_no, row in enumerate(reader, start=1):

@@ -7,6 +7,7 @@ from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 
 from storage.db import StorageError, results_repo, session_scope
+from storage.retention import folder_bytes
 
 
 class ServiceCollector:
@@ -57,6 +58,11 @@ class ServiceCollector:
         for axis_id, n in sorted(snap.get("raw_runs_lost", {}).items()):
             lost.add_metric([str(axis_id)], float(n))
         yield lost
+        disk = GaugeMetricFamily("mebm_dataset_bytes", "Bytes of raw runs on disk per axis (all its dataset folders)",
+                                 labels=["axis_id"])
+        for axis_id, axis in sorted(self.service.executor._axes.items()):
+            disk.add_metric([str(axis_id)], float(sum(folder_bytes(f) for f in self.service.axis_folders(axis))))
+        yield disk
         spooled = GaugeMetricFamily("mebm_spooled_cycles", "Cycles kept on disk waiting for the database")
         ex = self.service.executor
         spooled.add_metric([], float(len(ex.pending()) + len(ex.unsaved)))

@@ -19,6 +19,7 @@ from core.dataset import AxisSpec
 from core.errors import InputError
 from core.tbe import MachiningTask
 from storage.db import AxisSettings, Schedule, sqlite_url
+from storage.retention import RetentionPolicy
 
 SIM_CONTROLLER = "sim"
 
@@ -79,6 +80,8 @@ class Settings:
     simulator: SimulatorSettings = field(default_factory=SimulatorSettings)
     log_level: str = "info"
     limits: LimitSettings = field(default_factory=LimitSettings)
+    retention: RetentionPolicy = field(default_factory=RetentionPolicy)
+    retention_interval_s: float = 3600.0
 
     @property
     def db_url(self) -> str:
@@ -110,7 +113,7 @@ def default_settings() -> Settings:
 
 
 # -- parsing -----------------------------------------------------------------------------------
-_TOP = {"server", "storage", "auth", "scheduler", "simulator", "machines", "logging", "limits"}
+_TOP = {"server", "storage", "auth", "scheduler", "simulator", "machines", "logging", "limits", "retention"}
 
 
 def _get(table: Mapping, key: str, kind, where: str, default=None):
@@ -205,6 +208,15 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
     logging_ = doc.get("logging", {})
     _unknown(logging_, {"level"}, "logging")
     limits = _limits(doc.get("limits", {}), base.limits)
+    ret = doc.get("retention", {})
+    _unknown(ret, {"keep_last_runs", "keep_around_events", "max_runs", "interval_s"}, "retention")
+    try:
+        retention = replace(base.retention, **{k: _get(ret, k, int, "retention") for k in ret if k != "interval_s"})
+    except InputError as exc:
+        raise ConfigError(str(exc)) from exc
+    retention_interval_s = _get(ret, "interval_s", float, "retention", base.retention_interval_s)
+    if not retention_interval_s > 0:
+        raise ConfigError(f"retention.interval_s (={retention_interval_s}) must be > 0")
     port = _get(server, "port", int, "server", base.port)
     if not 0 <= port <= 65535:
         raise ConfigError(f"server.port (={port}) must be 0..65535 (0: a free port)")
@@ -242,6 +254,7 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
         spool_retry_s=_get(sched, "spool_retry_s", float, "scheduler", base.spool_retry_s),
         machines=machines, axes=axes, simulator=simulator,
         log_level=_get(logging_, "level", str, "logging", base.log_level), limits=limits,
+        retention=retention, retention_interval_s=retention_interval_s,
     )
 
 

@@ -11,9 +11,10 @@ import json
 import logging
 import os
 import time
-from urllib.parse import parse_qsl, urlencode, urlsplit, urlunsplit
 from dataclasses import dataclass
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
+from urllib.parse import parse_qsl, urlencode, urlsplit, urlunsplit
 
 from sqlalchemy import text
 
@@ -24,6 +25,8 @@ from api.service.health import HealthProbe
 from api.service.runner import CycleRunner, DriverRunner
 from api.service.scheduler import CycleScheduler
 from api.service.status import StatusCache
+from core.errors import MebmError
+from storage.retention import apply_retention
 from storage.db import (
     AxisRecord,
     DatabaseUnavailableError,
@@ -141,6 +144,9 @@ class Service:
             if st.scheduler_enabled:
                 self.scheduler.schedule(axis)
         if st.scheduler_enabled:
+            self.scheduler.clock.add_job(self.apply_retention, "interval", seconds=st.retention_interval_s,
+                                         id="retention", coalesce=True, max_instances=1,
+                                         next_run_time=datetime.now(timezone.utc) + timedelta(seconds=60))
             self.scheduler.clock.add_job(self._retry_spool, "interval", seconds=st.spool_retry_s, id="spool",
                                          coalesce=True, max_instances=1)
             self.scheduler.start()
@@ -169,6 +175,38 @@ class Service:
             n = self.executor.replay_spool()
             if n:
                 log.info("stored %d cycle(s) kept on disk during a database outage", n)
+
+    def axis_folders(self, axis: AxisRecord) -> list[Path]:
+        """The axis' dataset folders: its own, ``_rejected`` and ``@<time>`` ones."""
+        base = self.executor.dataset_folder(axis)
+        if not base.parent.is_dir():
+            return []
+        return sorted(p for p in base.parent.glob(f"{base.name}*")
+                      if p.is_dir() and (p.name == base.name or p.name[len(base.name)] in "_@"))
+
+    def apply_retention(self) -> dict[int, int]:
+        """Apply the retention policy to every axis' folders; returns bytes on disk per axis."""
+        out = {}
+        for axis_id, axis in list(self.executor._axes.items()):
+            try:
+                with session_scope(self.factory) as s:
+                    events = results_repo.event_cycle_uuids(s, axis_id)
+            except StorageError as exc:
+                log.warning("retention of axis %s postponed: %s", axis_id, exc)
+                continue
+            total = 0
+            for folder in self.axis_folders(axis):
+                try:
+                    rep = apply_retention(folder, self.settings.retention, events)
+                except (MebmError, OSError) as exc:
+                    log.error("retention of %s failed: %s", folder, exc)
+                    continue
+                if rep.compressed or rep.deleted:
+                    log.info("retention of %s: %d run(s) compressed, %d deleted, %d kept",
+                             folder.name, rep.compressed, rep.deleted, rep.runs)
+                total += rep.bytes_on_disk
+            out[axis_id] = total
+        return out
 
     # -- configuration ---------------------------------------------------------------------------
     def _sync_config(self) -> list[str]:

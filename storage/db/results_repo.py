@@ -86,6 +86,17 @@ def axis_of_cycles(s: Session, uuids: list[str]) -> dict[str, int]:
     return out
 
 
+def event_cycle_uuids(s: Session, axis_id: int) -> set[str]:
+    """Uuids of the cycles that raised or cleared an alert of the axis (retention keeps
+    the raw runs around them)."""
+    out: set[str] = set()
+    for col in (Alert.raised_by_result_id, Alert.cleared_by_result_id):
+        q = (select(Cycle.uuid).join(Result, Result.cycle_id == Cycle.id).join(Alert, col == Result.id)
+             .where(Alert.axis_id == axis_id))
+        out.update(s.scalars(q))
+    return out
+
+
 def mark_running(s: Session, uuid: str, started_at: datetime | None = None) -> CycleRecord:
     c = s.scalar(select(Cycle).where(Cycle.uuid == uuid))
     if c is None:
