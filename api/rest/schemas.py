@@ -301,7 +301,8 @@ class ThermalModelOut(BaseModel):
 
 class TrendOut(BaseModel):
     axis_id: int
-    points: int
+    points: int = Field(description="points in the series (at most max_points: min and max of b̄ per bucket)")
+    points_total: int = Field(description="measurements in the time range (correlation and thermal model use all)")
     series: TrendSeriesOut
     correlation: dict[str, dict[str, float | None]] = Field(
         description="Pearson r (Eq. 4) of each criterion against temperature_c and utility_day; null if undefined")

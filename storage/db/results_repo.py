@@ -382,8 +382,8 @@ def backlash_history(s: Session, axis_id: int) -> tuple[np.ndarray, np.ndarray]:
                      .where(Result.axis_id == axis_id, Result.temperature_c.is_not(None))).all()
     if not rows:
         return np.zeros(0), np.zeros(0)
-    a = np.asarray(rows, dtype=float)
-    return a[:, 0], a[:, 1]
+    temps, backlash = zip(*rows)  # not np.asarray(rows): numpy probing Row objects costs ~40 µs a row
+    return np.asarray(temps, dtype=float), np.asarray(backlash, dtype=float)
 
 
 def tbe_history(s: Session, axis_id: int, *, since: datetime | None = None) -> list[tuple[datetime, str, float, float]]:

@@ -103,5 +103,9 @@ def list_measurements(
 
 @router.get("/axes/{axis_id}/trend", response_model=sc.TrendOut,
             summary="b̄, e_p, v_u, v_300, v_2pi over time with temperature, utility day and Pearson r (Section 3)")
-def trend(axis_id: AxisId, s: SessionDep, _k: ReadKey, since: Since = None, until: Until = None):
-    return convert.trend(axis_id, results_repo.trend(s, axis_id, since=utc(since), until=utc(until)))
+def trend(
+    axis_id: AxisId, s: SessionDep, _k: ReadKey, since: Since = None, until: Until = None,
+    max_points: Annotated[int, Query(ge=10, le=20000, description="downsample the series to this many points "
+                                     "(the minimum and maximum of b̄ per bucket)")] = 2000,
+):
+    return convert.trend(axis_id, results_repo.trend(s, axis_id, since=utc(since), until=utc(until)), max_points)

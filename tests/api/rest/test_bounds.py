@@ -7,6 +7,7 @@ from __future__ import annotations
 import threading
 import uuid
 
+import numpy as np
 import pytest
 
 from api.rest.limits import TokenBucket
@@ -193,3 +194,38 @@ def test_a_100_mb_body_without_a_key_is_refused_before_it_is_read(tmp_path, chun
         assert small.status_code == 401  # under the limit: the usual answer
     finally:
         server.terminate()
+
+
+def test_trend_series_are_downsampled_to_the_screen_keeping_every_excursion():
+    from datetime import datetime, timedelta, timezone
+
+    from api.rest import convert
+    from storage.db import TrendSeries
+
+    n = 100_000
+    t0 = datetime(2026, 1, 1, tzinfo=timezone.utc)
+    b = np.full(n, 200.0) + np.sin(np.arange(n) / 500.0)
+    b[77_777] = 262.0  # the one measurement that raised an alert
+    temps = 20.0 + (b - 200.0) / 2.0
+    series = TrendSeries(
+        measurement_id=tuple(range(1, n + 1)), measured_at=tuple(t0 + timedelta(minutes=i) for i in range(n)),
+        temperature_c=tuple(temps.tolist()), utility_day=tuple((np.arange(n) / 1440.0).tolist()),
+        backlash_mean_um=tuple(b.tolist()), e_p_um_per_1000mm=(1.0,) * n, v_u_um=(2.0,) * n, v_300_um=(1.0,) * n,
+        v_2pi_um=(0.5,) * n)
+    out = convert.trend(1, series, 2000)
+    assert out.points <= 2000 and out.points_total == n and len(out.series.measured_at) == out.points
+    assert 77_778 in out.series.measurement_id and max(out.series.backlash_mean_um) == 262.0
+    assert out.correlation["backlash_mean_um"]["temperature_c"] == pytest.approx(1.0)  # from all points
+    assert out.thermal_model is not None and out.thermal_model.n == n
+
+
+def test_the_trend_endpoint_takes_max_points(app_env):
+    client, svc, keys, axis_id = app_env
+    for _ in range(12):
+        svc.scheduler.request(axis_id, "schedule")
+        assert svc.scheduler.idle(30)
+    full = client.get(f"{V1}/axes/{axis_id}/trend", headers=hdr(keys["read"])).json()
+    thin = client.get(f"{V1}/axes/{axis_id}/trend", params={"max_points": 10}, headers=hdr(keys["read"])).json()
+    assert full["points"] == full["points_total"] == 12
+    assert thin["points"] <= 10 and thin["points_total"] == 12
+    assert client.get(f"{V1}/axes/{axis_id}/plots/backlash_trend.png", headers=hdr(keys["read"])).status_code == 200
