@@ -140,27 +140,34 @@ def _peak_rss_kb(pid: int) -> int:
         return next(int(line.split()[1]) for line in fh if line.startswith("VmHWM:"))
 
 
-def _send_big_body(url: str, total_bytes: int, *, chunked: bool) -> bytes:
+def _send_big_body(url: str, total_bytes: int, *, chunked: bool, limit_bytes: int = 1_000_000) -> bytes:
     """POST ``total_bytes`` without a key, 64 KB at a time, reading the answer as soon
-    as the server sends one (so the test's own memory stays small)."""
+    as the server sends one (so the test's own memory stays small).
+
+    Once the server could have answered (after the headers with Content-Length, after
+    ``limit_bytes`` when chunked) the client waits for an answer once, up to 10 s,
+    before it sends more: a server that answers and closes while more of the body is
+    arriving resets the connection, and the reset discards an answer not yet read."""
     import select
     import socket
 
     host, port = url.removeprefix("http://").split(":")
-    sock = socket.create_connection((host, int(port)), timeout=30)
+    sock = socket.create_connection((host, int(port)), timeout=60)
     head = f"POST /api/v1/machines HTTP/1.1\r\nHost: {host}\r\nContent-Type: application/json\r\n"
     head += "Transfer-Encoding: chunked\r\n\r\n" if chunked else f"Content-Length: {total_bytes}\r\n\r\n"
     chunk = b"[" + b"0," * 32767 + b"0"  # 64 KB of valid-looking JSON
-    sent, answer = 0, b""
+    sent, answer, waited = 0, b"", False
     try:
         sock.sendall(head.encode())
         while sent < total_bytes:
-            if select.select([sock], [], [], 0)[0]:
+            could_answer = not chunked or sent > limit_bytes
+            timeout_s = 10.0 if could_answer and not waited else 0.0
+            waited = waited or could_answer
+            if select.select([sock], [], [], timeout_s)[0]:
                 break  # the server answered before the body was sent
             piece = f"{len(chunk):x}\r\n".encode() + chunk + b"\r\n" if chunked else chunk
             sock.sendall(piece)
             sent += len(chunk)
-        sock.settimeout(30)
         while b"\r\n\r\n" not in answer:
             data = sock.recv(65536)
             if not data:
