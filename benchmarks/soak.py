@@ -30,6 +30,7 @@ import argparse
 import json
 import os
 import re
+import shutil
 import signal
 import sqlite3
 import subprocess
@@ -82,6 +83,7 @@ def main() -> int:
     ap.add_argument("--axes", type=int, default=3)
     ap.add_argument("--interval-s", type=float, default=2.0)
     ap.add_argument("--fault-s", type=float, default=15.0)
+    ap.add_argument("--keep", action="store_true", help="keep the data folder (printed) for a look afterwards")
     a = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="mebm-soak-"))
     url = f"sqlite:///{tmp}/soak.sqlite3"
@@ -193,7 +195,13 @@ def main() -> int:
         proc.wait(30)
     except subprocess.TimeoutExpired:
         proc.kill()
-    return report(tmp, url, status_ms, answers, rss)
+    try:
+        return report(tmp, url, status_ms, answers, rss)
+    finally:
+        if a.keep:
+            print(f"data folder kept: {tmp}")
+        else:
+            shutil.rmtree(tmp, ignore_errors=True)
 
 
 def report(tmp: Path, url: str, status_ms, answers, rss) -> int:
