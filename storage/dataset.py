@@ -6,11 +6,14 @@ for CSV content, the row. Unknown JSON fields survive a read-write round trip.
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import gzip
 import json
 import os
 import tempfile
-from collections.abc import Iterable, Mapping
+import threading
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import asdict, fields, replace
 from pathlib import Path
 
@@ -105,11 +108,20 @@ def _parse_run_spec(r: object, i: int, src: str) -> RunSpec:
     return RunSpec(**kw, extra={k: v for k, v in r.items() if k not in _RUN_FIELDS})
 
 
+def _open_text(path: Path):
+    if path.suffix == ".gz":
+        return gzip.open(path, "rt", newline="", encoding="utf-8")
+    return path.open(newline="", encoding="utf-8")
+
+
 def read_run_csv(path: Path, spec: RunSpec) -> dict[str, np.ndarray]:
-    """Read one run CSV into float columns and validate them against ``spec``."""
+    """Read one run CSV into float columns and validate them against ``spec``. A run
+    compressed by retention (``<file>.gz`` next to where ``<file>`` was) is read as well."""
+    if not path.is_file() and path.with_name(path.name + ".gz").is_file():
+        path = path.with_name(path.name + ".gz")
     if not path.is_file():
         raise DatasetError("run file is missing from the dataset folder", source=str(path))
-    with path.open(newline="", encoding="utf-8") as fh:
+    with _open_text(path) as fh:
         reader = csv.reader(fh)
         try:
             header = [h.strip() for h in next(reader)]
@@ -134,7 +146,7 @@ def read_run_csv(path: Path, spec: RunSpec) -> dict[str, np.ndarray]:
 
 
 def _raise_bad_row(path: Path, n_cols: int) -> None:
-    with path.open(newline="", encoding="utf-8") as fh:
+    with _open_text(path) as fh:
         reader = csv.reader(fh)
         next(reader)
         for row_no, row in enumerate(reader, start=1):
@@ -199,7 +211,62 @@ def run_spec_to_json(spec: RunSpec) -> dict:
     return out
 
 
+try:  # POSIX: an advisory lock file, so a second process (the CLI) is excluded too
+    import fcntl
+except ImportError:  # pragma: no cover - Windows: the in-process lock only
+    fcntl = None
+
+LOCK_FILE = ".dataset.lock"
+_locks: dict[str, threading.RLock] = {}
+_depth: dict[str, int] = {}
+_locks_guard = threading.Lock()
+
+
+@contextlib.contextmanager
+def dataset_lock(folder: str | os.PathLike) -> Iterator[Path]:
+    """Hold the folder's lock: one writer of ``dataset.json`` at a time, across threads
+    (a re-entrant lock per folder) and processes (``flock`` on ``.dataset.lock``).
+    Creates the folder. Re-entrant within a thread, so ``append_runs`` can be called
+    inside a ``with dataset_lock(folder):`` that picked the run's name."""
+    root = Path(folder)
+    root.mkdir(parents=True, exist_ok=True)
+    key = str(root.resolve())
+    with _locks_guard:
+        lock = _locks.setdefault(key, threading.RLock())
+    with lock:
+        outer = _depth.get(key, 0) == 0
+        fd = None
+        if outer and fcntl is not None:
+            fd = os.open(root / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o600)
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        _depth[key] = _depth.get(key, 0) + 1
+        try:
+            yield root
+        finally:
+            _depth[key] -= 1
+            if fd is not None:
+                fcntl.flock(fd, fcntl.LOCK_UN)
+                os.close(fd)
+
+
+def fsync_dir(path: Path) -> None:
+    """Make a rename or an unlink in ``path`` durable (POSIX; a no-op where folders
+    cannot be opened)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:  # pragma: no cover - Windows
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # pragma: no cover - file systems that refuse fsync on a folder
+        pass
+    finally:
+        os.close(fd)
+
+
 def _atomic_write_text(path: Path, text: str) -> None:
+    """Temporary file, fsync, rename, fsync of the folder: the old or the new text,
+    never a torn one, and the new one survives a power cut once this returns."""
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
     try:
         with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
@@ -210,6 +277,7 @@ def _atomic_write_text(path: Path, text: str) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+    fsync_dir(path.parent)
 
 
 def write_run_csv(path: Path, columns: Mapping[str, np.ndarray]) -> None:
@@ -227,6 +295,7 @@ def write_run_csv(path: Path, columns: Mapping[str, np.ndarray]) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+    fsync_dir(path.parent)
 
 
 def write_dataset(folder: str | os.PathLike, dataset: Dataset) -> Path:
@@ -251,11 +320,15 @@ def append_runs(folder: str | os.PathLike, machine: MachineSpec, runs: Iterable[
     """Append runs to a dataset folder, creating it if absent.
 
     An existing folder must describe the same axes (same k_a, lead, gain, travel)
-    or :class:`DatasetError` is raised; a run file name already listed is an error,
-    so nothing already stored is overwritten.
+    or :class:`DatasetError` is raised; a run file name already listed (or a file of
+    that name already in the folder) is an error, so nothing stored is overwritten.
+    The whole read-modify-write holds :func:`dataset_lock`.
     """
-    root = Path(folder)
-    runs = list(runs)
+    with dataset_lock(folder) as root:
+        return _append_runs_locked(root, machine, list(runs))
+
+
+def _append_runs_locked(root: Path, machine: MachineSpec, runs: list[Run]) -> Path:
     json_path = root / "dataset.json"
     if json_path.exists():
         existing = read_dataset(root, load_runs=False)
@@ -276,7 +349,7 @@ def append_runs(folder: str | os.PathLike, machine: MachineSpec, runs: Iterable[
         root.mkdir(parents=True, exist_ok=True)
         listed, run_docs, doc = set(), [], {}
     for run in runs:
-        if run.spec.file in listed:
+        if run.spec.file in listed or (root / run.spec.file).exists():
             raise DatasetError(f"run file {run.spec.file!r} is already in the dataset", source=str(json_path))
         validate_run_spec(run.spec, machine)
         validate_columns(run.spec, run.columns)
@@ -290,9 +363,16 @@ def append_runs(folder: str | os.PathLike, machine: MachineSpec, runs: Iterable[
 
 
 def next_run_name(folder: str | os.PathLike, stem: str) -> str:
-    """A run file name ``<stem>_NN.csv`` not yet used in the folder."""
+    """A run file name ``<stem>_NN.csv`` neither in the folder (plain or compressed)
+    nor listed in its ``dataset.json``. Unique among concurrent writers only when
+    called and used under :func:`dataset_lock`."""
     root = Path(folder)
+    listed: set[str] = set()
+    with contextlib.suppress(DatasetError, OSError, KeyError, TypeError):
+        listed = {str(r.get("file")) for r in _load_json(root / "dataset.json")["runs"] if isinstance(r, dict)}
     i = 0
-    while (root / f"{stem}_{i:02d}.csv").exists():
+    while True:
+        name = f"{stem}_{i:02d}.csv"
+        if name not in listed and not (root / name).exists() and not (root / f"{name}.gz").exists():
+            return name
         i += 1
-    return f"{stem}_{i:02d}.csv"

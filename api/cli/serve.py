@@ -52,18 +52,19 @@ def banner(settings, report, url: str) -> str:
         lines.append(f"{report.interrupted} cycle(s) interrupted by the last stop were closed")
     for axis_id, sim_url in report.simulators.items():
         lines.append(f"axis {axis_id}: built-in simulated controller on {sim_url}")
-    if report.demo_keys:
+    if report.demo_keys:  # only the keys created by this start: shown once
         k = report.demo_keys
-        lines += [
-            f"demo keys (kept in {Path(settings.data_dir) / 'demo-keys.json'}):",
-            f"  read (MES):  {k.get('read')}",
-            f"  operate:     {k.get('operate')}",
-            f"  admin:       {k.get('admin')}",
-            "try (the first measurement arrives within a minute):",
-            f"  curl -H 'X-API-Key: {k.get('read')}' {url}/api/v1/axes/1/status",
-            f"  curl -H 'X-API-Key: {k.get('read')}' '{url}/api/v1/alerts?state=active'",
-            f"  open {url}/api/v1/axes/1/plots/backlash_trend.png (with the key header) for Fig. 10",
-        ]
+        lines.append("demo keys created (shown this once; read and operate are kept in "
+                     f"{Path(settings.data_dir) / 'demo-keys.json'}, the admin key nowhere):")
+        labels = {"read": "read (MES):", "operate": "operate:", "admin": "admin:"}
+        lines += [f"  {labels[r]:<12} {k[r]}" for r in ("read", "operate", "admin") if r in k]
+        if "read" in k:
+            lines += [
+                "try (the first measurement arrives within a minute):",
+                f"  curl -H 'X-API-Key: {k['read']}' {url}/api/v1/axes/1/status",
+                f"  curl -H 'X-API-Key: {k['read']}' '{url}/api/v1/alerts?state=active'",
+                f"  open {url}/api/v1/axes/1/plots/backlash_trend.png (with the key header) for Fig. 10",
+            ]
     if report.bootstrap_admin:
         lines.append(f"bootstrap admin key registered as {report.bootstrap_admin!r}")
     return "\n".join(lines)

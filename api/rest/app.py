@@ -15,6 +15,9 @@ from fastapi import APIRouter, FastAPI
 
 from api.rest import errors
 from api.rest.auth import KeyCache
+from api.rest.docs import install_docs
+from api.rest.headers import SecurityHeaders
+from api.rest.limits import BodyLimit, TokenBucket
 from api.rest.metrics import make_registry
 from api.rest.schemas import ERROR_RESPONSES
 from api.rest.status_body import StatusFastPath
@@ -59,13 +62,19 @@ def create_app(settings: Settings, *, service: Service | None = None, runner: Cy
                 svc.stop()
 
     app = FastAPI(title="mebm", version="0.1.0", description=DESCRIPTION, lifespan=lifespan,
-                  openapi_url=f"{API_PREFIX}/openapi.json", docs_url="/docs", redoc_url=None)
+                  openapi_url=f"{API_PREFIX}/openapi.json", docs_url=None, redoc_url=None)
+    install_docs(app, f"{API_PREFIX}/openapi.json")  # Swagger UI from the package, no CDN
     app.state.service = svc
     app.state.key_cache = KeyCache()
     app.state.status_json = {}  # axis id -> (status object, its encoded JSON): see status_body.py
     app.state.metrics = make_registry(svc)
     errors.install(app)
     app.add_middleware(StatusFastPath, state=app.state)
+    lim = settings.limits
+    app.state.trigger_limit = TokenBucket(lim.triggers_per_minute, lim.trigger_burst)
+    app.state.auth_throttle = TokenBucket(lim.auth_failures_per_minute, lim.auth_failure_burst)
+    app.add_middleware(BodyLimit, max_bytes=lim.max_body_bytes)  # before anything reads the body
+    app.add_middleware(SecurityHeaders)
     api = APIRouter(prefix=API_PREFIX, responses=ERROR_RESPONSES)
     for name in ROUTERS:
         try:

@@ -9,6 +9,7 @@ import numpy as np
 
 from api.rest import schemas as sc
 from api.service.status import AxisStatus
+from core.downsample import minmax_indices
 from core.history import TemperatureModel, correlation_table
 from core.errors import MebmError
 from storage.db import AlertRecord, AxisRecord, CycleRecord, KeyRecord, MachineRecord, ResultRecord, TrendSeries
@@ -86,7 +87,7 @@ def status(s: AxisStatus, now: datetime, next_run: datetime | None) -> sc.AxisSt
         backlash_reduction_needed_um=max(b - limit, 0.0) if (b is not None and limit is not None) else None,
         binding_task=d.binding_task if d else None, tasks=tasks, active_alert_id=s.active_alert_id,
         last_cycle_status=s.last_cycle_status, last_cycle_at=s.last_cycle_at,
-        last_failure_reason=s.last_failure_reason, next_run_at=next_run,
+        last_failure_reason=s.last_failure_reason, next_run_at=next_run, last_raw_run_lost=s.last_raw_run_lost,
     )
 
 
@@ -96,6 +97,7 @@ def summary(c: CycleRecord) -> sc.MeasurementSummary:
         requested_at=c.requested_at, started_at=c.started_at, finished_at=c.finished_at,
         failure_reason=c.failure_reason, temperature_c=c.temperature_c, utility_day=c.utility_day,
         uncertainty_um=c.uncertainty_um, backlash_mean_um=c.backlash_mean_um, state=c.state,
+        raw_run_lost=c.raw_run_lost,
     )
 
 
@@ -135,32 +137,40 @@ def detail(c: CycleRecord, r: ResultRecord | None, curves: bool) -> sc.Measureme
 CRITERIA = ("backlash_mean_um", "e_p_um_per_1000mm", "v_u_um", "v_300_um", "v_2pi_um")
 
 
-def trend(axis_id: int, t: TrendSeries) -> sc.TrendOut:
+def trend(axis_id: int, t: TrendSeries, max_points: int | None = None) -> sc.TrendOut:
+    """The trend; the series downsampled to ``max_points`` (min/max of b̄ per bucket), the
+    correlations and the thermal model computed on every point."""
+    n = len(t.measurement_id)
+    shown = range(n) if max_points is None else minmax_indices(t.backlash_mean_um, max_points).tolist()
+
+    def pick(seq) -> list:
+        return list(seq) if len(shown) == n else [seq[i] for i in shown]
+
     series = sc.TrendSeriesOut(
-        measurement_id=list(t.measurement_id), measured_at=list(t.measured_at), temperature_c=list(t.temperature_c),
-        utility_day=list(t.utility_day), backlash_mean_um=list(t.backlash_mean_um),
-        e_p_um_per_1000mm=list(t.e_p_um_per_1000mm), v_u_um=list(t.v_u_um), v_300_um=list(t.v_300_um),
-        v_2pi_um=list(t.v_2pi_um),
+        measurement_id=pick(t.measurement_id), measured_at=pick(t.measured_at), temperature_c=pick(t.temperature_c),
+        utility_day=pick(t.utility_day), backlash_mean_um=pick(t.backlash_mean_um),
+        e_p_um_per_1000mm=pick(t.e_p_um_per_1000mm), v_u_um=pick(t.v_u_um), v_300_um=pick(t.v_300_um),
+        v_2pi_um=pick(t.v_2pi_um),
     )
     corr: dict[str, dict[str, float | None]] = {c: {} for c in CRITERIA}
+    arrays = {c: np.asarray(getattr(t, c), dtype=float) for c in (*CRITERIA, "temperature_c", "utility_day")}
     for driver in ("temperature_c", "utility_day"):
-        x = getattr(t, driver)
-        keep = [i for i, v in enumerate(x) if v is not None and math.isfinite(v)]
-        against = {driver: np.asarray([x[i] for i in keep], dtype=float)}
-        crit = {c: np.asarray([getattr(t, c)[i] for i in keep], dtype=float) for c in CRITERIA}
+        keep = np.isfinite(arrays[driver])  # None is NaN here
+        against = {driver: arrays[driver][keep]}
+        crit = {c: arrays[c][keep] for c in CRITERIA}
         for c, row in correlation_table(crit, against).items():
             corr[c][driver] = sc.fin(row[driver])
     model = None
-    keep = [i for i, v in enumerate(t.temperature_c) if v is not None]
-    temps = np.asarray([t.temperature_c[i] for i in keep], dtype=float)
+    keep = ~np.isnan(arrays["temperature_c"])
+    temps = arrays["temperature_c"][keep]
     if temps.size >= 3 and np.ptp(temps) >= 1.0:
         try:
-            m = TemperatureModel().fit(temps, np.asarray([t.backlash_mean_um[i] for i in keep], dtype=float))
+            m = TemperatureModel().fit(temps, arrays["backlash_mean_um"][keep])
             model = sc.ThermalModelOut(backlash_20c_um=m.backlash_ref_um_, beta_um_per_k=m.beta_um_per_k_,
                                        r=sc.fin(m.r_), n=m.n_)
         except MebmError:
             model = None
-    return sc.TrendOut(axis_id=axis_id, points=len(t.measurement_id), series=series, correlation=corr,
+    return sc.TrendOut(axis_id=axis_id, points=len(shown), points_total=n, series=series, correlation=corr,
                        thermal_model=model)
 
 

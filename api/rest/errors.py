@@ -1,20 +1,22 @@
 """The one place errors become HTTP status codes.
 
 422 bad input (the message names the field), 404 unknown id, 409 conflict,
-401/403 keys, 503 database down. Anything else is logged and answered 500 without
+401/403 keys, 413 body too large, 429 rate limits and a manual measurement already
+waiting (with ``Retry-After``), 503 database down. Anything else is logged and answered 500 without
 internals.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
 from core.errors import InputError, MebmError
-from storage.db import ConflictError, DatabaseUnavailableError, NotFoundError, StorageError
+from storage.db import ConflictError, DatabaseUnavailableError, NotFoundError, StorageError, WaitingCycleError
 
 log = logging.getLogger("mebm.api")
 
@@ -29,6 +31,21 @@ class ForbiddenError(MebmError):
     """403: a valid key whose role does not allow the action."""
 
     status_code = 403
+
+
+class TooManyRequestsError(MebmError):
+    """429: a rate limit; ``retry_after_s`` says when to ask again."""
+
+    status_code = 429
+
+    def __init__(self, message: str, retry_after_s: float):
+        super().__init__(message)
+        self.retry_after_s = retry_after_s
+
+
+def too_many(message: str, retry_after_s: float, **extra) -> JSONResponse:
+    return JSONResponse({"detail": message, **extra}, status_code=429,
+                        headers={"Retry-After": str(max(1, math.ceil(retry_after_s)))})
 
 
 def _body(status: int, message: str, **extra) -> JSONResponse:
@@ -55,6 +72,14 @@ def install(app: FastAPI) -> None:
     @app.exception_handler(ForbiddenError)
     async def _forbidden(_req, exc):
         return _body(403, str(exc))
+
+    @app.exception_handler(TooManyRequestsError)
+    async def _too_many(_req, exc):
+        return too_many(str(exc), exc.retry_after_s)
+
+    @app.exception_handler(WaitingCycleError)
+    async def _waiting(_req, exc):
+        return too_many(str(exc), exc.retry_after_s, waiting_measurement_id=getattr(exc.cycle, "id", None))
 
     @app.exception_handler(NotFoundError)
     async def _not_found(_req, exc):

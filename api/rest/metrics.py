@@ -7,6 +7,7 @@ from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 
 from storage.db import StorageError, results_repo, session_scope
+from storage.retention import folder_bytes
 
 
 class ServiceCollector:
@@ -14,6 +15,7 @@ class ServiceCollector:
         self.service = service
 
     def collect(self):
+        yield from self._health()
         up = GaugeMetricFamily("mebm_database_up", "1 when the database answers")
         try:
             with session_scope(self.service.factory) as s:
@@ -51,10 +53,44 @@ class ServiceCollector:
         tot = GaugeMetricFamily("mebm_active_alerts_total", "Active alerts over all axes")
         tot.add_metric([], float(total))
         yield tot
+        lost = CounterMetricFamily("mebm_raw_runs_lost", "Cycles whose raw run could not be kept anywhere",
+                                   labels=["axis_id"])
+        for axis_id, n in sorted(snap.get("raw_runs_lost", {}).items()):
+            lost.add_metric([str(axis_id)], float(n))
+        yield lost
+        disk = GaugeMetricFamily("mebm_dataset_bytes", "Bytes of raw runs on disk per axis (all its dataset folders)",
+                                 labels=["axis_id"])
+        for axis_id, axis in sorted(self.service.executor._axes.items()):
+            disk.add_metric([str(axis_id)], float(sum(folder_bytes(f) for f in self.service.axis_folders(axis))))
+        yield disk
         spooled = GaugeMetricFamily("mebm_spooled_cycles", "Cycles kept on disk waiting for the database")
         ex = self.service.executor
         spooled.add_metric([], float(len(ex.pending()) + len(ex.unsaved)))
         yield spooled
+
+
+    def _health(self):
+        rep = self.service.health.report()
+        healthy = GaugeMetricFamily("mebm_healthy", "1 when /healthz is ok; 0 when degraded (see mebm_degraded)")
+        healthy.add_metric([], 1.0 if rep.ok else 0.0)
+        yield healthy
+        degraded = GaugeMetricFamily("mebm_degraded", "1 per reason the service is degraded", labels=["reason"])
+        for reason in rep.problems:
+            degraded.add_metric([reason], 1.0)
+        yield degraded
+        writable = GaugeMetricFamily("mebm_database_writable", "1 when a write to the database succeeds")
+        writable.add_metric([], 1.0 if rep.database == "ok" else 0.0)
+        yield writable
+        folder = GaugeMetricFamily("mebm_data_dir_writable", "1 when the data folders take a new file")
+        folder.add_metric([], 1.0 if rep.data_dir_writable else 0.0)
+        yield folder
+        if rep.free_disk_bytes is not None:
+            free = GaugeMetricFamily("mebm_disk_free_bytes", "Free disk under the data folder")
+            free.add_metric([], float(rep.free_disk_bytes))
+            yield free
+        floor = GaugeMetricFamily("mebm_disk_free_floor_bytes", "Configured floor of free disk (degraded below)")
+        floor.add_metric([], float(rep.min_free_disk_bytes))
+        yield floor
 
 
 def make_registry(service) -> CollectorRegistry:

@@ -20,10 +20,12 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
 from core.criteria import LeadCriteria  # noqa: E402
+from core.downsample import minmax_indices  # noqa: E402
 from core.errors import MebmError  # noqa: E402
 from core.tbe import MachiningTask  # noqa: E402
 
 _LOCK = threading.Lock()
+SCREEN_POINTS = 2000  # a 1000-pixel-wide chart: min and max per pixel column
 NAMES = ("backlash_profile", "lead_deviation", "tbe_vs_backlash", "tbe_history", "backlash_trend")
 COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2")
 
@@ -189,8 +191,21 @@ def tbe_vs_backlash(tasks: Sequence[MachiningTask], limits_um: Sequence[float | 
         return _png(fig)
 
 
+def _thin(values, *others, max_points: int = SCREEN_POINTS):
+    """The series (and its companions) downsampled for the screen (min/max per bucket)."""
+    idx = minmax_indices(values, max_points)
+    if len(idx) == len(values):
+        return (list(values), *[list(o) for o in others])
+    return tuple([seq[i] for i in idx] for seq in (values, *others))
+
+
 def tbe_history(series: dict[str, tuple[list[datetime], list[float], list[float]]], *, title: str) -> bytes:
     """Fig. 15: the estimated TBE of each task over time against its threshold."""
+    thinned = {}
+    for name, (t, tbe, tol) in series.items():
+        tbe_d, t_d, tol_d = _thin(tbe, t, tol)
+        thinned[name] = (t_d, tbe_d, tol_d)
+    series = thinned
     with _LOCK:
         fig, (ax,) = _figure(10, 5)
         for i, (name, (t, tbe, tol)) in enumerate(series.items()):
@@ -213,6 +228,7 @@ def tbe_history(series: dict[str, tuple[list[datetime], list[float], list[float]
 def backlash_trend(t: list[datetime], backlash_um: list[float], temperature_c: list[float | None], *,
                    limit_um: float | None, title: str) -> bytes:
     """Fig. 10: mean backlash b̄ and ambient temperature over time."""
+    backlash_um, t, temperature_c = _thin(backlash_um, t, temperature_c)
     with _LOCK:
         fig, (ax,) = _figure(10, 5)
         ax.plot(t, backlash_um, "o-", color="black", ms=4, lw=1.2, label="mean backlash b̄")

@@ -37,7 +37,7 @@ class TaskIn(In):
     """A machining task. ``circle`` needs ``radius_mm``; ``line`` needs ``angle_deg``
     (to the reversely engaged axis, -90..90)."""
 
-    name: str = Field(min_length=1, max_length=100)
+    name: str = Field(min_length=1, max_length=100, pattern=r"\S", description="not blank")
     profile: Literal["circle", "line"]
     feed_mm_min: float = Field(ge=0.1, le=100000)
     tolerance_um: float = Field(ge=0.01, le=10000)
@@ -90,6 +90,27 @@ class ScheduleOut(BaseModel):
     next_run_at: datetime | None
 
 
+MAX_TRAVEL_MM = 100_000.0  # 100 m: beyond the largest gantry
+MAX_PROGRAM_MIN = 60.0  # one measurement round trip: an hour at most
+
+
+def link_local_problem(url: str) -> str | None:
+    """Why a controller URL points at a link-local address (169.254.0.0/16, fe80::/10:
+    where cloud metadata services live), or None. Only literal addresses are checked."""
+    import ipaddress
+    from urllib.parse import urlsplit
+
+    try:
+        host = urlsplit(url).hostname or ""
+        addr = ipaddress.ip_address(host)
+    except ValueError:
+        return None
+    if addr.is_link_local:
+        return (f"controller_url (={url!r}) points at the link-local address {addr}; set "
+                "limits.allow_link_local_controllers = true if the controller really is there")
+    return None
+
+
 class AxisIn(In):
     name: str = Field(min_length=1, max_length=20, pattern=r"^[a-z][a-z0-9_]*$")
     transmission_mm_per_rev: float = Field(ge=0.001, le=10000)
@@ -108,8 +129,13 @@ class AxisIn(In):
     @model_validator(mode="after")
     def _travel(self):
         a, b = self.travel_mm
-        if not (abs(a) < 1e6 and abs(b) < 1e6 and b - a >= 10):
-            raise ValueError("travel_mm must be [start, end] with end - start >= 10 mm (|values| < 1e6)")
+        if not (abs(a) <= MAX_TRAVEL_MM and abs(b) <= MAX_TRAVEL_MM and b - a >= 10):
+            raise ValueError(f"travel_mm (={[a, b]}) must be [start, end] with end - start >= 10 mm and "
+                             f"|start|, |end| <= {MAX_TRAVEL_MM:g} mm")
+        round_trip_min = 2 * (b - a) / self.measure_feed_mm_min
+        if round_trip_min > MAX_PROGRAM_MIN:
+            raise ValueError(f"measure_feed_mm_min (={self.measure_feed_mm_min:g}) over travel_mm (={[a, b]}) makes a "
+                             f"measurement program of {round_trip_min:.0f} min; at most {MAX_PROGRAM_MIN:g} min")
         return self
 
 
@@ -179,6 +205,8 @@ class AxisStatusOut(BaseModel):
     last_cycle_status: str | None
     last_cycle_at: datetime | None
     last_failure_reason: str | None
+    last_raw_run_lost: str | None = Field(
+        None, description="why the raw run of the last finished cycle could not be kept (null: it was kept)")
     next_run_at: datetime | None
 
 
@@ -198,6 +226,7 @@ class MeasurementSummary(BaseModel):
     uncertainty_um: float | None
     backlash_mean_um: float | None
     state: str | None
+    raw_run_lost: str | None = Field(None, description="why the raw run could not be kept (null: it was kept)")
 
 
 class MeasurementPage(BaseModel):
@@ -286,7 +315,8 @@ class ThermalModelOut(BaseModel):
 
 class TrendOut(BaseModel):
     axis_id: int
-    points: int
+    points: int = Field(description="points in the series (at most max_points: min and max of b̄ per bucket)")
+    points_total: int = Field(description="measurements in the time range (correlation and thermal model use all)")
     series: TrendSeriesOut
     correlation: dict[str, dict[str, float | None]] = Field(
         description="Pearson r (Eq. 4) of each criterion against temperature_c and utility_day; null if undefined")
@@ -321,7 +351,7 @@ class AlertPage(BaseModel):
 
 
 class KeyIn(In):
-    name: str = Field(min_length=1, max_length=100)
+    name: str = Field(min_length=1, max_length=100, pattern=r"\S", description="not blank")
     role: Literal["read", "operate", "admin"]
 
 
@@ -355,14 +385,21 @@ ERROR_RESPONSES = {
     403: {"model": ErrorOut, "description": "the key's role does not allow this"},
     404: {"model": ErrorOut, "description": "unknown id"},
     409: {"model": ErrorOut, "description": "conflicts with what is stored"},
+    413: {"model": ErrorOut, "description": "request body larger than limits.max_body_bytes"},
     422: {"model": ErrorOut, "description": "invalid input; the message names the field"},
+    429: {"model": ErrorOut, "description": "too many failed authentications from this address, too many "
+                                            "triggers for this key, or a manual measurement waits already; "
+                                            "see Retry-After"},
     503: {"model": ErrorOut, "description": "database unavailable; retry later"},
 }
 
 
 class Health(BaseModel):
     status: Literal["ok", "degraded"]
-    database: Literal["ok", "unavailable"]
+    database: Literal["ok", "read-only", "unavailable"]
+    data_dir: Literal["ok", "not writable"]
+    free_disk_mb: float | None
+    problems: list[str] = Field(description="why the status is degraded, one line each (empty when ok)")
     version: str
     uptime_s: float
     spooled_cycles: int

@@ -19,6 +19,7 @@ from core.dataset import AxisSpec
 from core.errors import InputError
 from core.tbe import MachiningTask
 from storage.db import AxisSettings, Schedule, sqlite_url
+from storage.retention import RetentionPolicy
 
 SIM_CONTROLLER = "sim"
 
@@ -45,6 +46,18 @@ class SimulatorSettings:
 
 
 @dataclass(frozen=True)
+class LimitSettings:
+    """What one client can make the service do (``[limits]``)."""
+
+    max_body_bytes: int = 1_000_000  # larger request bodies: 413 before they are read, key or no key
+    triggers_per_minute: float = 6.0  # manual measurements per key (a token bucket)...
+    trigger_burst: int = 3  # ...of which this many at once
+    auth_failures_per_minute: float = 10.0  # failed authentications per client address...
+    auth_failure_burst: int = 20  # ...before it is answered 429 for a while
+    allow_link_local_controllers: bool = False  # 169.254.x.x / fe80:: controllers (cloud metadata lives there)
+
+
+@dataclass(frozen=True)
 class AxisConfig:
     machine: str
     settings: AxisSettings
@@ -56,6 +69,7 @@ class Settings:
     port: int = 8000
     data_dir: Path = Path("data")
     database_url: str | None = None
+    min_free_disk_mb: float = 500.0  # /healthz is degraded below this much free disk under data_dir
     bootstrap_admin_key: str | None = None
     demo_keys: bool = True
     scheduler_enabled: bool = True
@@ -65,6 +79,9 @@ class Settings:
     axes: tuple[AxisConfig, ...] = ()
     simulator: SimulatorSettings = field(default_factory=SimulatorSettings)
     log_level: str = "info"
+    limits: LimitSettings = field(default_factory=LimitSettings)
+    retention: RetentionPolicy = field(default_factory=RetentionPolicy)
+    retention_interval_s: float = 3600.0
 
     @property
     def db_url(self) -> str:
@@ -96,7 +113,7 @@ def default_settings() -> Settings:
 
 
 # -- parsing -----------------------------------------------------------------------------------
-_TOP = {"server", "storage", "auth", "scheduler", "simulator", "machines", "logging"}
+_TOP = {"server", "storage", "auth", "scheduler", "simulator", "machines", "logging", "limits", "retention"}
 
 
 def _get(table: Mapping, key: str, kind, where: str, default=None):
@@ -183,7 +200,7 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
     server = doc.get("server", {})
     _unknown(server, {"host", "port"}, "server")
     storage = doc.get("storage", {})
-    _unknown(storage, {"data_dir", "database_url"}, "storage")
+    _unknown(storage, {"data_dir", "database_url", "min_free_disk_mb"}, "storage")
     auth = doc.get("auth", {})
     _unknown(auth, {"bootstrap_admin_key", "demo_keys"}, "auth")
     sched = doc.get("scheduler", {})
@@ -193,6 +210,16 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
     _unknown(sim, sim_fields, "simulator")
     logging_ = doc.get("logging", {})
     _unknown(logging_, {"level"}, "logging")
+    limits = _limits(doc.get("limits", {}), base.limits)
+    ret = doc.get("retention", {})
+    _unknown(ret, {"keep_last_runs", "keep_around_events", "max_runs", "interval_s"}, "retention")
+    try:
+        retention = replace(base.retention, **{k: _get(ret, k, int, "retention") for k in ret if k != "interval_s"})
+    except InputError as exc:
+        raise ConfigError(str(exc)) from exc
+    retention_interval_s = _get(ret, "interval_s", float, "retention", base.retention_interval_s)
+    if not retention_interval_s > 0:
+        raise ConfigError(f"retention.interval_s (={retention_interval_s}) must be > 0")
     port = _get(server, "port", int, "server", base.port)
     if not 0 <= port <= 65535:
         raise ConfigError(f"server.port (={port}) must be 0..65535 (0: a free port)")
@@ -214,19 +241,37 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
                 axes.append(_axis(a, name, f"{where}.axes[{j}]"))
         machines, axes = tuple(machines), tuple(axes)
     data_dir = _get(storage, "data_dir", str, "storage")
+    min_free_disk_mb = _get(storage, "min_free_disk_mb", float, "storage", base.min_free_disk_mb)
+    if min_free_disk_mb < 0:
+        raise ConfigError(f"storage.min_free_disk_mb (={min_free_disk_mb}) must be >= 0")
     return replace(
         base,
         host=_get(server, "host", str, "server", base.host), port=port,
         data_dir=Path(data_dir) if data_dir else base.data_dir,
         database_url=_get(storage, "database_url", str, "storage", base.database_url) or None,
+        min_free_disk_mb=min_free_disk_mb,
         bootstrap_admin_key=_get(auth, "bootstrap_admin_key", str, "auth", base.bootstrap_admin_key) or None,
         demo_keys=_get(auth, "demo_keys", bool, "auth", base.demo_keys),
         scheduler_enabled=_get(sched, "enabled", bool, "scheduler", base.scheduler_enabled),
         catch_up_missed=_get(sched, "catch_up_missed", bool, "scheduler", base.catch_up_missed),
         spool_retry_s=_get(sched, "spool_retry_s", float, "scheduler", base.spool_retry_s),
         machines=machines, axes=axes, simulator=simulator,
-        log_level=_get(logging_, "level", str, "logging", base.log_level),
+        log_level=_get(logging_, "level", str, "logging", base.log_level), limits=limits,
+        retention=retention, retention_interval_s=retention_interval_s,
     )
+
+
+def _limits(table: Mapping, base: LimitSettings) -> LimitSettings:
+    kinds = {"max_body_bytes": int, "triggers_per_minute": float, "trigger_burst": int,
+             "auth_failures_per_minute": float, "auth_failure_burst": int, "allow_link_local_controllers": bool}
+    _unknown(table, set(kinds), "limits")
+    out = replace(base, **{k: _get(table, k, kinds[k], "limits") for k in table})
+    for k in kinds:
+        if kinds[k] is bool:
+            continue
+        if not getattr(out, k) > 0:
+            raise ConfigError(f"limits.{k} (={getattr(out, k)}) must be > 0")
+    return out
 
 
 def apply_env(settings: Settings, env: Mapping[str, str] | None = None) -> Settings:

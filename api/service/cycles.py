@@ -1,15 +1,20 @@
 """One measurement cycle from request to stored result, and the on-disk spool.
 
 Order of writes, so that a measurement is never lost:
-1. the raw round trip goes to the axis' dataset folder (``storage.dataset.append_runs``);
-2. a spool file (``<data_dir>/spool/<uuid>.json``) records the cycle's metadata;
-3. cycle, result, curves, TBE and alert change are saved in one transaction;
+1. the raw round trip goes to the axis' dataset folder ``datasets/machine-<id>_axis-<id>``
+   (``storage.dataset.append_runs``: CSV and dataset.json each written to a temporary
+   file, fsynced and renamed, under the folder's lock);
+2. a spool file (``<data_dir>/spool/<uuid>.json``) records the cycle's metadata (fsynced);
+3. cycle, result, curves, TBE and alert change are saved in one transaction, durable
+   when it returns (SQLite ``synchronous=FULL``; PostgreSQL ``synchronous_commit=on``);
 4. the spool file is deleted.
 If the database is down at step 3, the spool file stays and :meth:`CycleExecutor.replay_spool`
 inserts it when the database is back (re-analysing the raw run from the dataset folder).
 Saving is idempotent on the cycle's uuid, so a crash between 3 and 4 stores it once.
 If the raw run cannot be written to the dataset folder, it is kept as
-``<data_dir>/unfiled/<uuid>.npz`` instead; if the spool file cannot be written either,
+``<data_dir>/unfiled/<uuid>.npz`` instead; if that fails too, the cycle is stored with
+``raw_run_lost`` (the reason), which the status, a ``raw_run_lost`` alert and the
+``mebm_raw_runs_lost_total`` metric show. If the spool file cannot be written either,
 the cycle is kept in memory and retried with the spool.
 """
 
@@ -28,11 +33,12 @@ from pathlib import Path
 
 import numpy as np
 
+from api.service.folders import dataset_folder_name, migrate_legacy_folders
 from api.service.runner import CycleOutcome, CycleRunner, analyse
 from core.dataset import MachineSpec, Run, RunSpec
 from core.errors import MebmError
 from core.tbe import AxisDecision, MachiningTask, decide
-from storage.dataset import append_runs, next_run_name, read_dataset, read_run_csv
+from storage.dataset import append_runs, dataset_lock, fsync_dir, next_run_name, read_dataset, read_run_csv
 from storage.db import (
     AlertRecord,
     AxisRecord,
@@ -119,6 +125,16 @@ class CycleExecutor:
         self._replay_lock = threading.Lock()
         self._in_flight: set[str] = set()  # uuids being finished by execute(): replay leaves them
         self.unsaved: list[FinishedCycle] = []  # neither spooled nor stored: retried with the spool
+        self._moved: dict[Path, Path] = {}  # legacy dataset folder -> its id-named successor
+
+    def migrate_folders(self, axes) -> None:
+        """Rename or split the name-based dataset folders of older versions (see ``folders``)."""
+
+        def owners(uuids: list[str]) -> dict[str, int]:
+            with session_scope(self.factory) as s:
+                return results_repo.axis_of_cycles(s, uuids)
+
+        self._moved.update(migrate_legacy_folders(self.datasets_dir, axes, owners))
 
     # -- the cycle ---------------------------------------------------------------------------
     def remember(self, axis: AxisRecord) -> None:
@@ -158,13 +174,15 @@ class CycleExecutor:
         except Exception as exc:  # noqa: BLE001 - never leave a cycle "running" because of a bug
             log.exception("cycle %s: could not be finished normally", req.uuid)
             reason = f"internal error while storing the cycle: {type(exc).__name__}: {exc}"
+            lost = None
             if outcome.time_s is not None:
                 kept = self._keep_trace(axis, req, outcome)
                 reason += f"; the raw run is kept in {kept}" if kept else "; the raw run could not be kept"
+                lost = None if kept else f"not kept after an internal error ({type(exc).__name__}: {exc})"
             fc = FinishedCycle(
                 uuid=req.uuid, axis_id=axis.id, trigger=req.trigger, requested_by=req.requested_by, status="failed",
                 requested_at=req.requested_at, started_at=started, finished_at=finished,
-                failure_reason=reason, temperature_c=_fin(outcome.temperature_c),
+                failure_reason=reason, temperature_c=_fin(outcome.temperature_c), raw_run_lost=lost,
             )
             try:
                 return self._save(fc, self._spool(fc, None, axis.tasks))
@@ -177,7 +195,7 @@ class CycleExecutor:
 
     def _finish(self, axis: AxisRecord, req: CycleRequest, outcome: CycleOutcome, started: datetime,
                 finished: datetime) -> CycleRecord | None:
-        run_file, folder, note, trace_file = None, None, None, None
+        run_file, folder, note, trace_file, lost = None, None, None, None, None
         if outcome.time_s is not None:
             try:
                 folder, run_file = self._write_run(axis, outcome, req, finished)
@@ -185,6 +203,8 @@ class CycleExecutor:
                 trace_file = self._keep_trace(axis, req, outcome)
                 kept = f"kept in {trace_file}" if trace_file else "and it could not be kept anywhere else"
                 note = f"raw run not written to the dataset folder ({exc}); {kept}"
+                if trace_file is None:
+                    lost = f"not written to the dataset folder ({exc}) nor to {self.unfiled_dir}"
                 log.error("cycle %s: %s", req.uuid, note)
         decision = None
         if outcome.ok and outcome.round_trip is not None:
@@ -198,7 +218,7 @@ class CycleExecutor:
             status="ok" if outcome.ok else "failed", requested_at=req.requested_at, started_at=started,
             finished_at=finished, failure_reason=reason, temperature_c=_fin(outcome.temperature_c),
             utility_day=utility_day(axis, finished), uncertainty_um=_fin(outcome.uncertainty_um), run_file=run_file,
-            round_trip=outcome.round_trip if outcome.ok else None, decision=decision,
+            round_trip=outcome.round_trip if outcome.ok else None, decision=decision, raw_run_lost=lost,
         )
         spool = self._spool(fc, folder, axis.tasks, trace_file=trace_file)
         return self._save(fc, spool)
@@ -235,8 +255,9 @@ class CycleExecutor:
 
     # -- raw runs ------------------------------------------------------------------------------
     def dataset_folder(self, axis: AxisRecord) -> Path:
-        safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in f"{axis.machine_name}_{axis.name}")
-        return self.datasets_dir / safe
+        """The axis' folder, named by the database's ids (``machine-<id>_axis-<id>``): names
+        can look alike once made file-system safe ("m a" and "m_a") or be renamed, ids do not."""
+        return self.datasets_dir / dataset_folder_name(axis)
 
     def _write_run(self, axis: AxisRecord, out: CycleOutcome, req: CycleRequest, finished: datetime):
         """The raw round trip as a dataset run. Traces of failed cycles go to a sibling
@@ -253,26 +274,33 @@ class CycleExecutor:
             folder = folder.with_name(folder.name + "_rejected")
         for attempt in range(2):
             try:
-                file = next_run_name(folder, f"rt_{name}_{finished:%Y%m%dT%H%M%S}")
-                temp = out.temperature_c if out.temperature_c is not None else float("nan")
-                spec = RunSpec(
-                    file=file, kind="round_trip", axes=(name,),
-                    feed_mm_min=out.feed_mm_min or axis.settings.measure_feed_mm_min,
-                    temperature_c=temp if math.isfinite(temp) else 20.0,
-                    utility_day=utility_day(axis, finished),
-                    acceleration_mm_s2=out.acceleration_mm_s2 or axis.settings.measure_acceleration_mm_s2,
-                    extra={"cycle_uuid": req.uuid, "measured_at": finished.isoformat(),
-                           "temperature_measured": math.isfinite(temp), "cycle_status": "ok" if out.ok else "failed",
-                           **({} if out.ok else {"failure_reason": out.reason or ""})},
-                )
-                append_runs(folder, machine, [Run(spec, cols)])
-                return folder, file
+                with dataset_lock(folder):  # the name is picked and used by one writer at a time
+                    return folder, self._append_run(folder, machine, axis, out, req, finished, name, cols)
             except MebmError:
                 if attempt:
                     raise
                 # the axis' mechanics changed since the folder was started: begin a new one
                 folder = folder.with_name(f"{folder.name}@{finished:%Y%m%dT%H%M%S}")
         raise AssertionError("unreachable")
+
+    @staticmethod
+    def _append_run(folder: Path, machine: MachineSpec, axis: AxisRecord, out: CycleOutcome, req: CycleRequest,
+                    finished: datetime, name: str, cols: dict) -> str:
+        """Append the run under a fresh name (the caller holds the folder's lock)."""
+        file = next_run_name(folder, f"rt_{name}_{finished:%Y%m%dT%H%M%S}")
+        temp = out.temperature_c if out.temperature_c is not None else float("nan")
+        spec = RunSpec(
+            file=file, kind="round_trip", axes=(name,),
+            feed_mm_min=out.feed_mm_min or axis.settings.measure_feed_mm_min,
+            temperature_c=temp if math.isfinite(temp) else 20.0,
+            utility_day=utility_day(axis, finished),
+            acceleration_mm_s2=out.acceleration_mm_s2 or axis.settings.measure_acceleration_mm_s2,
+            extra={"cycle_uuid": req.uuid, "axis_id": axis.id, "measured_at": finished.isoformat(),
+                   "temperature_measured": math.isfinite(temp), "cycle_status": "ok" if out.ok else "failed",
+                   **({} if out.ok else {"failure_reason": out.reason or ""})},
+        )
+        append_runs(folder, machine, [Run(spec, cols)])
+        return file
 
     def _keep_trace(self, axis: AxisRecord, req: CycleRequest, out: CycleOutcome) -> Path | None:
         """The raw trace as ``unfiled/<uuid>.npz`` when the dataset folder cannot take it."""
@@ -303,7 +331,7 @@ class CycleExecutor:
             "temperature_c": fc.temperature_c, "utility_day": fc.utility_day, "uncertainty_um": fc.uncertainty_um,
             "sampling_bound_um": _sampling_bound_um(fc.round_trip),
             "dataset_folder": str(folder) if folder else None, "run_file": fc.run_file,
-            "trace_file": str(trace_file) if trace_file else None,
+            "trace_file": str(trace_file) if trace_file else None, "raw_run_lost": fc.raw_run_lost,
             "tasks": [_task_doc(t) for t in tasks],
         }
         try:
@@ -315,6 +343,7 @@ class CycleExecutor:
                 fh.flush()
                 os.fsync(fh.fileno())
             os.replace(tmp, path)
+            fsync_dir(self.spool_dir)
             return path
         except OSError as exc:
             log.error("cycle %s: spool file not written (%s)", fc.uuid, exc)
@@ -397,6 +426,7 @@ class CycleExecutor:
             requested_at=ts["requested_at"], started_at=ts["started_at"], finished_at=ts["finished_at"],
             failure_reason=reason, temperature_c=d.get("temperature_c"), utility_day=d.get("utility_day"),
             uncertainty_um=d.get("uncertainty_um"), run_file=d.get("run_file"), round_trip=rt, decision=decision,
+            raw_run_lost=d.get("raw_run_lost"),
         )
 
     def _spooled_trace(self, d: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -404,6 +434,7 @@ class CycleExecutor:
         is read, so a damaged neighbour does not matter) or its ``unfiled`` copy."""
         if d.get("dataset_folder") and d.get("run_file"):
             root = Path(d["dataset_folder"])
+            root = self._moved.get(root, root)  # spooled before its folder was migrated
             ds = read_dataset(root, load_runs=False)
             spec = next((r.spec for r in ds.runs if r.spec.file == d["run_file"]), None)
             if spec is None:

@@ -1,8 +1,9 @@
 """Per-axis schedules and the per-axis cycle queue.
 
 - Each axis has one worker thread: cycles of an axis never overlap; a manual trigger
-  queues behind a running cycle (at most one manual request waits; asking again
-  returns the waiting one).
+  queues behind a running cycle. At most one manual request waits: asking again raises
+  :class:`WaitingCycleError` (the database's partial unique index makes the rule atomic,
+  also across processes).
 - APScheduler (3.x, in-memory) is only the clock: an interval or cron job per axis,
   built from the schedule stored in the database, ``coalesce=True`` and
   ``max_instances=1`` so a missed run runs once. A scheduled request while the axis'
@@ -25,7 +26,16 @@ from apscheduler.triggers.interval import IntervalTrigger
 
 from api.service.cycles import CycleExecutor, CycleRequest
 from core.errors import InputError
-from storage.db import AxisRecord, CycleRecord, Schedule, StorageError, results_repo, session_scope, utcnow
+from storage.db import (
+    AxisRecord,
+    CycleRecord,
+    Schedule,
+    StorageError,
+    WaitingCycleError,
+    results_repo,
+    session_scope,
+    utcnow,
+)
 
 log = logging.getLogger("mebm.scheduler")
 _STOP = object()
@@ -125,12 +135,13 @@ class CycleScheduler:
         if trigger == "manual":
             waiting = w.waiting_manual()
             if waiting is not None:
-                return self._stored(waiting) or waiting
+                raise WaitingCycleError(axis_id, self._stored(waiting) or waiting)
         req = CycleRequest(uuid=str(uuidlib.uuid4()), axis_id=axis_id, trigger=trigger, requested_at=utcnow(),
                            requested_by=requested_by)
         record = None
         try:
             with session_scope(self.factory) as s:
+                # a manual one is refused here, atomically, if another waits (WaitingCycleError)
                 record = results_repo.queue_cycle(s, axis_id, req.uuid, trigger, requested_by=requested_by,
                                                   requested_at=req.requested_at)
         except StorageError as exc:

@@ -12,21 +12,28 @@ import logging
 import os
 import time
 from dataclasses import dataclass
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
+from urllib.parse import parse_qsl, urlencode, urlsplit, urlunsplit
 
 from sqlalchemy import text
 
 from api.service.config import SIM_CONTROLLER, Settings
 from api.service.cycles import CycleExecutor
 from api.service.demo import DemoController
+from api.service.health import HealthProbe
 from api.service.runner import CycleRunner, DriverRunner
 from api.service.scheduler import CycleScheduler
 from api.service.status import StatusCache
+from core.errors import MebmError
+from storage.retention import apply_retention
 from storage.db import (
     AxisRecord,
     DatabaseUnavailableError,
     StorageError,
+    WaitingCycleError,
     config_repo,
+    is_sqlite,
     make_engine,
     make_session_factory,
     ping,
@@ -65,6 +72,7 @@ class Service:
         self.simulators: dict[int, DemoController] = {}
         self.started_at = time.time()
         self.report: StartReport | None = None
+        self.health = HealthProbe(self)
 
     # -- wiring ----------------------------------------------------------------------------------
     def resolve_url(self, axis: AxisRecord) -> str:
@@ -104,11 +112,19 @@ class Service:
     def start(self) -> StartReport:
         st = self.settings
         Path(st.data_dir).mkdir(parents=True, exist_ok=True)
+        _restrict(Path(st.data_dir), 0o700)  # raw runs, spool, keys: the service's own
         self._connect()
+        if is_sqlite(self.engine):
+            db_file = Path(self.engine.url.database or "")
+            for p in (db_file, db_file.with_name(db_file.name + "-wal"), db_file.with_name(db_file.name + "-shm")):
+                if p.is_file():
+                    _restrict(p, 0o600)
         self.status = StatusCache(self.factory)
         self.executor = CycleExecutor(self.factory, Path(st.data_dir), self.runner, self.resolve_url,
                                       on_saved=self._on_saved)
         self.scheduler = CycleScheduler(self.executor, self.factory)
+        with session_scope(self.factory) as s:
+            self.executor.migrate_folders(config_repo.list_axes(s))
         replayed = self.executor.replay_spool()
         with session_scope(self.factory) as s:
             interrupted = results_repo.close_stale_cycles(s)
@@ -128,6 +144,9 @@ class Service:
             if st.scheduler_enabled:
                 self.scheduler.schedule(axis)
         if st.scheduler_enabled:
+            self.scheduler.clock.add_job(self.apply_retention, "interval", seconds=st.retention_interval_s,
+                                         id="retention", coalesce=True, max_instances=1,
+                                         next_run_time=datetime.now(timezone.utc) + timedelta(seconds=60))
             self.scheduler.clock.add_job(self._retry_spool, "interval", seconds=st.spool_retry_s, id="spool",
                                          coalesce=True, max_instances=1)
             self.scheduler.start()
@@ -157,6 +176,38 @@ class Service:
             if n:
                 log.info("stored %d cycle(s) kept on disk during a database outage", n)
 
+    def axis_folders(self, axis: AxisRecord) -> list[Path]:
+        """The axis' dataset folders: its own, ``_rejected`` and ``@<time>`` ones."""
+        base = self.executor.dataset_folder(axis)
+        if not base.parent.is_dir():
+            return []
+        return sorted(p for p in base.parent.glob(f"{base.name}*")
+                      if p.is_dir() and (p.name == base.name or p.name[len(base.name)] in "_@"))
+
+    def apply_retention(self) -> dict[int, int]:
+        """Apply the retention policy to every axis' folders; returns bytes on disk per axis."""
+        out = {}
+        for axis_id, axis in list(self.executor._axes.items()):
+            try:
+                with session_scope(self.factory) as s:
+                    events = results_repo.event_cycle_uuids(s, axis_id)
+            except StorageError as exc:
+                log.warning("retention of axis %s postponed: %s", axis_id, exc)
+                continue
+            total = 0
+            for folder in self.axis_folders(axis):
+                try:
+                    rep = apply_retention(folder, self.settings.retention, events)
+                except (MebmError, OSError) as exc:
+                    log.error("retention of %s failed: %s", folder, exc)
+                    continue
+                if rep.compressed or rep.deleted:
+                    log.info("retention of %s: %d run(s) compressed, %d deleted, %d kept",
+                             folder.name, rep.compressed, rep.deleted, rep.runs)
+                total += rep.bytes_on_disk
+            out[axis_id] = total
+        return out
+
     # -- configuration ---------------------------------------------------------------------------
     def _sync_config(self) -> list[str]:
         """Create the configured machines and axes that the database does not have yet.
@@ -180,8 +231,13 @@ class Service:
         if not secret:
             return None
         with session_scope(self.factory) as s:
-            if config_repo.authenticate(s, secret) is not None:
-                return "bootstrap-admin"
+            known = config_repo.find_key_by_secret(s, secret)
+            if known is not None and known.revoked_at is None:
+                return known.name
+            if known is not None:
+                log.warning("MEBM_BOOTSTRAP_ADMIN_KEY is the key %r, revoked on %s: it stays revoked "
+                            "(unset the variable)", known.name, known.revoked_at.isoformat())
+                return None
             if any(k.role == "admin" and k.revoked_at is None for k in config_repo.list_keys(s)):
                 log.warning("MEBM_BOOTSTRAP_ADMIN_KEY ignored: an admin key exists already")
                 return None
@@ -192,35 +248,61 @@ class Service:
             return name
 
     def _demo_keys(self) -> dict:
-        """Demo keys (read, operate, admin), created hashed on first start; the secrets
-        are kept in ``<data_dir>/demo-keys.json`` (mode 600) so every start can print them."""
+        """Demo keys (read, operate, admin), created hashed at first start. Returns the keys
+        created by this start only: they are printed once. The read and operate secrets are
+        kept in ``<data_dir>/demo-keys.json`` (mode 600) for the demo's examples; the admin
+        secret is never written anywhere (a file of an older version loses it)."""
         path = Path(self.settings.data_dir) / DEMO_KEYS_FILE
-        keys = {}
+        kept = {}
         if path.is_file():
             try:
-                keys = json.loads(path.read_text(encoding="utf-8"))
+                kept = json.loads(path.read_text(encoding="utf-8"))
             except ValueError:
-                keys = {}
+                kept = {}
+        if not isinstance(kept, dict):
+            kept = {}
+        created = {}
         with session_scope(self.factory) as s:
-            valid = {r: k for r, k in keys.items() if config_repo.authenticate(s, k) is not None}
+            live = [k for k in config_repo.list_keys(s) if k.revoked_at is None]
+            valid = {r: kept[r] for r in ("read", "operate")
+                     if isinstance(kept.get(r), str) and config_repo.authenticate(s, kept[r]) is not None}
             for role in ("read", "operate", "admin"):
-                if role in valid:
+                if role in valid or (role == "admin" and any(k.role == "admin" and k.name.startswith("demo-admin")
+                                                             for k in live)):
                     continue
                 name = f"demo-{role}"
                 if config_repo.find_key(s, name) is not None:
                     name = f"demo-{role}-{int(time.time())}"
-                _, valid[role] = config_repo.create_key(s, name, role)
-        if valid != keys:
+                _, created[role] = config_repo.create_key(s, name, role)
+        keep = {**valid, **{r: k for r, k in created.items() if r != "admin"}}
+        if keep != kept:
             fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
             with os.fdopen(fd, "w", encoding="utf-8") as fh:
-                json.dump(valid, fh, indent=2)
-        return valid
+                json.dump(keep, fh, indent=2)
+        return created
 
     # -- operations for the API ------------------------------------------------------------------
     def trigger(self, axis_id: int, requested_by: str | None):
+        """Queue a manual cycle. :class:`WaitingCycleError` (with ``retry_after_s``, the
+        length of the axis' last cycle) if one waits already."""
         with session_scope(self.factory) as s:
             config_repo.get_axis(s, axis_id)  # 404 before anything moves
-        return self.scheduler.request(axis_id, "manual", requested_by)
+        try:
+            return self.scheduler.request(axis_id, "manual", requested_by)
+        except WaitingCycleError as exc:
+            exc.retry_after_s = self._cycle_length_s(axis_id)
+            raise
+
+    def _cycle_length_s(self, axis_id: int) -> float:
+        try:
+            with session_scope(self.factory) as s:
+                _, rows = results_repo.list_measurements(s, axis_id, status="ok", limit=1)
+        except StorageError:
+            rows = []
+        c = rows[0] if rows else None
+        if c is not None and c.started_at is not None and c.finished_at is not None:
+            return max((c.finished_at - c.started_at).total_seconds(), 1.0)
+        return 30.0
 
     def axis_changed(self, axis: AxisRecord) -> None:
         self.status.invalidate(axis.id)
@@ -237,10 +319,39 @@ class Service:
             return False
 
 
+_SECRET_WORDS = ("password", "passwd", "pwd", "pass", "secret", "token", "key", "auth", "credential")
+
+
+def _restrict(path: Path, mode: int) -> None:
+    """chmod ``path`` to ``mode`` when it is more open (logged; a failure is only logged)."""
+    try:
+        current = path.stat().st_mode & 0o777
+        if current & ~mode:
+            os.chmod(path, mode)
+            log.info("%s: mode %o -> %o", path, current, mode)
+    except OSError as exc:
+        log.warning("could not restrict %s to mode %o: %s", path, mode, exc)
+
+
 def _redact(url: str) -> str:
-    if "@" in url and "://" in url:
-        scheme, rest = url.split("://", 1)
-        creds, host = rest.rsplit("@", 1)
-        user = creds.split(":", 1)[0]
-        return f"{scheme}://{user}:***@{host}" if ":" in creds else url
-    return url
+    """``url`` with every password-like part replaced by ``***``: the user info's password,
+    query parameters and fragment parameters named like a secret (``?password=``,
+    ``sslpassword``, ``api_key``...)."""
+    try:
+        parts = urlsplit(url)
+    except ValueError:
+        return "***"
+    netloc = parts.netloc
+    if "@" in netloc:
+        creds, host = netloc.rsplit("@", 1)
+        if ":" in creds:
+            netloc = f"{creds.split(':', 1)[0]}:***@{host}"
+
+    def clean(qs: str) -> str:
+        if not qs:
+            return qs
+        pairs = parse_qsl(qs, keep_blank_values=True)
+        return urlencode([(k, "***" if any(w in k.lower() for w in _SECRET_WORDS) else v) for k, v in pairs],
+                         safe="*")
+
+    return urlunsplit((parts.scheme, netloc, parts.path, clean(parts.query), clean(parts.fragment)))

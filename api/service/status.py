@@ -33,6 +33,7 @@ class AxisStatus:
     last_cycle_at: datetime | None
     last_failure_reason: str | None
     decision_error: str | None = None
+    last_raw_run_lost: str | None = None  # why the last finished cycle's raw run was lost
 
 
 def compute_status(s, axis_id: int) -> AxisStatus:
@@ -68,6 +69,7 @@ def compute_status(s, axis_id: int) -> AxisStatus:
         last_cycle_at=(last[0].finished_at or last[0].requested_at) if last else None,
         last_failure_reason=last_final.failure_reason if last_final is not None else None,
         decision_error=decision_error,
+        last_raw_run_lost=last_final.raw_run_lost if last_final is not None else None,
     )
 
 

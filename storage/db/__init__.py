@@ -16,7 +16,13 @@ from storage.db.engine import (
     session_scope,
     sqlite_url,
 )
-from storage.db.errors import ConflictError, DatabaseUnavailableError, NotFoundError, StorageError
+from storage.db.errors import (
+    ConflictError,
+    DatabaseUnavailableError,
+    NotFoundError,
+    StorageError,
+    WaitingCycleError,
+)
 from storage.db.migrate import current_revision, head_revision, upgrade
 from storage.db.records import (
     AlertRecord,
@@ -39,5 +45,5 @@ __all__ = [
     "FinishedCycle", "KeyRecord", "MachineRecord", "NotFoundError", "ResultRecord", "Schedule", "StorageError",
     "TbeRecord", "TrendSeries", "as_utc", "config_repo", "current_revision", "head_revision", "integrity_problems",
     "is_sqlite", "make_engine", "make_session_factory", "ping", "results_repo", "session_scope", "sqlite_url",
-    "upgrade", "utcnow",
+    "upgrade", "utcnow", "WaitingCycleError",
 ]

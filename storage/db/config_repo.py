@@ -233,6 +233,12 @@ def authenticate(s: Session, secret: str) -> KeyRecord | None:
     return _key(k)
 
 
+def find_key_by_secret(s: Session, secret: str) -> KeyRecord | None:
+    """The key with this secret, revoked or not (start-up: a revoked bootstrap key stays revoked)."""
+    k = s.scalar(select(ApiKey).where(ApiKey.key_sha256 == hash_key(secret)))
+    return None if k is None else _key(k)
+
+
 def list_keys(s: Session) -> list[KeyRecord]:
     return [_key(k) for k in s.scalars(select(ApiKey).order_by(ApiKey.id))]
 

@@ -28,3 +28,16 @@ class NotFoundError(StorageError, LookupError):
 
 class ConflictError(StorageError, InputError):
     """The request contradicts what is stored (duplicate name, state that forbids it)."""
+
+
+class WaitingCycleError(ConflictError):
+    """A manual measurement of the axis is waiting already (at most one may wait).
+    ``cycle`` is the waiting one when known; ``retry_after_s`` when to ask again."""
+
+    def __init__(self, axis_id: int, cycle=None, retry_after_s: float = 30.0):
+        self.axis_id = axis_id
+        self.cycle = cycle
+        self.retry_after_s = retry_after_s
+        which = f" (measurement {cycle.id})" if getattr(cycle, "id", None) else ""
+        super().__init__(f"axis {axis_id} has a manual measurement waiting already{which}: "
+                         "at most one may wait; ask again once it has started")

@@ -20,6 +20,7 @@ from sqlalchemy import (
     String,
     Text,
     UniqueConstraint,
+    text,
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
@@ -92,11 +93,19 @@ class MachiningTaskRow(Base):
     axis: Mapped[Axis] = relationship(back_populates="tasks")
 
 
+ONE_WAITING_MANUAL = "status = 'queued' AND \"trigger\" = 'manual'"
+
+
 class Cycle(Base):
-    """One measurement cycle: queued -> running -> ok | failed | interrupted | cancelled."""
+    """One measurement cycle: queued -> running -> ok | failed | interrupted | cancelled.
+    At most one manual cycle per axis waits (a partial unique index: the rule is atomic)."""
 
     __tablename__ = "cycles"
-    __table_args__ = (Index("ix_cycles_axis_requested", "axis_id", "requested_at"),)
+    __table_args__ = (
+        Index("ix_cycles_axis_requested", "axis_id", "requested_at"),
+        Index("uq_cycles_one_waiting_manual", "axis_id", unique=True,
+              sqlite_where=text(ONE_WAITING_MANUAL), postgresql_where=text(ONE_WAITING_MANUAL)),
+    )
 
     id: Mapped[int] = mapped_column(primary_key=True)
     uuid: Mapped[str] = mapped_column(String(36), unique=True)
@@ -112,6 +121,7 @@ class Cycle(Base):
     utility_day: Mapped[float | None] = mapped_column(Float, nullable=True)
     uncertainty_um: Mapped[float | None] = mapped_column(Float, nullable=True)
     run_file: Mapped[str | None] = mapped_column(String(200), nullable=True)
+    raw_run_lost: Mapped[str | None] = mapped_column(Text, nullable=True)  # why the raw run was not kept
 
     result: Mapped[Result | None] = relationship(back_populates="cycle", uselist=False)
 

@@ -113,6 +113,7 @@ class CycleRecord:
     run_file: str | None
     backlash_mean_um: float | None = None
     state: str | None = None
+    raw_run_lost: str | None = None  # why the raw run could not be kept anywhere (None: kept)
 
 
 @dataclass(frozen=True)
@@ -170,6 +171,7 @@ class FinishedCycle:
     run_file: str | None = None
     round_trip: RoundTripResult | None = None
     decision: AxisDecision | None = None
+    raw_run_lost: str | None = None
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,7 @@ from datetime import datetime
 
 import numpy as np
 from sqlalchemy import func, select
+from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, selectinload
 
 from core.criteria import BacklashProfile, LeadCriteria, RoundTripResult
@@ -20,7 +21,7 @@ from core.criteria.uncertainty import UncertaintyBudget, UncertaintyComponent
 from core.errors import InputError
 from core.tbe import MachiningTask, State
 from storage.db import curves as curve_codec
-from storage.db.errors import NotFoundError
+from storage.db.errors import NotFoundError, WaitingCycleError
 from storage.db.models import Alert, Axis, Curve, Cycle, LeadCriteriaRow, Result, TbeRow
 from storage.db.records import (
     CYCLE_STATES,
@@ -37,6 +38,7 @@ from storage.db.records import (
 
 DIRECTIONS = ("positive", "negative")
 ALERT_KIND = "tbe_exceeded"
+RAW_RUN_LOST = "raw_run_lost"  # alert kind: a cycle's raw run could not be kept; cleared by the next kept run
 
 
 def _fin(x: float | None) -> float | None:
@@ -50,7 +52,7 @@ def _cycle(c: Cycle, result: Result | None = None) -> CycleRecord:
         failure_reason=c.failure_reason, temperature_c=c.temperature_c, utility_day=c.utility_day,
         uncertainty_um=c.uncertainty_um, run_file=c.run_file,
         backlash_mean_um=result.backlash_mean_um if result is not None else None,
-        state=result.state if result is not None else None,
+        state=result.state if result is not None else None, raw_run_lost=c.raw_run_lost,
     )
 
 
@@ -63,9 +65,38 @@ def queue_cycle(s: Session, axis_id: int, uuid: str, trigger: str, *, requested_
         raise NotFoundError("axis", axis_id)
     c = Cycle(uuid=uuid, axis_id=axis_id, trigger=trigger, requested_by=requested_by, status="queued",
               requested_at=requested_at or utcnow())
-    s.add(c)
-    s.flush()
+    if trigger != "manual":
+        s.add(c)
+        s.flush()
+        return _cycle(c)
+    try:
+        with s.begin_nested():  # the unique index decides, atomically, whether another manual one waits
+            s.add(c)
+            s.flush()
+    except IntegrityError as exc:
+        waiting = s.scalar(select(Cycle).where(Cycle.axis_id == axis_id, Cycle.status == "queued",
+                                               Cycle.trigger == "manual").limit(1))
+        raise WaitingCycleError(axis_id, None if waiting is None else _cycle(waiting)) from exc
     return _cycle(c)
+
+
+def axis_of_cycles(s: Session, uuids: list[str]) -> dict[str, int]:
+    """{cycle uuid: axis id} of the given uuids that are stored."""
+    out: dict[str, int] = {}
+    for i in range(0, len(uuids), 500):
+        out.update({u: a for u, a in s.execute(select(Cycle.uuid, Cycle.axis_id).where(Cycle.uuid.in_(uuids[i:i + 500])))})
+    return out
+
+
+def event_cycle_uuids(s: Session, axis_id: int) -> set[str]:
+    """Uuids of the cycles that raised or cleared an alert of the axis (retention keeps
+    the raw runs around them)."""
+    out: set[str] = set()
+    for col in (Alert.raised_by_result_id, Alert.cleared_by_result_id):
+        q = (select(Cycle.uuid).join(Result, Result.cycle_id == Cycle.id).join(Alert, col == Result.id)
+             .where(Alert.axis_id == axis_id))
+        out.update(s.scalars(q))
+    return out
 
 
 def mark_running(s: Session, uuid: str, started_at: datetime | None = None) -> CycleRecord:
@@ -128,6 +159,7 @@ def save_finished_cycle(s: Session, fc: FinishedCycle) -> tuple[CycleRecord, lis
     c.utility_day = _fin(fc.utility_day)
     c.uncertainty_um = _fin(fc.uncertainty_um)
     c.run_file = fc.run_file
+    c.raw_run_lost = fc.raw_run_lost
     s.flush()
     changes: list[AlertRecord] = []
     result = None
@@ -135,8 +167,27 @@ def save_finished_cycle(s: Session, fc: FinishedCycle) -> tuple[CycleRecord, lis
         result = _insert_result(s, c, fc)
         if fc.decision is not None:
             changes = _update_alerts(s, fc, result)
+    changes += _update_lost_run_alert(s, fc, c)
     s.flush()
     return _cycle(c, result), changes
+
+
+def _update_lost_run_alert(s: Session, fc: FinishedCycle, c: Cycle) -> list[AlertRecord]:
+    """A lost raw run raises a ``raw_run_lost`` alert (one per axis while active); the
+    next cycle whose run is kept clears it."""
+    active = s.scalar(select(Alert).where(Alert.axis_id == fc.axis_id, Alert.kind == RAW_RUN_LOST,
+                                          Alert.cleared_at.is_(None)))
+    if fc.raw_run_lost and active is None:
+        a = Alert(axis_id=fc.axis_id, kind=RAW_RUN_LOST, raised_at=fc.finished_at,
+                  message=f"the raw run of cycle {c.id} ({fc.uuid}) was lost: {fc.raw_run_lost}")
+        s.add(a)
+        s.flush()
+        return [_alert_full(s, a)]
+    if not fc.raw_run_lost and fc.run_file and active is not None:
+        active.cleared_at = fc.finished_at
+        s.flush()
+        return [_alert_full(s, active)]
+    return []
 
 
 def _insert_result(s: Session, c: Cycle, fc: FinishedCycle) -> Result:
@@ -208,7 +259,8 @@ def _alert_full(s: Session, a: Alert) -> AlertRecord:
 
 def _update_alerts(s: Session, fc: FinishedCycle, r: Result) -> list[AlertRecord]:
     d = fc.decision
-    active = s.scalar(select(Alert).where(Alert.axis_id == fc.axis_id, Alert.cleared_at.is_(None)))
+    active = s.scalar(select(Alert).where(Alert.axis_id == fc.axis_id, Alert.kind == ALERT_KIND,
+                                          Alert.cleared_at.is_(None)))
     if d.state is State.ALARM and active is None:
         binding = next(a for a in d.assessments if a.task.name == d.binding_task)
         a = Alert(
@@ -356,8 +408,8 @@ def backlash_history(s: Session, axis_id: int) -> tuple[np.ndarray, np.ndarray]:
                      .where(Result.axis_id == axis_id, Result.temperature_c.is_not(None))).all()
     if not rows:
         return np.zeros(0), np.zeros(0)
-    a = np.asarray(rows, dtype=float)
-    return a[:, 0], a[:, 1]
+    temps, backlash = zip(*rows)  # not np.asarray(rows): numpy probing Row objects costs ~40 µs a row
+    return np.asarray(temps, dtype=float), np.asarray(backlash, dtype=float)
 
 
 def tbe_history(s: Session, axis_id: int, *, since: datetime | None = None) -> list[tuple[datetime, str, float, float]]:
@@ -426,6 +478,8 @@ def metrics_snapshot(s: Session) -> dict:
         select(Result.axis_id, func.max(Result.measured_at)).group_by(Result.axis_id)).all()}
     alerts = {a: n for a, n in s.execute(
         select(Alert.axis_id, func.count()).where(Alert.cleared_at.is_(None)).group_by(Alert.axis_id)).all()}
-    return {"cycles": cycles, "last_success": last_ok, "active_alerts": alerts}
+    lost = {a: n for a, n in s.execute(
+        select(Cycle.axis_id, func.count()).where(Cycle.raw_run_lost.is_not(None)).group_by(Cycle.axis_id)).all()}
+    return {"cycles": cycles, "last_success": last_ok, "active_alerts": alerts, "raw_runs_lost": lost}
 
 

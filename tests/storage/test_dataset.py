@@ -125,3 +125,46 @@ def test_appending_a_listed_file_or_a_different_axis_is_refused(folder):
     other = MachineSpec("m1", {"y": AxisSpec("y", 5.0, 16.0, 10.0, (0.0, 100.0))})
     with pytest.raises(DatasetError, match="differs"):
         append_runs(folder, other, [_run("rt_y_01.csv")])
+
+
+def test_concurrent_writers_under_the_folder_lock_lose_no_run_and_reuse_no_name(tmp_path):
+    import threading
+
+    from storage.dataset import dataset_lock
+
+    folder = tmp_path / "ds"
+    start = threading.Barrier(8)
+    errors = []
+
+    def writer():
+        start.wait()
+        for _ in range(5):
+            try:
+                with dataset_lock(folder):
+                    name = next_run_name(folder, "rt_y_20260101T000000")
+                    append_runs(folder, MACHINE, [_run(name)])
+            except Exception as exc:  # noqa: BLE001 - collected and asserted below
+                errors.append(exc)
+
+    threads = [threading.Thread(target=writer) for _ in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert errors == []
+    ds = read_dataset(folder)
+    names = [r.spec.file for r in ds.runs]
+    assert len(names) == 40 and len(set(names)) == 40
+    assert sorted(p.name for p in folder.glob("*.csv")) == sorted(names)
+
+
+def test_a_name_listed_in_dataset_json_is_not_reused_even_when_its_file_is_gone(folder):
+    (folder / "rt_y_00.csv").rename(folder / "rt_y_00.csv.gz")  # e.g. compressed by retention
+    assert next_run_name(folder, "rt_y") == "rt_y_01.csv"
+    (folder / "rt_y_00.csv.gz").unlink()
+    assert next_run_name(folder, "rt_y") == "rt_y_01.csv"
+
+
+def test_dataset_json_is_replaced_atomically_and_leaves_no_temporary_file(folder):
+    append_runs(folder, MACHINE, [_run("rt_y_01.csv")])
+    assert sorted(p.name for p in folder.iterdir() if p.name.startswith(".") and p.name != ".dataset.lock") == []

@@ -6,11 +6,13 @@ from datetime import datetime, timezone
 from typing import Annotated
 
 from fastapi import APIRouter, Query, Request, Response, status
+from pydantic import AfterValidator
 from fastapi.concurrency import run_in_threadpool
 
 from api.rest import convert, schemas as sc
 from api.rest.auth import AdminKey, OperateKey, ReadKey
 from api.rest.deps import AxisId, ServiceDep, SessionDep
+from api.rest.errors import TooManyRequestsError
 from api.rest.routers.machines import tasks_from
 from api.rest.status_body import cached_status, status_json
 from api.service.scheduler import make_trigger
@@ -18,14 +20,19 @@ from storage.db import CycleRecord, Schedule, config_repo, results_repo
 
 router = APIRouter(tags=["axes"])
 
-Since = Annotated[datetime | None, Query(description="from this time (ISO 8601; UTC if no offset)")]
-Until = Annotated[datetime | None, Query(description="up to this time (ISO 8601; UTC if no offset)")]
-
-
 def utc(t: datetime | None) -> datetime | None:
+    """``t`` in UTC (naive: taken as UTC). A time that leaves years 1-9999 once converted
+    (``9999-12-31T23:59:59-23:59``) is a ValueError: a 422 naming the parameter."""
     if t is None:
         return None
-    return t.replace(tzinfo=timezone.utc) if t.tzinfo is None else t.astimezone(timezone.utc)
+    try:
+        return t.replace(tzinfo=timezone.utc) if t.tzinfo is None else t.astimezone(timezone.utc)
+    except OverflowError:
+        raise ValueError(f"{t.isoformat()} is out of range once converted to UTC (years 1 to 9999)") from None
+
+
+Since = Annotated[datetime | None, AfterValidator(utc), Query(description="from this time (ISO 8601; UTC if no offset)")]
+Until = Annotated[datetime | None, AfterValidator(utc), Query(description="up to this time (ISO 8601; UTC if no offset)")]
 
 
 @router.get("/axes/{axis_id}", response_model=sc.AxisOut, summary="An axis and its configuration")
@@ -67,7 +74,11 @@ def put_schedule(axis_id: AxisId, body: sc.ScheduleIn, s: SessionDep, svc: Servi
 
 @router.post("/axes/{axis_id}/measurements", response_model=sc.TriggerOut, status_code=status.HTTP_202_ACCEPTED,
              summary="Trigger a measurement cycle (operate: the axis will move)")
-def trigger(axis_id: AxisId, svc: ServiceDep, key: OperateKey, response: Response):
+def trigger(axis_id: AxisId, svc: ServiceDep, key: OperateKey, response: Response, request: Request):
+    wait_s = request.app.state.trigger_limit.take(key.name)
+    if wait_s > 0:
+        raise TooManyRequestsError(f"key {key.name!r} triggered too many measurements "
+                                   f"(limits.triggers_per_minute); retry in {wait_s:.0f} s", wait_s)
     rec = svc.trigger(axis_id, key.name)
     stored = rec if isinstance(rec, CycleRecord) else None
     if stored is not None:
@@ -92,5 +103,9 @@ def list_measurements(
 
 @router.get("/axes/{axis_id}/trend", response_model=sc.TrendOut,
             summary="b̄, e_p, v_u, v_300, v_2pi over time with temperature, utility day and Pearson r (Section 3)")
-def trend(axis_id: AxisId, s: SessionDep, _k: ReadKey, since: Since = None, until: Until = None):
-    return convert.trend(axis_id, results_repo.trend(s, axis_id, since=utc(since), until=utc(until)))
+def trend(
+    axis_id: AxisId, s: SessionDep, _k: ReadKey, since: Since = None, until: Until = None,
+    max_points: Annotated[int, Query(ge=10, le=20000, description="downsample the series to this many points "
+                                     "(the minimum and maximum of b̄ per bucket)")] = 2000,
+):
+    return convert.trend(axis_id, results_repo.trend(s, axis_id, since=utc(since), until=utc(until)), max_points)

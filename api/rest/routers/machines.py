@@ -8,7 +8,7 @@ from api.rest import convert, schemas as sc
 from api.rest.auth import AdminKey, ReadKey
 from api.rest.deps import MachineId, ServiceDep, SessionDep
 from core.dataset import AxisSpec
-from core.errors import MebmError
+from core.errors import InputError, MebmError
 from core.tbe import MachiningTask
 from storage.db import AxisSettings, Schedule, config_repo
 
@@ -47,6 +47,9 @@ def tasks_from(body: list[sc.TaskIn], gain_per_s: float) -> tuple[MachiningTask,
 @router.post("/machines/{machine_id}/axes", response_model=sc.AxisOut, status_code=status.HTTP_201_CREATED,
              summary="Add a monitored axis to a machine (admin)")
 def create_axis(machine_id: MachineId, body: sc.AxisIn, s: SessionDep, svc: ServiceDep, _k: AdminKey):
+    problem = sc.link_local_problem(body.controller_url)
+    if problem and not svc.settings.limits.allow_link_local_controllers:
+        raise InputError(problem)
     try:
         spec = AxisSpec(body.name, body.transmission_mm_per_rev, body.screw_lead_mm, body.position_gain_per_s,
                         tuple(body.travel_mm))

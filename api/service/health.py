@@ -1,0 +1,142 @@
+"""Health that tells the truth: can the service store what it measures?
+
+A database that answers ``SELECT 1`` may still refuse every write (a read-only file,
+a read-only PostgreSQL transaction mode, a full disk); a data folder may refuse new
+files; the disk may be nearly full. :class:`HealthProbe` tries each for real:
+
+- database: an ``UPDATE alembic_version SET version_num = version_num`` that is rolled
+  back (a genuine write on both backends, which changes nothing);
+- data folders (``datasets``, ``spool``): create, fsync and delete a small file;
+- free disk of the data folder against ``Settings.min_free_disk_mb``.
+
+The result is cached for ``ttl_s`` so a polling load balancer does not cost a write
+per request. ``/healthz`` and ``/metrics`` both read it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import threading
+import time
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+
+from sqlalchemy import exc as sa_exc
+from sqlalchemy import text
+
+from storage.db import StorageError
+from storage.db.engine import translate
+
+
+@dataclass(frozen=True)
+class HealthReport:
+    database: str  # ok | read-only | unavailable
+    data_dir_writable: bool
+    free_disk_bytes: int | None
+    min_free_disk_bytes: int
+    problems: tuple[str, ...]
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+    @property
+    def status(self) -> str:
+        return "ok" if self.ok else "degraded"
+
+
+def _first_line(exc: BaseException) -> str:
+    return (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+
+
+class HealthProbe:
+    def __init__(self, service, ttl_s: float = 2.0):
+        self.service = service
+        self.ttl_s = ttl_s
+        self._last: tuple[float, HealthReport] | None = None
+        self._lock = threading.Lock()
+
+    def invalidate(self) -> None:
+        self._last = None
+
+    def report(self) -> HealthReport:
+        last = self._last
+        if last is not None and time.monotonic() - last[0] < self.ttl_s:
+            return last[1]
+        with self._lock:
+            last = self._last
+            if last is not None and time.monotonic() - last[0] < self.ttl_s:
+                return last[1]
+            rep = self._check()
+            self._last = (time.monotonic(), rep)
+            return rep
+
+    # -- the checks ----------------------------------------------------------------------------
+    def _check(self) -> HealthReport:
+        problems: list[str] = []
+        database, why = self._database()
+        if why:
+            problems.append(why)
+        writable = True
+        ex = self.service.executor
+        for folder in ((ex.datasets_dir, ex.spool_dir) if ex is not None else (Path(self.service.settings.data_dir),)):
+            why = self._folder(Path(folder))
+            if why:
+                writable = False
+                problems.append(why)
+        floor = int(self.service.settings.min_free_disk_mb * 1e6)
+        free = self._free_bytes(Path(self.service.settings.data_dir))
+        if free is not None and free < floor:
+            problems.append(f"free disk under the data folder is {free / 1e6:.0f} MB, below the floor of "
+                            f"{floor / 1e6:.0f} MB (storage.min_free_disk_mb)")
+        return HealthReport(database=database, data_dir_writable=writable, free_disk_bytes=free,
+                            min_free_disk_bytes=floor, problems=tuple(problems))
+
+    def _database(self) -> tuple[str, str | None]:
+        factory = self.service.factory
+        if factory is None:
+            return "unavailable", "database: not connected"
+        try:
+            with factory() as s:
+                try:
+                    s.execute(text("SELECT 1"))
+                except sa_exc.SQLAlchemyError as exc:
+                    raise translate(exc) from exc
+                try:
+                    s.execute(text("UPDATE alembic_version SET version_num = version_num"))
+                except sa_exc.SQLAlchemyError as exc:
+                    return "read-only", f"database cannot be written: {_first_line(getattr(exc, 'orig', exc))}"
+                finally:
+                    with contextlib.suppress(Exception):
+                        s.rollback()
+        except StorageError as exc:
+            return "unavailable", f"database unavailable: {_first_line(exc)}"
+        return "ok", None
+
+    @staticmethod
+    def _folder(folder: Path) -> str | None:
+        probe = folder / f".health-{uuid.uuid4().hex}"
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+            try:
+                os.write(fd, b"ok")
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+            probe.unlink()
+        except OSError as exc:
+            with contextlib.suppress(OSError):
+                probe.unlink()
+            return f"data folder {folder} cannot be written: {exc.strerror or exc}"
+        return None
+
+    @staticmethod
+    def _free_bytes(folder: Path) -> int | None:
+        for p in (folder, *folder.resolve().parents):
+            with contextlib.suppress(OSError):
+                return shutil.disk_usage(p).free
+        return None

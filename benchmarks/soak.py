@@ -1,0 +1,251 @@
+"""Soak: ``mebm serve`` for M minutes on a high time scale with several simulated axes and
+bounded concurrent clients, with faults injected; then every cycle is accounted for.
+A measurement, not a test.
+
+    .venv/bin/python benchmarks/soak.py --minutes 30 [--axes 3] [--interval-s 2]
+
+Clients (one thread each, so the load is bounded): status polls (read key), trend,
+plots, gap, and manual triggers (operate key; 429 answers are expected and counted).
+Faults, each for ``--fault-s`` seconds, spread over the run:
+
+- a locked database (another connection holds ``BEGIN EXCLUSIVE``): cycles are spooled
+  and stored when the lock goes;
+- a data folder that refuses files (``datasets`` and ``unfiled`` replaced by regular
+  files: as root, chmod would not stop the service): raw runs are lost and each such
+  cycle must say so (``raw_run_lost``);
+- a full disk is not injected: it needs a loop mount or a size-limited tmpfs, which this
+  machine does not allow without privileges; it ends in the same OSError path as the
+  refusing folder.
+
+At the end the server is stopped and the database and folders are checked: every cycle
+in a final state, no run in another axis' folder, every ok cycle's run in its folder or
+the cycle marked ``raw_run_lost``. Last line::
+
+    soak: cycles C, accounted A, mixed X, lost L (each marked), rss_max_mb R, status_p99_ms P
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import shutil
+import signal
+import sqlite3
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import httpx
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from storage.db import config_repo, make_engine, make_session_factory, session_scope, upgrade  # noqa: E402
+
+AXIS = """
+  [[machines.axes]]
+  name = "{name}"
+  transmission_mm_per_rev = 6.857
+  screw_lead_mm = 16
+  position_gain_per_s = 10
+  travel_mm = [0, 300]
+  controller = "sim"
+  measure_feed_mm_min = 6000
+  schedule_interval_s = {interval}
+    [[machines.axes.tasks]]
+    name = "circle R200 F200"
+    profile = "circle"
+    radius_mm = 200
+    feed_mm_min = 200
+    tolerance_um = 45
+"""
+
+
+def config(axes: int, interval_s: float) -> str:
+    head = ('[auth]\ndemo_keys = false\n[scheduler]\nspool_retry_s = 2\n[simulator]\ntime_scale = 40\n'
+            '[limits]\ntriggers_per_minute = 30\ntrigger_burst = 5\n[[machines]]\nname = "soak-vmc"\n')
+    return head + "".join(AXIS.format(name=n, interval=interval_s) for n in "xyzuvw"[:axes])
+
+
+def rss_mb(pid: int) -> float:
+    with open(f"/proc/{pid}/status") as fh:
+        return next(int(line.split()[1]) for line in fh if line.startswith("VmRSS:")) / 1024
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--minutes", type=float, default=30.0)
+    ap.add_argument("--axes", type=int, default=3)
+    ap.add_argument("--interval-s", type=float, default=2.0)
+    ap.add_argument("--fault-s", type=float, default=15.0)
+    ap.add_argument("--keep", action="store_true", help="keep the data folder (printed) for a look afterwards")
+    a = ap.parse_args()
+    tmp = Path(tempfile.mkdtemp(prefix="mebm-soak-"))
+    url = f"sqlite:///{tmp}/soak.sqlite3"
+    eng = make_engine(url)
+    upgrade(eng)
+    with session_scope(make_session_factory(eng)) as s:
+        read = config_repo.create_key(s, "soak-read", "read")[1]
+        operate = config_repo.create_key(s, "soak-operate", "operate")[1]
+    eng.dispose()
+    (tmp / "soak.toml").write_text(config(a.axes, a.interval_s))
+    log = open(tmp / "serve.log", "w+")  # noqa: SIM115
+    proc = subprocess.Popen([sys.executable, "-m", "api.cli", "serve", "--config", str(tmp / "soak.toml"),
+                             "--port", "0", "--data-dir", str(tmp)], cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
+                            env={**os.environ, "MEBM_DATABASE_URL": url}, start_new_session=True)
+    base = None
+    deadline = time.monotonic() + 60
+    while base is None and time.monotonic() < deadline and proc.poll() is None:
+        log.seek(0)
+        m = re.search(r"mebm service on (http://127\.0\.0\.1:\d+)", log.read())
+        base = m.group(1) if m else None
+        time.sleep(0.2)
+    if base is None:
+        log.seek(0)
+        print(log.read()[-3000:])
+        return 1
+    stop = threading.Event()
+    status_ms: list[float] = []
+    answers: dict[str, int] = {}
+    rss: list[float] = []
+    lock = threading.Lock()
+
+    def count(kind: str, code: int) -> None:
+        with lock:
+            answers[f"{kind} {code}"] = answers.get(f"{kind} {code}", 0) + 1
+
+    def poll(kind: str, paths, key: str, pause_s: float, method: str = "GET") -> None:
+        with httpx.Client(base_url=base, headers={"X-API-Key": key}, timeout=60) as c:
+            i = 0
+            while not stop.is_set():
+                path = paths[i % len(paths)]
+                i += 1
+                t = time.perf_counter()
+                try:
+                    r = c.request(method, path)
+                    code = r.status_code
+                except httpx.HTTPError:
+                    code = 0
+                if kind == "status":
+                    with lock:
+                        status_ms.append((time.perf_counter() - t) * 1e3)
+                count(kind, code)
+                stop.wait(pause_s)
+
+    ids = range(1, a.axes + 1)
+    clients = [
+        ("status", [f"/api/v1/axes/{i}/status" for i in ids], read, 0.01, "GET"),
+        ("status", [f"/api/v1/axes/{i}/status" for i in ids], read, 0.01, "GET"),
+        ("trend", [f"/api/v1/axes/{i}/trend" for i in ids], read, 0.5, "GET"),
+        ("plot", [f"/api/v1/axes/{i}/plots/backlash_trend.png" for i in ids], read, 1.0, "GET"),
+        ("gap", [f"/api/v1/axes/{i}/gap?runs=4" for i in ids], read, 5.0, "GET"),
+        ("trigger", [f"/api/v1/axes/{i}/measurements" for i in ids], operate, 1.0, "POST"),
+    ]
+    threads = [threading.Thread(target=poll, args=c, daemon=True) for c in clients]
+    for t in threads:
+        t.start()
+
+    def sample_rss() -> None:
+        while not stop.is_set():
+            try:
+                rss.append(rss_mb(proc.pid))
+            except (OSError, StopIteration):
+                pass
+            stop.wait(1.0)
+
+    threading.Thread(target=sample_rss, daemon=True).start()
+    total_s = a.minutes * 60
+    t0 = time.monotonic()
+    faults = [(total_s * 0.3, "locked database"), (total_s * 0.6, "data folder refuses files")]
+    for at_s, what in faults:
+        while time.monotonic() - t0 < at_s and proc.poll() is None:
+            time.sleep(0.5)
+        print(f"{time.monotonic() - t0:7.0f} s: {what} for {a.fault_s:.0f} s", flush=True)
+        if what == "locked database":
+            con = sqlite3.connect(tmp / "soak.sqlite3", timeout=30, isolation_level=None)
+            con.execute("BEGIN EXCLUSIVE")
+            time.sleep(a.fault_s)
+            con.execute("ROLLBACK")
+            con.close()
+        else:
+            moved = []
+            for name in ("datasets", "unfiled"):
+                p = tmp / name
+                if p.exists():
+                    p.rename(tmp / f"{name}.aside")
+                    moved.append(name)
+                p.write_text("a file where a folder should be")
+            time.sleep(a.fault_s)
+            for name in ("datasets", "unfiled"):
+                (tmp / name).unlink()
+                if name in moved:
+                    (tmp / f"{name}.aside").rename(tmp / name)
+    while time.monotonic() - t0 < total_s and proc.poll() is None:
+        time.sleep(0.5)
+    stop.set()
+    for t in threads:
+        t.join(70)
+    proc.send_signal(signal.SIGTERM)
+    try:
+        proc.wait(30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+    try:
+        return report(tmp, url, status_ms, answers, rss)
+    finally:
+        if a.keep:
+            print(f"data folder kept: {tmp}")
+        else:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def report(tmp: Path, url: str, status_ms, answers, rss) -> int:
+    con = sqlite3.connect(tmp / "soak.sqlite3")
+    cycles = con.execute("SELECT id, uuid, axis_id, status, run_file, raw_run_lost FROM cycles").fetchall()
+    axes = dict(con.execute("SELECT id, machine_id FROM axes").fetchall())
+    con.close()
+    final = {"ok", "failed", "interrupted", "cancelled"}
+    in_folder: dict[str, tuple[int, str]] = {}  # cycle uuid -> (axis id of the folder, file)
+    mixed = 0
+    for folder in (tmp / "datasets").glob("machine-*_axis-*"):
+        m = re.fullmatch(r"machine-(\d+)_axis-(\d+)(_rejected)?(@.*)?", folder.name)
+        if not m or not (folder / "dataset.json").is_file():
+            continue
+        for r in json.loads((folder / "dataset.json").read_text())["runs"]:
+            if int(r.get("axis_id", m.group(2))) != int(m.group(2)):
+                mixed += 1
+            in_folder[str(r.get("cycle_uuid"))] = (int(m.group(2)), r["file"])
+    accounted = lost = unmarked = 0
+    for _id, uuid, axis_id, status, run_file, raw_lost in cycles:
+        if status not in final:
+            continue
+        where = in_folder.get(uuid)
+        if where is not None and where[0] != axis_id:
+            mixed += 1
+            continue
+        if status == "ok" and where is None:
+            if raw_lost:
+                lost += 1
+            elif (tmp / "unfiled" / f"{uuid}.npz").is_file():
+                pass  # kept outside the dataset folder
+            else:
+                unmarked += 1
+                continue
+        accounted += 1
+    ms = sorted(status_ms)
+    p99 = ms[min(int(0.99 * len(ms)), len(ms) - 1)] if ms else float("nan")
+    print("answers:", ", ".join(f"{k}: {v}" for k, v in sorted(answers.items())))
+    print(f"cycles not in a final state: {sum(1 for c in cycles if c[3] not in final)}; "
+          f"ok cycles whose run is neither kept nor marked lost: {unmarked}; axes: {len(axes)}")
+    print(f"soak: cycles {len(cycles)}, accounted {accounted}, mixed {mixed}, lost {lost} (each marked), "
+          f"rss_max_mb {max(rss) if rss else float('nan'):.0f}, status_p99_ms {p99:.1f}")
+    return 0 if mixed == 0 and unmarked == 0 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,157 @@
+"""Hygiene: redaction, file modes, no-store on secrets, security headers, dates out of
+range, plausibility limits naming the field, a revoked bootstrap key stays revoked,
+demo keys printed only when created, Swagger UI without a CDN."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import replace
+
+import pytest
+
+from api.cli.serve import banner
+from api.service.service import Service, _redact
+from storage.db import config_repo, session_scope
+from tests.api.rest.conftest import FakeRunner, hdr, make_settings
+
+V1 = "/api/v1"
+
+
+@pytest.mark.parametrize("url", [
+    "postgresql://mebm:s3cret@db/mebm",
+    "postgresql://mebm@db/mebm?password=s3cret",
+    "postgresql://mebm@db/mebm?sslmode=require&sslpassword=s3cret",
+    "postgresql://mebm@db/mebm#password=s3cret",
+    "postgresql+psycopg://mebm:s3cret@db:5432/mebm?application_name=x&PASSWORD=s3cret",
+])
+def test_passwords_are_redacted_in_every_part_of_a_url(url):
+    out = _redact(url)
+    assert "s3cret" not in out and "***" in out and "db" in out and out.startswith(url.split("://")[0])
+
+
+def test_a_url_without_secrets_is_left_as_it_is():
+    assert _redact("postgresql://mebm@db:5432/mebm?sslmode=require") == "postgresql://mebm@db:5432/mebm?sslmode=require"
+
+
+def test_data_folder_is_0700_and_the_database_0600(tmp_path):
+    data = tmp_path / "data"
+    data.mkdir(mode=0o755)
+    svc = Service(make_settings(f"sqlite:///{data}/mebm.sqlite3", data), runner=FakeRunner())
+    svc.start()
+    try:
+        assert data.stat().st_mode & 0o777 == 0o700
+        assert (data / "mebm.sqlite3").stat().st_mode & 0o777 == 0o600
+        wal = data / "mebm.sqlite3-wal"
+        assert not wal.exists() or wal.stat().st_mode & 0o077 == 0
+    finally:
+        svc.stop()
+
+
+def test_a_created_key_is_not_cached_and_every_answer_has_security_headers(app_env):
+    client, svc, keys, axis_id = app_env
+    r = client.post(f"{V1}/keys", json={"name": "mes-2", "role": "read"}, headers=hdr(keys["admin"]))
+    assert r.status_code == 201 and r.headers["cache-control"] == "no-store"
+    client.get(f"{V1}/axes/{axis_id}/status", headers=hdr(keys["read"]))  # the second call takes the fast path
+    for resp in (r, client.get("/healthz"), client.get(f"{V1}/machines"),
+                 client.get(f"{V1}/axes/{axis_id}/status", headers=hdr(keys["read"]))):
+        assert resp.headers["x-content-type-options"] == "nosniff"
+        assert resp.headers["x-frame-options"] == "DENY"
+        assert resp.headers["referrer-policy"] == "no-referrer"
+        assert "frame-ancestors 'none'" in resp.headers["content-security-policy"]
+
+
+def test_swagger_ui_is_served_from_the_package_without_a_cdn(client):
+    page = client.get("/docs")
+    assert page.status_code == 200
+    assert "cdn" not in page.text.lower() and "https://" not in page.text
+    assert client.get("/docs/assets/swagger-ui-bundle.js").status_code == 200
+    assert client.get("/docs/assets/swagger-ui.css").status_code == 200
+
+
+@pytest.mark.parametrize("param", ["since", "until"])
+def test_a_date_out_of_range_is_a_422_naming_the_parameter(app_env, param):
+    client, _svc, keys, axis_id = app_env
+    for path in (f"{V1}/axes/{axis_id}/trend", f"{V1}/axes/{axis_id}/measurements"):
+        r = client.get(path, params={param: "9999-12-31T23:59:59-23:59"}, headers=hdr(keys["read"]))
+        assert r.status_code == 422 and param in r.json()["detail"], r.text
+
+
+def _axis_body(**kw):
+    body = {"name": "x", "transmission_mm_per_rev": 6.857, "screw_lead_mm": 16, "position_gain_per_s": 10,
+            "travel_mm": [0, 500], "controller_url": "modbus://10.0.0.5:502", "measure_feed_mm_min": 2000}
+    body.update(kw)
+    return body
+
+
+@pytest.mark.parametrize(("change", "field"), [
+    ({"travel_mm": [-999999, 999999], "measure_feed_mm_min": 0.1}, "travel_mm"),
+    ({"travel_mm": [0, 1000], "measure_feed_mm_min": 1}, "measure_feed_mm_min"),
+    ({"tasks": [{"name": "   ", "profile": "circle", "radius_mm": 10, "feed_mm_min": 200, "tolerance_um": 20}]},
+     "tasks.0.name"),
+    ({"controller_url": "modbus://169.254.169.254:502"}, "controller_url"),
+])
+def test_implausible_axes_are_refused_naming_the_field(app_env, change, field):
+    client, _svc, keys, _axis_id = app_env
+    machine = client.get(f"{V1}/machines", headers=hdr(keys["read"])).json()[0]["id"]
+    r = client.post(f"{V1}/machines/{machine}/axes", json=_axis_body(**change), headers=hdr(keys["admin"]))
+    assert r.status_code == 422 and field in r.json()["detail"], r.text
+
+
+def test_a_link_local_controller_is_accepted_when_the_configuration_allows_it(app_env):
+    client, svc, keys, _axis_id = app_env
+    svc.settings = replace(svc.settings, limits=replace(svc.settings.limits, allow_link_local_controllers=True))
+    machine = client.get(f"{V1}/machines", headers=hdr(keys["read"])).json()[0]["id"]
+    body = _axis_body(controller_url="modbus://169.254.10.20:502")
+    assert client.post(f"{V1}/machines/{machine}/axes", json=body, headers=hdr(keys["admin"])).status_code == 201
+
+
+def test_a_blank_key_name_is_refused(app_env):
+    client, _svc, keys, _ = app_env
+    r = client.post(f"{V1}/keys", json={"name": "  ", "role": "read"}, headers=hdr(keys["admin"]))
+    assert r.status_code == 422 and "name" in r.json()["detail"]
+
+
+def test_a_revoked_bootstrap_key_stays_revoked_and_start_up_goes_on(engine, db_url, tmp_path, caplog):
+    secret = "bootstrap-" + "z" * 30
+    settings = replace(make_settings(db_url, tmp_path), bootstrap_admin_key=secret, scheduler_enabled=False)
+    svc = Service(settings, runner=FakeRunner())
+    assert svc.start().bootstrap_admin == "bootstrap-admin"
+    with session_scope(svc.factory) as s:
+        config_repo.revoke_key(s, config_repo.find_key(s, "bootstrap-admin").id)
+    svc.stop()
+    again = Service(settings, runner=FakeRunner())
+    with caplog.at_level(logging.WARNING, logger="mebm.service"):
+        report = again.start()  # no "this key is registered already"
+    try:
+        assert report.bootstrap_admin is None
+        with session_scope(again.factory) as s:
+            assert config_repo.authenticate(s, secret) is None
+        assert any("revoked" in r.getMessage() for r in caplog.records)
+        assert not any(secret in r.getMessage() for r in caplog.records)
+    finally:
+        again.stop()
+
+
+def test_demo_keys_are_printed_only_when_created_and_the_admin_key_is_kept_nowhere(engine, db_url, tmp_path):
+    base = make_settings(db_url, tmp_path)
+    demo = replace(base, demo_keys=True, scheduler_enabled=False,
+                   axes=(replace(base.axes[0], settings=replace(base.axes[0].settings, controller_url="sim")),))
+    first = Service(demo, runner=FakeRunner())
+    created = first.start()
+    first.stop()
+    assert set(created.demo_keys) == {"read", "operate", "admin"}
+    text = banner(demo, created, "http://127.0.0.1:1")
+    assert created.demo_keys["admin"] in text
+    kept = (tmp_path / "demo-keys.json").read_text()
+    assert created.demo_keys["admin"] not in kept and created.demo_keys["read"] in kept
+    assert (tmp_path / "demo-keys.json").stat().st_mode & 0o777 == 0o600
+    again = Service(demo, runner=FakeRunner())
+    report = again.start()
+    try:
+        assert report.demo_keys == {}
+        text = banner(demo, report, "http://127.0.0.1:1")
+        assert not any(k in text for k in created.demo_keys.values())
+        with session_scope(again.factory) as s:
+            assert config_repo.authenticate(s, created.demo_keys["admin"]).role == "admin"  # still valid, not shown
+    finally:
+        again.stop()
