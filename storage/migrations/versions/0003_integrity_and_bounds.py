@@ -1,16 +1,16 @@
 """issue 21: cycles.raw_run_lost (why a raw run could not be kept; NULL: kept), and at
 most one waiting manual cycle per axis (a partial unique index: the rule is atomic)
 
-Revision ID: 0002
-Revises: 0001
+Revision ID: 0003
+Revises: 0002
 """
 
 from alembic import op
 import sqlalchemy as sa
 
 
-revision = '0002'
-down_revision = '0001'
+revision = '0003'
+down_revision = '0002'
 branch_labels = None
 depends_on = None
 
