@@ -84,12 +84,10 @@ def _worst_window(position_mm: np.ndarray, resid: np.ndarray, window_mm: float) 
     """(x0, x1, lo, hi) of the window of ``window_mm`` with the widest band of ``resid``."""
     step = float(position_mm[1] - position_mm[0]) if position_mm.size > 1 else 1.0
     w = max(1, min(int(round(window_mm / step)) + 1, resid.size))
-    best, arg = -1.0, 0
     # a strided view: max - min of every full window (the curves have a few thousand points)
     view = np.lib.stride_tricks.sliding_window_view(resid, w)
     band = view.max(axis=1) - view.min(axis=1)
     arg = int(np.argmax(band))
-    best = band[arg]
     seg = resid[arg:arg + w]
     return float(position_mm[arg]), float(position_mm[arg + w - 1]), float(seg.min()), float(seg.max())
 

@@ -19,7 +19,7 @@ from scipy.signal import savgol_filter
 
 from core.criteria.lead import LeadCriteria, lead_criteria
 from core.criteria.outliers import OutlierSettings, check_outlier_fraction, encoder_outliers, noise_sigma_mm
-from core.criteria.segmentation import SegmentationSettings, Stroke, find_strokes
+from core.criteria.segmentation import SegmentationSettings, find_strokes
 from core.criteria.uncertainty import (
     UncertaintyBudget,
     UncertaintyComponent,

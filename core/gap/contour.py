@@ -12,11 +12,10 @@ separates the axes and carries the same information.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 
 import numpy as np
-from scipy.optimize import least_squares, minimize_scalar
+from scipy.optimize import minimize_scalar
 
 from core.dataset import AxisSpec
 from core.gap.data import Contour

@@ -417,8 +417,6 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None) -> GapReport
     cands = [_candidate(f, s) for f in ranked]
     none_c = Candidate("none", gap_before, {}, 0, gap_before, True, "the nominal model", ())
     ordered = ([none_c] + cands) if effect == "none" else cands[:1] + [none_c] + cands[1:]
-    if second is not None:
-        ordered = [_candidate(second, s)] + ordered
 
     all_runs = []
     for r in d.rts:

@@ -151,6 +151,12 @@ class GapReport:
             change = f"{(c.gap_after_um / gb - 1) * 100:+.0f} %" if gb > 0 else "-"
             rows.append((c.effect, f"{c.gap_after_um:.3f}", change, str(c.n_params), f"{c.score:.3f}",
                          (ps or "-") + (f"  [{c.notes}]" if c.notes else "")))  # fmt: skip
+        if self.pairs:
+            rows.append(("", "", "", "", "", ""))
+            for c in self.pairs:
+                change = f"{(c.gap_after_um / gb - 1) * 100:+.0f} %" if gb > 0 else "-"
+                rows.append((c.effect, f"{c.gap_after_um:.3f}", change, str(c.n_params), f"{c.score:.3f}",
+                             "(second effect on top)" + (f"  [{c.notes}]" if c.notes else "")))  # fmt: skip
         widths = [max(len(r[i]) for r in rows) for i in range(5)]
         for r in rows:
             lines.append("  ".join(r[i].ljust(widths[i]) for i in range(5)) + "  " + r[5])
