@@ -146,6 +146,7 @@ class ControllerDriver(ABC):
         self.stall_timeout_s = stall_timeout_s if stall_timeout_s is not None else max(2.0, 3 * self.timeout_s)
         self._connected = False
         self._ever_connected = False
+        self.connect_attempts = 0  # connection set-ups tried by this driver (tests count them)
         self.link_trouble: str | None = None  # last transient fault recovered from in this cycle
         self.servo_rate_hz = float("nan")
 
@@ -189,6 +190,7 @@ class ControllerDriver(ABC):
         attempt = 0
         while True:
             attempt += 1
+            self.connect_attempts += 1
             remaining = budget_end - time.monotonic()
             try:
                 await asyncio.wait_for(self._connect(), max(remaining, 0.01))

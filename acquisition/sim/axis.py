@@ -82,6 +82,11 @@ class SimAxis:
                 return f
         return None
 
+    def clear_faults(self) -> None:
+        """End every injected fault now, including the one of the running cycle."""
+        self.faults.clear()
+        self.active_faults = []
+
     # -- commands --------------------------------------------------------------------------
     def start(self, program: RoundTripProgram) -> None:
         """Precompute the round trip with the twin and start releasing it. Raises if not idle."""

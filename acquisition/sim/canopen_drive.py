@@ -66,6 +66,7 @@ class SimCanopenDrive:
         self._fault_cycle: dict[str, int] = {}
         self.syncs = 0
         self.tpdos_sent = 0
+        self._timers: list[threading.Timer] = []
 
     # -- lifecycle -----------------------------------------------------------------------------
     def start(self) -> "SimCanopenDrive":
@@ -126,6 +127,21 @@ class SimCanopenDrive:
         t = threading.Timer(min(for_s, 3600.0), wake)
         t.daemon = True
         t.start()
+        self._timers.append(t)
+
+    def recover(self) -> None:
+        """End every injected fault now: speak again, drop delayed replies (tests: the fault
+        clears on cue, not after a wall-clock window)."""
+        self.axis.clear_faults()
+        timers, self._timers = self._timers, []
+        for t in timers:
+            t.cancel()
+        if self._silent_until:
+            self._silent_until = 0.0
+            hb_raw = self.node.data_store.get(co.PRODUCER_HEARTBEAT, {}).get(0)
+            hb = struct.unpack("<H", hb_raw)[0] if hb_raw else 0
+            if self.network is not None and hb:
+                self.node.nmt.start_heartbeat(hb)
 
     def _on_axis_fault(self, code: int) -> None:
         if self.network is not None:
@@ -147,6 +163,7 @@ class SimCanopenDrive:
             t = threading.Timer(float(slow.value("s")), self.node.sdo.on_request, (can_id, data, timestamp))
             t.daemon = True
             t.start()
+            self._timers = [x for x in self._timers if x.is_alive()] + [t]
             return
         self.node.sdo.on_request(can_id, data, timestamp)
 

@@ -159,6 +159,15 @@ class SimModbusController:
             self._thread.join(5.0)
             self._thread = None
 
+    def recover(self) -> None:
+        """End every injected fault now and listen again (tests: the fault clears on cue,
+        not after a wall-clock window). Threaded use only."""
+        async def _recover():
+            self.axis.clear_faults()
+            await self._relisten()
+
+        asyncio.run_coroutine_threadsafe(_recover(), self._loop).result(5.0)
+
     def __enter__(self) -> "SimModbusController":
         self.start_in_thread()
         return self

@@ -29,8 +29,9 @@ _channels = itertools.count()
 class Peer:
     """A simulated controller and how to reach it."""
 
-    def __init__(self, kind, sim_axis, make_driver):
+    def __init__(self, kind, sim_axis, make_driver, recover):
         self.kind, self.axis, self._make = kind, sim_axis, make_driver
+        self.recover = recover  # ends every injected fault now
 
     def driver(self, **kw):
         kw.setdefault("timeout_s", 0.5)
@@ -46,7 +47,8 @@ def modbus_peer(faults=(), twin=None, *, time_scale=10.0, servo_rate_hz=500.0, m
     sim = SimModbusController(axis)
     port = sim.start_in_thread()
     try:
-        yield Peer("modbus", axis, lambda **kw: ModbusDriver("127.0.0.1", port, mode=kw.pop("mode", mode), **kw))
+        yield Peer("modbus", axis, lambda **kw: ModbusDriver("127.0.0.1", port, mode=kw.pop("mode", mode), **kw),
+                   sim.recover)
     finally:
         sim.stop_thread()
 
@@ -60,7 +62,8 @@ def canopen_peer(faults=(), twin=None, *, time_scale=5.0, sync_rate_hz=200.0, se
     drive.start()
     try:
         yield Peer("canopen", drive.axis, lambda **kw: CanopenDriver(
-            channel, kw.pop("node_id", 5), sync_rate_hz=sync_rate_hz, time_scale=time_scale, heartbeat_ms=50, **kw))
+            channel, kw.pop("node_id", 5), sync_rate_hz=sync_rate_hz, time_scale=time_scale, heartbeat_ms=50, **kw),
+            drive.recover)
     finally:
         drive.stop()
 
