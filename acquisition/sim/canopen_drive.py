@@ -6,6 +6,14 @@ communication cycle period (0x1006) and it answers with TPDO1 (0x6064 motor coun
 Program, command, state, temperature and fault code are SDO objects
 (docs/canopen-objects.md). Runs on python-can's ``virtual`` bus in-process, or on
 ``udp_multicast`` to be reachable from another process.
+
+Reply timing, as a hardware drive: each TPDO goes on the wire ``reply_delay_s`` plus a
+uniform jitter in ``[0, reply_jitter_s]`` after the SYNC's bus time; one that would
+leave later than the synchronous window (0x1007) is discarded (CiA 301) and counted in
+``late_discards``. On ``virtual`` the frame is stamped with that wire time (the drive is
+hardware: its timing is not the host's thread scheduling, so frames may reach the
+driver out of order); on other buses the drive waits until then and the receiver
+stamps the frame.
 """
 
 from __future__ import annotations
@@ -16,6 +24,7 @@ import time
 
 import can
 import canopen
+import numpy as np
 from canopen.sdo import SdoAbortedError
 
 from acquisition import canopen_od as co
@@ -43,6 +52,9 @@ class SimCanopenDrive:
         scale: EncoderScale | None = None,
         faults=(),
         bus_kwargs: dict | None = None,
+        reply_delay_s: float = 0.0001,
+        reply_jitter_s: float = 0.0002,
+        rng: np.random.Generator | None = None,
     ):
         self.node_id = int(node_id)
         self.channel, self.interface = channel, interface
@@ -64,8 +76,19 @@ class SimCanopenDrive:
         self.sync_loss_s = 0.5  # a running program is aborted when SYNC stops for this long
         self._lost_left = 0
         self._fault_cycle: dict[str, int] = {}
+        self.reply_delay_s = float(reply_delay_s)
+        self.reply_jitter_s = float(reply_jitter_s)
+        if self.reply_delay_s < 0 or self.reply_jitter_s < 0:
+            raise InputError(f"reply_delay_s (={reply_delay_s}) and reply_jitter_s (={reply_jitter_s}) must be >= 0")
+        self._rng = rng if rng is not None else np.random.default_rng()
+        self._window_s = 0.0
+        self._held: can.Message | None = None  # a frame held back to be sent after the next (reorder)
+        self._dup_left = 0
+        self._reorder_left = 0
         self.syncs = 0
         self.tpdos_sent = 0
+        self.late_discards = 0
+        self.answered: list[int] = []  # SYNC counter bytes answered while a program ran (tests)
         self._timers: list[threading.Timer] = []
 
     # -- lifecycle -----------------------------------------------------------------------------
@@ -184,12 +207,42 @@ class SimCanopenDrive:
         if self._lost_left > 0:
             self._lost_left -= 1
             return
+        for kind in ("duplicate", "reorder"):
+            f = self._due(kind)
+            if f is not None:
+                setattr(self, f"_{'dup' if kind == 'duplicate' else kind}_left", int(f.value("n")))
         motor_rev, table_mm = self.axis.position_at()
         m = int(self.scale.motor_counts(motor_rev))
         t = int(self.scale.table_counts(table_mm))
-        # stamped with the SYNC it was latched on (kept by buses that preserve timestamps)
+        t_sync = timestamp or time.time()
+        delay_s = self.reply_delay_s + (self._rng.uniform(0.0, self.reply_jitter_s) if self.reply_jitter_s else 0.0)
+        if self._window_s and delay_s > self._window_s:
+            self.late_discards += 1  # CiA 301: a synchronous PDO is not sent outside the window
+            return
         msg = can.Message(arbitration_id=co.tpdo1_cob_id(self.node_id), is_extended_id=False,
-                          data=co.encode_tpdo1(m, t), timestamp=timestamp or time.time())
+                          data=co.encode_tpdo1(m, t), timestamp=t_sync + delay_s)
+        if self.interface != "virtual":
+            wait_s = t_sync + delay_s - time.time()
+            if wait_s > 0:
+                time.sleep(wait_s)
+            if self._window_s and time.time() - t_sync > self._window_s:
+                self.late_discards += 1  # this host was too slow to make the window: a real loss
+                return
+        if self.axis.state == AxisState.RUNNING and data:
+            self.answered.append(int(data[0]))
+        if self._reorder_left > 0 and self._held is None:
+            self._reorder_left -= 1
+            self._held = msg  # goes out after the next one
+            return
+        self._send(msg)
+        if self._held is not None:
+            held, self._held = self._held, None
+            self._send(held)
+        if self._dup_left > 0:
+            self._dup_left -= 1
+            self._send(msg)
+
+    def _send(self, msg: can.Message) -> None:
         self.network.bus.send(msg)
         self.tpdos_sent += 1
 
@@ -221,6 +274,8 @@ class SimCanopenDrive:
             if us == 0:
                 raise SdoAbortedError(ABORT_VALUE_RANGE)
             self._period_s = us * 1e-6
+        elif index == co.SYNC_WINDOW:
+            self._window_s = struct.unpack("<L", bytes(data))[0] * 1e-6
         elif index == co.COMMAND:
             cmd = struct.unpack("<H", bytes(data))[0]
             if cmd == Command.START:

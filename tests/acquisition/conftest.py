@@ -6,6 +6,7 @@ import contextlib
 import itertools
 import logging
 
+import numpy as np
 import pytest
 
 from acquisition.canopen import CanopenDriver
@@ -54,11 +55,13 @@ def modbus_peer(faults=(), twin=None, *, time_scale=10.0, servo_rate_hz=500.0, m
 
 
 @contextlib.contextmanager
-def canopen_peer(faults=(), twin=None, *, time_scale=5.0, sync_rate_hz=200.0, servo_rate_hz=1000.0):
+def canopen_peer(faults=(), twin=None, *, time_scale=5.0, sync_rate_hz=200.0, servo_rate_hz=1000.0, **drive_kw):
+    """``drive_kw``: reply timing of the simulated drive (reply_delay_s, reply_jitter_s)."""
     twin = twin or KinematicTwin(backlash_um=120.0, position_gain_per_s=30.0)
     channel = f"mebm-test-{next(_channels)}"
+    drive_kw.setdefault("rng", np.random.default_rng(next(_channels)))
     drive = SimCanopenDrive(twin, node_id=5, channel=channel, servo_rate_hz=servo_rate_hz,
-                            faults=[parse_fault(f) if isinstance(f, str) else f for f in faults])
+                            faults=[parse_fault(f) if isinstance(f, str) else f for f in faults], **drive_kw)
     drive.start()
     try:
         yield Peer("canopen", drive.axis, lambda **kw: CanopenDriver(

@@ -53,3 +53,25 @@ def test_sync_counter_numbers_every_sample():
         assert t.mode == "sync" and np.all(np.diff(t.counter) == 1)
         assert np.allclose(np.diff(t.time_s), 1 / 200.0)
         assert peer.axis.state == AxisState.DONE
+
+
+def test_duplicated_and_reordered_tpdos_lose_nothing_and_are_counted():
+    faults = ["duplicate:at=0.3,n=4", "reorder:at=0.6,n=5"]
+    with canopen_peer(faults=faults, reply_delay_s=0.0001, reply_jitter_s=0.0003) as peer:
+        d = peer.driver()
+        r = run_cycle(d, AXIS, PROGRAM)
+        assert r.ok, r.reason
+        assert r.trace.lost_samples == 0 and np.all(np.diff(r.trace.counter) == 1)
+        assert d.sync_stats["duplicates"] == 4 and d.sync_stats["late"] == 0
+
+
+def test_tpdos_outside_the_synchronous_window_are_discarded_by_the_drive_and_counted_as_lost():
+    # every reply takes 0.1-0.9 of the window: about half miss the window the driver sets (0.5 period)
+    with canopen_peer(reply_delay_s=0.0, reply_jitter_s=0.001) as peer:
+        d = peer.driver(max_lost_samples=10**6)
+        r = run_cycle(d, AXIS, PROGRAM)
+        drive = peer.axis.on_fault.__self__
+        assert r.trace is not None and drive.late_discards > 0
+        gaps = int(np.sum(np.diff(r.trace.counter) - 1))
+        assert r.trace.lost_samples >= gaps > 0  # every gap counted (and any before the first sample)
+        assert d.sync_stats["late"] == 0  # what the drive sent all arrived within its window
