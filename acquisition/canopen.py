@@ -290,13 +290,16 @@ class CanopenDriver(ControllerDriver):
         for sub, v in enumerate(values, start=1):
             self._sdo("writing the round-trip program", lambda s=sub, v=v: setattr(sdo[co.PROGRAM][s], "raw", v))
         self._emcy = None
-        self._command(Command.START)
+        # the first sample is the first SYNC after the start command went out: earlier ones
+        # may already be answered from the running program; the drive answers the ones before
+        # it takes effect from the axis at rest, where the program begins
         with self._sync.lock:
             first = self._sync.k + 1
         self._first = first
-        self._frames.clear()
+        self._frames.clear()  # before the start: frames of SYNC >= first may arrive any moment
         self._reorder = {}
         self._next_k = first
+        self._command(Command.START)
         return first
 
     async def _start(self, program: RoundTripProgram) -> int | None:
@@ -342,6 +345,8 @@ class CanopenDriver(ControllerDriver):
         # them still queued (nothing read is lost), and a DONE status covers every frame taken
         while self._frames:
             k, m, t = self._frames.popleft()
+            if k < self._first:
+                continue  # answers a SYNC from before the start
             if k < self._next_k:
                 self.frames_too_late += 1  # its SYNC was already given up as lost
             elif k not in self._reorder:

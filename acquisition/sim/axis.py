@@ -88,13 +88,25 @@ class SimAxis:
         self.active_faults = []
 
     # -- commands --------------------------------------------------------------------------
+    def prepare(self, program: RoundTripProgram) -> None:
+        """Compute the round trip ahead of :meth:`start`, as a drive does when the program is
+        written: the start command then takes effect at once, not after the twin has run."""
+        trace = self.twin.round_trip(program, self.servo_rate_hz)
+        with self._lock:
+            self._prepared = (program, self.cycles_started, trace)
+
     def start(self, program: RoundTripProgram) -> None:
-        """Precompute the round trip with the twin and start releasing it. Raises if not idle."""
+        """Precompute the round trip with the twin (unless prepared) and start releasing it.
+        Raises if not idle."""
         with self._lock:
             self.update()
             if self.state in (AxisState.RUNNING, AxisState.FAULT):
                 raise InputError(f"axis is {self.state.name}, cannot start a round trip")
-            trace = self.twin.round_trip(program, self.servo_rate_hz)
+            prepared, self._prepared = getattr(self, "_prepared", None), None
+            if prepared is not None and prepared[0] == program and prepared[1] == self.cycles_started:
+                trace = prepared[2]
+            else:
+                trace = self.twin.round_trip(program, self.servo_rate_hz)
             motor = self.scale.motor_counts(trace.motor_rev)
             table = self.scale.table_counts(trace.table_mm)
             n = len(trace)

@@ -18,6 +18,7 @@ stamps the frame.
 
 from __future__ import annotations
 
+import collections
 import struct
 import threading
 import time
@@ -88,7 +89,7 @@ class SimCanopenDrive:
         self.syncs = 0
         self.tpdos_sent = 0
         self.late_discards = 0
-        self.answered: list[int] = []  # SYNC counter bytes answered while a program ran (tests)
+        self.answered: collections.deque = collections.deque(maxlen=100_000)  # SYNC counter bytes answered
         self._timers: list[threading.Timer] = []
 
     # -- lifecycle -----------------------------------------------------------------------------
@@ -228,7 +229,7 @@ class SimCanopenDrive:
             if self._window_s and time.time() - t_sync > self._window_s:
                 self.late_discards += 1  # this host was too slow to make the window: a real loss
                 return
-        if self.axis.state == AxisState.RUNNING and data:
+        if data:
             self.answered.append(int(data[0]))
         if self._reorder_left > 0 and self._held is None:
             self._reorder_left -= 1
@@ -276,6 +277,12 @@ class SimCanopenDrive:
             self._period_s = us * 1e-6
         elif index == co.SYNC_WINDOW:
             self._window_s = struct.unpack("<L", bytes(data))[0] * 1e-6
+        elif index == co.PROGRAM and subindex == 5:  # the last word of the program: compute it now
+            self.node.data_store.setdefault(index, {})[subindex] = bytes(data)  # stored after this callback
+            try:
+                self.axis.prepare(self._program())
+            except InputError:
+                pass  # refused when started
         elif index == co.COMMAND:
             cmd = struct.unpack("<H", bytes(data))[0]
             if cmd == Command.START:
