@@ -248,13 +248,6 @@ class ControllerDriver(ABC):
             raise ControllerConnectionError(msg) from last
         raise ProtocolError(msg, code=getattr(last, "code", None)) from last
 
-    async def probe(self) -> ControllerStatus:
-        """Connect and read the status (for ``mebm measure --check`` and the service's health view)."""
-        try:
-            return await self._call("reading the axis state", self._read_status)
-        finally:
-            await self.close()
-
     async def _safe_abort(self) -> str:
         """Best effort to leave the axis stopped; returns a note for the failure reason."""
         deadline = time.monotonic() + max(3.0 * self.timeout_s, 2.0)

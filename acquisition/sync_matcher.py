@@ -56,10 +56,6 @@ class SyncMatcher:
         self.late = 0
         self.duplicates = 0
 
-    @property
-    def last_k(self) -> int | None:
-        return self._k[-1] if self._k else None
-
     def sync(self, k: int, t_s: float) -> None:
         """SYNC number ``k`` went on the bus at ``t_s`` (same clock as the frames' timestamps)."""
         if self._k and (k <= self._k[-1] or t_s < self._t[-1]):

@@ -12,7 +12,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import threading
-import time
 
 import numpy as np
 from pymodbus.constants import ExcCodes
@@ -263,11 +262,3 @@ class SimModbusController:
         return None
 
 
-def wait_until(predicate, timeout_s: float, interval_s: float = 0.01) -> bool:
-    """Poll ``predicate`` until true or ``timeout_s`` passes (bounded helper for tests and the CLI)."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(interval_s)
-    return bool(predicate())
