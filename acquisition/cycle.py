@@ -21,29 +21,17 @@ from acquisition.errors import AcquisitionError, IncompleteTraceError
 from acquisition.types import AcquiredTrace, RoundTripProgram
 from core.criteria import RoundTripResult, RoundTripSettings, analyze_round_trip
 from core.dataset import AxisSpec, Run, RunSpec
-from core.errors import MebmError
+from core.errors import MebmError, TraceError
 from core.tbe import AxisDecision, MachiningTask, decide
 
-_REASON_CODES = (
-    ("AxisBusyError", "axis_busy"),
-    ("DeviceFaultError", "device_fault"),
-    ("LostSamplesError", "lost_samples"),
-    ("EncoderFaultError", "encoder_fault"),
-    ("ControllerConnectionError", "connection"),
-    ("ControllerTimeoutError", "timeout"),
-    ("ProtocolError", "protocol"),
-    ("IncompleteTraceError", "incomplete_trace"),
-    ("TraceError", "trace"),
-)
-
-
 def reason_code(exc: BaseException) -> str:
-    """A stable short code for the kind of failure (for the service, metrics and tests)."""
-    names = {c.__name__ for c in type(exc).__mro__}
-    for name, code in _REASON_CODES:
-        if name in names:
-            return code
-    return "acquisition" if isinstance(exc, AcquisitionError) else "error"
+    """A stable short code for the kind of failure (for the service, metrics and tests):
+    the exception class's ``reason_code``."""
+    if isinstance(exc, AcquisitionError):
+        return type(exc).reason_code
+    if isinstance(exc, TraceError):
+        return "trace"
+    return "error"
 
 
 @dataclass(frozen=True)
