@@ -10,7 +10,6 @@ drive from python-can's notifier thread.
 
 from __future__ import annotations
 
-import copy
 import threading
 import time
 from collections.abc import Callable
@@ -65,8 +64,10 @@ class SimAxis:
         self.duration_wall_s = 0.0
         # boot before serving, as a controller does: the first motion program otherwise pays
         # the twin's imports and JIT compilation (0.6 s to seconds) inside the start
-        # request's timeout. On a copy, so the twin's own state (nut side) is untouched.
-        copy.deepcopy(twin).round_trip(RoundTripProgram(0.0, 1.0, 1000.0), self.servo_rate_hz)
+        # request's timeout. warm_up() leaves the twin's state (nut side, noise) as it was.
+        warm_up = getattr(twin, "warm_up", None)
+        if warm_up is not None:
+            warm_up()
 
     # -- clock ---------------------------------------------------------------------------
     def counter(self, now: float | None = None) -> int:
