@@ -48,13 +48,16 @@ class _SyncProducer(threading.Thread):
     Each SYNC is stamped with the wall-clock time it is handed to the bus and recorded in
     a :class:`SyncMatcher`; TPDOs are paired on their bus timestamps (the receive stamps a
     socketcan or udp_multicast bus gives them). The next SYNC never goes out sooner than
-    ``window_s`` after the previous one was sent, even when catching up after a stall, so
-    a window never overlaps the next SYNC.
+    0.9 period (and never within the window) after the previous one was sent: after a
+    stall the producer does not burst to catch up, and a reply sent within the window of
+    its SYNC has the rest of the period as margin before the next SYNC on a bus that
+    stamps frames on arrival.
     """
 
     def __init__(self, bus, period_s: float, start_k: int, window_s: float):
         super().__init__(name="mebm-sync", daemon=True)
         self.bus, self.period_s, self.window_s = bus, period_s, window_s
+        self.min_gap_s = max(window_s, 0.9 * period_s)
         self.k = start_k
         self.matcher = SyncMatcher(window_s, history=4096)
         self.lock = threading.Lock()
@@ -83,9 +86,16 @@ class _SyncProducer(threading.Thread):
                 self.error = exc
                 return
             sent = time.perf_counter()
-            next_t = max(next_t + self.period_s, sent + self.window_s)
+            next_t = max(next_t + self.period_s, sent + self.min_gap_s)
             if sent - next_t > 20 * self.period_s:  # fell far behind (host stalled): do not burst
                 next_t = sent
+
+    def echoed(self, counter: int, timestamp: float) -> None:
+        """Our own SYNC came back from the bus (loopback): its bus time replaces the send time."""
+        with self.lock:
+            k = self.k - (self.k - counter) % 240  # the latest SYNC sent with that counter value
+            if k >= 1:
+                self.matcher.restamp(k, timestamp)
 
     def pair(self, timestamp: float, payload) -> tuple[int, object] | None:
         with self.lock:
@@ -168,6 +178,10 @@ class CanopenDriver(ControllerDriver):
             # the SYNC's bus time is the stamp the SYNC thread recorded, as a real bus would
             # stamp it on the wire; TPDOs keep the stamp their sender put on the wire
             kwargs.setdefault("preserve_timestamps", True)
+        if self.interface in ("virtual", "socketcan"):
+            # our own SYNCs come back with their bus timestamps (udp_multicast loops them
+            # back anyway); a bus that does not echo falls back on the time before sending
+            kwargs.setdefault("receive_own_messages", True)
         return can.Bus(interface=self.interface, channel=self.channel, **kwargs)
 
     def _connect_blocking(self) -> None:
@@ -213,6 +227,7 @@ class CanopenDriver(ControllerDriver):
         node.nmt.add_heartbeat_callback(self._on_heartbeat)
         node.emcy.add_callback(self._on_emcy)
         net.subscribe(co.tpdo1_cob_id(self.node_id), self._on_tpdo)
+        net.subscribe(co.SYNC_COB_ID, self._on_sync_echo)
         node.nmt.state = "OPERATIONAL"
         self._sync = _SyncProducer(net.bus, 1.0 / (self.sync_rate_hz * self.time_scale), self._k, self.sync_window_s)
         self._sync.start()
@@ -244,6 +259,11 @@ class CanopenDriver(ControllerDriver):
     def _on_emcy(self, err) -> None:
         if self._emcy is None and err.code != 0:
             self._emcy = err
+
+    def _on_sync_echo(self, can_id, data, timestamp) -> None:
+        sync = self._sync
+        if sync is not None and data and timestamp:
+            sync.echoed(int(data[0]), timestamp)
 
     def _on_tpdo(self, can_id, data, timestamp) -> None:
         sync = self._sync

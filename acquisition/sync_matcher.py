@@ -65,6 +65,20 @@ class SyncMatcher:
         self._t.append(float(t_s))
         self._k.append(int(k))
 
+    def restamp(self, k: int, t_s: float) -> bool:
+        """Move SYNC ``k`` to its bus timestamp ``t_s`` (its echo on the bus), when that keeps
+        the SYNCs in order; ``sync()`` is given the time just before sending, which a busy
+        host can make earlier than the frame's time on the wire. False if not applied."""
+        for i in range(len(self._k) - 1, max(len(self._k) - SYNC_COUNTER_MAX, 0) - 1, -1):
+            if self._k[i] == k:
+                lo = self._t[i - 1] if i > 0 else float("-inf")
+                hi = self._t[i + 1] if i + 1 < len(self._t) else float("inf")
+                if lo <= t_s <= hi:
+                    self._t[i] = float(t_s)
+                    return True
+                return False
+        return False
+
     def frame(self, t_s: float, payload=None, *, counter: int | None = None) -> tuple[int, object] | None:
         """The SYNC this frame answers, as ``(k, payload)``; None if it cannot be paired (counted)."""
         k = self._by_counter(counter, t_s) if counter is not None else self._by_window(t_s)

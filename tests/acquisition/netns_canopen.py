@@ -70,10 +70,14 @@ def main() -> None:
     try:
         assert parent.poll(60), "the simulated drive did not start"
         parent.recv()
-        # SYNC at 100 Hz: a 10 ms period, a 5 ms synchronous window
+        # SYNC every 20 ms of wall clock, 10 ms of machine time (time_scale 0.5: the drive runs
+        # at half speed); a 4 ms synchronous window (the drive answers within 0.2-1 ms),
+        # leaving 14 ms before the next SYNC for this host's scheduling. Frames are
+        # stamped on arrival here, as on socketcan: a reply that reached the wire after the
+        # next SYNC could only be told from that SYNC's reply by a counter the TPDO does not carry
         driver = CanopenDriver(GROUP, NODE, interface="udp_multicast", bus_kwargs={"port": PORT},
-                               sync_rate_hz=100.0, time_scale=1.0, heartbeat_ms=100, timeout_s=2.0,
-                               max_lost_samples=10**6)
+                               sync_rate_hz=100.0, time_scale=0.5, heartbeat_ms=100, timeout_s=2.0,
+                               sync_window_s=0.004, max_lost_samples=10**6)
         axis = AxisSpec("y", 6.857, 16.0, 30.0, (0.0, 20.0))
         r = run_cycle(driver, axis, RoundTripProgram(-2.0, 22.0, 1000.0, acceleration_mm_s2=500.0, dwell_s=0.1))
         parent.send("done")

@@ -59,16 +59,24 @@ def test_every_tpdo_that_arrived_is_in_the_trace_and_every_missing_one_is_counte
     counter = np.asarray(run["counter"])
     assert counter.size > 100
     # the SYNC counter values the drive answered, in order: over the trace's span its samples
-    # must be exactly that sequence (nothing that arrived was dropped)
+    # must be that sequence, less only frames the driver counted as outside their window
+    # (the drive checks its window before sending; a host that stalls it between check and
+    # send puts the frame on the wire late: CiA 301 makes it invalid, and it is counted)
     answered = run["drive"]["answered"]
     trace_bytes = [sync_counter_byte(int(k)) for k in counter]
-    starts = [j for j in range(len(answered) - len(trace_bytes) + 1)
-              if answered[j:j + len(trace_bytes)] == trace_bytes]
-    assert starts, "the trace is not the sequence of answered SYNCs: a frame that arrived was lost"
+    late = run["sync_stats"]["late"]
+    best = None
+    for j in (j for j, a in enumerate(answered) if a == trace_bytes[0]):
+        span = answered[j:j + len(trace_bytes) + late]
+        it = iter(span)
+        if all(b in it for b in trace_bytes):  # a subsequence: no sample out of place
+            best = len(span) - len(trace_bytes)
+            break
+    assert best is not None, "the trace is not the sequence of answered SYNCs: a frame was dropped or misplaced"
+    assert best <= late  # every answered frame missing from the trace was counted late
     gaps = int(np.sum(np.diff(counter) - 1))
-    assert gaps >= 3  # the three injected lost frames, plus any the drive sent too late (discarded)
-    assert run["lost_samples"] >= gaps
-    assert run["sync_stats"]["late"] == 0 and run["frames_too_late"] == 0
+    assert gaps >= 3  # the three injected lost frames, plus any the drive had to discard
+    assert run["lost_samples"] >= gaps and run["frames_too_late"] == 0
 
 
 def test_duplicated_tpdos_are_counted_and_dropped(run):

@@ -116,3 +116,13 @@ def test_jittered_delayed_lossy_shuffled_stream_loses_nothing_that_arrived():
     assert set(paired) == {i + 1 for i in range(n) if sent[i]}  # everything that arrived is kept
     assert m.duplicates == 20 and m.late == 0
     assert n - len(paired) == int((~sent).sum())  # and every lost one is a gap
+
+
+def test_a_sync_echo_moves_the_window_to_the_bus_time():
+    m = SyncMatcher(WINDOW_S)
+    m.sync(1, 100.0)  # recorded just before sending; the host then stalled 0.4 ms
+    m.sync(2, 100.001)
+    assert m.restamp(1, 100.0004)
+    assert m.frame(100.0008)[0] == 1  # 0.8 ms after the send time, 0.4 ms after the wire time
+    assert not m.restamp(2, 99.9)  # never before the previous SYNC
+    assert not m.restamp(9, 100.0)  # not a SYNC it has
