@@ -6,15 +6,22 @@ ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 PIP_NO_CACHE_DIR=1 \
     NUMBA_CACHE_DIR=/tmp/numba
 
 WORKDIR /app
-COPY pyproject.toml README.md alembic.ini ./
+# Dependencies first, in their own layer: a code change does not reinstall them. The
+# list is read from pyproject.toml, so it cannot drift from what the package declares.
+COPY pyproject.toml ./
+RUN python -c "import tomllib; print('\n'.join(tomllib.load(open('pyproject.toml', 'rb'))['project']['dependencies']))" \
+        > /tmp/requirements.txt \
+    && pip install -r /tmp/requirements.txt \
+    && useradd --system --uid 10001 --home /data mebm \
+    && mkdir -p /data && chown mebm /data
+COPY README.md alembic.ini ./
 COPY core ./core
 COPY acquisition ./acquisition
 COPY storage ./storage
 COPY api ./api
-# Editable install: the Alembic scripts (storage/migrations) are used from the source tree.
-RUN pip install -e . \
-    && useradd --system --uid 10001 --home /data mebm \
-    && mkdir -p /data && chown mebm /data
+# Editable install without dependencies (installed above): the Alembic scripts
+# (storage/migrations) are used from the source tree.
+RUN pip install --no-deps -e .
 
 USER mebm
 VOLUME ["/data"]

@@ -2,9 +2,11 @@
 
 Only the wire lives here; the measurement loop is :class:`acquisition.driver.ControllerDriver`.
 The driver produces SYNC at the measurement rate (its own thread); the drive answers
-each SYNC with TPDO1 = (0x6064 motor, 0x60E4 sub 1 table), both latched at that SYNC.
-A TPDO belongs to the last SYNC sent before it; a SYNC without its TPDO is a lost
-frame (a counter gap). Program, command and state go through SDO; heartbeat and EMCY
+each SYNC with TPDO1 = (0x6064 motor, 0x60E4 sub 1 table), both latched at that SYNC,
+within the synchronous window (0x1007, written at start-up). A TPDO is paired with its
+SYNC on bus timestamps by :class:`acquisition.sync_matcher.SyncMatcher`; frames that
+arrive out of order are put back in SYNC order; a SYNC without its TPDO is a lost
+sample (a counter gap), never filled in. The bus is injected (``bus_factory``). Program, command and state go through SDO; heartbeat and EMCY
 are watched; an EMCY during a cycle aborts it with the error code in the reason.
 """
 
@@ -14,6 +16,7 @@ import asyncio
 import collections
 import threading
 import time
+from collections.abc import Callable
 
 import can
 import canopen
@@ -29,6 +32,7 @@ from acquisition.errors import (
     ProtocolError,
 )
 from acquisition.scale import EncoderScale
+from acquisition.sync_matcher import SyncMatcher, sync_counter_byte
 from acquisition.types import AxisState, Command, ControllerStatus, RoundTripProgram, SampleBlock
 from core.errors import InputError, require_positive
 
@@ -39,18 +43,23 @@ except ImportError:  # pragma: no cover
 
 
 class _SyncProducer(threading.Thread):
-    """Sends SYNC (with a 1..240 counter byte) every ``period_s`` of wall clock; records send times."""
+    """Sends SYNC (with its 1..240 counter byte) every ``period_s``; pairs the TPDOs that answer.
 
-    def __init__(self, network, period_s: float, start_k: int, window_s: float | None = None):
+    Each SYNC is stamped with the wall-clock time it is handed to the bus and recorded in
+    a :class:`SyncMatcher`; TPDOs are paired on their bus timestamps (the receive stamps a
+    socketcan or udp_multicast bus gives them). The next SYNC never goes out sooner than
+    0.9 period (and never within the window) after the previous one was sent: after a
+    stall the producer does not burst to catch up, and a reply sent within the window of
+    its SYNC has the rest of the period as margin before the next SYNC on a bus that
+    stamps frames on arrival.
+    """
+
+    def __init__(self, bus, period_s: float, start_k: int, window_s: float):
         super().__init__(name="mebm-sync", daemon=True)
-        self.network, self.period_s = network, period_s
+        self.bus, self.period_s, self.window_s = bus, period_s, window_s
+        self.min_gap_s = max(window_s, 0.9 * period_s)
         self.k = start_k
-        self.times: collections.deque = collections.deque(maxlen=4096)  # (wall time, k)
-        self.by_time: dict[float, int] = {}
-        self.window_s = window_s if window_s else 0.9 * period_s
-        self.answered = start_k
-        self.pending: collections.deque = collections.deque(maxlen=256)  # (monotonic send time, k)
-        self.late_frames = 0
+        self.matcher = SyncMatcher(window_s, history=4096)
         self.lock = threading.Lock()
         self.stop_event = threading.Event()
         self.error: Exception | None = None
@@ -66,59 +75,49 @@ class _SyncProducer(threading.Thread):
                 else:
                     time.sleep(0 if delay < 2e-4 else delay / 2)
                 continue
-            t_wall = time.time()
             with self.lock:
                 self.k += 1
-                if len(self.times) == self.times.maxlen:
-                    self.by_time.pop(self.times[0][0], None)
-                self.times.append((t_wall, self.k))
-                self.by_time[t_wall] = self.k
-                self.pending.append((time.monotonic(), self.k))
+                t_wall = time.time()
+                self.matcher.sync(self.k, t_wall)
             try:
-                # the timestamp travels with the frame on buses that preserve it (virtual), so a
-                # simulated drive can stamp its TPDO with the SYNC it latched on
-                self.network.bus.send(can.Message(arbitration_id=co.SYNC_COB_ID, is_extended_id=False,
-                                                  data=[(self.k - 1) % 240 + 1], timestamp=t_wall))
+                self.bus.send(can.Message(arbitration_id=co.SYNC_COB_ID, is_extended_id=False,
+                                          data=[sync_counter_byte(self.k)], timestamp=t_wall))
             except Exception as exc:  # noqa: BLE001 - reported by the driver's next drain
                 self.error = exc
                 return
-            next_t += self.period_s
-            if now - next_t > 20 * self.period_s:  # fell far behind (host stalled): do not burst
-                next_t = now
+            sent = time.perf_counter()
+            next_t = max(next_t + self.period_s, sent + self.min_gap_s)
+            if sent - next_t > 20 * self.period_s:  # fell far behind (host stalled): do not burst
+                next_t = sent
 
-    def sync_for(self, timestamp: float, received: float) -> int | None:
-        """The SYNC a TPDO answers, or None for a frame outside every synchronous window.
-
-        Exact when the bus preserved the SYNC's timestamp in the drive's reply (the
-        simulated drive on ``virtual``). Otherwise (real buses, ``udp_multicast``) the TPDO
-        must arrive within the synchronous window (``window_s`` after the last SYNC, as
-        CiA 301 object 0x1007) and that SYNC must not be answered yet.
-        """
+    def echoed(self, counter: int, timestamp: float) -> None:
+        """Our own SYNC came back from the bus (loopback): its bus time replaces the send time."""
         with self.lock:
-            k = self.by_time.get(timestamp)
-            if k is not None:
-                return self._answer(k)
-            # in-order matching: the oldest unanswered SYNC still inside its window
-            for t_mono, k in self.pending:
-                if k > self.answered and received - t_mono <= self.window_s:
-                    return self._answer(k)
-            return None
+            k = self.k - (self.k - counter) % 240  # the latest SYNC sent with that counter value
+            if k >= 1:
+                self.matcher.restamp(k, timestamp)
 
-    def _answer(self, k: int) -> int | None:
-        if k <= self.answered:
-            return None  # a second reply to the same SYNC, or a late one: not attributable
-        self.answered = k
-        return k
+    def pair(self, timestamp: float, payload) -> tuple[int, object] | None:
+        with self.lock:
+            return self.matcher.frame(timestamp, payload)
+
+    def stats(self) -> dict[str, int]:
+        with self.lock:
+            m = self.matcher
+            return {"sent": self.k, "matched": m.matched, "late": m.late, "duplicates": m.duplicates}
 
 
 class CanopenDriver(ControllerDriver):
     protocol = "canopen"
     mode = "sync"
-    connect_exchanges = 14  # SDO reads/writes of the start-up; the first unanswered one ends it
+    connect_exchanges = 15  # SDO reads/writes of the start-up; the first unanswered one ends it
+    #: SYNCs answered after a missing one before it is given up as lost (reordered frames wait)
+    REORDER_HORIZON = 32
 
     def __init__(self, channel: str, node_id: int, *, interface: str = "virtual", sync_rate_hz: float = 250.0,
                  time_scale: float = 1.0, heartbeat_ms: int = 100, bus_kwargs: dict | None = None,
-                 status_interval_s: float = 0.05, sync_window_s: float | None = None, **kwargs):
+                 status_interval_s: float = 0.05, sync_window_s: float | None = None,
+                 bus_factory: Callable[[], can.BusABC] | None = None, **kwargs):
         super().__init__(**kwargs)
         if not 1 <= int(node_id) <= 127:
             raise InputError(f"node (={node_id}) must be a CANopen node id 1..127")
@@ -128,11 +127,18 @@ class CanopenDriver(ControllerDriver):
         self.time_scale = require_positive("time_scale", time_scale)
         self.heartbeat_ms = int(heartbeat_ms)
         self.bus_kwargs = dict(bus_kwargs or {})
+        # the bus is injected (canopen takes it as an argument): a factory, since every
+        # reconnect needs a fresh one (closing the network shuts its bus down)
+        self.bus_factory = bus_factory or self._open_bus
         self.status_interval_s = status_interval_s
-        # synchronous window (wall clock): a TPDO must arrive this soon after its SYNC. Default
-        # 0.9 period; longer tolerates latency (frames arrive in order on CAN) at the price of
-        # attributing a frame to the previous SYNC when exactly one frame is lost.
-        self.sync_window_s = sync_window_s
+        # synchronous window (CiA 301 0x1007, written to the drive): a TPDO is paired with the
+        # latest SYNC before its bus timestamp only within this long after it. Default half the
+        # SYNC period; it must be shorter than the period so windows never overlap.
+        sync_period_s = 1.0 / (self.sync_rate_hz * self.time_scale)
+        self.sync_window_s = sync_window_s if sync_window_s else 0.5 * sync_period_s
+        if not 0 < self.sync_window_s < sync_period_s:
+            raise InputError(f"sync_window_s (={self.sync_window_s:g}) must be > 0 and shorter than the SYNC "
+                             f"period ({sync_period_s:g} s)")
         self.servo_rate_hz = self.sync_rate_hz
         self._network = None
         self._node = None
@@ -143,6 +149,10 @@ class CanopenDriver(ControllerDriver):
         self._last_hb = 0.0
         self._first = 0
         self._last_status = 0.0
+        self.sync_stats: dict[str, int] = {}  # SYNCs sent, TPDOs paired, late and duplicate ones
+        self._reorder: dict[int, tuple[int, int]] = {}  # paired frames not yet released, by SYNC
+        self._next_k = 0
+        self.frames_too_late = 0  # paired, but after their SYNC was given up as lost
         self.scale: EncoderScale | None = None
 
     def describe(self) -> str:
@@ -162,14 +172,23 @@ class CanopenDriver(ControllerDriver):
         except (CanError, OSError) as exc:
             raise ControllerConnectionError(f"CAN bus {self.interface}/{self.channel}: {exc}") from exc
 
-    def _connect_blocking(self) -> None:
-        net = canopen.Network()
-        net.NOTIFIER_CYCLE = 0.1  # a short receive cycle so closing takes ~0.1 s, not 1 s
+    def _open_bus(self) -> can.BusABC:
         kwargs = dict(self.bus_kwargs)
         if self.interface == "virtual":
+            # the SYNC's bus time is the stamp the SYNC thread recorded, as a real bus would
+            # stamp it on the wire; TPDOs keep the stamp their sender put on the wire
             kwargs.setdefault("preserve_timestamps", True)
+        if self.interface in ("virtual", "socketcan"):
+            # our own SYNCs come back with their bus timestamps (udp_multicast loops them
+            # back anyway); a bus that does not echo falls back on the time before sending
+            kwargs.setdefault("receive_own_messages", True)
+        return can.Bus(interface=self.interface, channel=self.channel, **kwargs)
+
+    def _connect_blocking(self) -> None:
         try:
-            net.connect(interface=self.interface, channel=self.channel, **kwargs)
+            net = canopen.Network(self.bus_factory())
+            net.NOTIFIER_CYCLE = 0.1  # a short receive cycle so closing takes ~0.1 s, not 1 s
+            net.connect()
         except (CanError, OSError, ValueError, ImportError) as exc:
             raise ControllerConnectionError(
                 f"cannot open CAN interface {self.interface!r} channel {self.channel!r}: {exc}"
@@ -200,13 +219,17 @@ class CanopenDriver(ControllerDriver):
         self.scale = EncoderScale(counts_per_rev=inc[0] / max(inc[1], 1), table_nm_per_count=float(nm))
         period_us = int(round(1e6 / self.sync_rate_hz))
         self._sdo("setting the SYNC period (0x1006)", lambda: setattr(sdo[co.COMM_CYCLE_PERIOD], "raw", period_us))
+        # the drive's own window, in wall-clock µs of the SYNC it actually receives
+        window_us = max(1, int(self.sync_window_s * 1e6))
+        self._sdo("setting the synchronous window (0x1007)", lambda: setattr(sdo[co.SYNC_WINDOW], "raw", window_us))
         self._sdo("setting the heartbeat (0x1017)", lambda: setattr(sdo[co.PRODUCER_HEARTBEAT], "raw", self.heartbeat_ms))
         self._last_hb = time.monotonic()
         node.nmt.add_heartbeat_callback(self._on_heartbeat)
         node.emcy.add_callback(self._on_emcy)
         net.subscribe(co.tpdo1_cob_id(self.node_id), self._on_tpdo)
+        net.subscribe(co.SYNC_COB_ID, self._on_sync_echo)
         node.nmt.state = "OPERATIONAL"
-        self._sync = _SyncProducer(net, 1.0 / (self.sync_rate_hz * self.time_scale), self._k, self.sync_window_s)
+        self._sync = _SyncProducer(net.bus, 1.0 / (self.sync_rate_hz * self.time_scale), self._k, self.sync_window_s)
         self._sync.start()
 
     def _close_blocking(self) -> None:
@@ -215,6 +238,7 @@ class CanopenDriver(ControllerDriver):
             sync.stop_event.set()
             sync.join(1.0)
             self._k = sync.k
+            self.sync_stats = sync.stats()
         net, self._network = self._network, None
         if net is not None:
             try:
@@ -236,16 +260,19 @@ class CanopenDriver(ControllerDriver):
         if self._emcy is None and err.code != 0:
             self._emcy = err
 
+    def _on_sync_echo(self, can_id, data, timestamp) -> None:
+        sync = self._sync
+        if sync is not None and data and timestamp:
+            sync.echoed(int(data[0]), timestamp)
+
     def _on_tpdo(self, can_id, data, timestamp) -> None:
         sync = self._sync
         if sync is None:
             return
-        k = sync.sync_for(timestamp or 0.0, time.monotonic())
-        if k is None:
-            sync.late_frames += 1  # counted as a lost sample by the counter gap it leaves
-        else:
-            m, t = co.decode_tpdo1(bytes(data))
-            self._frames.append((k, m, t))
+        paired = sync.pair(timestamp or 0.0, bytes(data))
+        if paired is not None:  # otherwise counted by the matcher; a lost sample by the gap it leaves
+            m, t = co.decode_tpdo1(paired[1])
+            self._frames.append((paired[0], m, t))
 
     # -- wire -----------------------------------------------------------------------------------------
     async def _connect(self) -> None:
@@ -283,10 +310,16 @@ class CanopenDriver(ControllerDriver):
         for sub, v in enumerate(values, start=1):
             self._sdo("writing the round-trip program", lambda s=sub, v=v: setattr(sdo[co.PROGRAM][s], "raw", v))
         self._emcy = None
-        self._command(Command.START)
-        first = self._sync.k + 1
+        # the first sample is the first SYNC after the start command went out: earlier ones
+        # may already be answered from the running program; the drive answers the ones before
+        # it takes effect from the axis at rest, where the program begins
+        with self._sync.lock:
+            first = self._sync.k + 1
         self._first = first
-        self._frames.clear()
+        self._frames.clear()  # before the start: frames of SYNC >= first may arrive any moment
+        self._reorder = {}
+        self._next_k = first
+        self._command(Command.START)
         return first
 
     async def _start(self, program: RoundTripProgram) -> int | None:
@@ -330,11 +363,34 @@ class CanopenDriver(ControllerDriver):
                 raise_device_fault(status, self.describe(), self.link_trouble)
         # frames are taken only after the status read, which may time out: a retry then finds
         # them still queued (nothing read is lost), and a DONE status covers every frame taken
-        frames = []
         while self._frames:
-            frames.append(self._frames.popleft())
-        frames = [f for f in frames if f[0] >= self._first]
+            k, m, t = self._frames.popleft()
+            if k < self._first:
+                continue  # answers a SYNC from before the start
+            if k < self._next_k:
+                self.frames_too_late += 1  # its SYNC was already given up as lost
+            elif k not in self._reorder:
+                self._reorder[k] = (m, t)
+        frames = self._release(finished)
         if not frames:
             return SampleBlock.empty(finished)
         arr = np.asarray(frames, dtype=np.int64)
         return SampleBlock(arr[:, 0], self.scale.motor_rev(arr[:, 1]), self.scale.table_mm(arr[:, 2]), finished=finished)
+
+    def _release(self, finished: bool) -> list[tuple[int, int, int]]:
+        """Frames in SYNC order. A missing SYNC holds back the later ones until
+        ``REORDER_HORIZON`` later SYNCs have been answered (its frame may be on its way,
+        reordered); then it is given up as lost (a counter gap). At the end all go."""
+        out = []
+        buf = self._reorder
+        while buf:
+            if self._next_k in buf:
+                m, t = buf.pop(self._next_k)
+                out.append((self._next_k, m, t))
+                self._next_k += 1
+                continue
+            newest = max(buf)
+            if not finished and newest - self._next_k < self.REORDER_HORIZON:
+                break
+            self._next_k = min(buf)  # the SYNCs before it are lost
+        return out

@@ -16,6 +16,7 @@ OBJECTS_VERSION = 1
 
 DEVICE_TYPE = 0x1000
 COMM_CYCLE_PERIOD = 0x1006  # u32 µs: SYNC period (machine time per SYNC)
+SYNC_WINDOW = 0x1007  # u32 µs: synchronous window; a sync TPDO not sent within it is discarded
 PRODUCER_HEARTBEAT = 0x1017  # u16 ms
 TPDO1_COMM = 0x1800  # sub1 COB-ID, sub2 transmission type (1: every SYNC)
 TPDO1_MAP = 0x1A00
@@ -70,6 +71,7 @@ def object_dictionary(node_id: int, *, counts_per_rev: int = 131072, table_nm_pe
     od = odm.ObjectDictionary()
     od.add_object(_var("Device type", DEVICE_TYPE, 0, odm.UNSIGNED32, "ro", DEVICE_TYPE_CIA402))
     od.add_object(_var("Communication cycle period", COMM_CYCLE_PERIOD, 0, odm.UNSIGNED32, "rw", 1000))
+    od.add_object(_var("Synchronous window length", SYNC_WINDOW, 0, odm.UNSIGNED32, "rw", 0))
     od.add_object(_var("Producer heartbeat time", PRODUCER_HEARTBEAT, 0, odm.UNSIGNED16, "rw", 0))
     od.add_object(_record("TPDO1 communication", TPDO1_COMM, [
         ("COB-ID", odm.UNSIGNED32, "rw", tpdo1_cob_id(node_id)),

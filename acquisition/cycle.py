@@ -22,29 +22,17 @@ from acquisition.types import AcquiredTrace, RoundTripProgram
 from core.criteria import RoundTripResult, RoundTripSettings, analyze_round_trip
 from core.criteria.uncertainty import UncertaintyInputs
 from core.dataset import AxisSpec, Run, RunSpec
-from core.errors import MebmError
+from core.errors import MebmError, TraceError
 from core.tbe import AxisDecision, MachiningTask, decide
 
-_REASON_CODES = (
-    ("AxisBusyError", "axis_busy"),
-    ("DeviceFaultError", "device_fault"),
-    ("LostSamplesError", "lost_samples"),
-    ("EncoderFaultError", "encoder_fault"),
-    ("ControllerConnectionError", "connection"),
-    ("ControllerTimeoutError", "timeout"),
-    ("ProtocolError", "protocol"),
-    ("IncompleteTraceError", "incomplete_trace"),
-    ("TraceError", "trace"),
-)
-
-
 def reason_code(exc: BaseException) -> str:
-    """A stable short code for the kind of failure (for the service, metrics and tests)."""
-    names = {c.__name__ for c in type(exc).__mro__}
-    for name, code in _REASON_CODES:
-        if name in names:
-            return code
-    return "acquisition" if isinstance(exc, AcquisitionError) else "error"
+    """A stable short code for the kind of failure (for the service, metrics and tests):
+    the exception class's ``reason_code``."""
+    if isinstance(exc, AcquisitionError):
+        return type(exc).reason_code
+    if isinstance(exc, TraceError):
+        return "trace"
+    return "error"
 
 
 @dataclass(frozen=True)
@@ -151,7 +139,9 @@ def validate_trace(trace: AcquiredTrace, program: RoundTripProgram, axis: AxisSp
     dc = np.diff(trace.counter)
     if np.any(dc <= 0):
         raise IncompleteTraceError(f"sample counter not increasing at sample {int(np.argmax(dc <= 0)) + 1}")
-    if trace.mode in ("trace", "sync") and int((dc - 1).sum()) != trace.lost_samples:
+    # the driver may report more than the gaps show (samples lost before the first one that
+    # arrived), never fewer
+    if trace.mode in ("trace", "sync") and int((dc - 1).sum()) > trace.lost_samples:
         raise IncompleteTraceError(
             f"counter has {int((dc - 1).sum())} missing values but the acquisition reported {trace.lost_samples}"
         )

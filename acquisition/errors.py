@@ -1,7 +1,8 @@
 """Acquisition errors: every way a measurement cycle can fail, as one subtree of MebmError.
 
 Faults on the wire are normal events, not bugs: each class says what a technician
-should look at. stdlib co-bases let callers catch them the usual way
+should look at, and carries its ``reason_code`` (the stable short code the service,
+metrics and tests use; ``code`` is taken: the Modbus exception or EMCY code). stdlib co-bases let callers catch them the usual way
 (``ConnectionError``, ``TimeoutError``). Foreign exceptions (pymodbus, python-can,
 canopen) are translated at the driver boundary with ``raise ... from``.
 """
@@ -14,6 +15,7 @@ from core.errors import MebmError
 class AcquisitionError(MebmError):
     """A measurement cycle could not acquire a trustworthy trace."""
 
+    reason_code = "acquisition"
     #: Whether retrying the same operation may succeed (timeouts, dropped links).
     transient = False
 
@@ -21,12 +23,14 @@ class AcquisitionError(MebmError):
 class ControllerConnectionError(AcquisitionError, ConnectionError):
     """The controller cannot be reached, refused the connection or dropped it."""
 
+    reason_code = "connection"
     transient = True
 
 
 class ControllerTimeoutError(AcquisitionError, TimeoutError):
     """The controller did not answer within the configured timeout."""
 
+    reason_code = "timeout"
     transient = True
 
 
@@ -35,6 +39,8 @@ class ProtocolError(AcquisitionError):
 
     ``code`` is the Modbus exception code or the SDO abort code when there is one.
     """
+
+    reason_code = "protocol"
 
     def __init__(self, message: str, *, code: int | None = None):
         self.code = code
@@ -47,6 +53,8 @@ class DeviceFaultError(AcquisitionError):
     ``code`` is the 16-bit error code (CiA 301/402 EMCY code).
     """
 
+    reason_code = "device_fault"
+
     def __init__(self, message: str, *, code: int):
         self.code = int(code)
         super().__init__(f"{message} (error code 0x{self.code:04X})")
@@ -54,6 +62,8 @@ class DeviceFaultError(AcquisitionError):
 
 class LostSamplesError(AcquisitionError):
     """The sample counter has a gap: samples were lost and will not be interpolated."""
+
+    reason_code = "lost_samples"
 
     def __init__(self, message: str, *, lost_samples: int, first_missing: int | None = None):
         self.lost_samples = int(lost_samples)
@@ -64,6 +74,8 @@ class LostSamplesError(AcquisitionError):
 class EncoderFaultError(AcquisitionError):
     """An encoder value is implausible: stuck while the axis moves, or jumping."""
 
+    reason_code = "encoder_fault"
+
     def __init__(self, message: str, *, encoder: str):
         self.encoder = encoder
         super().__init__(message)
@@ -72,6 +84,10 @@ class EncoderFaultError(AcquisitionError):
 class AxisBusyError(AcquisitionError):
     """The axis is not idle (moving, faulted or in another program): the cycle was not started."""
 
+    reason_code = "axis_busy"
+
 
 class IncompleteTraceError(AcquisitionError):
     """The acquired trace does not cover the programmed round trip (stroke missing, travel short)."""
+
+    reason_code = "incomplete_trace"

@@ -62,6 +62,12 @@ class SimAxis:
         self.program: RoundTripProgram | None = None
         self.active_faults: list[Fault] = []
         self.duration_wall_s = 0.0
+        # boot before serving, as a controller does: the first motion program otherwise pays
+        # the twin's imports and JIT compilation (0.6 s to seconds) inside the start
+        # request's timeout. warm_up() leaves the twin's state (nut side, noise) as it was.
+        warm_up = getattr(twin, "warm_up", None)
+        if warm_up is not None:
+            warm_up()
 
     # -- clock ---------------------------------------------------------------------------
     def counter(self, now: float | None = None) -> int:
@@ -82,14 +88,31 @@ class SimAxis:
                 return f
         return None
 
+    def clear_faults(self) -> None:
+        """End every injected fault now, including the one of the running cycle."""
+        self.faults.clear()
+        self.active_faults = []
+
     # -- commands --------------------------------------------------------------------------
+    def prepare(self, program: RoundTripProgram) -> None:
+        """Compute the round trip ahead of :meth:`start`, as a drive does when the program is
+        written: the start command then takes effect at once, not after the twin has run."""
+        trace = self.twin.round_trip(program, self.servo_rate_hz)
+        with self._lock:
+            self._prepared = (program, self.cycles_started, trace)
+
     def start(self, program: RoundTripProgram) -> None:
-        """Precompute the round trip with the twin and start releasing it. Raises if not idle."""
+        """Precompute the round trip with the twin (unless prepared) and start releasing it.
+        Raises if not idle."""
         with self._lock:
             self.update()
             if self.state in (AxisState.RUNNING, AxisState.FAULT):
                 raise InputError(f"axis is {self.state.name}, cannot start a round trip")
-            trace = self.twin.round_trip(program, self.servo_rate_hz)
+            prepared, self._prepared = getattr(self, "_prepared", None), None
+            if prepared is not None and prepared[0] == program and prepared[1] == self.cycles_started:
+                trace = prepared[2]
+            else:
+                trace = self.twin.round_trip(program, self.servo_rate_hz)
             motor = self.scale.motor_counts(trace.motor_rev)
             table = self.scale.table_counts(trace.table_mm)
             n = len(trace)

@@ -6,16 +6,26 @@ communication cycle period (0x1006) and it answers with TPDO1 (0x6064 motor coun
 Program, command, state, temperature and fault code are SDO objects
 (docs/canopen-objects.md). Runs on python-can's ``virtual`` bus in-process, or on
 ``udp_multicast`` to be reachable from another process.
+
+Reply timing, as a hardware drive: each TPDO goes on the wire ``reply_delay_s`` plus a
+uniform jitter in ``[0, reply_jitter_s]`` after the SYNC's bus time; one that would
+leave later than the synchronous window (0x1007) is discarded (CiA 301) and counted in
+``late_discards``. On ``virtual`` the frame is stamped with that wire time (the drive is
+hardware: its timing is not the host's thread scheduling, so frames may reach the
+driver out of order); on other buses the drive waits until then and the receiver
+stamps the frame.
 """
 
 from __future__ import annotations
 
+import collections
 import struct
 import threading
 import time
 
 import can
 import canopen
+import numpy as np
 from canopen.sdo import SdoAbortedError
 
 from acquisition import canopen_od as co
@@ -43,6 +53,9 @@ class SimCanopenDrive:
         scale: EncoderScale | None = None,
         faults=(),
         bus_kwargs: dict | None = None,
+        reply_delay_s: float = 0.0001,
+        reply_jitter_s: float = 0.0002,
+        rng: np.random.Generator | None = None,
     ):
         self.node_id = int(node_id)
         self.channel, self.interface = channel, interface
@@ -64,8 +77,20 @@ class SimCanopenDrive:
         self.sync_loss_s = 0.5  # a running program is aborted when SYNC stops for this long
         self._lost_left = 0
         self._fault_cycle: dict[str, int] = {}
+        self.reply_delay_s = float(reply_delay_s)
+        self.reply_jitter_s = float(reply_jitter_s)
+        if self.reply_delay_s < 0 or self.reply_jitter_s < 0:
+            raise InputError(f"reply_delay_s (={reply_delay_s}) and reply_jitter_s (={reply_jitter_s}) must be >= 0")
+        self._rng = rng if rng is not None else np.random.default_rng()
+        self._window_s = 0.0
+        self._held: can.Message | None = None  # a frame held back to be sent after the next (reorder)
+        self._dup_left = 0
+        self._reorder_left = 0
         self.syncs = 0
         self.tpdos_sent = 0
+        self.late_discards = 0
+        self.answered: collections.deque = collections.deque(maxlen=100_000)  # SYNC counter bytes answered
+        self._timers: list[threading.Timer] = []
 
     # -- lifecycle -----------------------------------------------------------------------------
     def start(self) -> "SimCanopenDrive":
@@ -126,6 +151,21 @@ class SimCanopenDrive:
         t = threading.Timer(min(for_s, 3600.0), wake)
         t.daemon = True
         t.start()
+        self._timers.append(t)
+
+    def recover(self) -> None:
+        """End every injected fault now: speak again, drop delayed replies (tests: the fault
+        clears on cue, not after a wall-clock window)."""
+        self.axis.clear_faults()
+        timers, self._timers = self._timers, []
+        for t in timers:
+            t.cancel()
+        if self._silent_until:
+            self._silent_until = 0.0
+            hb_raw = self.node.data_store.get(co.PRODUCER_HEARTBEAT, {}).get(0)
+            hb = struct.unpack("<H", hb_raw)[0] if hb_raw else 0
+            if self.network is not None and hb:
+                self.node.nmt.start_heartbeat(hb)
 
     def _on_axis_fault(self, code: int) -> None:
         if self.network is not None:
@@ -147,6 +187,7 @@ class SimCanopenDrive:
             t = threading.Timer(float(slow.value("s")), self.node.sdo.on_request, (can_id, data, timestamp))
             t.daemon = True
             t.start()
+            self._timers = [x for x in self._timers if x.is_alive()] + [t]
             return
         self.node.sdo.on_request(can_id, data, timestamp)
 
@@ -167,12 +208,42 @@ class SimCanopenDrive:
         if self._lost_left > 0:
             self._lost_left -= 1
             return
+        for kind in ("duplicate", "reorder"):
+            f = self._due(kind)
+            if f is not None:
+                setattr(self, f"_{'dup' if kind == 'duplicate' else kind}_left", int(f.value("n")))
         motor_rev, table_mm = self.axis.position_at()
         m = int(self.scale.motor_counts(motor_rev))
         t = int(self.scale.table_counts(table_mm))
-        # stamped with the SYNC it was latched on (kept by buses that preserve timestamps)
+        t_sync = timestamp or time.time()
+        delay_s = self.reply_delay_s + (self._rng.uniform(0.0, self.reply_jitter_s) if self.reply_jitter_s else 0.0)
+        if self._window_s and delay_s > self._window_s:
+            self.late_discards += 1  # CiA 301: a synchronous PDO is not sent outside the window
+            return
         msg = can.Message(arbitration_id=co.tpdo1_cob_id(self.node_id), is_extended_id=False,
-                          data=co.encode_tpdo1(m, t), timestamp=timestamp or time.time())
+                          data=co.encode_tpdo1(m, t), timestamp=t_sync + delay_s)
+        if self.interface != "virtual":
+            wait_s = t_sync + delay_s - time.time()
+            if wait_s > 0:
+                time.sleep(wait_s)
+            if self._window_s and time.time() - t_sync > self._window_s:
+                self.late_discards += 1  # this host was too slow to make the window: a real loss
+                return
+        if data:
+            self.answered.append(int(data[0]))
+        if self._reorder_left > 0 and self._held is None:
+            self._reorder_left -= 1
+            self._held = msg  # goes out after the next one
+            return
+        self._send(msg)
+        if self._held is not None:
+            held, self._held = self._held, None
+            self._send(held)
+        if self._dup_left > 0:
+            self._dup_left -= 1
+            self._send(msg)
+
+    def _send(self, msg: can.Message) -> None:
         self.network.bus.send(msg)
         self.tpdos_sent += 1
 
@@ -204,6 +275,14 @@ class SimCanopenDrive:
             if us == 0:
                 raise SdoAbortedError(ABORT_VALUE_RANGE)
             self._period_s = us * 1e-6
+        elif index == co.SYNC_WINDOW:
+            self._window_s = struct.unpack("<L", bytes(data))[0] * 1e-6
+        elif index == co.PROGRAM and subindex == 5:  # the last word of the program: compute it now
+            self.node.data_store.setdefault(index, {})[subindex] = bytes(data)  # stored after this callback
+            try:
+                self.axis.prepare(self._program())
+            except InputError:
+                pass  # refused when started
         elif index == co.COMMAND:
             cmd = struct.unpack("<H", bytes(data))[0]
             if cmd == Command.START:

@@ -18,6 +18,8 @@ and kind-specific values:
 ``slow``              replies delayed by ``s`` seconds (default 2) from ``at`` on
 ``exception``         Modbus exception ``code`` (default 4, device failure) from ``at``
 ``refuse``            Modbus: no connection accepted ``for`` s from start-up
+``duplicate``         CANopen: the next ``n`` (default 3) TPDOs are sent twice from ``at``
+``reorder``           CANopen: ``n`` (default 3) TPDOs from ``at`` each go out after the next one
 ====================  =============================================================
 """
 
@@ -28,9 +30,9 @@ from dataclasses import dataclass, field
 
 from core.errors import InputError
 
-KINDS = ("stuck", "jump", "glitch", "lost", "emcy", "drop", "slow", "exception", "refuse")
-_DEFAULTS = {"jump": {"mm": 0.5}, "glitch": {"mm": 5.0, "n": 1}, "lost": {"n": 5}, "emcy": {"code": 0x7305}, "slow": {"s": 2.0},
-             "exception": {"code": 4}}
+KINDS = ("stuck", "jump", "glitch", "lost", "emcy", "drop", "slow", "exception", "refuse", "duplicate", "reorder")
+_DEFAULTS = {"jump": {"mm": 0.5}, "glitch": {"mm": 5.0, "n": 1}, "lost": {"n": 5}, "emcy": {"code": 0x7305},
+             "slow": {"s": 2.0}, "exception": {"code": 4}, "duplicate": {"n": 3}, "reorder": {"n": 3}}
 
 
 @dataclass(frozen=True)

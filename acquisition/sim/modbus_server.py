@@ -12,7 +12,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import threading
-import time
 
 import numpy as np
 from pymodbus.constants import ExcCodes
@@ -159,6 +158,15 @@ class SimModbusController:
             self._thread.join(5.0)
             self._thread = None
 
+    def recover(self) -> None:
+        """End every injected fault now and listen again (tests: the fault clears on cue,
+        not after a wall-clock window). Threaded use only."""
+        async def _recover():
+            self.axis.clear_faults()
+            await self._relisten()
+
+        asyncio.run_coroutine_threadsafe(_recover(), self._loop).result(5.0)
+
     def __enter__(self) -> "SimModbusController":
         self.start_in_thread()
         return self
@@ -254,11 +262,3 @@ class SimModbusController:
         return None
 
 
-def wait_until(predicate, timeout_s: float, interval_s: float = 0.01) -> bool:
-    """Poll ``predicate`` until true or ``timeout_s`` passes (bounded helper for tests and the CLI)."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(interval_s)
-    return bool(predicate())

@@ -42,6 +42,10 @@ class Twin(Protocol):
         """Simulate ``program`` at ``rate_hz``; keep internal state (nut side) for the next call."""
         ...
 
+    def warm_up(self) -> None:
+        """Pay imports and compilation now, leaving the state as it was (optional)."""
+        ...
+
 
 def trapezoid_round_trip(program: RoundTripProgram, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
     """Commanded position (mm) of the round trip sampled at ``rate_hz``: the twin's own
@@ -78,6 +82,10 @@ class KinematicTwin:
         self.cyclic_mm = cyclic_amplitude_um * 1e-3
         self.temperature_c = temperature_c
         self._side = -1.0  # nut last pushed towards negative (table sits b/2 above the nut)
+
+    def warm_up(self) -> None:
+        """Import the NC program generator now (stateless): the first START is then quick."""
+        trapezoid_round_trip(RoundTripProgram(0.0, 1.0, 600.0, dwell_s=0.0), 1000.0)
 
     def round_trip(self, program: RoundTripProgram, rate_hz: float) -> TwinTrace:
         t, cmd = trapezoid_round_trip(program, rate_hz)

@@ -56,6 +56,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--node", type=int, default=5, help="CANopen node id (default 5)")
     c.add_argument("--bus-option", action="append", default=[], metavar="KEY=VALUE",
                    help="python-can bus option, e.g. port=43114 for udp_multicast (repeatable)")
+    c.add_argument("--reply-delay-ms", type=float, default=0.1,
+                   help="delay of each TPDO after its SYNC, ms (default 0.1)")
+    c.add_argument("--reply-jitter-ms", type=float, default=0.2,
+                   help="uniform jitter added to that delay, 0..this many ms (default 0.2); a reply that would "
+                        "miss the synchronous window (0x1007) is discarded, as CiA 301 says")
     _add_axis_options(c)
     c.set_defaults(func=run)
 
@@ -127,7 +132,9 @@ def _serve_canopen(a, twin, scale, faults) -> int:
             raise InputError(f"--bus-option {opt!r} must be KEY=VALUE")
         bus_kwargs[key.strip()] = int(val) if val.strip().lstrip("-").isdigit() else val.strip()
     drive = SimCanopenDrive(twin, node_id=a.node, channel=a.channel, interface=a.interface,
-                            servo_rate_hz=a.servo_rate_hz, scale=scale, faults=faults, bus_kwargs=bus_kwargs)
+                            servo_rate_hz=a.servo_rate_hz, scale=scale, faults=faults, bus_kwargs=bus_kwargs,
+                            reply_delay_s=a.reply_delay_ms / 1000.0, reply_jitter_s=a.reply_jitter_ms / 1000.0,
+                            rng=np.random.default_rng(a.seed))
     try:
         drive.start()
     except Exception as exc:  # noqa: BLE001 - python-can raises many kinds on a bad interface

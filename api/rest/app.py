@@ -8,7 +8,6 @@ controller, scheduler) unless a started service is handed in (tests).
 from __future__ import annotations
 
 import contextlib
-import importlib
 import logging
 
 from fastapi import APIRouter, FastAPI
@@ -19,6 +18,7 @@ from api.rest.docs import install_docs
 from api.rest.headers import SecurityHeaders
 from api.rest.limits import BodyLimit, TokenBucket
 from api.rest.metrics import make_registry
+from api.rest.routers import alerts, axes, gap, health, keys, machines, measurements, plots
 from api.rest.schemas import ERROR_RESPONSES
 from api.rest.status_body import StatusFastPath
 from api.service.config import Settings
@@ -26,8 +26,9 @@ from api.service.runner import CycleRunner
 from api.service.service import Service
 
 API_PREFIX = "/api/v1"
-# Routers under /api/v1; a module that does not exist yet (``gap``, another issue) is skipped.
-ROUTERS = ("machines", "axes", "measurements", "alerts", "plots", "keys", "gap")
+# Routers under /api/v1, included explicitly: a renamed module is an ImportError, never a
+# silently missing endpoint.
+ROUTERS = (machines, axes, measurements, alerts, plots, keys, gap)
 log = logging.getLogger("mebm.api")
 
 DESCRIPTION = """
@@ -76,16 +77,8 @@ def create_app(settings: Settings, *, service: Service | None = None, runner: Cy
     app.add_middleware(BodyLimit, max_bytes=lim.max_body_bytes)  # before anything reads the body
     app.add_middleware(SecurityHeaders)
     api = APIRouter(prefix=API_PREFIX, responses=ERROR_RESPONSES)
-    for name in ROUTERS:
-        try:
-            module = importlib.import_module(f"api.rest.routers.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"api.rest.routers.{name}":
-                continue
-            raise
+    for module in ROUTERS:
         api.include_router(module.router)
     app.include_router(api)
-    from api.rest.routers import health
-
     app.include_router(health.router, responses={k: v for k, v in ERROR_RESPONSES.items() if k in (401, 403, 503)})
     return app

@@ -7,7 +7,6 @@ task changed through the API is reflected at once), plus the backlash normalised
 
 from __future__ import annotations
 
-import math
 import threading
 import time
 from dataclasses import dataclass
@@ -139,5 +138,3 @@ class StatusCache:
                 self._cache.pop(axis_id, None)
 
 
-def finite_or_none(x: float | None) -> float | None:
-    return None if x is None or not math.isfinite(x) else float(x)

@@ -43,13 +43,6 @@ def list_machines(s: Session) -> list[MachineRecord]:
     return [_machine(m) for m in rows]
 
 
-def get_machine(s: Session, machine_id: int) -> MachineRecord:
-    m = s.get(Machine, machine_id, options=[selectinload(Machine.axes)])
-    if m is None:
-        raise NotFoundError("machine", machine_id)
-    return _machine(m)
-
-
 def find_machine(s: Session, name: str) -> MachineRecord | None:
     m = s.scalar(select(Machine).where(Machine.name == name).options(selectinload(Machine.axes)))
     return None if m is None else _machine(m)
@@ -140,27 +133,6 @@ def list_axes(s: Session, machine_id: int | None = None) -> list[AxisRecord]:
 def find_axis(s: Session, machine_name: str, axis_name: str) -> AxisRecord | None:
     a = s.scalar(select(Axis).join(Machine).where(Machine.name == machine_name, Axis.name == axis_name))
     return None if a is None else get_axis(s, a.id)
-
-
-def update_axis(s: Session, axis_id: int, st: AxisSettings) -> AxisRecord:
-    """Replace the axis' mechanics, controller, measurement feed, schedule and tasks."""
-    a = _load_axis(s, axis_id)
-    _check_settings(st)
-    a.transmission_mm_per_rev = st.spec.transmission_mm_per_rev
-    a.screw_lead_mm = st.spec.screw_lead_mm
-    a.position_gain_per_s = st.spec.position_gain_per_s
-    a.travel_start_mm, a.travel_end_mm = st.spec.travel_mm
-    a.controller_url = st.controller_url
-    a.measure_feed_mm_min = st.measure_feed_mm_min
-    a.measure_acceleration_mm_s2 = st.measure_acceleration_mm_s2
-    a.warning_fraction = st.warning_fraction
-    a.decision_rule = st.decision_rule
-    a.schedule_interval_s, a.schedule_cron, a.schedule_enabled = (
-        st.schedule.interval_s, st.schedule.cron, st.schedule.enabled)
-    _replace_tasks(s, a, st.tasks)
-    s.flush()
-    s.expire(a)
-    return get_axis(s, axis_id)
 
 
 def set_schedule(s: Session, axis_id: int, schedule: Schedule) -> AxisRecord:

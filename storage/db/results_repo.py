@@ -109,12 +109,6 @@ def mark_running(s: Session, uuid: str, started_at: datetime | None = None) -> C
     return _cycle(c)
 
 
-def queued_cycle(s: Session, axis_id: int) -> CycleRecord | None:
-    """The oldest cycle of the axis still waiting to start, if any."""
-    c = s.scalar(select(Cycle).where(Cycle.axis_id == axis_id, Cycle.status == "queued").order_by(Cycle.id).limit(1))
-    return None if c is None else _cycle(c)
-
-
 def close_stale_cycles(s: Session, now: datetime | None = None) -> int:
     """At start-up: cycles left 'running' by a crash become 'interrupted', 'queued' ones
     'cancelled' (an axis is not moved on its own after a restart). Returns how many."""
@@ -422,10 +416,6 @@ def tbe_history(s: Session, axis_id: int, *, since: datetime | None = None) -> l
     return [(as_utc(t), n, v, tol) for t, n, v, tol in s.execute(q).all()]
 
 
-def last_good_at(s: Session, axis_id: int) -> datetime | None:
-    return as_utc(s.scalar(select(func.max(Result.measured_at)).where(Result.axis_id == axis_id)))
-
-
 def last_cycle_at(s: Session, axis_id: int, triggers: tuple[str, ...] = ("schedule", "catch_up")) -> datetime | None:
     """When the axis last had a scheduled cycle requested (for catching up a missed run)."""
     return as_utc(s.scalar(select(func.max(Cycle.requested_at))
@@ -448,13 +438,6 @@ def list_alerts(s: Session, state: str = "active", *, axis_id: int | None = None
     rows = s.scalars(select(Alert).where(*where).order_by(Alert.raised_at.desc(), Alert.id.desc())
                      .limit(limit).offset(offset))
     return int(total or 0), [_alert_full(s, a) for a in rows]
-
-
-def get_alert(s: Session, alert_id: int) -> AlertRecord:
-    a = s.get(Alert, alert_id)
-    if a is None:
-        raise NotFoundError("alert", alert_id)
-    return _alert_full(s, a)
 
 
 def acknowledge_alert(s: Session, alert_id: int, by: str, when: datetime | None = None) -> AlertRecord:

@@ -6,6 +6,7 @@ import contextlib
 import itertools
 import logging
 
+import numpy as np
 import pytest
 
 from acquisition.canopen import CanopenDriver
@@ -24,13 +25,18 @@ for _name in ("pymodbus", "canopen", "can"):
 AXIS = AxisSpec("y", 6.857, 16.0, 30.0, (0.0, 20.0))
 PROGRAM = RoundTripProgram(-2.0, 22.0, 1000.0, acceleration_mm_s2=500.0, dwell_s=0.1)
 _channels = itertools.count()
+# The largest trace ring the register map allows (2.2 s at 5 kHz of simulated servo): the
+# simulated axis runs on wall time, so a stall of this host (GIL, a busy machine) must not
+# overrun it in tests that are about something else. Overruns are tested with a tiny ring.
+RING_MAX = 10906
 
 
 class Peer:
     """A simulated controller and how to reach it."""
 
-    def __init__(self, kind, sim_axis, make_driver):
+    def __init__(self, kind, sim_axis, make_driver, recover):
         self.kind, self.axis, self._make = kind, sim_axis, make_driver
+        self.recover = recover  # ends every injected fault now
 
     def driver(self, **kw):
         kw.setdefault("timeout_s", 0.5)
@@ -39,28 +45,32 @@ class Peer:
 
 
 @contextlib.contextmanager
-def modbus_peer(faults=(), twin=None, *, time_scale=10.0, servo_rate_hz=500.0, mode="trace", ring_records=2000):
+def modbus_peer(faults=(), twin=None, *, time_scale=10.0, servo_rate_hz=500.0, mode="trace", ring_records=RING_MAX):
     twin = twin or KinematicTwin(backlash_um=120.0, position_gain_per_s=30.0)
     axis = SimAxis(twin, servo_rate_hz=servo_rate_hz, time_scale=time_scale, ring_records=ring_records,
                    faults=[parse_fault(f) if isinstance(f, str) else f for f in faults])
     sim = SimModbusController(axis)
     port = sim.start_in_thread()
     try:
-        yield Peer("modbus", axis, lambda **kw: ModbusDriver("127.0.0.1", port, mode=kw.pop("mode", mode), **kw))
+        yield Peer("modbus", axis, lambda **kw: ModbusDriver("127.0.0.1", port, mode=kw.pop("mode", mode), **kw),
+                   sim.recover)
     finally:
         sim.stop_thread()
 
 
 @contextlib.contextmanager
-def canopen_peer(faults=(), twin=None, *, time_scale=5.0, sync_rate_hz=200.0, servo_rate_hz=1000.0):
+def canopen_peer(faults=(), twin=None, *, time_scale=5.0, sync_rate_hz=200.0, servo_rate_hz=1000.0, **drive_kw):
+    """``drive_kw``: reply timing of the simulated drive (reply_delay_s, reply_jitter_s)."""
     twin = twin or KinematicTwin(backlash_um=120.0, position_gain_per_s=30.0)
     channel = f"mebm-test-{next(_channels)}"
+    drive_kw.setdefault("rng", np.random.default_rng(next(_channels)))
     drive = SimCanopenDrive(twin, node_id=5, channel=channel, servo_rate_hz=servo_rate_hz,
-                            faults=[parse_fault(f) if isinstance(f, str) else f for f in faults])
+                            faults=[parse_fault(f) if isinstance(f, str) else f for f in faults], **drive_kw)
     drive.start()
     try:
         yield Peer("canopen", drive.axis, lambda **kw: CanopenDriver(
-            channel, kw.pop("node_id", 5), sync_rate_hz=sync_rate_hz, time_scale=time_scale, heartbeat_ms=50, **kw))
+            channel, kw.pop("node_id", 5), sync_rate_hz=sync_rate_hz, time_scale=time_scale, heartbeat_ms=100, **kw),
+            drive.recover)
     finally:
         drive.stop()
 

@@ -19,6 +19,7 @@ from acquisition.sim.twin import CoreSimTwin
 from core.criteria import analyze_round_trip
 from core.dataset import AxisSpec
 from core.sim import AxisModel, Effects, parse_effect
+from tests.acquisition.conftest import RING_MAX
 
 AXIS = AxisSpec("y", 6.857, 16.0, 10.0, (0.0, 100.0))
 LEAD_KEYS = ("e_p_um", "v_u_um", "v_300_um", "v_2pi_um")
@@ -53,7 +54,7 @@ def _compare(measured, reference):
 @pytest.mark.slow
 def test_modbus_measures_what_the_twin_simulates():
     program = default_program(AXIS, 1000.0)
-    with SimModbusController(SimAxis(_twin(), servo_rate_hz=1000.0, time_scale=10.0)) as sim:
+    with SimModbusController(SimAxis(_twin(), servo_rate_hz=1000.0, time_scale=10.0, ring_records=RING_MAX)) as sim:
         r = run_cycle(ModbusDriver("127.0.0.1", sim.port, timeout_s=1.0), AXIS, program, useful_travel_mm=AXIS.travel_mm)
     assert r.ok, r.reason
     assert r.trace.lost_samples == 0 and r.trace.latched

@@ -56,3 +56,18 @@ def test_urls():
                 "canopen://virtual/x?node=300"):
         with pytest.raises(InputError):
             driver_from_url(bad)
+
+
+def test_every_acquisition_error_names_its_own_reason_code():
+    import inspect
+
+    from acquisition import errors
+    from acquisition.cycle import reason_code
+    from core.errors import TraceError
+
+    classes = [c for _, c in inspect.getmembers(errors, inspect.isclass) if issubclass(c, errors.AcquisitionError)]
+    codes = {c: c.__dict__.get("reason_code") for c in classes}
+    assert all(codes.values()), [c.__name__ for c, v in codes.items() if not v]  # declared, not inherited
+    assert len(set(codes.values())) == len(classes)  # and distinct
+    assert reason_code(errors.ControllerTimeoutError("x")) == "timeout"
+    assert reason_code(TraceError("x")) == "trace" and reason_code(ValueError("x")) == "error"

@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 import json
-import os
 import re
 import select
 import socket
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -84,11 +82,10 @@ def test_measure_a_simulated_controller_in_another_process(tmp_path, capsys):
 
 
 def test_nothing_listening_fails_fast_with_one_line(tmp_path, capsys):
+    # how few attempts a refused connection gets is counted in tests/acquisition/test_modbus.py
     port = _free_port()
-    t0 = time.monotonic()
     code = main(["measure", "--controller", f"modbus://127.0.0.1:{port}", "--travel-mm", "100",
                  "--feed-mm-min", "1000", "--out", str(tmp_path / "ds"), "--timeout-s", "1.5"])
-    assert time.monotonic() - t0 < 1.5
     err = capsys.readouterr().err
     assert code != 0
     assert err.count("\n") == 1 and err.startswith("mebm measure: error: connection:")
@@ -100,12 +97,10 @@ def test_wrong_node_id_fails_within_the_timeout(tmp_path, capsys):
     from acquisition.sim.twin import KinematicTwin
 
     with SimCanopenDrive(KinematicTwin(), node_id=5, channel="mebm-cli-wrong-node"):
-        t0 = time.monotonic()
         code = main(["measure", "--controller", "canopen://virtual/mebm-cli-wrong-node?node=6", "--travel-mm", "20",
                      "--feed-mm-min", "1000", "--out", str(tmp_path / "ds"), "--timeout-s", "1", "--json"])
-        elapsed = time.monotonic() - t0
     out, err = capsys.readouterr()
-    assert code != 0 and elapsed < 1.0 + 0.3
+    assert code != 0 and "timeout" in err
     assert err.count("\n") == 1 and "node 6" in err
     assert json.loads(out)["status"] == "failed"
 
@@ -116,33 +111,5 @@ def test_bad_controller_url_is_a_usage_error(tmp_path, capsys):
     assert code != 0 and "node=N" in capsys.readouterr().err
 
 
-@pytest.mark.slow
-@pytest.mark.skipif(
-    os.environ.get("MEBM_TEST_MULTICAST") != "1",
-    reason="udp_multicast sends IP multicast on the default interface, not loopback: "
-    "set MEBM_TEST_MULTICAST=1 to run it on an isolated network (CANopen end to end "
-    "is covered in-process on python-can's virtual bus)",
-)
-def test_measure_a_simulated_canopen_drive_in_another_process(tmp_path, capsys):
-    pytest.importorskip("msgpack", reason="python-can's udp_multicast needs msgpack (python-can[multicast])")
-    bus_port = _free_port()  # a private UDP port, so parallel runs do not share the bus
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "api.cli", "sim-controller", "canopen", "--interface", "udp_multicast",
-         "--channel", "239.74.163.2", "--bus-option", f"port={bus_port}", "--node", "7", "--backlash-um", "120",
-         "--effect", EFFECT, "--duration-s", "90"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )
-    try:
-        ready, _, _ = select.select([proc.stdout], [], [], 60)
-        assert ready, "sim-controller did not start within 60 s"
-        assert "node=7" in proc.stdout.readline()
-        url = f"canopen://udp_multicast/239.74.163.2?node=7&rate_hz=250&time_scale=2&window_ms=100&port={bus_port}"
-        code = main(["measure", "--controller", url, "--travel-mm", "100", "--feed-mm-min", "1000",
-                     "--out", str(tmp_path / "m"), "--json", "--timeout-s", "2"])
-        measured = json.loads(capsys.readouterr().out)
-    finally:
-        proc.terminate()
-        proc.wait(10)
-    assert code == 0, measured["reason"]
-    assert measured["acquisition"]["mode"] == "sync" and measured["acquisition"]["lost_samples"] == 0
-    assert measured["result"]["backlash_mean_um"] == pytest.approx(120.0, abs=1.0)
+# CANopen end to end over real sockets (udp_multicast in a private network namespace, run in CI):
+# tests/acquisition/test_canopen_netns.py

@@ -1,2 +1,1 @@
-"""Routers of /api/v1, one module per resource. Another issue adds ``gap`` (GET
-/axes/{id}/gap): a module named in ``api.rest.app.ROUTERS`` is included when present."""
+"""Routers of /api/v1, one module per resource; ``api.rest.app.ROUTERS`` lists them explicitly."""

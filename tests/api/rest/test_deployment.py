@@ -60,3 +60,21 @@ def test_service_config_parses_and_points_at_the_simulator_container(compose):
     env = compose["services"]["mebm"]["environment"]
     assert env["MEBM_DATABASE_URL"].startswith("postgresql://") and "@db:5432/" in env["MEBM_DATABASE_URL"]
     assert compose["services"]["mebm"]["depends_on"]["db"]["condition"] == "service_healthy"
+
+
+def test_every_service_has_a_health_check_of_its_own(compose):
+    services = compose["services"]
+    for name, svc in services.items():
+        assert "healthcheck" in svc, name
+    sim = " ".join(services["simulator"]["healthcheck"]["test"])
+    assert "/healthz" not in sim and "5020" in sim  # the simulator serves Modbus, not the REST API
+    assert "/healthz" in " ".join(services["mebm"]["healthcheck"]["test"])
+
+
+def test_dockerfile_installs_dependencies_before_copying_the_code():
+    lines = (ROOT / "Dockerfile").read_text().splitlines()
+    first_code = min(i for i, ln in enumerate(lines) if ln.startswith(("COPY core", "COPY api")))
+    deps = next(i for i, ln in enumerate(lines) if "pip install -r" in ln)
+    assert deps < first_code
+    ignored = (ROOT / ".dockerignore").read_text().split()
+    assert ".venv" in ignored and ".git" in ignored

@@ -209,11 +209,9 @@ def test_driver_runner_reports_an_unreachable_controller_as_a_failed_outcome():
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     axis = AxisRecord(1, 1, "m", f.settings())
-    t0 = time.monotonic()
     out = DriverRunner(timeout_s=0.5)(axis, f"modbus://127.0.0.1:{port}")
     assert not out.ok and out.round_trip is None
     assert "connection" in out.reason or "timeout" in out.reason
-    assert time.monotonic() - t0 < 10
     bad = DriverRunner()(axis, "ftp://nowhere")
     assert not bad.ok and "scheme" in bad.reason
 

@@ -3,7 +3,8 @@
 PostgreSQL: a uniquely named database is created from ``test`` on 127.0.0.1:5432
 (trust auth; user from MEBM_TEST_PG_USER, else postgres, else root) for the test
 session and dropped afterwards. When no server answers, the PostgreSQL run is skipped
-with a message saying so. MEBM_TEST_PG_URL overrides the server URL.
+with a message saying so, except under ``CI=true``, where it fails: CI must run them.
+MEBM_TEST_PG_URL overrides the server URL.
 """
 
 from __future__ import annotations
@@ -53,6 +54,10 @@ class PgDatabase:
         self.admin.dispose()
 
 
+def _in_ci() -> bool:
+    return os.environ.get("CI", "").strip().lower() in ("1", "true", "yes")
+
+
 def make_database(backend: str, tmp_dir) -> tuple[str, object]:
     """(url, handle) of a fresh empty database; ``handle.drop()`` removes a PG one."""
     global _skip_reason
@@ -63,7 +68,12 @@ def make_database(backend: str, tmp_dir) -> tuple[str, object]:
     try:
         db = PgDatabase()
     except Exception as exc:  # noqa: BLE001
-        _skip_reason = f"PostgreSQL run skipped: no server reachable on 127.0.0.1:5432 ({exc})"
+        where = PG_SERVER.split("@", 1)[-1]
+        if _in_ci():
+            pytest.fail(f"CI=true and no PostgreSQL server reachable at {where} ({exc}): CI runs the "
+                        "PostgreSQL tests, it does not skip them (.ci/run says how the server is reached)",
+                        pytrace=False)
+        _skip_reason = f"PostgreSQL run skipped: no server reachable at {where} ({exc})"
         pytest.skip(_skip_reason)
     return db.url, db
 
