@@ -36,7 +36,7 @@ EFFECTS = {
     "cyclic_error": Effects(cyclic_error=CyclicError.of((16.0, 4.0, 30.0), (11.3, 3.0, 100.0))),
     "friction": Effects(friction=Friction(coulomb_n=2500.0, static_n=3200.0, stribeck_velocity_mm_s=2.0,
                                           viscous_n_s_per_mm=10.0)),
-    "compliance": Effects(compliance=Compliance(stiffness_n_per_um=100.0, table_mass_kg=1500.0, damping_ratio=0.3,
+    "compliance": Effects(compliance=Compliance(stiffness_n_per_um=60.0, table_mass_kg=1500.0, damping_ratio=0.3,
                                                 guide_damping_n_s_per_mm=5.0)),
     "sampling_skew": Effects(sampling_skew=SamplingSkew(0.003)),
 }
