@@ -341,8 +341,6 @@ def derived(effect: str, params: Mapping[str, float], b_um: float) -> dict[str, 
         return {"m_over_k_ms2": 1e6 / w2, "clearance_um": max(0.0, b_um - 2e3 * params["guide_friction_mm_s2"] / w2)}
     if effect == "friction":
         return {"static_excess_n_at_200n_per_um": params["breakaway_lost_motion_um"] * ASSUMED_STIFFNESS_N_PER_UM}
-    if effect == "servo_dynamics":
-        return {}
     return {}
 
 

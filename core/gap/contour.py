@@ -18,7 +18,9 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from core.dataset import AxisSpec
+from core.gap.candidates import SERVO_LOWER, SERVO_NAMES, SERVO_UPPER, servo_piece
 from core.gap.data import Contour
+from core.gap.roundtrip import fit_ls
 from core.sim import AxisModel, Effects, simulate
 from core.sim.programs import Program
 
@@ -131,9 +133,6 @@ def fit_servo(memo: SimMemo, contours: Sequence[Contour], axes: Mapping[str, Axi
     the train contours' tracking error, one axis at a time (the axes do not interact).
     Starts: the configured K and the apparent gain of the recorded lag, each with and
     without feed-forward. Returns ({axis: FitResult}, train RSS in µm^2)."""
-    from core.gap.candidates import SERVO_LOWER, SERVO_NAMES, SERVO_UPPER, servo_piece
-    from core.gap.roundtrip import fit_ls
-
     names = sorted({a for c in contours for a in c.axes})
     out = {}
     rss = 0.0

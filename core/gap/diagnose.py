@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -106,7 +106,6 @@ class Fitted:
     rt_res: list = field(default_factory=list)
     ct_res: list = field(default_factory=list)
     gap_after_um: float = float("nan")
-    contour_effects: dict = field(default_factory=dict)
 
     def score(self, penalty: float) -> float:
         return self.gap_after_um * (1 + penalty * self.n_params)
@@ -182,30 +181,24 @@ class _Diagnosis:
             bfit = base.rt_fits.get(a) if base else None
             ref_model = bfit.model if bfit else self.nom_model[a]
             ref_fit = bfit.fit if bfit else self.nom_fit[a]
+            if bfit:
+                f.rt_fits[a] = bfit  # kept unless the new stage is accepted below
             strat = REGISTRY[new]
             if strat.stage is None:
-                if bfit:
-                    f.rt_fits[a] = bfit
                 continue
             resid = train_residuals(ref_model, ref_fit.theta, runs)
             st = strat.stage(runs, spec, resid)
             if st is None:
                 f.notes.append(f"{new} on axis {a}: {NOT_IDENTIFIABLE} (train round trips at one temperature)")
-                if bfit:
-                    f.rt_fits[a] = bfit
                 continue
             stages = (bfit.stages if bfit else ()) + (st,)
             if sum(1 for x in stages if x.kernel) > 1:
                 f.notes.append(f"axis {a}: {' and '.join(x.effect for x in stages)} both model the chain's dynamics; "
                                "not composed")  # fmt: skip
-                if bfit:
-                    f.rt_fits[a] = bfit
                 continue
             model = compose(stages, self.b_um[a], self.memo.misc)
             if bfit:
-                x0 = np.concatenate([bfit.fit.theta, st.x0])
-                model = rt.RTModel(model.effect, model.names, x0, model.lower, model.upper, model.predict,
-                                   model.n_extra, model.info, model.prior)  # fmt: skip
+                model = replace(model, x0=np.concatenate([bfit.fit.theta, st.x0]))
                 starts = [np.concatenate([bfit.fit.theta, s0]) for s0 in st.starts]
             else:
                 starts = stage_starts(stages, np.array([self.b_um[a]]))
@@ -213,8 +206,6 @@ class _Diagnosis:
             n = sum(r.fit_idx.size for r in runs)
             if not _bic_accepts(ref_fit.rss, fr.rss, n, len(st.names)):
                 f.notes.append(f"{new} on axis {a}: no train improvement (kept {'+'.join(base.effects) if bfit else 'nominal'})")
-                if bfit:
-                    f.rt_fits[a] = bfit
                 continue
             f.rt_fits[a] = _AxisFit(model, fr, stages, tuple(s.effect for s in stages))
         # parameters of the round-trip fits
@@ -290,7 +281,6 @@ class _Diagnosis:
                 f.params[f"{a}.{n}"] = float(v)
                 f.intervals[f"{a}.{n}"] = ivals[n]
             f.n_params += len(SERVO_NAMES)
-        f.contour_effects = pieces
         if not pieces:
             f.ct_res = list(self.ct_nom)
             return
