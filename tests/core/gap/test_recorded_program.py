@@ -82,3 +82,29 @@ def test_two_diagnoses_in_one_process_do_not_share_simulations():
     assert again_a == first_a
     assert then_b["nominal_backlash_um"] != first_a["nominal_backlash_um"]
     assert then_b["nominal_backlash_um"]["x"] == pytest.approx(120.0, abs=5.0)
+
+
+def test_a_second_effect_is_named_when_it_remains():
+    """Cyclic error on the round trips and servo lag on the circles: the dominant one is
+    named, and the other is reported as the second effect (effects has both)."""
+    from core.sim import CyclicError, Effects, ServoDynamics, round_trip
+
+    fx = Effects(cyclic_error=CyclicError.of((16.0, 5.0, 30.0)),
+                 servo_dynamics=ServoDynamics(velocity_lag_s=0.006, dead_time_s=0.001))
+    axes = {a: AxisModel(name=a, transmission_mm_per_rev=8.0, screw_lead_mm=16.0, position_gain_per_s=12.0,
+                         backlash_um=50.0, encoders=ENC, effects=fx) for a in "xy"}
+    rng = np.random.default_rng(21)
+    runs = []
+    for a in "xy":
+        for i, (feed, temp) in enumerate(((600.0, 18.0), (1000.0, 20.0), (1500.0, 22.0), (2400.0, 28.0))):
+            tr = simulate({a: axes[a]}, round_trip(20.0 + 30 * i, 160.0 + 30 * i, feed, 600.0, 0.3, axis=a),
+                          temperature_c=temp, rate_hz=250.0, rng=rng)
+            runs.append(tr.to_run(f"rt_{a}{i}.csv", split="test" if i == 3 else "train"))
+    ds = _circles(axes, 90.0, rng)
+    ds = Dataset(ds.machine, tuple(runs) + ds.runs)
+    rep = diagnose(ds)
+    assert set(rep.effects) == {"cyclic_error", "servo_dynamics"}, rep.text()
+    assert rep.effect == rep.effects[0]
+    assert rep.second_effect.startswith("A second effect remains: " + rep.effects[1])
+    assert rep.to_dict()["pairs"][0]["effect"] == "+".join(rep.effects)
+    assert rep.gap_after_um < 0.5 * rep.gap_before_um
