@@ -158,5 +158,10 @@ def format_summary(res) -> str:
     rec, m = res.second_effect_recall
     lines.append(f"second effect recall on the mixed cases: {rec} of {m}")
     lines.append(f"median gap_after/gap_before on the effect cases: {res.median_ratio_effect_cases:.3f}")
+    hidden = res.hidden_effect_cases()
+    n_vis = len(res.cases) - len(hidden)
+    lines.append(f"effect cases whose gap_before is within 2x the noise floor (the effect did not show): {len(hidden)}"
+                 + (f"; named correctly without them: {sum(c.correct for c in res.cases if c not in hidden)}/{n_vis}"
+                    f" = {res.fraction_correct_visible() * 100:.1f} %" if hidden else ""))  # fmt: skip
     lines.append(f"median diagnosis time per dataset: {res.median_seconds:.1f} s")
     return "\n".join(lines)

@@ -313,6 +313,18 @@ class BenchmarkResult:
         mixed = [c for c in self.cases if len(c.labels) > 1]
         return sum(1 for c in mixed if c.second_found), len(mixed)
 
+    def hidden_effect_cases(self, noise_factor: float = 2.0) -> tuple[CaseResult, ...]:
+        """Effect cases whose nominal test gap is within ``noise_factor`` times the noise
+        floor: the effect drawn did not show in the test runs, so "none" is what the data
+        say. They stay in :attr:`fraction_correct`; this is reported beside it."""
+        return tuple(c for c in self.cases if c.labels and c.gap_before_um <= noise_factor * c.noise_floor_um)
+
+    def fraction_correct_visible(self, noise_factor: float = 2.0) -> float:
+        """:attr:`fraction_correct` without :meth:`hidden_effect_cases`."""
+        hidden = {c.index for c in self.hidden_effect_cases(noise_factor)}
+        rest = [c.correct for c in self.cases if c.index not in hidden]
+        return float(np.mean(rest)) if rest else float("nan")
+
     @property
     def median_ratio_effect_cases(self) -> float:
         r = [c.ratio for c in self.cases if c.labels]
@@ -342,6 +354,8 @@ class BenchmarkResult:
             "none_diagnosed_as_effect": self.false_effects_on_none,
             "none_gap_within_2x_noise": [hit, n_none],
             "second_effect_recall": [rec, n_mixed],
+            "effect_cases_within_2x_noise": len(self.hidden_effect_cases()),
+            "fraction_correct_without_them": self.fraction_correct_visible(),
             "median_gap_ratio_effect_cases": self.median_ratio_effect_cases,
             "median_seconds_per_case": self.median_seconds,
             "confusion": self.confusion(),

@@ -80,3 +80,20 @@ def test_benchmark_labels_are_balanced_and_a_quarter_mixed():
 def test_benchmark_refuses_no_cases(cases, capsys):
     assert main(["gap", "benchmark", "--cases", cases]) != 0
     assert "--cases" in capsys.readouterr().err
+
+
+def test_benchmark_reports_effect_cases_the_data_did_not_show_beside_the_score():
+    from api.cli.gap import format_summary
+    from core.gap.benchmark import BenchmarkResult, CaseResult
+
+    def case(i, labels, diagnosed, before, noise=0.4):
+        return CaseResult(i, "+".join(labels) or "none", diagnosed, before, before, noise, 1.0, "", labels)
+
+    res = BenchmarkResult((case(0, (), "none", 0.5), case(1, ("friction",), "none", 0.7),  # hidden: 0.7 <= 0.8
+                           case(2, ("thermal",), "thermal", 9.0), case(3, ("compliance",), "none", 5.0)), 7)
+    assert [c.index for c in res.hidden_effect_cases()] == [1]
+    assert res.fraction_correct == 0.5  # the headline keeps every case
+    assert res.fraction_correct_visible() == pytest.approx(2 / 3)
+    text = format_summary(res)
+    assert "did not show): 1; named correctly without them: 2/3 = 66.7 %" in text
+    assert res.to_dict()["effect_cases_within_2x_noise"] == 1
