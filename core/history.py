@@ -9,6 +9,7 @@ worst-case temperature.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 
 import numpy as np
@@ -69,6 +70,21 @@ class TemperatureModel:
         self.residual_std_um_ = float(np.sqrt(np.sum(resid**2) / max(t.size - 2, 1)))
         return self
 
+    def fit_sums(self, sums: MomentSums) -> TemperatureModel:
+        """:meth:`fit` from the :class:`MomentSums` of (temperature_c, backlash_um)."""
+        if sums.n < 2 or sums.x_max <= sums.x_min:
+            raise InputError("a temperature model needs measurements at two or more temperatures")
+        cxx, cyy, cxy = sums._centred()
+        slope = cxy / cxx
+        mean_t = sums.x0 + sums.sx / sums.n
+        mean_b = sums.y0 + sums.sy / sums.n
+        self.beta_um_per_k_ = float(slope)
+        self.backlash_ref_um_ = float(mean_b + slope * (self.reference_c - mean_t))
+        self.r_ = sums.pearson_r() if sums.n > 2 else None
+        self.n_ = int(sums.n)
+        self.residual_std_um_ = float(math.sqrt(max(cyy - slope * cxy, 0.0) / max(sums.n - 2, 1)))
+        return self
+
     def _check(self) -> None:
         if not hasattr(self, "beta_um_per_k_"):
             raise NotFittedError("TemperatureModel is not fitted: call fit() first")
@@ -84,3 +100,66 @@ class TemperatureModel:
         return np.asarray(backlash_um, float) - self.beta_um_per_k_ * (
             np.asarray(temperature_c, float) - self.reference_c
         )
+
+
+class MomentSums:
+    """Sufficient statistics of the finite (x, y) pairs of a series: count, sums, sums of
+    squares and cross products, and the ranges. Sums of disjoint parts add up, so a
+    long history can be summarised per hour and the correlation and the thermal model
+    of any union of hours computed without reading its rows (:meth:`pearson_r`,
+    :meth:`TemperatureModel.fit_sums`). Sums about a fixed origin (``x0``, ``y0``) keep
+    the cancellation small for values far from zero."""
+
+    FIELDS = ("n", "sx", "sy", "sxx", "syy", "sxy", "x_min", "x_max", "y_min", "y_max")
+
+    def __init__(self, n: int = 0, sx: float = 0.0, sy: float = 0.0, sxx: float = 0.0, syy: float = 0.0,
+                 sxy: float = 0.0, x_min: float = math.inf, x_max: float = -math.inf, y_min: float = math.inf,
+                 y_max: float = -math.inf, x0: float = 0.0, y0: float = 0.0):  # fmt: skip
+        self.n, self.sx, self.sy, self.sxx, self.syy, self.sxy = int(n), sx, sy, sxx, syy, sxy
+        self.x_min, self.x_max, self.y_min, self.y_max = x_min, x_max, y_min, y_max
+        self.x0, self.y0 = float(x0), float(y0)
+
+    @classmethod
+    def of(cls, x, y, x0: float = 0.0, y0: float = 0.0) -> MomentSums:
+        """The sums of the pairs of ``x`` and ``y`` where both are finite (None is NaN)."""
+        a = np.asarray(x, dtype=float)
+        b = np.asarray(y, dtype=float)
+        if a.shape != b.shape or a.ndim != 1:
+            raise InputError(f"x and y must be 1-D arrays of equal length, got {a.shape} and {b.shape}")
+        keep = np.isfinite(a) & np.isfinite(b)
+        a, b = a[keep], b[keep]
+        if a.size == 0:
+            return cls(x0=x0, y0=y0)
+        da, db = a - x0, b - y0
+        return cls(int(a.size), float(da.sum()), float(db.sum()), float(da @ da), float(db @ db), float(da @ db),
+                   float(a.min()), float(a.max()), float(b.min()), float(b.max()), x0, y0)  # fmt: skip
+
+    def __add__(self, other: MomentSums) -> MomentSums:
+        if (self.x0, self.y0) != (other.x0, other.y0):
+            raise InputError(f"sums about different origins cannot be added ({self.x0, self.y0} and {other.x0, other.y0})")
+        return MomentSums(self.n + other.n, self.sx + other.sx, self.sy + other.sy, self.sxx + other.sxx,
+                          self.syy + other.syy, self.sxy + other.sxy, min(self.x_min, other.x_min),
+                          max(self.x_max, other.x_max), min(self.y_min, other.y_min), max(self.y_max, other.y_max),
+                          self.x0, self.y0)  # fmt: skip
+
+    def to_list(self) -> list[float | None]:
+        """The fields in :attr:`FIELDS` order (JSON-safe: an empty range is None)."""
+        return [(float(v) if math.isfinite(v) else None) for v in (getattr(self, f) for f in self.FIELDS)]
+
+    @classmethod
+    def from_list(cls, v, x0: float = 0.0, y0: float = 0.0) -> MomentSums:
+        return cls(*[float(x) if x is not None else (math.inf if i in (6, 8) else -math.inf) if i >= 6 else 0.0
+                     for i, x in enumerate(v)], x0=x0, y0=y0)  # fmt: skip
+
+    def _centred(self) -> tuple[float, float, float]:
+        n = self.n
+        return (self.sxx - self.sx**2 / n, self.syy - self.sy**2 / n, self.sxy - self.sx * self.sy / n)
+
+    def pearson_r(self) -> float | None:
+        """As :func:`pearson_r` on the pairs: None for fewer than 3 or a constant series."""
+        if self.n < 3 or self.x_max <= self.x_min or self.y_max <= self.y_min:
+            return None
+        cxx, cyy, cxy = self._centred()
+        if cxx <= 0 or cyy <= 0:
+            return None
+        return float(np.clip(cxy / math.sqrt(cxx * cyy), -1.0, 1.0))

@@ -8,10 +8,9 @@ import numpy as np
 
 from api.rest import schemas as sc
 from api.service.status import AxisStatus
-from core.downsample import minmax_indices
-from core.history import TemperatureModel, correlation_table
+from core.history import TemperatureModel
 from core.errors import MebmError
-from storage.db import AlertRecord, AxisRecord, CycleRecord, KeyRecord, MachineRecord, ResultRecord, TrendSeries
+from storage.db import AlertRecord, AxisRecord, CycleRecord, KeyRecord, MachineRecord, ResultRecord, TrendView
 
 
 def machine(m: MachineRecord) -> sc.MachineOut:
@@ -136,41 +135,28 @@ def detail(c: CycleRecord, r: ResultRecord | None, curves: bool) -> sc.Measureme
 CRITERIA = ("backlash_mean_um", "e_p_um_per_1000mm", "v_u_um", "v_300_um", "v_2pi_um")
 
 
-def trend(axis_id: int, t: TrendSeries, max_points: int | None = None) -> sc.TrendOut:
-    """The trend; the series downsampled to ``max_points`` (min/max of b̄ per bucket), the
-    correlations and the thermal model computed on every point."""
-    n = len(t.measurement_id)
-    shown = range(n) if max_points is None else minmax_indices(t.backlash_mean_um, max_points).tolist()
-
-    def pick(seq) -> list:
-        return list(seq) if len(shown) == n else [seq[i] for i in shown]
-
+def trend(axis_id: int, v: TrendView) -> sc.TrendOut:
+    """The trend: the points the storage kept for the screen, and the correlations and the
+    thermal model of every measurement in the range (from their moment sums)."""
+    t = v.series
     series = sc.TrendSeriesOut(
-        measurement_id=pick(t.measurement_id), measured_at=pick(t.measured_at), temperature_c=pick(t.temperature_c),
-        utility_day=pick(t.utility_day), backlash_mean_um=pick(t.backlash_mean_um),
-        e_p_um_per_1000mm=pick(t.e_p_um_per_1000mm), v_u_um=pick(t.v_u_um), v_300_um=pick(t.v_300_um),
-        v_2pi_um=pick(t.v_2pi_um),
+        measurement_id=list(t.measurement_id), measured_at=list(t.measured_at), temperature_c=list(t.temperature_c),
+        utility_day=list(t.utility_day), backlash_mean_um=list(t.backlash_mean_um),
+        e_p_um_per_1000mm=list(t.e_p_um_per_1000mm), v_u_um=list(t.v_u_um), v_300_um=list(t.v_300_um),
+        v_2pi_um=list(t.v_2pi_um),
     )
-    corr: dict[str, dict[str, float | None]] = {c: {} for c in CRITERIA}
-    arrays = {c: np.asarray(getattr(t, c), dtype=float) for c in (*CRITERIA, "temperature_c", "utility_day")}
-    for driver in ("temperature_c", "utility_day"):
-        keep = np.isfinite(arrays[driver])  # None is NaN here
-        against = {driver: arrays[driver][keep]}
-        crit = {c: arrays[c][keep] for c in CRITERIA}
-        for c, row in correlation_table(crit, against).items():
-            corr[c][driver] = sc.fin(row[driver])
+    corr = {c: {d: sc.fin(v.stats[d][c].pearson_r()) for d in ("temperature_c", "utility_day")} for c in CRITERIA}
     model = None
-    keep = ~np.isnan(arrays["temperature_c"])
-    temps = arrays["temperature_c"][keep]
-    if temps.size >= 3 and np.ptp(temps) >= 1.0:
+    sums = v.stats["temperature_c"]["backlash_mean_um"]
+    if sums.n >= 3 and sums.x_max - sums.x_min >= 1.0:
         try:
-            m = TemperatureModel().fit(temps, arrays["backlash_mean_um"][keep])
+            m = TemperatureModel().fit_sums(sums)
             model = sc.ThermalModelOut(backlash_20c_um=m.backlash_ref_um_, beta_um_per_k=m.beta_um_per_k_,
                                        r=sc.fin(m.r_), n=m.n_)
         except MebmError:
             model = None
-    return sc.TrendOut(axis_id=axis_id, points=len(shown), points_total=n, series=series, correlation=corr,
-                       thermal_model=model)
+    return sc.TrendOut(axis_id=axis_id, points=len(t.measurement_id), points_total=v.points_total, series=series,
+                       correlation=corr, thermal_model=model)
 
 
 def alert(a: AlertRecord) -> sc.AlertOut:

@@ -12,7 +12,6 @@ import time
 from dataclasses import dataclass
 from datetime import datetime
 
-import numpy as np
 
 from core.errors import MebmError
 from core.history import TemperatureModel
@@ -50,10 +49,10 @@ def compute_status(s, axis_id: int) -> AxisStatus:
                                   backlash_uncertainty_um=u, rule=axis.settings.decision_rule)
             except MebmError as exc:
                 decision_error = str(exc)
-        temps, backlash = results_repo.backlash_history(s, axis_id)
-        if temps.size >= 3 and np.ptp(temps) >= 1.0 and latest.temperature_c is not None:
+        sums = results_repo.backlash_history(s, axis_id)
+        if sums.n >= 3 and sums.x_max - sums.x_min >= 1.0 and latest.temperature_c is not None:
             try:
-                model = TemperatureModel().fit(temps, backlash)
+                model = TemperatureModel().fit_sums(sums)
                 b20 = float(model.normalise_um(b, latest.temperature_c))
                 beta = model.beta_um_per_k_
             except MebmError:

@@ -36,6 +36,7 @@ from storage.db.records import (
     Schedule,
     TbeRecord,
     TrendSeries,
+    TrendView,
     as_utc,
     utcnow,
 )
@@ -43,7 +44,7 @@ from storage.db.records import (
 __all__ = [
     "AlertRecord", "AxisRecord", "AxisSettings", "ConflictError", "CycleRecord", "DatabaseUnavailableError",
     "FinishedCycle", "KeyRecord", "MachineRecord", "NotFoundError", "ResultRecord", "Schedule", "StorageError",
-    "TbeRecord", "TrendSeries", "as_utc", "config_repo", "current_revision", "head_revision", "integrity_problems",
+    "TbeRecord", "TrendSeries", "TrendView", "as_utc", "config_repo", "current_revision", "head_revision", "integrity_problems",
     "is_sqlite", "make_engine", "make_session_factory", "ping", "results_repo", "session_scope", "sqlite_url",
     "upgrade", "utcnow", "WaitingCycleError",
 ]

@@ -220,3 +220,15 @@ class TrendSeries:
     v_u_um: tuple[float, ...]
     v_300_um: tuple[float, ...]
     v_2pi_um: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class TrendView:
+    """The trend of a range: the points shown (a min/max downsampling of b̄, or all),
+    how many measurements the range holds, and the moment sums over all of them
+    (``stats[driver][criterion]``, core.history.MomentSums) for the correlations and the
+    thermal model."""
+
+    series: TrendSeries
+    points_total: int
+    stats: dict

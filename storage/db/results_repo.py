@@ -20,7 +20,9 @@ from core.criteria import BacklashProfile, LeadCriteria, RoundTripResult
 from core.criteria.uncertainty import UncertaintyBudget, UncertaintyComponent
 from core.errors import InputError
 from core.tbe import MachiningTask, State
+from core.history import MomentSums
 from storage.db import curves as curve_codec
+from storage.db import rollup
 from storage.db.errors import NotFoundError, WaitingCycleError
 from storage.db.models import Alert, Axis, Curve, Cycle, LeadCriteriaRow, Result, TbeRow
 from storage.db.records import (
@@ -31,7 +33,7 @@ from storage.db.records import (
     FinishedCycle,
     ResultRecord,
     TbeRecord,
-    TrendSeries,
+    TrendView,
     as_utc,
     utcnow,
 )
@@ -159,6 +161,7 @@ def save_finished_cycle(s: Session, fc: FinishedCycle) -> tuple[CycleRecord, lis
     result = None
     if fc.status == "ok":
         result = _insert_result(s, c, fc)
+        rollup.refresh(s, fc.axis_id, result.measured_at)
         if fc.decision is not None:
             changes = _update_alerts(s, fc, result)
     changes += _update_lost_run_alert(s, fc, c)
@@ -374,36 +377,20 @@ def list_measurements(
     return int(total or 0), [_cycle(c, r) for c, r in rows]
 
 
-def trend(s: Session, axis_id: int, *, since: datetime | None = None, until: datetime | None = None) -> TrendSeries:
-    """The criteria of every ok measurement (positive stroke), oldest first."""
+def trend(s: Session, axis_id: int, *, since: datetime | None = None, until: datetime | None = None,
+          max_points: int | None = None) -> TrendView:
+    """The criteria of the ok measurements (positive stroke) in ``[since, until]``, oldest
+    first: at most ``max_points`` of them (the min/max of b̄ per bucket) and the moment
+    sums of all of them. The cost does not grow with the history (storage.db.rollup)."""
     if s.get(Axis, axis_id) is None:
         raise NotFoundError("axis", axis_id)
-    q = (select(Result.cycle_id, Result.measured_at, Result.temperature_c, Result.utility_day,
-                Result.backlash_mean_um, LeadCriteriaRow.e_p_um_per_1000mm, LeadCriteriaRow.v_u_um,
-                LeadCriteriaRow.v_300_um, LeadCriteriaRow.v_2pi_um)
-         .join(LeadCriteriaRow, (LeadCriteriaRow.result_id == Result.id) & (LeadCriteriaRow.direction == "positive"))
-         .where(Result.axis_id == axis_id).order_by(Result.measured_at, Result.id))
-    if since is not None:
-        q = q.where(Result.measured_at >= since)
-    if until is not None:
-        q = q.where(Result.measured_at <= until)
-    rows = s.execute(q).all()
-    cols = list(zip(*rows)) if rows else [()] * 9
-    return TrendSeries(
-        measurement_id=tuple(cols[0]), measured_at=tuple(as_utc(t) for t in cols[1]),
-        temperature_c=tuple(cols[2]), utility_day=tuple(cols[3]), backlash_mean_um=tuple(cols[4]),
-        e_p_um_per_1000mm=tuple(cols[5]), v_u_um=tuple(cols[6]), v_300_um=tuple(cols[7]), v_2pi_um=tuple(cols[8]),
-    )
+    return rollup.trend_view(s, axis_id, since=since, until=until, max_points=max_points)
 
 
-def backlash_history(s: Session, axis_id: int) -> tuple[np.ndarray, np.ndarray]:
-    """(temperature_c, backlash_mean_um) of every ok measurement with a temperature."""
-    rows = s.execute(select(Result.temperature_c, Result.backlash_mean_um)
-                     .where(Result.axis_id == axis_id, Result.temperature_c.is_not(None))).all()
-    if not rows:
-        return np.zeros(0), np.zeros(0)
-    temps, backlash = zip(*rows)  # not np.asarray(rows): numpy probing Row objects costs ~40 µs a row
-    return np.asarray(temps, dtype=float), np.asarray(backlash, dtype=float)
+def backlash_history(s: Session, axis_id: int) -> MomentSums:
+    """Moment sums of (temperature_c, backlash_mean_um) over every ok measurement with a
+    temperature (for the thermal model: core.history.TemperatureModel.fit_sums)."""
+    return trend(s, axis_id, max_points=4).stats["temperature_c"]["backlash_mean_um"]
 
 
 def tbe_history(s: Session, axis_id: int, *, since: datetime | None = None) -> list[tuple[datetime, str, float, float]]:

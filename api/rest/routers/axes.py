@@ -108,4 +108,5 @@ def trend(
     max_points: Annotated[int, Query(ge=10, le=20000, description="downsample the series to this many points "
                                      "(the minimum and maximum of b̄ per bucket)")] = 2000,
 ):
-    return convert.trend(axis_id, results_repo.trend(s, axis_id, since=utc(since), until=utc(until)), max_points)
+    return convert.trend(axis_id, results_repo.trend(s, axis_id, since=utc(since), until=utc(until),
+                                                     max_points=max_points))

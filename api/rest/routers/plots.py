@@ -104,7 +104,7 @@ def plot(
                 tols.append(tol)
             png = plots.tbe_history(series, title=title)
     else:
-        tr = results_repo.trend(s, axis_id, since=utc(since))
+        tr = results_repo.trend(s, axis_id, since=utc(since), max_points=plots.SCREEN_POINTS).series
         if not tr.measured_at:
             png = plots.empty(title, "no good measurement yet")
         else:

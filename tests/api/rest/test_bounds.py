@@ -203,23 +203,29 @@ def test_a_100_mb_body_without_a_key_is_refused_before_it_is_read(tmp_path, chun
         server.terminate()
 
 
-def test_trend_series_are_downsampled_to_the_screen_keeping_every_excursion():
+def test_trend_series_are_downsampled_to_the_screen_keeping_every_excursion(tmp_path):
+    """100,000 results row by row (within one hour: the rows are read one by one)."""
     from datetime import datetime, timedelta, timezone
 
     from api.rest import convert
-    from storage.db import TrendSeries
+    from storage.db import make_engine, make_session_factory, session_scope, upgrade
+    from storage.db import config_repo, results_repo
+    from tests.storage.db import factories as f
+    from tests.storage.db.test_rollup import _bulk
 
     n = 100_000
-    t0 = datetime(2026, 1, 1, tzinfo=timezone.utc)
+    engine = make_engine(f"sqlite:///{tmp_path}/t.sqlite3")
+    upgrade(engine)
+    factory = make_session_factory(engine)
+    with session_scope(factory) as s:
+        axis_id = config_repo.create_axis(s, config_repo.create_machine(s, "m", "").id, f.settings()).id
     b = np.full(n, 200.0) + np.sin(np.arange(n) / 500.0)
     b[77_777] = 262.0  # the one measurement that raised an alert
     temps = 20.0 + (b - 200.0) / 2.0
-    series = TrendSeries(
-        measurement_id=tuple(range(1, n + 1)), measured_at=tuple(t0 + timedelta(minutes=i) for i in range(n)),
-        temperature_c=tuple(temps.tolist()), utility_day=tuple((np.arange(n) / 1440.0).tolist()),
-        backlash_mean_um=tuple(b.tolist()), e_p_um_per_1000mm=(1.0,) * n, v_u_um=(2.0,) * n, v_300_um=(1.0,) * n,
-        v_2pi_um=(0.5,) * n)
-    out = convert.trend(1, series, 2000)
+    _bulk(engine, axis_id, np.arange(n), temps, b, step=timedelta(milliseconds=30))
+    with session_scope(factory) as s:
+        out = convert.trend(axis_id, results_repo.trend(s, axis_id, max_points=2000))
+    engine.dispose()
     assert out.points <= 2000 and out.points_total == n and len(out.series.measured_at) == out.points
     assert 77_778 in out.series.measurement_id and max(out.series.backlash_mean_um) == 262.0
     assert out.correlation["backlash_mean_um"]["temperature_c"] == pytest.approx(1.0)  # from all points

@@ -133,17 +133,17 @@ def test_trend_pagination_and_time_filter(factory, axis_id):
             results_repo.save_finished_cycle(
                 s, f.finished(axis_id, 150.0 + 10 * i, when=t0 + timedelta(days=i), temperature_c=10.0 + i))
     with session_scope(factory) as s:
-        tr = results_repo.trend(s, axis_id)
+        tr = results_repo.trend(s, axis_id).series
         total, page = results_repo.list_measurements(s, axis_id, limit=2, offset=1)
         _, recent = results_repo.list_measurements(s, axis_id, since=t0 + timedelta(days=3, hours=-1))
-        temps, b = results_repo.backlash_history(s, axis_id)
+        sums = results_repo.backlash_history(s, axis_id)
         hist = results_repo.tbe_history(s, axis_id)
         latest = results_repo.latest_result(s, axis_id)
     assert len(tr.backlash_mean_um) == 5 and list(tr.temperature_c) == [10.0, 11.0, 12.0, 13.0, 14.0]
     assert tr.measured_at[0] == t0 and tr.backlash_mean_um[4] > tr.backlash_mean_um[0]
     assert total == 5 and len(page) == 2 and page[0].finished_at == t0 + timedelta(days=3)
     assert len(recent) == 2
-    assert temps.size == 5 and b.size == 5 and len(hist) == 5
+    assert sums.n == 5 and (sums.x_min, sums.x_max) == (10.0, 14.0) and len(hist) == 5
     assert latest.measured_at == t0 + timedelta(days=4)
 
 
