@@ -79,6 +79,16 @@ def _parse_machine(doc: dict, src: str) -> MachineSpec:
     )
 
 
+def parse_machine(doc: dict, src: str) -> MachineSpec:
+    """``doc["machine"]`` checked as dataset.json's (a trace-import profile has the same table)."""
+    return _parse_machine(doc, src)
+
+
+def parse_run_spec(r: object, src: str) -> RunSpec:
+    """One run's fields checked as dataset.json's ``runs[i]``."""
+    return _parse_run_spec(r, 0, src)
+
+
 def _parse_run_spec(r: object, i: int, src: str) -> RunSpec:
     if not isinstance(r, dict):
         raise DatasetError(f"runs[{i}] must be an object", source=src)

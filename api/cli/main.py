@@ -37,6 +37,7 @@ COMMANDS: tuple[CommandGroup, ...] = (
                  "run the service: REST API, scheduled measurements, simulated demo controller"),
     CommandGroup("keys", "api.cli.keys", "create, list and revoke API keys"),
     CommandGroup("gap", "api.cli.gap", "where and why the nominal model misses a machine (sim-to-real gap)"),
+    CommandGroup("import", "api.cli.import_trace", "a controller's scope trace (CSV) into a mebm dataset run"),
 )
 
 
