@@ -13,9 +13,10 @@ Faults, each for ``--fault-s`` seconds, spread over the run:
 - a data folder that refuses files (``datasets`` and ``unfiled`` replaced by regular
   files: as root, chmod would not stop the service): raw runs are lost and each such
   cycle must say so (``raw_run_lost``);
-- a full disk is not injected: it needs a loop mount or a size-limited tmpfs, which this
-  machine does not allow without privileges; it ends in the same OSError path as the
-  refusing folder.
+- a full disk: the data folder (database, spool, raw runs) is a size-limited tmpfs in a
+  private mount namespace (the script re-runs itself under ``unshare -m``; root, or
+  ``--no-full-disk`` to skip), filled to the last byte by a filler file: database
+  writes, spool files and raw runs all fail with ENOSPC until the filler goes.
 
 At the end the server is stopped and the database and folders are checked: every cycle
 in a final state, no run in another axis' folder, every ok cycle's run in its folder or
@@ -27,6 +28,7 @@ the cycle marked ``raw_run_lost``. Last line::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import re
@@ -68,7 +70,9 @@ AXIS = """
 
 def config(axes: int, interval_s: float) -> str:
     head = ('[auth]\ndemo_keys = false\n[scheduler]\nspool_retry_s = 2\n[simulator]\ntime_scale = 40\n'
-            '[limits]\ntriggers_per_minute = 30\ntrigger_burst = 5\n[[machines]]\nname = "soak-vmc"\n')
+            '[limits]\ntriggers_per_minute = 30\ntrigger_burst = 5\n'
+            '[retention]\nkeep_last_runs = 50\nmax_runs = 400\ninterval_s = 60\n'
+            '[[machines]]\nname = "soak-vmc"\n')
     return head + "".join(AXIS.format(name=n, interval=interval_s) for n in "xyzuvw"[:axes])
 
 
@@ -84,8 +88,19 @@ def main() -> int:
     ap.add_argument("--interval-s", type=float, default=2.0)
     ap.add_argument("--fault-s", type=float, default=15.0)
     ap.add_argument("--keep", action="store_true", help="keep the data folder (printed) for a look afterwards")
+    ap.add_argument("--no-full-disk", action="store_true", help="skip the full-disk fault (needs root for unshare -m)")
+    ap.add_argument("--disk-mb", type=int, default=2048, help="size of the data folder's tmpfs (full-disk fault)")
     a = ap.parse_args()
+    full_disk = not a.no_full_disk
+    if full_disk and os.environ.get("MEBM_SOAK_NS") != "1":
+        if shutil.which("unshare") is None:
+            print("soak: unshare not found: run with --no-full-disk", file=sys.stderr)
+            return 2
+        os.execvpe("unshare", ["unshare", "-m", "--propagation", "private", sys.executable, *sys.argv],
+                   {**os.environ, "MEBM_SOAK_NS": "1"})  # fmt: skip
     tmp = Path(tempfile.mkdtemp(prefix="mebm-soak-"))
+    if full_disk:
+        subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={a.disk_mb}m,mode=0700", "tmpfs", str(tmp)], check=True)
     url = f"sqlite:///{tmp}/soak.sqlite3"
     eng = make_engine(url)
     upgrade(eng)
@@ -161,12 +176,30 @@ def main() -> int:
     threading.Thread(target=sample_rss, daemon=True).start()
     total_s = a.minutes * 60
     t0 = time.monotonic()
-    faults = [(total_s * 0.3, "locked database"), (total_s * 0.6, "data folder refuses files")]
+    faults = [(total_s * 0.25, "locked database"), (total_s * 0.5, "data folder refuses files")]
+    if full_disk:
+        faults.append((total_s * 0.75, "full disk"))
     for at_s, what in faults:
         while time.monotonic() - t0 < at_s and proc.poll() is None:
             time.sleep(0.5)
         print(f"{time.monotonic() - t0:7.0f} s: {what} for {a.fault_s:.0f} s", flush=True)
-        if what == "locked database":
+        if what == "full disk":
+            filler = tmp / "filler"
+            with open(filler, "wb", buffering=0) as fh:
+                st = os.statvfs(tmp)
+                with contextlib.suppress(OSError):  # most of it at once (may be refused near the limit)
+                    os.posix_fallocate(fh.fileno(), 0, max(st.f_bavail - 256, 0) * st.f_frsize)
+                fh.seek(0, os.SEEK_END)
+                with contextlib.suppress(OSError):
+                    while True:  # then to the last block
+                        fh.write(b"\0" * 65536)
+                with contextlib.suppress(OSError):
+                    while True:
+                        fh.write(b"\0" * 512)
+            print(f"{time.monotonic() - t0:7.0f} s: disk full ({os.statvfs(tmp).f_bavail} blocks free)", flush=True)
+            time.sleep(a.fault_s)
+            filler.unlink()
+        elif what == "locked database":
             con = sqlite3.connect(tmp / "soak.sqlite3", timeout=30, isolation_level=None)
             con.execute("BEGIN EXCLUSIVE")
             time.sleep(a.fault_s)
@@ -237,6 +270,9 @@ def report(tmp: Path, url: str, status_ms, answers, rss) -> int:
                 unmarked += 1
                 continue
         accounted += 1
+    disk = sum(f.stat().st_size for f in (tmp / "datasets").rglob("*") if f.is_file())
+    print(f"raw runs on disk: {disk / 1e6:.1f} MB in {sum(1 for _ in (tmp / 'datasets').rglob('*.csv*'))} files "
+          "(retention: the newest 50 per axis plain, at most 400 per axis)")
     ms = sorted(status_ms)
     p99 = ms[min(int(0.99 * len(ms)), len(ms) - 1)] if ms else float("nan")
     print("answers:", ", ".join(f"{k}: {v}" for k, v in sorted(answers.items())))
