@@ -163,5 +163,8 @@ def format_summary(res) -> str:
     lines.append(f"effect cases whose gap_before is within 2x the noise floor (the effect did not show): {len(hidden)}"
                  + (f"; named correctly without them: {sum(c.correct for c in res.cases if c not in hidden)}/{n_vis}"
                     f" = {res.fraction_correct_visible() * 100:.1f} %" if hidden else ""))  # fmt: skip
+    for c in res.errors:
+        lines.append(f"case {c.index + 1} ({c.label}): the diagnosis raised {c.axis}")
+    lines.append(f"diagnoses that raised: {len(res.errors)} (scored as wrong)")
     lines.append(f"median diagnosis time per dataset: {res.median_seconds:.1f} s")
     return "\n".join(lines)

@@ -18,9 +18,9 @@ from api.rest.docs import install_docs
 from api.rest.headers import SecurityHeaders
 from api.rest.limits import BodyLimit, TokenBucket
 from api.rest.metrics import make_registry
-from api.rest.routers import alerts, axes, gap, health, keys, machines, measurements, plots
+from api.rest.routers import alerts, axes, gap, health, interfaces, keys, machines, measurements, plots
 from api.rest.schemas import ERROR_RESPONSES
-from api.rest.status_body import StatusFastPath
+from api.rest.status_body import StatusFastPath, status_json
 from api.service.config import Settings
 from api.service.runner import CycleRunner
 from api.service.service import Service
@@ -28,7 +28,7 @@ from api.service.service import Service
 API_PREFIX = "/api/v1"
 # Routers under /api/v1, included explicitly: a renamed module is an ImportError, never a
 # silently missing endpoint.
-ROUTERS = (machines, axes, measurements, alerts, plots, keys, gap)
+ROUTERS = (machines, axes, measurements, alerts, plots, keys, gap, interfaces)
 log = logging.getLogger("mebm.api")
 
 DESCRIPTION = """
@@ -48,17 +48,41 @@ acknowledge alerts), `admin` (configure machines, axes, tasks, schedules, keys).
 """
 
 
+def _start_interfaces(app: FastAPI, svc: Service, settings: Settings) -> list:
+    """The event consumers the configuration turns on (issue 17): MQTT, webhooks."""
+    app.state.mqtt = app.state.webhooks = None
+    started = []
+    if settings.mqtt.url:
+        from api.mqtt import MqttPublisher
+
+        app.state.mqtt = MqttPublisher(svc, settings.mqtt)
+        started.append(app.state.mqtt)
+    if settings.webhooks.urls:
+        from api.webhooks import WebhookSender
+
+        app.state.webhooks = WebhookSender(svc, settings.webhooks)
+        started.append(app.state.webhooks)
+    return started
+
+
 def create_app(settings: Settings, *, service: Service | None = None, runner: CycleRunner | None = None) -> FastAPI:
     owned = service is None
     svc = service or Service(settings, runner=runner)
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
-        if owned:
-            svc.start()
+        svc.render_status = lambda axis_id: status_json(app.state, svc, axis_id, svc.status.get(axis_id))
+        started = _start_interfaces(app, svc, settings)  # subscribed before the first cycle can be saved
         try:
+            if owned:
+                svc.start()
+            for machine, _ in settings.machines:
+                if app.state.mqtt is not None:
+                    app.state.mqtt.link(machine)  # the birth message, before any measurement
             yield
         finally:
+            for x in started:
+                x.close()
             if owned:
                 svc.stop()
 
@@ -66,6 +90,7 @@ def create_app(settings: Settings, *, service: Service | None = None, runner: Cy
                   openapi_url=f"{API_PREFIX}/openapi.json", docs_url=None, redoc_url=None)
     install_docs(app, f"{API_PREFIX}/openapi.json")  # Swagger UI from the package, no CDN
     app.state.service = svc
+    app.state.mqtt = app.state.webhooks = None
     app.state.key_cache = KeyCache()
     app.state.status_json = {}  # axis id -> (status object, its encoded JSON): see status_body.py
     app.state.metrics = make_registry(svc)

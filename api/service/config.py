@@ -8,12 +8,15 @@ simulated Modbus controller, and the seed paper's Y axis measured every 60 s.
 
 from __future__ import annotations
 
+import base64
+import binascii
 import math
 import os
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from urllib.parse import urlsplit
 
 from core.dataset import AxisSpec
 from core.errors import InputError
@@ -64,6 +67,26 @@ class AxisConfig:
 
 
 @dataclass(frozen=True)
+class MqttSettings:
+    """``[mqtt]``: publish the status and alerts to a broker (None: off)."""
+
+    url: str | None = None  # mqtt://[user:password@]host[:port]
+    topic_prefix: str = "mebm"
+    outbox_max: int = 1000  # alert messages kept while the broker is away
+
+
+@dataclass(frozen=True)
+class WebhookSettings:
+    """``[webhooks]``: POST alert changes, signed per Standard Webhooks."""
+
+    urls: tuple[str, ...] = ()
+    secret: str | None = None  # whsec_<base64>
+    timeout_s: float = 5.0
+    max_attempts: int = 5
+    log_max: int = 200
+
+
+@dataclass(frozen=True)
 class Settings:
     host: str = "127.0.0.1"
     port: int = 8000
@@ -82,6 +105,8 @@ class Settings:
     limits: LimitSettings = field(default_factory=LimitSettings)
     retention: RetentionPolicy = field(default_factory=RetentionPolicy)
     retention_interval_s: float = 3600.0
+    mqtt: MqttSettings = field(default_factory=MqttSettings)
+    webhooks: WebhookSettings = field(default_factory=WebhookSettings)
 
     @property
     def db_url(self) -> str:
@@ -93,6 +118,7 @@ class Settings:
 
 
 DEMO_MACHINE = "demo-vmc"
+DEFAULT_MQTT_URL = "mqtt://127.0.0.1:1883"  # `make run` publishes to a local broker, if one listens
 DEMO_TASK = MachiningTask("circle R200 F200", "circle", feed_mm_min=200.0, gain_per_s=10.0, tolerance_um=45.0,
                           radius_mm=200.0)
 
@@ -109,11 +135,12 @@ def demo_axis() -> AxisConfig:
 
 def default_settings() -> Settings:
     return Settings(machines=((DEMO_MACHINE, "demo: the seed paper's Y axis on a simulated controller"),),
-                    axes=(demo_axis(),))
+                    axes=(demo_axis(),), mqtt=MqttSettings(url=DEFAULT_MQTT_URL))
 
 
 # -- parsing -----------------------------------------------------------------------------------
-_TOP = {"server", "storage", "auth", "scheduler", "simulator", "machines", "logging", "limits", "retention"}
+_TOP = {"server", "storage", "auth", "scheduler", "simulator", "machines", "logging", "limits", "retention", "mqtt",
+        "webhooks"}
 
 
 def _get(table: Mapping, key: str, kind, where: str, default=None):
@@ -258,7 +285,67 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
         machines=machines, axes=axes, simulator=simulator,
         log_level=_get(logging_, "level", str, "logging", base.log_level), limits=limits,
         retention=retention, retention_interval_s=retention_interval_s,
+        mqtt=_mqtt(doc.get("mqtt"), base.mqtt), webhooks=_webhooks(doc.get("webhooks"), base.webhooks),
     )
+
+
+def _mqtt(table: Mapping | None, base: MqttSettings) -> MqttSettings:
+    if table is None:
+        return base
+    _unknown(table, {"url", "topic_prefix", "outbox_max"}, "mqtt")
+    out = MqttSettings(url=_get(table, "url", str, "mqtt", base.url) or None,
+                       topic_prefix=_get(table, "topic_prefix", str, "mqtt", base.topic_prefix),
+                       outbox_max=_get(table, "outbox_max", int, "mqtt", base.outbox_max))  # fmt: skip
+    check_mqtt(out, "mqtt")
+    return out
+
+
+def check_mqtt(m: MqttSettings, where: str) -> None:
+    if m.url is not None:
+        u = urlsplit(m.url)
+        if u.scheme not in ("mqtt", "mqtts") or not u.hostname:
+            raise ConfigError(f"{where}.url (={m.url!r}) must be mqtt://host[:port] or mqtts://host[:port]")
+        try:
+            u.port
+        except ValueError as exc:
+            raise ConfigError(f"{where}.url (={m.url!r}): {exc}") from exc
+    if not m.topic_prefix or any(c in m.topic_prefix for c in "+#") or m.topic_prefix.startswith("/"):
+        raise ConfigError(f"{where}.topic_prefix (={m.topic_prefix!r}) must be a plain topic level (no + # or leading /)")
+    if m.outbox_max < 1:
+        raise ConfigError(f"{where}.outbox_max (={m.outbox_max}) must be >= 1")
+
+
+def _webhooks(table: Mapping | None, base: WebhookSettings) -> WebhookSettings:
+    if table is None:
+        return base
+    _unknown(table, {"urls", "secret", "timeout_s", "max_attempts", "log_max"}, "webhooks")
+    urls = table.get("urls", list(base.urls))
+    if not isinstance(urls, list) or not all(isinstance(u, str) for u in urls):
+        raise ConfigError("webhooks.urls must be a list of http(s) URLs")
+    for u in urls:
+        if urlsplit(u).scheme not in ("http", "https") or not urlsplit(u).hostname:
+            raise ConfigError(f"webhooks.urls: {u!r} is not an http(s) URL")
+    out = WebhookSettings(urls=tuple(urls), secret=_get(table, "secret", str, "webhooks", base.secret) or None,
+                          timeout_s=_get(table, "timeout_s", float, "webhooks", base.timeout_s),
+                          max_attempts=_get(table, "max_attempts", int, "webhooks", base.max_attempts),
+                          log_max=_get(table, "log_max", int, "webhooks", base.log_max))  # fmt: skip
+    check_webhooks(out, "webhooks")
+    return out
+
+
+def check_webhooks(w: WebhookSettings, where: str) -> None:
+    if w.urls and not w.secret:
+        raise ConfigError(f"{where}.secret must be set when {where}.urls is (receivers verify the signature): "
+                          "whsec_ followed by base64 of 24-64 random bytes")  # fmt: skip
+    if w.secret is not None:
+        try:
+            key = base64.b64decode(w.secret.removeprefix("whsec_"), validate=True)
+        except (ValueError, binascii.Error) as exc:
+            raise ConfigError(f"{where}.secret must be whsec_ followed by base64") from exc
+        if len(key) < 16:
+            raise ConfigError(f"{where}.secret is {len(key)} bytes; use at least 16 (24-64 random bytes)")
+    if not w.timeout_s > 0 or w.max_attempts < 1 or w.log_max < 1:
+        raise ConfigError(f"{where}: timeout_s must be > 0, max_attempts and log_max >= 1")
 
 
 def _limits(table: Mapping, base: LimitSettings) -> LimitSettings:
@@ -283,6 +370,12 @@ def apply_env(settings: Settings, env: Mapping[str, str] | None = None) -> Setti
         out = replace(out, database_url=env["MEBM_DATABASE_URL"])
     if env.get("MEBM_BOOTSTRAP_ADMIN_KEY"):
         out = replace(out, bootstrap_admin_key=env["MEBM_BOOTSTRAP_ADMIN_KEY"])
+    if "MEBM_MQTT_URL" in env:  # empty: off
+        out = replace(out, mqtt=replace(out.mqtt, url=env["MEBM_MQTT_URL"] or None))
+        check_mqtt(out.mqtt, "MEBM_MQTT_URL")
+    if env.get("MEBM_WEBHOOK_SECRET"):
+        out = replace(out, webhooks=replace(out.webhooks, secret=env["MEBM_WEBHOOK_SECRET"]))
+        check_webhooks(out.webhooks, "MEBM_WEBHOOK_SECRET")
     if env.get("MEBM_HOST"):
         out = replace(out, host=env["MEBM_HOST"])
     if env.get("MEBM_PORT"):

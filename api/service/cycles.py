@@ -140,6 +140,10 @@ class CycleExecutor:
     def remember(self, axis: AxisRecord) -> None:
         self._axes[axis.id] = axis
 
+    def known_axis(self, axis_id: int) -> AxisRecord | None:
+        """The axis as last read (no database access), or None."""
+        return self._axes.get(axis_id)
+
     def _axis(self, axis_id: int) -> AxisRecord:
         try:
             with session_scope(self.factory) as s:

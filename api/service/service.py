@@ -24,6 +24,7 @@ from api.service.demo import DemoController
 from api.service.health import HealthProbe
 from api.service.runner import CycleRunner, DriverRunner
 from api.service.scheduler import CycleScheduler
+from api.service.events import EventHub, events_of_saved_cycle
 from api.service.status import StatusCache
 from core.errors import MebmError
 from storage.retention import apply_retention
@@ -73,6 +74,8 @@ class Service:
         self.started_at = time.time()
         self.report: StartReport | None = None
         self.health = HealthProbe(self)
+        self.events = EventHub()  # "measurement stored", "cycle failed", "alert changed" -> every interface
+        self.render_status = None  # axis_id -> the status body (bytes); set by the REST app
 
     # -- wiring ----------------------------------------------------------------------------------
     def resolve_url(self, axis: AxisRecord) -> str:
@@ -93,6 +96,16 @@ class Service:
     def _on_saved(self, axis_id, cycle, alerts) -> None:
         if self.status is not None:
             self.status.invalidate(axis_id)
+        axis = self.executor.known_axis(axis_id) if self.executor is not None else None
+        machine, name = (axis.machine_name, axis.name) if axis is not None else ("?", "?")
+        for ev in events_of_saved_cycle(axis_id, machine, name, cycle, alerts):
+            self.events.publish(ev)
+
+    def status_document(self, axis_id: int) -> bytes | None:
+        """The status body as REST serves it (``render_status``, set by the REST app), for
+        the interfaces that publish it; None when no renderer is set."""
+        render = self.render_status
+        return None if render is None else render(axis_id)
 
     def _connect(self) -> None:
         self.engine = make_engine(self.settings.db_url)
@@ -164,6 +177,7 @@ class Service:
     def stop(self) -> None:
         if self.scheduler is not None:
             self.scheduler.stop()
+        self.events.close()
         for sim in self.simulators.values():
             sim.stop()
         self.simulators.clear()

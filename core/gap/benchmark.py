@@ -326,8 +326,13 @@ class BenchmarkResult:
         return float(np.mean(rest)) if rest else float("nan")
 
     @property
+    def errors(self) -> tuple[CaseResult, ...]:
+        """Cases whose diagnosis raised (``axis`` holds the error)."""
+        return tuple(c for c in self.cases if c.diagnosed == "error")
+
+    @property
     def median_ratio_effect_cases(self) -> float:
-        r = [c.ratio for c in self.cases if c.labels]
+        r = [c.ratio if c.diagnosed != "error" else 1.0 for c in self.cases if c.labels]
         return float(np.median(r)) if r else float("nan")
 
     @property
@@ -340,7 +345,8 @@ class BenchmarkResult:
         m = {t: {p: 0 for p in LABELS} for t in LABELS}
         for c in self.cases:
             row = c.diagnosed if c.labels and c.diagnosed in c.labels else (c.labels[0] if c.labels else "none")
-            m[row][c.diagnosed] += 1
+            if c.diagnosed in m[row]:  # an "error" case is in no column (errors are counted apart)
+                m[row][c.diagnosed] += 1
         return m
 
     def to_dict(self) -> dict:
@@ -355,6 +361,7 @@ class BenchmarkResult:
             "none_gap_within_2x_noise": [hit, n_none],
             "second_effect_recall": [rec, n_mixed],
             "effect_cases_within_2x_noise": len(self.hidden_effect_cases()),
+            "diagnoses_that_raised": len(self.errors),
             "fraction_correct_without_them": self.fraction_correct_visible(),
             "median_gap_ratio_effect_cases": self.median_ratio_effect_cases,
             "median_seconds_per_case": self.median_seconds,
@@ -384,7 +391,11 @@ def _one_case(args) -> CaseResult:
     i, labs, seed, size, plant, with_split = args
     ds, split_given = make_plant_case(plant, labs, np.random.default_rng([seed, i]), size, with_split)
     t0 = time.perf_counter()
-    rep = diagnose(ds, GapSettings(keep_curves=False))
+    try:
+        rep = diagnose(ds, GapSettings(keep_curves=False))
+    except Exception as exc:  # noqa: BLE001 - a case that breaks the diagnosis is a result, scored wrong
+        return CaseResult(i, "+".join(labs) or "none", "error", float("nan"), float("nan"), float("nan"),
+                          time.perf_counter() - t0, f"{type(exc).__name__}: {exc}", labs, (), plant, split_given)  # fmt: skip
     dt = time.perf_counter() - t0
     return CaseResult(i, "+".join(labs) or "none", rep.effect, rep.gap_before_um, rep.gap_after_um,
                       rep.noise_floor_um, dt, "", labs, tuple(rep.effects), plant, split_given)  # fmt: skip

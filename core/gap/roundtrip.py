@@ -82,22 +82,38 @@ class FitResult:
     n_res: int
 
 
+NONFINITE_RESIDUAL = 1e6  # µm: what a diverged simulation counts as, per sample
+
+
 def fit_ls(residuals: Callable[[np.ndarray], np.ndarray], x0s: Sequence[np.ndarray], lower: np.ndarray,
            upper: np.ndarray, n_starts: int = 1, n_prior: int = 0, max_nfev: int | None = None,
            diff_step=None) -> FitResult:
     """Multi-start trust-region least squares: the ``n_starts`` cheapest of ``x0s`` (one
     evaluation each) start a fit; the best wins."""
+    def safe(th):
+        # a simulation that diverged for these parameters (NaN or inf) is a bad fit, not a
+        # crash: a large finite residual steers the optimiser away from it
+        r = np.asarray(residuals(th), dtype=float)
+        return np.where(np.isfinite(r), r, NONFINITE_RESIDUAL)
+
     cands = [np.clip(x0, lower + 1e-9, upper - 1e-9) for x0 in x0s]
     if len(cands) > 1:
-        costs = [float(np.sum(residuals(th) ** 2)) for th in cands]
+        costs = [float(np.sum(safe(th) ** 2)) for th in cands]
         cands = [cands[i] for i in np.argsort(costs)[:n_starts]]
     best = None
     for x0 in cands:
         kw = {} if diff_step is None else {"diff_step": diff_step}
-        sol = least_squares(residuals, x0, bounds=(lower, upper), x_scale="jac", method="trf",
-                            max_nfev=max_nfev or 25 * (len(x0) + 1), **kw)  # fmt: skip
+        try:
+            sol = least_squares(safe, x0, bounds=(lower, upper), x_scale="jac", method="trf",
+                                max_nfev=max_nfev or 25 * (len(x0) + 1), **kw)  # fmt: skip
+        except ValueError:  # the trust region met non-finite numbers: this start fails
+            continue
         if best is None or sol.cost < best.cost:
             best = sol
+    if best is None:  # every start failed: the first start, unfitted (the candidate will not be taken)
+        x0 = cands[0]
+        r = safe(x0)
+        return FitResult(x0, float(np.sum(r**2)), np.zeros((r.size, x0.size)), int(r.size - n_prior))
     return FitResult(best.x, float(2 * best.cost), best.jac, int(best.fun.size - n_prior))
 
 

@@ -97,3 +97,18 @@ def test_benchmark_reports_effect_cases_the_data_did_not_show_beside_the_score()
     text = format_summary(res)
     assert "did not show): 1; named correctly without them: 2/3 = 66.7 %" in text
     assert res.to_dict()["effect_cases_within_2x_noise"] == 1
+
+
+def test_a_case_whose_diagnosis_raises_is_scored_wrong_not_a_stopped_benchmark(monkeypatch):
+    import importlib
+
+    from core.gap.benchmark import SMALL, _one_case
+
+    dg = importlib.import_module("core.gap.diagnose")  # the module (core.gap.diagnose is also the function)
+
+    def boom(*a, **k):
+        raise ValueError("array must not contain infs or NaNs")
+
+    monkeypatch.setattr(dg, "diagnose", boom)
+    res = _one_case((0, ("thermal",), 5, SMALL, "twin", True))
+    assert res.diagnosed == "error" and not res.correct and "infs or NaNs" in res.axis

@@ -1,0 +1,181 @@
+"""MQTT: the status and the alerts, published to a broker (issue 17; paho-mqtt 2.x).
+
+Topics, per machine ``M`` and axis ``A`` (names with ``/ + #`` or blanks get ``_``):
+
+- ``<prefix>/M/A/status``: the status body exactly as ``GET /axes/{id}/status`` serves
+  it, **retained**, QoS 1, on each stored measurement and each failed cycle;
+- ``<prefix>/M/A/alerts``: each alert change (raised, cleared) as JSON, QoS 1;
+- ``<prefix>/M/online``: ``online`` (retained) when the machine's connection is up,
+  ``offline`` by the broker's will when it drops.
+
+One connection per machine (each with its own will). paho reconnects with back-off
+(1-60 s). While the broker is away, the newest status per axis and up to ``outbox_max``
+alert messages wait (the oldest alerts dropped and counted); on every (re)connect the
+waiting statuses are published again and the alerts not yet acknowledged are resent
+(at least once, as QoS 1 is). Publishing runs on the event hub's own consumer thread:
+the broker never delays or fails a cycle.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import logging
+import os
+import re
+import socket
+import threading
+from urllib.parse import unquote, urlsplit
+
+import paho.mqtt.client as paho
+
+from api.service.config import MqttSettings
+from api.service.events import Event
+
+log = logging.getLogger("mebm.mqtt")
+QOS = 1
+
+
+def topic_level(name: str) -> str:
+    return re.sub(r"[/+#\s]+", "_", name).strip("_") or "_"
+
+
+def alert_document(ev: Event) -> dict:
+    a = ev.alert
+    return {
+        "machine": ev.machine, "axis": ev.axis, "axis_id": ev.axis_id, "id": a.id, "kind": a.kind,
+        "active": a.active, "raised_at": a.raised_at.isoformat(),
+        "cleared_at": a.cleared_at.isoformat() if a.cleared_at else None, "task_name": a.task_name,
+        "tbe_um": a.tbe_um, "tolerance_um": a.tolerance_um, "backlash_um": a.backlash_um,
+        "backlash_limit_um": a.backlash_limit_um, "message": a.message,
+    }  # fmt: skip
+
+
+class _MachineLink:
+    """One broker connection for one machine: birth, will, retained statuses, alert outbox."""
+
+    def __init__(self, pub: MqttPublisher, machine: str):
+        self.pub = pub
+        self.machine = machine
+        self.online_topic = f"{pub.prefix}/{topic_level(machine)}/online"
+        self.connected = False
+        self.status: dict[str, bytes] = {}  # topic -> the newest status body
+        self.outbox: collections.OrderedDict[int, tuple[str, bytes]] = collections.OrderedDict()  # key -> alert
+        self.in_flight: dict[int, int] = {}  # paho mid -> outbox key
+        self._key = 0
+        self._lock = threading.Lock()
+        cid = f"mebm-{socket.gethostname()}-{os.getpid()}-{topic_level(machine)}"[:64]
+        c = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id=cid, clean_session=True)
+        if pub.username is not None:
+            c.username_pw_set(pub.username, pub.password)
+        if pub.tls:
+            c.tls_set()
+        c.will_set(self.online_topic, b"offline", qos=QOS, retain=True)
+        c.reconnect_delay_set(1, 60)
+        c.on_connect = self._on_connect
+        c.on_disconnect = self._on_disconnect
+        c.on_publish = self._on_publish
+        self.client = c
+        c.connect_async(pub.host, pub.port, keepalive=30)
+        c.loop_start()
+
+    def _on_connect(self, client, userdata, flags, reason_code, properties):
+        if reason_code.is_failure:
+            log.warning("MQTT broker %s:%s refused %s: %s", self.pub.host, self.pub.port, self.machine, reason_code)
+            return
+        with self._lock:
+            self.connected = True
+            self.in_flight.clear()
+            client.publish(self.online_topic, b"online", qos=QOS, retain=True)
+            for topic, body in self.status.items():
+                client.publish(topic, body, qos=QOS, retain=True)
+            for key, (topic, body) in self.outbox.items():
+                self.in_flight[client.publish(topic, body, qos=QOS).mid] = key
+        log.info("MQTT connected to %s:%s for machine %s", self.pub.host, self.pub.port, self.machine)
+
+    def _on_disconnect(self, client, userdata, flags, reason_code, properties):
+        with self._lock:
+            was, self.connected = self.connected, False
+        if was:
+            log.warning("MQTT connection of machine %s lost (%s): retrying with back-off", self.machine, reason_code)
+
+    def _on_publish(self, client, userdata, mid, reason_code, properties):
+        with self._lock:
+            key = self.in_flight.pop(mid, None)
+            if key is not None:
+                self.outbox.pop(key, None)
+                self.pub.published += 1
+
+    def publish_status(self, topic: str, body: bytes) -> None:
+        with self._lock:
+            self.status[topic] = body
+            if self.connected:
+                self.client.publish(topic, body, qos=QOS, retain=True)
+
+    def publish_alert(self, topic: str, body: bytes) -> None:
+        with self._lock:
+            if len(self.outbox) >= self.pub.outbox_max:
+                self.outbox.popitem(last=False)
+                self.pub.dropped += 1
+                log.warning("MQTT outbox of machine %s full: oldest alert message dropped", self.machine)
+            self._key += 1
+            self.outbox[self._key] = (topic, body)
+            if self.connected:
+                self.in_flight[self.client.publish(topic, body, qos=QOS).mid] = self._key
+
+    def close(self) -> None:
+        with self._lock:
+            if self.connected:
+                self.client.publish(self.online_topic, b"offline", qos=QOS, retain=True)
+        self.client.disconnect()
+        self.client.loop_stop()
+
+
+class MqttPublisher:
+    """Subscribes to the service's events and publishes them (see the module docstring)."""
+
+    def __init__(self, service, settings: MqttSettings):
+        u = urlsplit(settings.url)
+        self.service = service
+        self.host = u.hostname
+        self.port = u.port or (8883 if u.scheme == "mqtts" else 1883)
+        self.tls = u.scheme == "mqtts"
+        self.username = unquote(u.username) if u.username else None
+        self.password = unquote(u.password) if u.password else None
+        self.prefix = settings.topic_prefix
+        self.outbox_max = settings.outbox_max
+        self.published = self.dropped = 0
+        self._links: dict[str, _MachineLink] = {}
+        self._lock = threading.Lock()
+        self.subscription = service.events.subscribe("mqtt", self.handle)
+
+    def link(self, machine: str) -> _MachineLink:
+        with self._lock:
+            if machine not in self._links:
+                self._links[machine] = _MachineLink(self, machine)
+            return self._links[machine]
+
+    def handle(self, ev: Event) -> None:
+        base = f"{self.prefix}/{topic_level(ev.machine)}/{topic_level(ev.axis)}"
+        if ev.kind in ("measurement_stored", "cycle_failed"):
+            body = self.service.status_document(ev.axis_id)
+            if body is not None:
+                self.link(ev.machine).publish_status(f"{base}/status", body)
+        elif ev.kind == "alert_changed":
+            body = json.dumps(alert_document(ev), separators=(",", ":")).encode()
+            self.link(ev.machine).publish_alert(f"{base}/alerts", body)
+
+    def connected(self, machine: str) -> bool:
+        link = self._links.get(machine)
+        return bool(link and link.connected)
+
+    def connections(self) -> dict[str, bool]:
+        with self._lock:
+            return {m: link.connected for m, link in self._links.items()}
+
+    def close(self) -> None:
+        self.service.events.unsubscribe(self.subscription)
+        with self._lock:
+            links, self._links = list(self._links.values()), {}
+        for link in links:
+            link.close()

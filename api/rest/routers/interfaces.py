@@ -1,0 +1,34 @@
+"""/webhooks/deliveries and /interfaces: what the publishers did (issue 17)."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Query, Request
+
+from api.rest.auth import AdminKey, ReadKey
+
+router = APIRouter(tags=["interfaces"])
+
+
+@router.get("/interfaces", summary="Which event interfaces are on, and their counters")
+def interfaces(request: Request, _k: ReadKey) -> dict:
+    st = request.app.state
+    mqtt, hooks = st.mqtt, st.webhooks
+    subs = {s.name: {"pending": s.pending, "delivered": s.delivered, "dropped": s.dropped, "failed": s.failed}
+            for s in st.service.events.subscriptions}  # fmt: skip
+    return {
+        "mqtt": None if mqtt is None else {
+            "broker": f"{mqtt.host}:{mqtt.port}", "topic_prefix": mqtt.prefix,
+            "connected": mqtt.connections(),
+            "alerts_acknowledged": mqtt.published, "alerts_dropped": mqtt.dropped},
+        "webhooks": None if hooks is None else {
+            "urls": len(hooks.settings.urls), "delivered": hooks.delivered, "failed_attempts": hooks.failed},
+        "event_consumers": subs,
+    }  # fmt: skip
+
+
+@router.get("/webhooks/deliveries", summary="The webhook delivery log, newest first (admin)")
+def deliveries(request: Request, _k: AdminKey, limit: Annotated[int, Query(ge=1, le=1000)] = 100) -> list[dict]:
+    hooks = request.app.state.webhooks
+    return [] if hooks is None else hooks.log_entries()[:limit]

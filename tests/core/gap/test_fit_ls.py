@@ -1,0 +1,28 @@
+"""The least-squares fits of the gap diagnosis survive a simulation that diverges for some
+parameters (found on the independent plant: servo dynamics fitted on top of friction gave
+NaN residuals and crashed the whole diagnosis)."""
+
+import numpy as np
+
+from core.gap.roundtrip import NONFINITE_RESIDUAL, fit_ls
+
+
+def test_a_region_of_nan_residuals_is_avoided_not_a_crash():
+    x = np.linspace(0, 1, 50)
+    y = 3.0 * x
+
+    def res(th):
+        if th[0] > 5.0:  # "the simulation diverged" here
+            return np.full(x.size, np.nan)
+        return th[0] * x - y
+
+    r = fit_ls(res, [np.array([4.9]), np.array([8.0])], np.array([0.0]), np.array([10.0]), n_starts=2)
+    assert abs(r.theta[0] - 3.0) < 1e-6 and np.isfinite(r.rss)
+
+
+def test_every_start_diverging_returns_the_start_unfitted():
+    def res(th):
+        return np.full(10, np.inf)
+
+    r = fit_ls(res, [np.array([1.0, 2.0])], np.array([0.0, 0.0]), np.array([5.0, 5.0]))
+    assert np.allclose(r.theta, [1.0, 2.0]) and r.rss == 10 * NONFINITE_RESIDUAL**2
