@@ -4,8 +4,8 @@ not a test.
     .venv/bin/python benchmarks/bench_history.py [--minutes 525600] [--repeat 5]
 
 Seeds a fresh SQLite database with one result per minute (default: a year, 525,600)
-by bulk insert (cycles, results, positive/negative lead criteria; no curves or TBE rows,
-which /trend and the trend plot do not read) and builds the hourly trend rollups, then calls each endpoint in process
+by bulk insert (cycles, results, positive/negative lead criteria, one task's TBE; no
+curves, which /trend and the plots timed here do not read) and builds the hourly trend rollups, then calls each endpoint in process
 (Starlette's TestClient) ``--repeat`` times and prints the median and the worst time,
 and the size of the /trend answer.
 """
@@ -33,7 +33,7 @@ from sqlalchemy import insert  # noqa: E402
 from api.rest import create_app  # noqa: E402
 from api.service.config import Settings, demo_axis  # noqa: E402
 from storage.db import config_repo, make_engine, make_session_factory, rollup, session_scope, upgrade  # noqa: E402
-from storage.db.models import Cycle, LeadCriteriaRow, Result  # noqa: E402
+from storage.db.models import Cycle, LeadCriteriaRow, Result, TbeRow  # noqa: E402
 
 
 def seed(url: str, minutes: int) -> tuple[int, str]:
@@ -65,10 +65,14 @@ def seed(url: str, minutes: int) -> tuple[int, str]:
                    for k, w, tc, bb in zip(i, when, temp, b)]
         lead = [dict(result_id=int(k) + 1, direction=d, e_p_um=10.0, e_p_um_per_1000mm=8.0, v_u_um=12.0, v_300_um=6.0,
                      v_2pi_um=3.0, n_strokes=1) for k in i for d in ("positive", "negative")]
+        tbe = [dict(result_id=int(k) + 1, task_name="circle R200 F200", profile="circle", radius_mm=200.0,
+                    feed_mm_min=200.0, gain_per_s=10.0, tolerance_um=45.0, tbe_um=0.19 * float(bb), state="OK")
+               for k, bb in zip(i, b)]  # fmt: skip
         with engine.begin() as c:
             c.execute(insert(Cycle), cycles)
             c.execute(insert(Result), results)
             c.execute(insert(LeadCriteriaRow), lead)
+            c.execute(insert(TbeRow), tbe)
     with session_scope(factory) as s:
         rollup.rebuild(s, axis.id)  # a bulk load bypasses the per-result refresh
     engine.dispose()
@@ -101,7 +105,8 @@ def main() -> int:
             for name, path in (("status (first)", f"/api/v1/axes/{axis_id}/status"),
                                ("status", f"/api/v1/axes/{axis_id}/status"),
                                ("trend", f"/api/v1/axes/{axis_id}/trend"),
-                               ("plot backlash_trend", f"/api/v1/axes/{axis_id}/plots/backlash_trend.png")):
+                               ("plot backlash_trend", f"/api/v1/axes/{axis_id}/plots/backlash_trend.png"),
+                               ("plot tbe_history", f"/api/v1/axes/{axis_id}/plots/tbe_history.png")):
                 med, worst, size = timed(client, path, key, 1 if name.endswith("(first)") else a.repeat)
                 print(f"{name:<22} median {med:8.1f} ms  max {worst:8.1f} ms  body {size / 1e3:8.1f} kB")
     return 0

@@ -248,7 +248,7 @@ class Alert(Base):
 class TrendRollup(Base):
     """One hour of an axis' ok measurements, summarised (issue 21: a trend whose cost does
     not grow with history): the count, the measurements with the smallest and the largest
-    b̄ (what a min/max downsampling to the screen keeps), and the moment sums of every
+    b̄ (their cycle ids: what a min/max downsampling to the screen keeps), and the moment sums of every
     trend criterion against temperature and utility day (core.history.MomentSums, packed),
     from which correlations and the thermal model of any range of whole hours follow.
     Rebuilt from its rows on every stored result of the hour."""
@@ -260,9 +260,9 @@ class TrendRollup(Base):
     axis_id: Mapped[int] = mapped_column(ForeignKey("axes.id", ondelete="CASCADE"))
     bucket_start: Mapped[datetime] = mapped_column(UtcDateTime)
     n: Mapped[int] = mapped_column(Integer)
-    b_min_result_id: Mapped[int] = mapped_column(Integer)
+    b_min_cycle_id: Mapped[int] = mapped_column(Integer)
     b_min_um: Mapped[float] = mapped_column(Float)
-    b_max_result_id: Mapped[int] = mapped_column(Integer)
+    b_max_cycle_id: Mapped[int] = mapped_column(Integer)
     b_max_um: Mapped[float] = mapped_column(Float)
     stats: Mapped[bytes] = mapped_column(LargeBinary)  # float64 [driver][criterion][field], little-endian
 

@@ -393,11 +393,19 @@ def backlash_history(s: Session, axis_id: int) -> MomentSums:
     return trend(s, axis_id, max_points=4).stats["temperature_c"]["backlash_mean_um"]
 
 
-def tbe_history(s: Session, axis_id: int, *, since: datetime | None = None) -> list[tuple[datetime, str, float, float]]:
-    """(measured_at, task_name, tbe_um, tolerance_um) of every ok measurement, oldest first."""
+def tbe_history(s: Session, axis_id: int, *, since: datetime | None = None,
+                max_points: int | None = None) -> list[tuple[datetime, str, float, float]]:
+    """(measured_at, task_name, tbe_um, tolerance_um) of the ok measurements, oldest first:
+    all of them, or with ``max_points`` those of the min/max downsampling of b̄ (the TBE of
+    a task grows with b̄, Eqs. 7-8, so they are the TBE's extremes too): its cost does not
+    grow with the history."""
     q = (select(Result.measured_at, TbeRow.task_name, TbeRow.tbe_um, TbeRow.tolerance_um)
          .join(TbeRow, TbeRow.result_id == Result.id).where(Result.axis_id == axis_id)
          .order_by(Result.measured_at, Result.id, TbeRow.id))
+    if max_points is not None:
+        view = trend(s, axis_id, since=since, max_points=max_points)
+        if len(view.series.measurement_id) < view.points_total:
+            q = q.where(Result.cycle_id.in_(view.series.measurement_id))
     if since is not None:
         q = q.where(Result.measured_at >= since)
     return [(as_utc(t), n, v, tol) for t, n, v, tol in s.execute(q).all()]

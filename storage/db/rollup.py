@@ -32,7 +32,7 @@ CRITERIA = ("backlash_mean_um", "e_p_um_per_1000mm", "v_u_um", "v_300_um", "v_2p
 #: drivers of the correlations, with the origin of their moment sums
 DRIVERS = {"temperature_c": 20.0, "utility_day": 0.0}
 
-_COLUMNS = (Result.id, Result.measured_at, Result.temperature_c, Result.utility_day, Result.backlash_mean_um,
+_COLUMNS = (Result.cycle_id, Result.measured_at, Result.temperature_c, Result.utility_day, Result.backlash_mean_um,
             LeadCriteriaRow.e_p_um_per_1000mm, LeadCriteriaRow.v_u_um, LeadCriteriaRow.v_300_um,
             LeadCriteriaRow.v_2pi_um)  # fmt: skip
 
@@ -112,8 +112,8 @@ def _combine(arrays: list[np.ndarray]) -> dict[str, dict[str, MomentSums]]:
 def _bucket_row(axis_id: int, start: datetime, rows: Sequence[tuple]) -> dict:
     b = np.array([r[4] for r in rows], dtype=float)
     lo, hi = int(np.argmin(b)), int(np.argmax(b))
-    return dict(axis_id=axis_id, bucket_start=start, n=len(rows), b_min_result_id=int(rows[lo][0]),
-                b_min_um=float(b[lo]), b_max_result_id=int(rows[hi][0]), b_max_um=float(b[hi]),
+    return dict(axis_id=axis_id, bucket_start=start, n=len(rows), b_min_cycle_id=int(rows[lo][0]),
+                b_min_um=float(b[lo]), b_max_cycle_id=int(rows[hi][0]), b_max_um=float(b[hi]),
                 stats=_pack(stats_of(rows)))  # fmt: skip
 
 
@@ -139,7 +139,7 @@ def rebuild(s: Session, axis_id: int | None = None, chunk: int = 50_000) -> int:
         current: datetime | None = None
         out: list[dict] = []
         while True:  # in id-keyed chunks: a year of rows is not held at once
-            q = _select(a).where(Result.id > last_id).order_by(Result.id).limit(chunk)
+            q = _select(a).where(Result.cycle_id > last_id).order_by(Result.cycle_id).limit(chunk)
             rows = [tuple(r) for r in s.execute(q).all()]
             if not rows:
                 break
@@ -153,7 +153,7 @@ def rebuild(s: Session, axis_id: int | None = None, chunk: int = 50_000) -> int:
                 pending.append(r)
         if pending:
             out.append(_bucket_row(a, current, pending))
-        # rows out of time order across chunks (ids not in time order) land in one bucket each
+        # rows out of time order across chunks (ids not in time order): such an hour is read again whole
         merged: dict[datetime, list] = {}
         for b in out:
             merged.setdefault(b["bucket_start"], []).append(b)
@@ -173,8 +173,8 @@ def trend_view(s: Session, axis_id: int, *, since: datetime | None = None, until
     min/max downsampling of b̄ keeps; all of them when None), the number of measurements
     in the range, and the moment sums over all of them."""
     since, until = (as_utc(since) if since else None), (as_utc(until) if until else None)
-    cols = (TrendRollup.bucket_start, TrendRollup.n, TrendRollup.b_min_result_id, TrendRollup.b_min_um,
-            TrendRollup.b_max_result_id, TrendRollup.b_max_um, TrendRollup.stats)  # fmt: skip
+    cols = (TrendRollup.bucket_start, TrendRollup.n, TrendRollup.b_min_cycle_id, TrendRollup.b_min_um,
+            TrendRollup.b_max_cycle_id, TrendRollup.b_max_um, TrendRollup.stats)  # fmt: skip
     q = select(*cols).where(TrendRollup.axis_id == axis_id)
     if since is not None:  # whole hours inside the range only
         q = q.where(TrendRollup.bucket_start >= (since if since == hour_of(since) else hour_of(since) + HOUR))
@@ -210,7 +210,7 @@ def trend_view(s: Session, axis_id: int, *, since: datetime | None = None, until
     rows = []
     for i in range(0, len(chosen), 5000):
         part = chosen[i : i + 5000]
-        rows += [tuple(r) for r in s.execute(_select(axis_id).where(Result.id.in_(part))).all()]
+        rows += [tuple(r) for r in s.execute(_select(axis_id).where(Result.cycle_id.in_(part))).all()]
     rows.sort(key=lambda r: (as_utc(r[1]), r[0]))
     return TrendView(_series(rows), total, stats)
 

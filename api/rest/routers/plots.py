@@ -92,7 +92,7 @@ def plot(
                                         if rt is not None and rt.budgets else 0.0,
                                         rule=axis.settings.decision_rule, title=title)
     elif name is PlotName.tbe_history:
-        rows = results_repo.tbe_history(s, axis_id, since=utc(since))
+        rows = results_repo.tbe_history(s, axis_id, since=utc(since), max_points=plots.SCREEN_POINTS)
         if not rows:
             png = plots.empty(title, "no TBE estimated yet (needs a good measurement and a machining task)")
         else:

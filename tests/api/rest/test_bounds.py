@@ -211,7 +211,7 @@ def test_trend_series_are_downsampled_to_the_screen_keeping_every_excursion(tmp_
     from storage.db import make_engine, make_session_factory, session_scope, upgrade
     from storage.db import config_repo, results_repo
     from tests.storage.db import factories as f
-    from tests.storage.db.test_rollup import _bulk
+    from tests.storage.db.test_rollup import CYCLE_OFFSET, _bulk
 
     n = 100_000
     engine = make_engine(f"sqlite:///{tmp_path}/t.sqlite3")
@@ -227,7 +227,7 @@ def test_trend_series_are_downsampled_to_the_screen_keeping_every_excursion(tmp_
         out = convert.trend(axis_id, results_repo.trend(s, axis_id, max_points=2000))
     engine.dispose()
     assert out.points <= 2000 and out.points_total == n and len(out.series.measured_at) == out.points
-    assert 77_778 in out.series.measurement_id and max(out.series.backlash_mean_um) == 262.0
+    assert 77_778 + CYCLE_OFFSET in out.series.measurement_id and max(out.series.backlash_mean_um) == 262.0
     assert out.correlation["backlash_mean_um"]["temperature_c"] == pytest.approx(1.0)  # from all points
     assert out.thermal_model is not None and out.thermal_model.n == n
 

@@ -15,13 +15,14 @@ from sqlalchemy import func, insert, select, text
 from core.history import TemperatureModel, pearson_r
 from storage.db import config_repo, make_session_factory, results_repo, session_scope, upgrade
 from storage.db import rollup
-from storage.db.models import Cycle, LeadCriteriaRow, Result, TrendRollup
+from storage.db.models import Cycle, LeadCriteriaRow, Result, TbeRow, TrendRollup
 from tests.storage.db import factories as f
 from tests.storage.db.backends import BACKENDS, make_database
 
 T0 = datetime(2026, 3, 1, 0, 0, 30, tzinfo=timezone.utc)
 N = 3 * 1440  # three days of one-minute results
 SPIKE = 2000  # the one measurement far above the rest
+CYCLE_OFFSET = 500_000  # cycle ids (the measurement ids of the API) differ from result ids
 
 
 def _history(n=N, seed=0):
@@ -39,17 +40,20 @@ def _bulk(engine, axis_id, i, temp, b, step=timedelta(minutes=1)):
     when = [T0 + int(k) * step for k in i]
     tc = [None if not np.isfinite(x) else float(x) for x in temp]
     with engine.begin() as c:
-        c.execute(insert(Cycle), [dict(id=int(k) + 1, uuid=str(uuid.uuid4()), axis_id=axis_id, trigger="schedule",
+        c.execute(insert(Cycle), [dict(id=int(k) + 1 + CYCLE_OFFSET, uuid=str(uuid.uuid4()), axis_id=axis_id, trigger="schedule",
                                        status="ok", requested_at=w, started_at=w, finished_at=w)
                                   for k, w in zip(i, when)])  # fmt: skip
         c.execute(insert(Result), [dict(
-            id=int(k) + 1, cycle_id=int(k) + 1, axis_id=axis_id, measured_at=w, temperature_c=t,
+            id=int(k) + 1, cycle_id=int(k) + 1 + CYCLE_OFFSET, axis_id=axis_id, measured_at=w, temperature_c=t,
             utility_day=float(k) / 1440, backlash_mean_um=float(bb), backlash_min_um=float(bb) - 5,
             backlash_max_um=float(bb) + 5, backlash_std_um=2.0, useful_travel_start_mm=0.0,
             useful_travel_end_mm=500.0, n_samples=1000, peak_speed_mm_min=3000.0) for k, w, t, bb in zip(i, when, tc, b)])
         c.execute(insert(LeadCriteriaRow), [dict(result_id=int(k) + 1, direction=d, e_p_um=1.0,
                                                  e_p_um_per_1000mm=8.0 + 0.01 * float(k % 7), v_u_um=12.0, v_300_um=6.0,
                                                  v_2pi_um=3.0, n_strokes=1) for k in i for d in ("positive", "negative")])  # fmt: skip
+        c.execute(insert(TbeRow), [dict(result_id=int(k) + 1, task_name="circle", profile="circle", radius_mm=200.0,
+                                        feed_mm_min=200.0, gain_per_s=10.0, tolerance_um=45.0, tbe_um=0.19 * float(bb),
+                                        state="OK") for k, bb in zip(i, b)])  # fmt: skip
         if engine.dialect.name == "postgresql":  # explicit ids: move the sequences past them
             for table in ("cycles", "results", "lead_criteria"):
                 c.execute(text(f"SELECT setval(pg_get_serial_sequence('{table}', 'id'), (SELECT max(id) FROM {table}))"))
@@ -76,7 +80,7 @@ def test_a_long_trend_from_rollups_equals_the_statistics_of_every_row(loaded):
     keep = np.isfinite(temp)
     assert v.points_total == N
     assert len(v.series.measurement_id) <= 100
-    assert SPIKE + 1 in v.series.measurement_id and max(v.series.backlash_mean_um) == 300.0
+    assert SPIKE + 1 + CYCLE_OFFSET in v.series.measurement_id and max(v.series.backlash_mean_um) == 300.0
     assert list(v.series.measured_at) == sorted(v.series.measured_at)
     st = v.stats["temperature_c"]["backlash_mean_um"]
     assert st.n == int(keep.sum())
@@ -87,6 +91,18 @@ def test_a_long_trend_from_rollups_equals_the_statistics_of_every_row(loaded):
     assert m_sums.backlash_ref_um_ == pytest.approx(m_rows.backlash_ref_um_, rel=1e-9)
     assert v.stats["utility_day"]["backlash_mean_um"].n == N
     assert v.stats["utility_day"]["v_u_um"].pearson_r() is None  # a constant criterion has no r
+
+
+def test_the_tbe_history_of_a_long_range_keeps_the_extremes_of_the_screen_points(loaded):
+    factory, axis_id, (i, temp, b), _ = loaded
+    with session_scope(factory) as s:
+        full = results_repo.tbe_history(s, axis_id)
+        thin = results_repo.tbe_history(s, axis_id, max_points=100)
+        shown = results_repo.trend(s, axis_id, max_points=100).series
+    assert len(full) == N and len(thin) == len(shown.measurement_id) <= 100
+    assert [t for t, *_ in thin] == list(shown.measured_at)
+    assert max(v for _, _, v, _ in thin) == max(v for _, _, v, _ in full) == pytest.approx(0.19 * 300.0)
+    assert min(v for _, _, v, _ in thin) == min(v for _, _, v, _ in full)
 
 
 def test_a_range_that_cuts_hours_reads_their_rows_and_counts_every_measurement(loaded):
