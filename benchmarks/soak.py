@@ -253,7 +253,7 @@ def report(tmp: Path, url: str, status_ms, answers, rss) -> int:
             if int(r.get("axis_id", m.group(2))) != int(m.group(2)):
                 mixed += 1
             in_folder[str(r.get("cycle_uuid"))] = (int(m.group(2)), r["file"])
-    accounted = lost = unmarked = 0
+    accounted = lost = unmarked = retired = 0
     for _id, uuid, axis_id, status, run_file, raw_lost in cycles:
         if status not in final:
             continue
@@ -262,7 +262,9 @@ def report(tmp: Path, url: str, status_ms, answers, rss) -> int:
             mixed += 1
             continue
         if status == "ok" and where is None:
-            if raw_lost:
+            if raw_lost and raw_lost.startswith("deleted by the retention policy"):
+                retired += 1
+            elif raw_lost:
                 lost += 1
             elif (tmp / "unfiled" / f"{uuid}.npz").is_file():
                 pass  # kept outside the dataset folder
@@ -276,6 +278,7 @@ def report(tmp: Path, url: str, status_ms, answers, rss) -> int:
     ms = sorted(status_ms)
     p99 = ms[min(int(0.99 * len(ms)), len(ms) - 1)] if ms else float("nan")
     print("answers:", ", ".join(f"{k}: {v}" for k, v in sorted(answers.items())))
+    print(f"raw runs deleted by the retention policy, each marked on its cycle: {retired}")
     print(f"cycles not in a final state: {sum(1 for c in cycles if c[3] not in final)}; "
           f"ok cycles whose run is neither kept nor marked lost: {unmarked}; axes: {len(axes)}")
     print(f"soak: cycles {len(cycles)}, accounted {accounted}, mixed {mixed}, lost {lost} (each marked), "

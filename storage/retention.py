@@ -53,6 +53,7 @@ class RetentionReport:
     deleted: int
     runs: int
     bytes_on_disk: int
+    deleted_cycle_uuids: tuple[str, ...] = ()  # of the deleted runs that name their cycle
 
 
 def folder_bytes(folder: Path) -> int:
@@ -112,6 +113,7 @@ def apply_retention(folder: str | os.PathLike, policy: RetentionPolicy,
                 deleted += 1
             elif i < n - policy.keep_last_runs:
                 to_compress.append(plain)
+        gone = tuple(str(runs[i]["cycle_uuid"]) for i in sorted(drop) if runs[i].get("cycle_uuid"))
         if drop:
             doc["runs"] = [r for i, r in enumerate(runs) if i not in drop]
             _atomic_write_text(root / "dataset.json", json.dumps(doc, indent=2) + "\n")
@@ -121,4 +123,4 @@ def apply_retention(folder: str | os.PathLike, policy: RetentionPolicy,
         if plain.is_file():
             _compress(plain)
             compressed += 1
-    return RetentionReport(compressed, deleted, n - len(drop), folder_bytes(root))
+    return RetentionReport(compressed, deleted, n - len(drop), folder_bytes(root), gone)

@@ -215,6 +215,15 @@ class Service:
                 except (MebmError, OSError) as exc:
                     log.error("retention of %s failed: %s", folder, exc)
                     continue
+                if rep.deleted_cycle_uuids:
+                    reason = (f"deleted by the retention policy on {datetime.now(timezone.utc):%Y-%m-%d} (more than "
+                              f"max_runs={self.settings.retention.max_runs} runs in the folder; the result is kept)")
+                    try:
+                        with session_scope(self.factory) as s:
+                            results_repo.mark_runs_deleted(s, rep.deleted_cycle_uuids, reason)
+                    except StorageError as exc:
+                        log.error("retention of %s: %d deleted run(s) not marked on their cycles: %s", folder.name,
+                                  len(rep.deleted_cycle_uuids), exc)  # fmt: skip
                 if rep.compressed or rep.deleted:
                     log.info("retention of %s: %d run(s) compressed, %d deleted, %d kept",
                              folder.name, rep.compressed, rep.deleted, rep.runs)

@@ -12,7 +12,7 @@ import math
 from datetime import datetime
 
 import numpy as np
-from sqlalchemy import func, select
+from sqlalchemy import func, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, selectinload
 
@@ -409,6 +409,17 @@ def tbe_history(s: Session, axis_id: int, *, since: datetime | None = None,
     if since is not None:
         q = q.where(Result.measured_at >= since)
     return [(as_utc(t), n, v, tol) for t, n, v, tol in s.execute(q).all()]
+
+
+def mark_runs_deleted(s: Session, cycle_uuids: list[str] | tuple[str, ...], reason: str) -> int:
+    """Say on each cycle whose raw run the retention policy deleted why it is gone
+    (``raw_run_lost``; the result rows stay). Returns how many cycles were marked."""
+    n = 0
+    for i in range(0, len(cycle_uuids), 500):
+        part = list(cycle_uuids[i : i + 500])
+        n += s.execute(update(Cycle).where(Cycle.uuid.in_(part), Cycle.raw_run_lost.is_(None))
+                       .values(raw_run_lost=reason)).rowcount or 0  # fmt: skip
+    return n
 
 
 def last_cycle_at(s: Session, axis_id: int, triggers: tuple[str, ...] = ("schedule", "catch_up")) -> datetime | None:

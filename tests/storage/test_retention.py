@@ -34,6 +34,7 @@ def test_retention_keeps_the_newest_and_the_runs_around_events_and_caps_the_rest
     kept = [r.spec.file for r in read_dataset(folder, load_runs=False).runs]
     expected = [f"rt_y_{i:03d}.csv" for i in (4, 5, 6, *range(21, 30))]
     assert kept == expected and rep.runs == 12 and rep.deleted == 18
+    assert rep.deleted_cycle_uuids == tuple(f"uuid-{i}" for i in (*range(0, 4), *range(7, 21)))
     plain = sorted(p.name for p in folder.glob("*.csv"))
     gz = sorted(p.name for p in folder.glob("*.csv.gz"))
     assert plain == [f"rt_y_{i:03d}.csv" for i in range(25, 30)]

@@ -23,7 +23,13 @@ def test_retention_caps_raw_runs_keeps_every_result_and_reports_disk_use(app_env
     runs = read_dataset(folder).runs
     assert len(runs) == 2 and len(list(folder.glob("*.csv.gz"))) == 1 and len(list(folder.glob("*.csv"))) == 1
     with session_scope(svc.factory) as s:
-        assert len(results_repo.list_measurements(s, axis_id, status="ok")[1]) == 4  # no result row dropped
+        cycles = results_repo.list_measurements(s, axis_id, status="ok")[1]
+    assert len(cycles) == 4  # no result row dropped
+    # the two oldest runs are gone, and their cycles say why; the two kept say nothing
+    oldest_first = sorted(cycles, key=lambda c: c.id)
+    assert [c.raw_run_lost is not None for c in oldest_first] == [True, True, False, False]
+    assert oldest_first[0].raw_run_lost.startswith("deleted by the retention policy on ")
+    assert "max_runs=2" in oldest_first[0].raw_run_lost
     text = client.get("/metrics", headers=hdr(keys["read"])).text
     line = next(x for x in text.splitlines() if x.startswith(f'mebm_dataset_bytes{{axis_id="{axis_id}"}}'))
     assert float(line.split()[-1]) == before == folder_bytes(folder) > 0
