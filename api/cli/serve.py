@@ -52,6 +52,11 @@ def banner(settings, report, url: str) -> str:
         lines.append(f"{report.interrupted} cycle(s) interrupted by the last stop were closed")
     for axis_id, sim_url in report.simulators.items():
         lines.append(f"axis {axis_id}: built-in simulated controller on {sim_url}")
+    m = settings.mqtt
+    lines.append(f"MQTT: {_redact_url(m.url)}, topics {m.topic_prefix}/<machine>/<axis>/status|alerts" if m.url
+                 else "MQTT: off ([mqtt] url or MEBM_MQTT_URL)")  # fmt: skip
+    w = settings.webhooks
+    lines.append(f"webhooks: {len(w.urls)} receiver(s)" if w.urls else "webhooks: off ([webhooks] urls)")
     if report.demo_keys:  # only the keys created by this start: shown once
         k = report.demo_keys
         lines.append("demo keys created (shown this once; read and operate are kept in "
@@ -104,3 +109,14 @@ def _serve(a: argparse.Namespace) -> int:
         sock.close()
     sys.stdout.flush()
     return 0
+
+
+def _redact_url(url: str) -> str:
+    """``url`` without its password (a broker URL may carry one)."""
+    from urllib.parse import urlsplit, urlunsplit
+
+    u = urlsplit(url)
+    if u.password is None:
+        return url
+    host = u.hostname + (f":{u.port}" if u.port else "")
+    return urlunsplit((u.scheme, f"{u.username}:***@{host}", u.path, u.query, u.fragment))

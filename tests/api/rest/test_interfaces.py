@@ -261,3 +261,18 @@ def test_make_run_defaults_publish_to_a_local_broker_and_the_environment_turns_i
     assert load_settings(None, {}).mqtt.url == "mqtt://127.0.0.1:1883"
     assert load_settings(None, {"MEBM_MQTT_URL": ""}).mqtt.url is None
     assert replace(load_settings(None, {}), webhooks=WebhookSettings()).webhooks.urls == ()
+
+
+def test_the_start_banner_says_whether_mqtt_and_webhooks_are_on_without_the_broker_password(tmp_path):
+    from api.cli.serve import banner
+    from api.service.service import StartReport
+
+    report = StartReport(database="sqlite:///x", replayed=0, interrupted=0, created_axes=(), demo_keys={},
+                         simulators={}, bootstrap_admin=None)  # fmt: skip
+    on = make_settings("sqlite:///x", tmp_path, mqtt=MqttSettings(url="mqtt://mes:s3cret@broker:1884"),
+                       webhooks=WebhookSettings(urls=("http://mes/hook",), secret=SECRET))  # fmt: skip
+    text = banner(on, report, "http://127.0.0.1:1")
+    assert "MQTT: mqtt://mes:***@broker:1884, topics mebm/<machine>/<axis>/status|alerts" in text
+    assert "s3cret" not in text and "webhooks: 1 receiver(s)" in text
+    off = banner(make_settings("sqlite:///x", tmp_path), report, "http://127.0.0.1:1")
+    assert "MQTT: off" in off and "webhooks: off" in off
