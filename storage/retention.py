@@ -23,7 +23,7 @@ import gzip
 import json
 import os
 import shutil
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -80,8 +80,11 @@ def _compress(path: Path) -> None:
     path.unlink()  # only once the compressed copy is durable
 
 
-def apply_retention(folder: str | os.PathLike, policy: RetentionPolicy,
-                    event_uuids: Iterable[str] = ()) -> RetentionReport:
+def apply_retention(folder: str | os.PathLike, policy: RetentionPolicy, event_uuids: Iterable[str] = (),
+                    before_delete: Callable[[tuple[str, ...]], None] | None = None) -> RetentionReport:
+    """Apply ``policy`` to the dataset folder. ``before_delete(cycle_uuids)`` is called with
+    the cycles whose runs are about to be deleted, before any file goes: if it raises
+    (their cycles could not be marked), nothing is deleted in this pass and it raises on."""
     root = Path(folder)
     if not (root / "dataset.json").is_file():
         return RetentionReport(0, 0, 0, folder_bytes(root) if root.is_dir() else 0)
@@ -104,6 +107,9 @@ def apply_retention(folder: str | os.PathLike, policy: RetentionPolicy,
             if i not in protected:
                 drop.add(i)
                 excess -= 1
+        gone = tuple(str(runs[i]["cycle_uuid"]) for i in sorted(drop) if runs[i].get("cycle_uuid"))
+        if gone and before_delete is not None:
+            before_delete(gone)  # raises: nothing deleted
         to_compress = []
         for i, r in enumerate(runs):
             plain = root / str(r.get("file", ""))
@@ -113,7 +119,6 @@ def apply_retention(folder: str | os.PathLike, policy: RetentionPolicy,
                 deleted += 1
             elif i < n - policy.keep_last_runs:
                 to_compress.append(plain)
-        gone = tuple(str(runs[i]["cycle_uuid"]) for i in sorted(drop) if runs[i].get("cycle_uuid"))
         if drop:
             doc["runs"] = [r for i, r in enumerate(runs) if i not in drop]
             _atomic_write_text(root / "dataset.json", json.dumps(doc, indent=2) + "\n")

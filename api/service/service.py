@@ -209,21 +209,23 @@ class Service:
                 log.warning("retention of axis %s postponed: %s", axis_id, exc)
                 continue
             total = 0
+            reason = (f"deleted by the retention policy on {datetime.now(timezone.utc):%Y-%m-%d} (more than "
+                      f"max_runs={self.settings.retention.max_runs} runs in the folder; the result is kept)")
+
+            def mark(uuids: tuple[str, ...]) -> None:  # before the files go: a run is never gone unmarked
+                with session_scope(self.factory) as s:
+                    results_repo.mark_runs_deleted(s, uuids, reason)
+
             for folder in self.axis_folders(axis):
                 try:
-                    rep = apply_retention(folder, self.settings.retention, events)
-                except (MebmError, OSError) as exc:
-                    log.error("retention of %s failed: %s", folder, exc)
+                    rep = apply_retention(folder, self.settings.retention, events, before_delete=mark)
+                except StorageError as exc:
+                    log.warning("retention of %s postponed: the cycles of the runs to delete could not be marked "
+                                "(%s)", folder.name, exc)  # fmt: skip
                     continue
-                if rep.deleted_cycle_uuids:
-                    reason = (f"deleted by the retention policy on {datetime.now(timezone.utc):%Y-%m-%d} (more than "
-                              f"max_runs={self.settings.retention.max_runs} runs in the folder; the result is kept)")
-                    try:
-                        with session_scope(self.factory) as s:
-                            results_repo.mark_runs_deleted(s, rep.deleted_cycle_uuids, reason)
-                    except StorageError as exc:
-                        log.error("retention of %s: %d deleted run(s) not marked on their cycles: %s", folder.name,
-                                  len(rep.deleted_cycle_uuids), exc)  # fmt: skip
+                except (MebmError, OSError) as exc:
+                    log.error("retention of %s failed: %s", folder.name, exc)
+                    continue
                 if rep.compressed or rep.deleted:
                     log.info("retention of %s: %d run(s) compressed, %d deleted, %d kept",
                              folder.name, rep.compressed, rep.deleted, rep.runs)

@@ -57,3 +57,21 @@ def test_retention_is_idempotent_and_never_deletes_within_the_cap(folder):
 def test_a_policy_that_contradicts_itself_is_refused_naming_the_option():
     with pytest.raises(InputError, match="max_runs"):
         RetentionPolicy(keep_last_runs=100, max_runs=10)
+
+
+def test_nothing_is_deleted_when_the_cycles_cannot_be_marked_first(folder):
+    class Down(Exception):
+        pass
+
+    def refuse(uuids):
+        assert uuids == tuple(f"uuid-{i}" for i in range(0, 18))  # told before any file goes
+        raise Down("database is locked")
+
+    policy = RetentionPolicy(keep_last_runs=5, keep_around_events=0, max_runs=12)
+    files = sorted(p.name for p in folder.iterdir())
+    with pytest.raises(Down):
+        apply_retention(folder, policy, before_delete=refuse)
+    assert len(read_dataset(folder, load_runs=False).runs) == 30 and sorted(p.name for p in folder.iterdir()) == files
+    marked = []
+    rep = apply_retention(folder, policy, before_delete=marked.extend)
+    assert rep.deleted == 18 and tuple(marked) == rep.deleted_cycle_uuids
