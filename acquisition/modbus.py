@@ -240,7 +240,9 @@ class ModbusDriver(ControllerDriver):
             table_regs = await self._read(mm.TABLE_POS, 2, "reading the table position")
             t1 = time.monotonic()
             regs = list(regs) + list(table_regs) + [0] * (mm.STATUS_WORDS - mm.TABLE_POS - 2)
-            skew = t1 - t0
+            # the controller updates its registers once per servo cycle, so the two reads
+            # can straddle one update: the bound is the round trip of both plus one cycle
+            skew = (t1 - t0) + (1.0 / self.servo_rate_hz if self.servo_rate_hz > 0 else 0.0)
         else:
             skew = 0.0
         s = mm.decode_status(regs)
