@@ -22,6 +22,7 @@ import collections
 import json
 import logging
 import os
+import queue
 import re
 import socket
 import threading
@@ -62,6 +63,7 @@ class _MachineLink:
         self.status: dict[str, bytes] = {}  # topic -> the newest status body
         self.outbox: collections.OrderedDict[int, tuple[str, bytes]] = collections.OrderedDict()  # key -> alert
         self.in_flight: dict[int, int] = {}  # paho mid -> outbox key
+        self._acks: queue.SimpleQueue[int] = queue.SimpleQueue()
         self._key = 0
         self._lock = threading.Lock()
         cid = f"mebm-{socket.gethostname()}-{os.getpid()}-{topic_level(machine)}"[:64]
@@ -85,6 +87,7 @@ class _MachineLink:
             return
         with self._lock:
             self.connected = True
+            self._drain_acks()
             self.in_flight.clear()
             client.publish(self.online_topic, b"online", qos=QOS, retain=True)
             for topic, body in self.status.items():
@@ -100,7 +103,17 @@ class _MachineLink:
             log.warning("MQTT connection of machine %s lost (%s): retrying with back-off", self.machine, reason_code)
 
     def _on_publish(self, client, userdata, mid, reason_code, properties):
-        with self._lock:
+        # paho calls this holding its own message lock, which publish() takes too: taking
+        # self._lock here could deadlock with a publish under self._lock. Queue the ack.
+        self._acks.put(mid)
+
+    def _drain_acks(self) -> None:
+        """Drop the acknowledged alerts from the outbox (under self._lock)."""
+        while True:
+            try:
+                mid = self._acks.get_nowait()
+            except queue.Empty:
+                return
             key = self.in_flight.pop(mid, None)
             if key is not None:
                 self.outbox.pop(key, None)
@@ -114,6 +127,7 @@ class _MachineLink:
 
     def publish_alert(self, topic: str, body: bytes) -> None:
         with self._lock:
+            self._drain_acks()
             if len(self.outbox) >= self.pub.outbox_max:
                 self.outbox.popitem(last=False)
                 self.pub.dropped += 1
