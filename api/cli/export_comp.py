@@ -15,8 +15,8 @@ from core.errors import InputError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("export-comp", help="a round trip as the controller's compensation table "
-                                           "(LinuxCNC COMP_FILE, Beckhoff/ISG lead-screw list, CSV)")
+    p = sub.add_parser("export-comp",
+                       help="a round trip as the controller's compensation table (LinuxCNC, Beckhoff/ISG, CSV)")
     p.add_argument("dataset", help="dataset folder (mebm-dataset/1)")
     p.add_argument("--run", required=True, metavar="FILE", help="the round-trip run (its CSV file name)")
     p.add_argument("--format", required=True, choices=FORMATS, help="table format")
