@@ -45,7 +45,8 @@ def _folder_with(base: Path, run_file: str) -> Path | None:
             meta = read_dataset(folder, load_runs=False)
         except DatasetError:
             continue
-        if any(r.spec.file == run_file for r in meta.runs):
+        on_disk = (folder / run_file).is_file() or (folder / (run_file + ".gz")).is_file()  # .gz: retention
+        if on_disk and any(r.spec.file == run_file for r in meta.runs):
             return folder
     return None
 
