@@ -38,6 +38,7 @@ from core.errors import InputError
 
 LOOP_ENCODERS = ("motor", "table")
 QUANTUM_MM = 1e-4  # 0.1 µm
+MAX_POINTS = 1_000_000  # a guard against a mistyped step, whatever the format allows
 
 
 @dataclass(frozen=True)
@@ -77,6 +78,9 @@ def _grid(start: float, end: float, step_mm: float, max_points: int | None, quan
     n_int = max(1, math.ceil(length / step_mm - 1e-9))
     if max_points is not None and n_int + 1 > max_points:
         n_int = max_points - 1  # coarsen to the format's limit
+    if n_int + 1 > MAX_POINTS:
+        raise InputError(f"step_mm (={step_mm:g}) would give {n_int + 1} points over {length:g} mm "
+                         f"(at most {MAX_POINTS})")
     step = math.floor(length / n_int / quantum_mm + 1e-9) * quantum_mm  # last point <= end
     if step < quantum_mm:
         raise InputError(f"useful travel {start:g}..{end:g} mm is too short for a compensation table")

@@ -50,7 +50,8 @@ def run(a: argparse.Namespace) -> int:
         uncertainty=UncertaintyInputs(sampling_bound_um=float(skew)),
     )
     ex = export(result, a.format, step_mm=a.step_mm, comp_type=a.comp_type, joint=a.joint,
-                loop_encoder=loop, reference_mm=a.reference_mm, source=f"{folder.name}/{a.run}")
+                loop_encoder=loop, reference_mm=a.reference_mm, source=f"{folder.name}/{a.run}",
+                temperature_c=r.spec.temperature_c)
     if a.out is None:
         sys.stdout.write(ex.text)
         return 0

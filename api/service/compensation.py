@@ -35,8 +35,9 @@ from core.errors import DatasetError, InputError
 from storage.dataset import read_dataset, read_run_csv
 
 # points per table: LinuxCNC holds 256 triplets per joint (EMCMOT_COMP_SIZE, ini-config
-# docs); ISG needs kw_nr_max < kw.ssfk.max_points (P-COMP-00059, default 1500)
-MAX_POINTS = {"linuxcnc": 256, "beckhoff": 1499, "csv": None}
+# docs); ISG needs kw_nr_max < kw.ssfk.max_points (P-COMP-00059, default 1500); a CSV is
+# for people and spreadsheets: 10,000 rows (0.03 mm over 300 mm) is finer than b(x) is known
+MAX_POINTS = {"linuxcnc": 256, "beckhoff": 1499, "csv": 10_000}
 FORMATS = tuple(MAX_POINTS)
 COMP_TYPES = (0, 1)
 MEDIA_TYPES = {"linuxcnc": "text/plain", "beckhoff": "text/plain", "csv": "text/csv"}
@@ -72,11 +73,14 @@ def _check(fmt: str, comp_type: int, loop_encoder: str) -> None:
         )
 
 
-def _facts(t: CompensationTable, loop_encoder: str, source: str | None) -> list[str]:
+def _facts(t: CompensationTable, loop_encoder: str, source: str | None,
+           temperature_c: float | None = None) -> list[str]:
     """The lines every export states: what was measured, b̄, the loop, the grid."""
     u = "" if t.backlash_mean_uncertainty_um is None else f" ± {t.backlash_mean_uncertainty_um:.2f} (U, k = 2)"
     lines = [
-        f"mebm compensation table, axis {t.axis}" + (f", from {source}" if source else ""),
+        f"mebm compensation table, axis {t.axis}" + (f", from {source}" if source else "")
+        + (f", measured at {temperature_c:g} degC (lead error and backlash change with temperature)"
+           if temperature_c is not None else ""),
         f"mean backlash b = {t.backlash_mean_um:.1f}{u} um (single value; the table carries b(x) itself)",
         f"position loop closed on: the {loop_encoder} encoder (semi-closed loop); nominal = k_a x motor "
         "position, actual = linear scale",
@@ -92,7 +96,7 @@ def _facts(t: CompensationTable, loop_encoder: str, source: str | None) -> list[
 
 
 def linuxcnc(t: CompensationTable, *, comp_type: int = 1, joint: int | None = None,
-             loop_encoder: str = "motor", source: str | None = None) -> str:
+             loop_encoder: str = "motor", source: str | None = None, temperature_c: float | None = None) -> str:
     """A LinuxCNC COMP_FILE (machine units mm). Type 0: nominal, actual moving +, actual
     moving -. Type 1: nominal, trim moving +, trim moving - with trim = nominal - actual."""
     nom = t.position_mm
@@ -103,7 +107,7 @@ def linuxcnc(t: CompensationTable, *, comp_type: int = 1, joint: int | None = No
     cols = ("actual position moving + and moving - (mm)" if comp_type == 0 else
             "trim moving + and moving - = nominal - actual (mm), added to the motor command")
     notes = [
-        *_facts(t, loop_encoder, source),
+        *_facts(t, loop_encoder, source, temperature_c),
         f"LinuxCNC COMP_FILE_TYPE = {comp_type}: columns nominal (mm), {cols}",
         f"INI: {sec} COMP_FILE = <this file>, COMP_FILE_TYPE = {comp_type}; machine units mm",
         f"BACKLASH is ignored while a COMP_FILE is set for the joint: this table carries b(x) (b = "
@@ -115,7 +119,7 @@ def linuxcnc(t: CompensationTable, *, comp_type: int = 1, joint: int | None = No
 
 
 def beckhoff(t: CompensationTable, *, axis_number: int | None = None, loop_encoder: str = "motor",
-             source: str | None = None) -> str:
+             source: str | None = None, temperature_c: float | None = None) -> str:
     """A Beckhoff/ISG TwinCAT CNC axis compensation list: bilateral lead-screw error
     compensation, equidistant, metric (0.1 µm), pos/neg = actual - setpoint."""
     q = 1e-4  # mm per unit (kw.ssfk.unit 1: 0.1 µm)
@@ -126,7 +130,7 @@ def beckhoff(t: CompensationTable, *, axis_number: int | None = None, loop_encod
     pos = np.rint(t.forward_error_um * 10.0).astype(np.int64)
     neg = np.rint(t.reverse_error_um * 10.0).astype(np.int64)
     notes = [
-        *_facts(t, loop_encoder, source),
+        *_facts(t, loop_encoder, source, temperature_c),
         "TwinCAT CNC leadscrew error compensation (SSFK), bilateral: pos/neg = actual - setpoint in 0.1 um,",
         "the CNC subtracts them from the position setpoint. Activate with lr_param.ssfk 1 (P-AXIS-00175).",
         "It replaces the scalar backlash compensation getriebe[i].lose (P-AXIS-00103, selected by",
@@ -149,17 +153,18 @@ def beckhoff(t: CompensationTable, *, axis_number: int | None = None, loop_encod
     return "\n".join(out) + "\n"
 
 
-def csv(t: CompensationTable, *, loop_encoder: str = "motor", source: str | None = None) -> str:
+def csv(t: CompensationTable, *, loop_encoder: str = "motor", source: str | None = None,
+        temperature_c: float | None = None) -> str:
     """position_mm, forward_um (e+), reverse_um (e-), backlash_um (e- - e+), after '#' notes."""
     rows = [f"{x:.4f},{f:.3f},{r:.3f},{r - f:.3f}"
             for x, f, r in zip(t.position_mm, t.forward_error_um, t.reverse_error_um)]
-    return "\n".join([f"# {n}" for n in _facts(t, loop_encoder, source)]
+    return "\n".join([f"# {n}" for n in _facts(t, loop_encoder, source, temperature_c)]
                      + ["position_mm,forward_um,reverse_um,backlash_um"] + rows) + "\n"
 
 
 def export(result: RoundTripResult, fmt: str, *, step_mm: float = 5.0, comp_type: int = 1,
            joint: int | None = None, loop_encoder: str = "motor", reference_mm: float | None = None,
-           source: str | None = None, stem: str | None = None) -> CompExport:
+           source: str | None = None, stem: str | None = None, temperature_c: float | None = None) -> CompExport:
     """The table of ``result`` written in ``fmt`` (linuxcnc, beckhoff or csv)."""
     _check(fmt, comp_type, loop_encoder)
     if joint is not None and not (isinstance(joint, int) and joint >= 0):
@@ -167,12 +172,13 @@ def export(result: RoundTripResult, fmt: str, *, step_mm: float = 5.0, comp_type
     if not (isinstance(step_mm, (int, float)) and math.isfinite(step_mm) and step_mm > 0):
         raise InputError(f"step_mm (={step_mm!r}) must be a number > 0")
     table = compensation_table(result, step_mm=step_mm, max_points=MAX_POINTS[fmt], reference_mm=reference_mm)
+    common = {"loop_encoder": loop_encoder, "source": source, "temperature_c": temperature_c}
     if fmt == "linuxcnc":
-        text = linuxcnc(table, comp_type=comp_type, joint=joint, loop_encoder=loop_encoder, source=source)
+        text = linuxcnc(table, comp_type=comp_type, joint=joint, **common)
     elif fmt == "beckhoff":
-        text = beckhoff(table, axis_number=joint, loop_encoder=loop_encoder, source=source)
+        text = beckhoff(table, axis_number=joint, **common)
     else:
-        text = csv(table, loop_encoder=loop_encoder, source=source)
+        text = csv(table, **common)
     base = stem or f"comp_{table.axis}"
     kind = f"_type{comp_type}" if fmt == "linuxcnc" else ""
     return CompExport(text, MEDIA_TYPES[fmt], f"{base}_{fmt}{kind}.{SUFFIX[fmt]}", table)

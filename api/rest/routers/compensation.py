@@ -58,7 +58,7 @@ def compensation(
     axis_id: AxisId, s: SessionDep, svc: ServiceDep, _k: ReadKey,
     format: Annotated[CompFormat, Query(description="table format")] = CompFormat.csv,  # noqa: A002 - the API's name
     comp_type: Annotated[int, Query(ge=0, le=1, description="LinuxCNC COMP_FILE_TYPE (0 or 1)")] = 1,
-    step_mm: Annotated[float, Query(gt=0, le=1000, description="spacing of the table's points, mm")] = 5.0,
+    step_mm: Annotated[float, Query(ge=0.01, le=1000, description="spacing of the table's points, mm")] = 5.0,
     joint: Annotated[int | None, Query(ge=0, le=255, description="LinuxCNC joint / ISG logical axis")] = None,
     reference_mm: Annotated[float | None, Query(description="where the midline is zero (mm)")] = None,
 ):
@@ -81,7 +81,7 @@ def compensation(
         ex = export(rt, format.value, step_mm=step_mm, comp_type=comp_type, joint=joint,
                     loop_encoder=str(axis.spec.extra.get("loop_encoder", "motor")), reference_mm=reference_mm,
                     source=f"measurement {cycle.id} ({folder.name}/{cycle.run_file})",
-                    stem=f"{axis.machine_name}_{axis.name}_m{cycle.id}")
+                    stem=f"{axis.machine_name}_{axis.name}_m{cycle.id}", temperature_c=run.spec.temperature_c)
     except LoopOnScaleError as exc:
         raise ConflictError(str(exc)) from exc
     safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in ex.filename)
