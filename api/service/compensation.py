@@ -76,7 +76,7 @@ def _check(fmt: str, comp_type: int, loop_encoder: str) -> None:
 def _facts(t: CompensationTable, loop_encoder: str, source: str | None,
            temperature_c: float | None = None) -> list[str]:
     """The lines every export states: what was measured, b̄, the loop, the grid."""
-    u = "" if t.backlash_mean_uncertainty_um is None else f" ± {t.backlash_mean_uncertainty_um:.2f} (U, k = 2)"
+    u = "" if t.backlash_mean_uncertainty_um is None else f" +/- {t.backlash_mean_uncertainty_um:.2f} (U, k = 2)"
     lines = [
         f"mebm compensation table, axis {t.axis}" + (f", from {source}" if source else "")
         + (f", measured at {temperature_c:g} degC (lead error and backlash change with temperature)"

@@ -66,6 +66,7 @@ def test_csv_reproduces_the_twin(result):
 @pytest.mark.parametrize("fmt", ["linuxcnc", "beckhoff", "csv"])
 def test_every_export_states_the_mean_backlash_and_the_loop(result, fmt):
     text = export(result, fmt).text
+    text.encode("ascii")  # controllers' list readers are ASCII: no µ, ±, or ° in the notes either
     assert f"mean backlash b = {result.backlash_mean_um:.1f} " in text
     assert "position loop closed on: the motor encoder" in text
 
