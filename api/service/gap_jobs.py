@@ -38,6 +38,7 @@ from core.dataset import Dataset, Run
 from core.errors import MebmError
 from core.gap import diagnose
 from storage.dataset import read_dataset, read_run_csv
+from storage.db import NotFoundError
 
 log = logging.getLogger("mebm.gap")
 
@@ -73,6 +74,24 @@ def diagnose_folder(folder: str, n: int) -> dict:
     dataset = newest_runs(Path(folder), n)
     report = diagnose(dataset)
     return {**report.to_dict(), "report": report.text(), "runs_used": [r.spec.file for r in dataset.runs]}
+
+
+def axis_job(jobs: "GapJobs", axis_id: int, folder: Path | None, runs: int, *, start: bool = True) -> Future | None:
+    """The job diagnosing the newest ``runs`` stored runs of the dataset ``folder`` of an
+    axis: the pending or cached one, else a new one (``start=False``: None instead).
+
+    Keyed by (folder, runs, version of dataset.json): a cached answer costs a stat, not a
+    read of every run; keyed by the folder, not the axis id, since ids repeat across
+    databases and data directories. NotFoundError when there are no stored runs."""
+    if folder is None or not (folder / "dataset.json").is_file():
+        raise NotFoundError("stored runs for axis", axis_id)
+    st = (folder / "dataset.json").stat()
+    key = (str(folder.resolve()), runs, st.st_mtime_ns, st.st_size)
+    if not start:
+        fut = jobs.future(key)
+        if fut is None or fut.done():
+            return fut
+    return jobs.submit(key, folder, runs)  # asking again keeps a pending job from being abandoned
 
 
 @dataclass

@@ -27,8 +27,8 @@ from fastapi.responses import JSONResponse
 from api.rest.auth import ReadKey
 from api.rest.deps import AxisId, ServiceDep, SessionDep
 from api.rest.errors import TooManyRequestsError
-from api.service.gap_jobs import DiagnosisCrashed, JobAbandoned, TooManyJobs
-from storage.db import NotFoundError, config_repo
+from api.service.gap_jobs import DiagnosisCrashed, JobAbandoned, TooManyJobs, axis_job
+from storage.db import config_repo
 
 router = APIRouter(tags=["gap"])
 
@@ -55,13 +55,8 @@ def gap(
 ):
     axis = config_repo.get_axis(s, axis_id)
     folder = svc.executor.dataset_folder(axis) if svc.executor is not None else None
-    if folder is None or not (folder / "dataset.json").is_file():
-        raise NotFoundError("stored runs for axis", axis_id)
-    st = (folder / "dataset.json").stat()
-    # one job per (folder, runs, data version): a cached answer costs a stat, not a read of every run;
-    # keyed by the folder, not the axis id: ids repeat across databases and data directories
     try:
-        fut = svc.gap_jobs.submit((str(folder.resolve()), runs, st.st_mtime_ns, st.st_size), folder, runs)
+        fut = axis_job(svc.gap_jobs, axis_id, folder, runs)
     except TooManyJobs as exc:
         raise TooManyRequestsError(str(exc), RETRY_AFTER_S) from None
     try:

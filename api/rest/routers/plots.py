@@ -2,18 +2,15 @@
 
 from __future__ import annotations
 
-import math
 from enum import Enum
 from typing import Annotated
 
 from fastapi import APIRouter, Query, Response
 
-from api.rest import plots
 from api.rest.auth import ReadKey
 from api.rest.deps import AxisId, SessionDep
 from api.rest.routers.axes import Since, utc
-from core.errors import MebmError
-from storage.db import NotFoundError, config_repo, results_repo
+from api.service import figures
 
 router = APIRouter(tags=["plots"])
 PNG = {200: {"content": {"image/png": {}}, "description": "a PNG image"}}
@@ -27,17 +24,6 @@ class PlotName(str, Enum):
     backlash_trend = "backlash_trend"
 
 
-def _limit(tasks) -> float | None:
-    lims = []
-    for t in tasks:
-        try:
-            lims.append(t.backlash_limit_um())
-        except MebmError:
-            pass
-    lims = [v for v in lims if math.isfinite(v)]
-    return min(lims) if lims else None
-
-
 @router.get("/axes/{axis_id}/plots/{name}.png", response_class=Response, responses=PNG,
             summary="A figure: backlash_profile (Fig. 9), lead_deviation (Fig. 5), tbe_vs_backlash (Fig. 14), "
                     "tbe_history (Fig. 15), backlash_trend (Fig. 10)")
@@ -48,66 +34,6 @@ def plot(
     direction: Annotated[str, Query(pattern="^(positive|negative)$", description="lead_deviation stroke")] = "positive",
     since: Since = None,
 ):
-    axis = config_repo.get_axis(s, axis_id)
-    title = f"{axis.machine_name} axis {axis.name}"
-    limit = _limit(axis.tasks)
-    png = None
-    if name in (PlotName.backlash_profile, PlotName.lead_deviation):
-        if measurement_id is not None:
-            c, r = results_repo.get_measurement(s, measurement_id)
-            if c.axis_id != axis_id:
-                raise NotFoundError(f"measurement of axis {axis_id}", measurement_id)
-        else:
-            r = results_repo.latest_result(s, axis_id, curves=True)
-        if r is None or r.round_trip.backlash.position_mm.size == 0:
-            png = plots.empty(title, "no good measurement yet")
-        else:
-            rt = r.round_trip
-            when = f"{r.measured_at:%Y-%m-%d %H:%M} UTC" + (
-                f", {r.temperature_c:.1f} °C" if r.temperature_c is not None else "")
-            if name is PlotName.backlash_profile:
-                png = plots.backlash_profile(
-                    rt.backlash.position_mm, rt.backlash.backlash_um, rt.strokes["positive"].travel_deviation_um,
-                    rt.strokes["negative"].travel_deviation_um, mean_um=rt.backlash.mean_um, limit_um=limit,
-                    title=f"{title}, {when}")
-            else:
-                png = plots.lead_deviation(rt.strokes[direction], screw_lead_mm=axis.spec.screw_lead_mm,
-                                           title=f"{title}, {when}")
-    elif name is PlotName.tbe_vs_backlash:
-        if not axis.tasks:
-            png = plots.empty(title, "no machining task configured")
-        else:
-            latest = results_repo.latest_result(s, axis_id)
-            lims = []
-            for t in axis.tasks:
-                try:
-                    v = t.backlash_limit_um()
-                except MebmError:
-                    v = math.inf
-                lims.append(v if math.isfinite(v) else None)
-            rt = latest.round_trip if latest else None
-            png = plots.tbe_vs_backlash(axis.tasks, lims,
-                                        backlash_um=rt.backlash.mean_um if rt else None,
-                                        backlash_uncertainty_um=rt.backlash_mean_uncertainty_um
-                                        if rt is not None and rt.budgets else 0.0,
-                                        rule=axis.settings.decision_rule, title=title)
-    elif name is PlotName.tbe_history:
-        rows = results_repo.tbe_history(s, axis_id, since=utc(since), max_points=plots.SCREEN_POINTS)
-        if not rows:
-            png = plots.empty(title, "no TBE estimated yet (needs a good measurement and a machining task)")
-        else:
-            series: dict = {}
-            for t, task, tbe, tol in rows:
-                ts, vs, tols = series.setdefault(task, ([], [], []))
-                ts.append(t)
-                vs.append(tbe)
-                tols.append(tol)
-            png = plots.tbe_history(series, title=title)
-    else:
-        tr = results_repo.trend(s, axis_id, since=utc(since), max_points=plots.SCREEN_POINTS).series
-        if not tr.measured_at:
-            png = plots.empty(title, "no good measurement yet")
-        else:
-            png = plots.backlash_trend(list(tr.measured_at), list(tr.backlash_mean_um), list(tr.temperature_c),
-                                       limit_um=limit, title=title)
+    png = figures.render(s, axis_id, name.value, measurement_id=measurement_id, direction=direction,
+                         since=utc(since))
     return Response(content=png, media_type="image/png", headers={"Cache-Control": "no-cache"})
