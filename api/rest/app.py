@@ -24,6 +24,7 @@ from api.rest.status_body import StatusFastPath, status_json
 from api.service.config import Settings
 from api.service.runner import CycleRunner
 from api.service.service import Service
+from api.ui import install as install_ui
 
 API_PREFIX = "/api/v1"
 # Routers under /api/v1, included explicitly: a renamed module is an ImportError, never a
@@ -106,4 +107,5 @@ def create_app(settings: Settings, *, service: Service | None = None, runner: Cy
         api.include_router(module.router)
     app.include_router(api)
     app.include_router(health.router, responses={k: v for k, v in ERROR_RESPONSES.items() if k in (401, 403, 503)})
+    install_ui(app)  # the dashboard under /ui/ (issue 12); app.state.ui issues sign-in links
     return app

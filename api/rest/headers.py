@@ -15,7 +15,11 @@ _CSP_API = b"default-src 'none'; frame-ancestors 'none'"
 # Swagger UI (served from the package, see docs.py) runs one inline script that loads it
 _CSP_DOCS = (b"default-src 'self'; img-src 'self' data:; style-src 'self' 'unsafe-inline'; "
              b"script-src 'self' 'unsafe-inline'; frame-ancestors 'none'")
-SECRET_PATHS = ("/api/v1/keys",)
+# The dashboard (api/ui): its own scripts, styles and images only; no inline script or style
+# (the bars' widths are set by ui.js from data attributes), forms post back to it only
+_CSP_UI = (b"default-src 'none'; img-src 'self'; style-src 'self'; script-src 'self'; connect-src 'self'; "
+           b"form-action 'self'; base-uri 'none'; frame-ancestors 'none'")
+SECRET_PATHS = ("/api/v1/keys", "/ui/sign-in")
 
 
 class SecurityHeaders:
@@ -26,7 +30,8 @@ class SecurityHeaders:
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
         path = scope["path"]
-        extra = [*_COMMON, (b"content-security-policy", _CSP_DOCS if path.startswith("/docs") else _CSP_API)]
+        csp = _CSP_DOCS if path.startswith("/docs") else _CSP_UI if path.startswith("/ui") else _CSP_API
+        extra = [*_COMMON, (b"content-security-policy", csp)]
         if path.startswith(SECRET_PATHS):
             extra += [(b"cache-control", b"no-store"), (b"pragma", b"no-cache")]
         names = {n for n, _ in extra}

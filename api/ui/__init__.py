@@ -1,0 +1,43 @@
+"""The dashboard (issue 12): server-rendered pages under ``/ui/`` in the API's process.
+
+Jinja2 templates; the figures are the service's matplotlib PNGs (api/service/figures.py),
+so nothing is fetched from a CDN and no build chain is needed. Data comes through the
+same service functions as the REST routers; this package never imports ``api.rest``
+(an import-linter contract). Sign-in: api/ui/sessions.py. Docs: docs/dashboard.md.
+"""
+
+from __future__ import annotations
+
+from fastapi import FastAPI, Request
+from fastapi.responses import RedirectResponse
+from fastapi.staticfiles import StaticFiles
+
+from api.ui.routes import HERE, SignInRequired, UiForbidden, page, router
+from api.ui.sessions import UiState
+
+__all__ = ["install", "UiState"]
+
+
+def install(app: FastAPI, state: UiState | None = None) -> UiState:
+    """Mount the dashboard on ``app`` (``/ui/``, ``/`` redirecting to it); returns its state
+    (``state.links.issue(key)`` makes a one-time sign-in link)."""
+    app.state.ui = state or UiState()
+    app.include_router(router)
+    app.mount("/ui/static", StaticFiles(directory=str(HERE / "static")), name="ui-static")
+
+    @app.get("/", include_in_schema=False)
+    def root():
+        return RedirectResponse("/ui/", status_code=307)
+
+    @app.exception_handler(SignInRequired)
+    async def sign_in_required(request: Request, exc: SignInRequired):
+        if request.url.path.endswith(".frag") or request.method != "GET":
+            return page(request, "error.html", 401, who=None, title="Signed out",
+                        message="your session has ended: sign in again")
+        return RedirectResponse("/ui/sign-in", status_code=303)
+
+    @app.exception_handler(UiForbidden)
+    async def forbidden(request: Request, exc: UiForbidden):
+        return page(request, "error.html", 403, who=None, title="Refused", message=exc.message)
+
+    return app.state.ui

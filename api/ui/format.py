@@ -1,0 +1,37 @@
+"""Number and time formatting for the templates: units on every figure."""
+
+from __future__ import annotations
+
+import math
+from datetime import datetime
+
+
+def um(v: float | None, nd: int = 1) -> str:
+    if v is None or not math.isfinite(v):
+        return "–"
+    return f"{v:.{nd}f} µm"
+
+
+def pct(v: float | None) -> str:
+    return "–" if v is None else f"{100 * v:.0f} %"
+
+
+def age(s: float | None) -> str:
+    if s is None:
+        return "never"
+    s = max(s, 0.0)
+    if s < 90:
+        return f"{s:.0f} s ago"
+    if s < 90 * 60:
+        return f"{s / 60:.0f} min ago"
+    if s < 36 * 3600:
+        return f"{s / 3600:.1f} h ago"
+    return f"{s / 86400:.1f} d ago"
+
+
+def when(t: datetime | None) -> str:
+    return "–" if t is None else t.strftime("%Y-%m-%d %H:%M UTC")
+
+
+def state_class(state: str | None) -> str:
+    return {"OK": "ok", "WARNING": "warn", "ALARM": "alarm"}.get(state or "", "unknown")

@@ -1,0 +1,302 @@
+"""The dashboard's routes under /ui (server-rendered HTML, Jinja2)."""
+
+from __future__ import annotations
+
+import logging
+import time
+from concurrent.futures import CancelledError
+from pathlib import Path
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, Form, Query, Request
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import HTMLResponse, RedirectResponse, Response
+from fastapi.templating import Jinja2Templates
+
+from api.service import figures
+from api.service.gap_jobs import DiagnosisCrashed, JobAbandoned, TooManyJobs, axis_job
+from api.ui import format as fmt
+from api.ui import views
+from api.ui.sessions import PRE_CSRF_COOKIE, ROLE_RANK, SESSION_COOKIE, Session, UiState, same_token
+from core.errors import MebmError
+from storage.db import KeyRecord, NotFoundError, config_repo, results_repo, session_scope
+
+log = logging.getLogger("mebm.ui")
+HERE = Path(__file__).parent
+templates = Jinja2Templates(directory=str(HERE / "templates"))
+templates.env.filters.update(um=fmt.um, age=fmt.age, when=fmt.when, pct=fmt.pct)
+templates.env.globals.update(state_class=fmt.state_class)
+router = APIRouter(prefix="/ui", include_in_schema=False)
+GAP_RUNS = 16
+POLL_S = 5
+
+
+class SignInRequired(Exception):
+    """No valid session: pages redirect to the sign-in form, fragments answer 401."""
+
+
+class UiForbidden(Exception):
+    def __init__(self, message: str):
+        super().__init__(message)
+        self.message = message
+
+
+def ui_state(request: Request) -> UiState:
+    return request.app.state.ui
+
+
+class Viewer:
+    """The signed-in user: the key record (roles as in the API) and the session."""
+
+    def __init__(self, key: KeyRecord, session: Session, sid: str):
+        self.key, self.session, self.sid = key, session, sid
+
+    @property
+    def csrf(self) -> str:
+        return self.session.csrf
+
+    def can(self, role: str) -> bool:
+        return ROLE_RANK[self.key.role] >= ROLE_RANK[role]
+
+    def require(self, role: str) -> None:
+        if not self.can(role):
+            raise UiForbidden(f"key {self.key.name!r} has role {self.key.role!r}; this needs {role!r}")
+
+
+async def viewer(request: Request) -> Viewer:
+    ui = ui_state(request)
+    sid = request.cookies.get(SESSION_COOKIE)
+    sess = ui.sessions.get(sid)
+    if sess is None:
+        raise SignInRequired()
+    state = request.app.state
+    rec = await run_in_threadpool(state.key_cache.lookup, state.service.factory, sess.secret)
+    if rec is None:  # revoked since: the session ends
+        ui.sessions.close(sid)
+        raise SignInRequired()
+    return Viewer(rec, sess, sid)
+
+
+async def csrf_checked(request: Request, who: Annotated[Viewer, Depends(viewer)]) -> Viewer:
+    form = await request.form()
+    if not same_token(form.get("csrf"), who.csrf):
+        raise UiForbidden("the form's CSRF token is missing or wrong: reload the page and try again")
+    return who
+
+
+Who = Annotated[Viewer, Depends(viewer)]
+Posted = Annotated[Viewer, Depends(csrf_checked)]
+
+
+def page(request: Request, name: str, status_code: int = 200, **ctx) -> HTMLResponse:
+    return templates.TemplateResponse(request, name, {"poll_s": POLL_S, **ctx}, status_code=status_code)
+
+
+def back(url: str, msg: str | None = None) -> RedirectResponse:
+    from urllib.parse import quote
+
+    return RedirectResponse(url + (f"?msg={quote(msg)}" if msg else ""), status_code=303)
+
+
+def set_session_cookie(resp: Response, sid: str, request: Request) -> None:
+    resp.set_cookie(SESSION_COOKIE, sid, httponly=True, samesite="strict", path="/",
+                    secure=request.url.scheme == "https")
+
+
+def _open_session(request: Request, secret: str) -> Response:
+    sid, _ = ui_state(request).sessions.open(secret)
+    # a page that moves on by itself (a same-site navigation, so the Strict cookie is sent),
+    # rather than a redirect at the end of a possibly cross-site navigation from a terminal
+    resp = page(request, "signed_in.html")
+    set_session_cookie(resp, sid, request)
+    resp.delete_cookie(PRE_CSRF_COOKIE, path="/ui")
+    return resp
+
+
+# -- sign-in / sign-out -----------------------------------------------------------------------
+@router.get("/sign-in", response_class=HTMLResponse)
+def sign_in_form(request: Request, msg: str | None = None):
+    import secrets
+
+    token = secrets.token_urlsafe(24)
+    resp = page(request, "sign_in.html", csrf=token, msg=msg, who=None)
+    resp.set_cookie(PRE_CSRF_COOKIE, token, httponly=True, samesite="strict", path="/ui",
+                    secure=request.url.scheme == "https")
+    return resp
+
+
+@router.post("/sign-in", response_class=HTMLResponse)
+async def sign_in(request: Request, key: Annotated[str, Form(max_length=200)] = "",
+                  csrf: Annotated[str, Form(max_length=200)] = ""):
+    if not same_token(csrf, request.cookies.get(PRE_CSRF_COOKIE)):
+        return page(request, "error.html", 403, who=None, title="Refused",
+                    message="the sign-in form's CSRF token is missing or wrong: reload the sign-in page")
+    state = request.app.state
+    wait_s = state.auth_throttle.blocked(request.client.host if request.client else "unknown")
+    if wait_s > 0:
+        return page(request, "error.html", 429, who=None, title="Too many attempts",
+                    message=f"too many failed sign-ins from this address; try again in {wait_s:.0f} s")
+    rec = await run_in_threadpool(state.key_cache.lookup, state.service.factory, key.strip()) if key.strip() else None
+    if rec is None:
+        state.auth_throttle.take(request.client.host if request.client else "unknown")
+        log.warning("failed dashboard sign-in from %s", request.client.host if request.client else "unknown")
+        return back("/ui/sign-in", "unknown or revoked key")
+    return _open_session(request, key.strip())
+
+
+@router.get("/sign-in/{token}", response_class=HTMLResponse)
+async def sign_in_link(request: Request, token: str):
+    secret = ui_state(request).links.redeem(token)
+    state = request.app.state
+    rec = None
+    if secret is not None:
+        rec = await run_in_threadpool(state.key_cache.lookup, state.service.factory, secret)
+    if rec is None:
+        return page(request, "error.html", 403, who=None, title="Sign-in link refused",
+                    message="this sign-in link has already been used, has expired (links last 10 minutes) "
+                            "or its key was revoked. Sign in with a key instead.")
+    return _open_session(request, secret)
+
+
+@router.post("/sign-out")
+def sign_out(request: Request, who: Posted):
+    ui_state(request).sessions.close(who.sid)
+    resp = back("/ui/sign-in", "signed out")
+    resp.delete_cookie(SESSION_COOKIE, path="/")
+    return resp
+
+
+# -- fleet ------------------------------------------------------------------------------------
+def _fleet(request: Request):
+    svc = request.app.state.service
+    with session_scope(svc.factory) as s:
+        return views.fleet(svc, s)
+
+
+@router.get("/", response_class=HTMLResponse)
+def fleet_page(request: Request, who: Who, msg: str | None = None):
+    return page(request, "fleet.html", who=who, fleet=_fleet(request), msg=msg)
+
+
+@router.get("/fleet.frag", response_class=HTMLResponse)
+def fleet_fragment(request: Request, who: Who):
+    return page(request, "_fleet.html", who=who, fleet=_fleet(request))
+
+
+@router.post("/alerts/{alert_id}/ack")
+def acknowledge(request: Request, alert_id: int, who: Posted):
+    who.require("operate")
+    svc = request.app.state.service
+    with session_scope(svc.factory) as s:
+        a = results_repo.acknowledge_alert(s, alert_id, who.key.name)
+    return back("/ui/", f"alert {a.id} acknowledged by {who.key.name}")
+
+
+# -- axis -------------------------------------------------------------------------------------
+def _axis_ctx(request: Request, axis_id: int, range_: str) -> dict:
+    svc = request.app.state.service
+    with session_scope(svc.factory) as s:
+        axis = config_repo.get_axis(s, axis_id)
+        _, cycles = results_repo.list_measurements(s, axis_id, limit=12)
+    row = views.axis_row(svc.status.get(axis_id), svc.scheduler.next_run(axis_id), views.utcnow())
+    return {"axis": axis, "row": row, "cycles": cycles, "range": range_ if range_ in views.RANGES else "90d",
+            "ranges": list(views.RANGES)}
+
+
+@router.get("/axes/{axis_id}", response_class=HTMLResponse)
+def axis_page(request: Request, axis_id: int, who: Who, range: str = "90d", msg: str | None = None):  # noqa: A002
+    return page(request, "axis.html", who=who, msg=msg, **_axis_ctx(request, axis_id, range))
+
+
+@router.get("/axes/{axis_id}/frag", response_class=HTMLResponse)
+def axis_fragment(request: Request, axis_id: int, who: Who):
+    return page(request, "_axis_now.html", who=who, **_axis_ctx(request, axis_id, "90d"))
+
+
+@router.get("/axes/{axis_id}/plots/{name}.png")
+def axis_plot(request: Request, axis_id: int, name: str, who: Who, range: str = "90d",  # noqa: A002
+              direction: Annotated[str, Query(pattern="^(positive|negative)$")] = "positive"):
+    if name not in figures.NAMES:
+        raise NotFoundError("figure", name)
+    svc = request.app.state.service
+    with session_scope(svc.factory) as s:
+        png = figures.render(s, axis_id, name, direction=direction, since=views.since_of(range))
+    return Response(png, media_type="image/png", headers={"Cache-Control": "no-cache"})
+
+
+@router.get("/axes/{axis_id}/history.csv")
+def history_csv(request: Request, axis_id: int, who: Who, range: str = "all"):  # noqa: A002
+    svc = request.app.state.service
+    with session_scope(svc.factory) as s:
+        axis = config_repo.get_axis(s, axis_id)
+        text = views.history_csv(s, axis_id, views.since_of(range))
+    stem = "".join(c if c.isalnum() or c in "-_" else "_" for c in f"{axis.machine_name}_{axis.name}_{range}")
+    return Response(text, media_type="text/csv",
+                    headers={"Content-Disposition": f'attachment; filename="{stem}_history.csv"'})
+
+
+@router.post("/axes/{axis_id}/measure")
+def measure_now(request: Request, axis_id: int, who: Posted):
+    who.require("operate")
+    state = request.app.state
+    wait_s = state.trigger_limit.take(who.key.name)
+    if wait_s > 0:
+        return back(f"/ui/axes/{axis_id}", f"too many measurements triggered; retry in {wait_s:.0f} s")
+    state.service.trigger(axis_id, who.key.name)
+    return back(f"/ui/axes/{axis_id}", "measurement queued: it runs after any cycle of this axis already running")
+
+
+# -- gap --------------------------------------------------------------------------------------
+def _gap_future(request: Request, axis_id: int, start: bool):
+    svc = request.app.state.service
+    with session_scope(svc.factory) as s:
+        axis = config_repo.get_axis(s, axis_id)
+    folder = svc.executor.dataset_folder(axis) if svc.executor is not None else None
+    return axis, axis_job(svc.gap_jobs, axis_id, folder, GAP_RUNS, start=start)
+
+
+def _gap_ctx(request: Request, axis_id: int) -> dict:
+    try:
+        axis, fut = _gap_future(request, axis_id, start=False)
+    except NotFoundError as exc:
+        if exc.kind == "axis":
+            raise
+        with session_scope(request.app.state.service.factory) as s:
+            axis = config_repo.get_axis(s, axis_id)
+        return {"axis": axis, "gap": "no_runs", "detail": "no stored runs to diagnose yet"}
+    if fut is None:
+        return {"axis": axis, "gap": "idle"}
+    if not fut.done():
+        started = ui_state(request).gap_started.get(axis_id)
+        return {"axis": axis, "gap": "running", "elapsed_s": time.time() - started if started else None}
+    try:
+        report = fut.result()
+    except (DiagnosisCrashed, JobAbandoned, CancelledError) as exc:
+        return {"axis": axis, "gap": "failed", "detail": str(exc) or "the job was dropped; start it again"}
+    except MebmError as exc:
+        return {"axis": axis, "gap": "failed", "detail": str(exc)}
+    return {"axis": axis, "gap": "done", "report": report}
+
+
+@router.get("/axes/{axis_id}/gap", response_class=HTMLResponse)
+def gap_page(request: Request, axis_id: int, who: Who, msg: str | None = None):
+    return page(request, "gap.html", who=who, msg=msg, **_gap_ctx(request, axis_id))
+
+
+@router.get("/axes/{axis_id}/gap.frag", response_class=HTMLResponse)
+def gap_fragment(request: Request, axis_id: int, who: Who):
+    return page(request, "_gap.html", who=who, **_gap_ctx(request, axis_id))
+
+
+@router.post("/axes/{axis_id}/gap")
+def gap_start(request: Request, axis_id: int, who: Posted):
+    try:
+        _gap_future(request, axis_id, start=True)
+    except TooManyJobs as exc:
+        return back(f"/ui/axes/{axis_id}/gap", str(exc))
+    except NotFoundError as exc:
+        if exc.kind == "axis":
+            raise
+        return back(f"/ui/axes/{axis_id}/gap", "no stored runs to diagnose yet")
+    ui_state(request).gap_started.setdefault(axis_id, time.time())
+    return back(f"/ui/axes/{axis_id}/gap")

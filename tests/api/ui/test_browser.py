@@ -1,0 +1,153 @@
+"""The dashboard in a real headless chromium (issue 12's "Done means")."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+from core.gap import make_case
+from core.gap.benchmark import SMALL
+from storage.dataset import write_dataset
+from storage.db import config_repo, results_repo, session_scope
+from tests.api.ui.conftest import SCREENSHOTS, wait_for
+
+
+def sign_in(page, srv, role: str) -> None:
+    page.context.clear_cookies()
+    page.goto(srv.link(role))
+    page.wait_for_url(re.compile(r"/ui/$"))
+
+
+@pytest.fixture(scope="module")
+def page(browser):
+    p = browser.new_page()
+    yield p
+    p.close()
+
+
+@pytest.fixture(scope="module")
+def alarm(ui_server):
+    """One good measurement below the limit, then one above it: an ALARM and an active alert."""
+    ui_server.measure(200.0)
+    ui_server.measure(250.0)
+    with session_scope(ui_server.svc.factory) as s:
+        _, alerts = results_repo.list_alerts(s, "active")
+    assert len(alerts) == 1
+    return alerts[0]
+
+
+def test_one_time_link_signs_in_and_shows_the_fleet(page, ui_server, alarm):
+    link = ui_server.link("read")
+    page.context.clear_cookies()
+    page.goto(link)
+    page.wait_for_url(re.compile(r"/ui/$"))
+    row = page.locator(f"tr.axis-row[data-axis-id='{ui_server.axis_id}']")
+    assert row.locator(".state").inner_text().strip() == "ALARM"
+    assert re.search(r"\d+\.\d ± \d+\.\d µm", row.locator("td.b").inner_text())  # b̄ ± U in µm
+    assert "µm" in row.inner_text() and "vmc-850" in row.inner_text()
+    assert page.locator(".alerts tr.alert-row").count() == 1
+    # the session cookie is HttpOnly and SameSite=Strict; no key in the URL
+    (cookie,) = [c for c in page.context.cookies() if c["name"] == "mebm_session"]
+    assert cookie["httpOnly"] and cookie["sameSite"] == "Strict"
+    assert ui_server.keys["read"] not in page.url
+    # the fleet refreshes itself without a reload: the polled region is replaced
+    page.evaluate("window.__marker = 1")
+    page.wait_for_selector("#fleet[data-refreshed]", state="attached", timeout=30000)
+    assert page.evaluate("window.__marker") == 1
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=str(SCREENSHOTS / "fleet.png"))
+
+    # the same link again: refused
+    page.context.clear_cookies()
+    resp = page.goto(link)
+    assert resp.status == 403 and "already been used" in page.locator("#error-message").inner_text()
+
+
+def test_expired_link_is_refused(page, ui_server):
+    link = ui_server.link("read")
+    ui_server.clock.t += 601.0  # past the 10 minutes
+    page.context.clear_cookies()
+    resp = page.goto(link)
+    assert resp.status == 403 and "expired" in page.locator("#error-message").inner_text()
+    assert not [c for c in page.context.cookies() if c["name"] == "mebm_session"]
+
+
+def test_axis_page_renders_its_charts(page, ui_server, alarm):
+    sign_in(page, ui_server, "read")
+    page.click(f"tr.axis-row[data-axis-id='{ui_server.axis_id}'] a.axis-link")
+    page.wait_for_url(re.compile(rf"/ui/axes/{ui_server.axis_id}$"))
+    assert "restore the chain to a backlash below" in page.locator("#verdict").inner_text()
+    imgs = page.locator(".chart img")
+    assert imgs.count() == 5
+    for i in range(imgs.count()):
+        img = imgs.nth(i)
+        img.scroll_into_view_if_needed()
+        wait_for(lambda: img.evaluate("e => e.complete"), 30.0)
+        assert img.evaluate("e => e.naturalWidth") > 100, img.get_attribute("src")
+    # the figures are not the "nothing to draw" placeholder: a real plot has many colours
+    png = page.request.get(f"{ui_server.url}/ui/axes/{ui_server.axis_id}/plots/backlash_profile.png").body()
+    assert len(png) > 20000
+    assert page.locator("table.cycles tbody tr").count() == 2
+    assert page.locator("button.measure").is_disabled()  # a read key cannot move the axis
+    page.evaluate("window.scrollTo(0, 0)")
+    page.screenshot(path=str(SCREENSHOTS / "axis.png"))
+    csv = page.request.get(f"{ui_server.url}/ui/axes/{ui_server.axis_id}/history.csv?range=all")
+    lines = csv.text().strip().splitlines()
+    assert lines[0].startswith("measurement_id,measured_at_utc,backlash_mean_um,temperature_c") and len(lines) == 3
+
+
+def test_acknowledge_needs_an_operate_key(page, ui_server, alarm):
+    sign_in(page, ui_server, "read")
+    button = page.locator(f"tr.alert-row[data-alert-id='{alarm.id}'] button.ack")
+    assert button.is_disabled()
+    # the form posted anyway (CSRF token of the page, read key): refused by the server
+    status = page.evaluate(
+        """async (id) => { const csrf = document.querySelector("input[name=csrf]").value;
+           const r = await fetch(`/ui/alerts/${id}/ack`, {method: "POST", body: new URLSearchParams({csrf})});
+           return r.status; }""", alarm.id)
+    assert status == 403
+    with session_scope(ui_server.svc.factory) as s:
+        assert results_repo.list_alerts(s, "active")[1][0].acknowledged_at is None
+
+    sign_in(page, ui_server, "operate")
+    page.locator(f"tr.alert-row[data-alert-id='{alarm.id}'] button.ack").click()
+    page.wait_for_url(re.compile(r"/ui/\?msg="))
+    assert "acknowledged by ui-operate" in page.locator(".flash").inner_text()
+    assert "by ui-operate" in page.locator(f"tr.alert-row[data-alert-id='{alarm.id}'] .ack-state").inner_text()
+
+
+def test_a_form_post_without_csrf_token_is_refused(page, ui_server, alarm):
+    sign_in(page, ui_server, "operate")
+    calls = ui_server.runner.calls
+    statuses = page.evaluate(
+        """async (axis) => { const out = [];
+           for (const body of [new URLSearchParams({}), new URLSearchParams({csrf: "forged"})]) {
+             const r = await fetch(`/ui/axes/${axis}/measure`, {method: "POST", body});
+             out.push(r.status); }
+           return out; }""", ui_server.axis_id)
+    assert statuses == [403, 403]
+    assert ui_server.runner.calls == calls  # nothing was measured
+    # the sign-in form without its token is refused too
+    page.context.clear_cookies()
+    status = page.evaluate(
+        """async (key) => (await fetch("/ui/sign-in", {method: "POST", body: new URLSearchParams({key})})).status""",
+        ui_server.keys["admin"])
+    assert status == 403
+
+
+def test_gap_diagnosis_runs_in_the_background_and_arrives(page, ui_server):
+    with session_scope(ui_server.svc.factory) as s:
+        axis = config_repo.get_axis(s, ui_server.axis_id)
+    case = make_case("cyclic_error", np.random.default_rng(11), SMALL)
+    write_dataset(ui_server.svc.executor.dataset_folder(axis), case.dataset)
+    sign_in(page, ui_server, "read")
+    page.goto(f"{ui_server.url}/ui/axes/{ui_server.axis_id}/gap")
+    page.click("#gap-start")
+    # the start returns at once; the page polls until the report arrives
+    page.wait_for_selector("#gap-running, #gap-result", timeout=30000)
+    page.wait_for_selector("#gap-result", timeout=240000)
+    assert page.locator("#gap-result").inner_text() == f"Diagnosis: {case.label}"
+    assert page.locator("table.candidates tbody tr").count() >= 2
+    assert "µm" in page.locator(".gap-state").inner_text()
