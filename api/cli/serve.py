@@ -4,6 +4,7 @@ controller is ``sim``, as in the embedded demo) the built-in simulated controlle
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import socket
 import sys
@@ -43,8 +44,26 @@ def _bind(host: str, port: int) -> socket.socket:
     return sock
 
 
-def banner(settings, report, url: str) -> str:
+def demo_read_key(settings, report) -> str | None:
+    """The demo read key: created by this start, else the one kept in demo-keys.json."""
+    if report.demo_keys.get("read"):
+        return report.demo_keys["read"]
+    from api.service.service import DEMO_KEYS_FILE
+
+    path = Path(settings.data_dir) / DEMO_KEYS_FILE
+    try:
+        kept = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {}
+    except (OSError, ValueError):
+        return None
+    key = kept.get("read") if isinstance(kept, dict) else None
+    return key if isinstance(key, str) else None
+
+
+def banner(settings, report, url: str, sign_in_url: str | None = None) -> str:
     lines = [f"mebm service on {url}  (API {url}/api/v1, OpenAPI docs {url}/docs)",
+             f"dashboard: {url}/ui/"
+             + (f"  (one-time sign-in link for the demo read key, valid 10 min: {sign_in_url})" if sign_in_url
+                else "  (sign in with an access key)"),
              f"database: {report.database}"]
     if report.replayed:
         lines.append(f"stored {report.replayed} cycle(s) kept on disk during a database outage")
@@ -99,8 +118,11 @@ def _serve(a: argparse.Namespace) -> int:
         report = service.start()
         host = settings.host if settings.host not in ("0.0.0.0", "::") else "127.0.0.1"
         url = f"http://{host}:{port}"
-        print(banner(settings, report, url), flush=True)
         app = create_app(settings, service=service)
+        read_key = demo_read_key(settings, report) if settings.demo_keys else None
+        # the link carries a one-time token, never the key; the dashboard keeps the token in memory
+        link = f"{url}/ui/sign-in/{app.state.ui.links.issue(read_key)}" if read_key else None
+        print(banner(settings, report, url, link), flush=True)
         config = uvicorn.Config(app, log_level=settings.log_level, access_log=False, timeout_graceful_shutdown=10)
         server = uvicorn.Server(config)
         server.run(sockets=[sock])
