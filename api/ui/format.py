@@ -35,3 +35,13 @@ def when(t: datetime | None) -> str:
 
 def state_class(state: str | None) -> str:
     return {"OK": "ok", "WARNING": "warn", "ALARM": "alarm"}.get(state or "", "unknown")
+
+
+def due(t: datetime | None, now: datetime) -> str:
+    """A scheduled time as "in 12 min" (the absolute time goes in a tooltip)."""
+    if t is None:
+        return "not scheduled"
+    s = (t - now).total_seconds()
+    if s <= 0:
+        return "due now"
+    return "in " + age(s).removesuffix(" ago")

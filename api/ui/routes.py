@@ -6,7 +6,7 @@ import logging
 import time
 from concurrent.futures import CancelledError
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, Form, Query, Request
 from fastapi.concurrency import run_in_threadpool
@@ -25,6 +25,7 @@ log = logging.getLogger("mebm.ui")
 HERE = Path(__file__).parent
 templates = Jinja2Templates(directory=str(HERE / "templates"))
 templates.env.filters.update(um=fmt.um, age=fmt.age, when=fmt.when, pct=fmt.pct)
+templates.env.globals.update(due=fmt.due)
 templates.env.globals.update(state_class=fmt.state_class)
 router = APIRouter(prefix="/ui", include_in_schema=False)
 GAP_RUNS = 16
@@ -198,8 +199,9 @@ def _axis_ctx(request: Request, axis_id: int, range_: str) -> dict:
     with session_scope(svc.factory) as s:
         axis = config_repo.get_axis(s, axis_id)
         _, cycles = results_repo.list_measurements(s, axis_id, limit=12)
-    row = views.axis_row(svc.status.get(axis_id), svc.scheduler.next_run(axis_id), views.utcnow())
-    return {"axis": axis, "row": row, "cycles": cycles, "range": range_ if range_ in views.RANGES else "90d",
+    now = views.utcnow()
+    row = views.axis_row(svc.status.get(axis_id), svc.scheduler.next_run(axis_id), now)
+    return {"axis": axis, "row": row, "now": now, "cycles": cycles, "range": range_ if range_ in views.RANGES else "90d",
             "ranges": list(views.RANGES)}
 
 
@@ -208,9 +210,9 @@ def axis_page(request: Request, axis_id: int, who: Who, range: str = "90d", msg:
     return page(request, "axis.html", who=who, msg=msg, **_axis_ctx(request, axis_id, range))
 
 
-@router.get("/axes/{axis_id}/frag", response_class=HTMLResponse)
-def axis_fragment(request: Request, axis_id: int, who: Who):
-    return page(request, "_axis_now.html", who=who, **_axis_ctx(request, axis_id, "90d"))
+@router.get("/axes/{axis_id}/part/{part}.frag", response_class=HTMLResponse)
+def axis_fragment(request: Request, axis_id: int, part: Literal["verdict", "cycles"], who: Who):
+    return page(request, f"_axis_{part}.html", who=who, **_axis_ctx(request, axis_id, "90d"))
 
 
 @router.get("/axes/{axis_id}/plots/{name}.png")

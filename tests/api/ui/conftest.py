@@ -70,10 +70,24 @@ class UiServer:
                 self.keys[role] = config_repo.create_key(s, f"ui-{role}", role)[1]
             self.axis_id = config_repo.list_axes(s)[0].id
 
-    def measure(self, backlash_um: float) -> None:
+    def measure(self, backlash_um: float, axis_id: int | None = None) -> None:
         self.runner.backlash_um = backlash_um
-        self.svc.trigger(self.axis_id, "test")
+        self.svc.trigger(axis_id or self.axis_id, "test")
         assert self.svc.scheduler.idle(60)
+
+    def add_axis(self, machine: str, name: str) -> int:
+        """Another axis (a second machine of the fleet), configured as the first."""
+        from dataclasses import replace
+
+        from tests.storage.db import factories as f
+
+        with session_scope(self.svc.factory) as s:
+            m = config_repo.find_machine(s, machine) or config_repo.create_machine(s, machine, "")
+            a = config_repo.create_axis(s, m.id, f.settings(spec=replace(f.AXIS, name=name),
+                                                            controller_url="modbus://127.0.0.1:1"))
+            s.commit()
+        self.svc.axis_changed(a)
+        return a.id
 
     def link(self, role: str = "read") -> str:
         return f"{self.url}/ui/sign-in/{self.app.state.ui.links.issue(self.keys[role])}"

@@ -29,9 +29,13 @@ def page(browser):
 
 @pytest.fixture(scope="module")
 def alarm(ui_server):
-    """One good measurement below the limit, then one above it: an ALARM and an active alert."""
+    """One good measurement below the limit, then one above it: an ALARM and an active alert;
+    two more axes of another machine, one OK, one WARNING, one never measured."""
     ui_server.measure(200.0)
     ui_server.measure(250.0)
+    ui_server.measure(150.0, ui_server.add_axis("hmc-630", "x"))
+    ui_server.measure(228.0, ui_server.add_axis("hmc-630", "z"))
+    ui_server.add_axis("hmc-630", "b")
     with session_scope(ui_server.svc.factory) as s:
         _, alerts = results_repo.list_alerts(s, "active")
     assert len(alerts) == 1
@@ -48,6 +52,9 @@ def test_one_time_link_signs_in_and_shows_the_fleet(page, ui_server, alarm):
     assert re.search(r"\d+\.\d ± \d+\.\d µm", row.locator("td.b").inner_text())  # b̄ ± U in µm
     assert "µm" in row.inner_text() and "vmc-850" in row.inner_text()
     assert page.locator(".alerts tr.alert-row").count() == 1
+    # sorted by urgency: ALARM, WARNING, no verdict yet, OK
+    states = [e.get_attribute("data-state") for e in page.locator("tr.axis-row").all()]
+    assert states == ["ALARM", "WARNING", "UNKNOWN", "OK"]
     # the session cookie is HttpOnly and SameSite=Strict; no key in the URL
     (cookie,) = [c for c in page.context.cookies() if c["name"] == "mebm_session"]
     assert cookie["httpOnly"] and cookie["sameSite"] == "Strict"
@@ -91,6 +98,10 @@ def test_axis_page_renders_its_charts(page, ui_server, alarm):
     assert len(png) > 20000
     assert page.locator("table.cycles tbody tr").count() == 2
     assert page.locator("button.measure").is_disabled()  # a read key cannot move the axis
+    # both polled regions refresh from their fragments
+    page.wait_for_selector("#axis-now[data-refreshed]", state="attached", timeout=30000)
+    page.wait_for_selector("#axis-cycles[data-refreshed]", state="attached", timeout=30000)
+    assert "restore the chain" in page.locator("#verdict").inner_text()
     page.evaluate("window.scrollTo(0, 0)")
     page.screenshot(path=str(SCREENSHOTS / "axis.png"))
     csv = page.request.get(f"{ui_server.url}/ui/axes/{ui_server.axis_id}/history.csv?range=all")
