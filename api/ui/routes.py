@@ -19,7 +19,7 @@ from api.ui import format as fmt
 from api.ui import views
 from api.ui.sessions import PRE_CSRF_COOKIE, ROLE_RANK, SESSION_COOKIE, Session, UiState, same_token
 from core.errors import MebmError
-from storage.db import KeyRecord, NotFoundError, config_repo, results_repo, session_scope
+from storage.db import ConflictError, KeyRecord, NotFoundError, config_repo, results_repo, session_scope
 
 log = logging.getLogger("mebm.ui")
 HERE = Path(__file__).parent
@@ -302,3 +302,55 @@ def gap_start(request: Request, axis_id: int, who: Posted):
         return back(f"/ui/axes/{axis_id}/gap", "no stored runs to diagnose yet")
     ui_state(request).gap_started.setdefault(axis_id, time.time())
     return back(f"/ui/axes/{axis_id}/gap")
+
+
+# -- keys (admin) -----------------------------------------------------------------------------
+def _keys_page(request: Request, who: Viewer, *, created: tuple | None = None, error: str | None = None,
+               msg: str | None = None, status_code: int = 200, name: str = "", role: str = "read") -> HTMLResponse:
+    svc = request.app.state.service
+    with session_scope(svc.factory) as s:
+        keys = config_repo.list_keys(s)
+    return page(request, "keys.html", status_code, who=who, keys=keys, created=created, error=error, msg=msg,
+                form_name=name, form_role=role)
+
+
+@router.get("/keys", response_class=HTMLResponse)
+def keys_page(request: Request, who: Who, msg: str | None = None):
+    who.require("admin")
+    return _keys_page(request, who, msg=msg)
+
+
+@router.post("/keys", response_class=HTMLResponse)
+async def create_key(request: Request, who: Posted):
+    who.require("admin")
+    form = await request.form()
+    name, role = str(form.get("name", "")).strip(), str(form.get("role", ""))
+    error = None
+    if not 1 <= len(name) <= 100:
+        error = "name: 1 to 100 characters, not blank"
+    elif role not in ROLE_RANK:
+        error = "role: one of read, operate, admin"
+    if error:
+        return _keys_page(request, who, error=error, status_code=422, name=name, role=role)
+    svc = request.app.state.service
+    try:
+        with session_scope(svc.factory) as s:
+            rec, secret = config_repo.create_key(s, name, role)
+    except ConflictError as exc:
+        return _keys_page(request, who, error=f"name: {exc}", status_code=409, name=name, role=role)
+    # the secret is shown in this response only (never stored, never in a URL)
+    resp = _keys_page(request, who, created=(rec, secret))
+    resp.headers["Cache-Control"] = "no-store"
+    return resp
+
+
+@router.post("/keys/{key_id}/revoke")
+def revoke_key(request: Request, key_id: int, who: Posted):
+    who.require("admin")
+    if key_id == who.key.id:
+        return back("/ui/keys", "a key cannot revoke itself: sign in with another admin key")
+    svc = request.app.state.service
+    with session_scope(svc.factory) as s:
+        rec = config_repo.revoke_key(s, key_id)
+    request.app.state.key_cache.clear()  # its sessions end at their next request
+    return back("/ui/keys", f"key {rec.name!r} revoked")

@@ -162,3 +162,33 @@ def test_gap_diagnosis_runs_in_the_background_and_arrives(page, ui_server):
     assert page.locator("#gap-result").inner_text() == f"Diagnosis: {case.label}"
     assert page.locator("table.candidates tbody tr").count() >= 2
     assert "µm" in page.locator(".gap-state").inner_text()
+
+
+def test_admin_creates_a_key_that_signs_in_by_form_then_revokes_it(page, ui_server):
+    sign_in(page, ui_server, "admin")
+    page.click("nav >> text=Keys")
+    page.fill("#name", "shop-tablet")
+    page.select_option("#role", "read")
+    page.click("form[action='/ui/keys'] button[type=submit]")
+    secret = page.locator("#created-key pre").inner_text().strip()
+    assert secret.startswith("mebm_") and secret not in page.url
+    page.fill("#name", "shop-tablet")  # the same name again: the message is next to the field
+    page.click("form[action='/ui/keys'] button[type=submit]")
+    assert "exists already" in page.locator("#key-error").inner_text()
+
+    page.click("button:has-text('Sign out')")
+    page.wait_for_url(re.compile(r"/ui/sign-in"))
+    page.fill("#key", secret)
+    page.click("form[action='/ui/sign-in'] button[type=submit]")
+    page.wait_for_url(re.compile(r"/ui/$"))
+    assert "shop-tablet · read" in page.locator("nav .who").inner_text()
+    assert page.goto(f"{ui_server.url}/ui/keys").status == 403  # a read key is no admin
+
+    sign_in(page, ui_server, "admin")
+    page.goto(f"{ui_server.url}/ui/keys")
+    with session_scope(ui_server.svc.factory) as s:
+        key_id = next(k.id for k in config_repo.list_keys(s) if k.name == "shop-tablet")
+    page.click(f"tr[data-key-id='{key_id}'] button:has-text('Revoke')")
+    assert "'shop-tablet' revoked" in page.locator(".flash").inner_text()
+    with session_scope(ui_server.svc.factory) as s:
+        assert config_repo.authenticate(s, secret) is None
