@@ -7,8 +7,9 @@ Seeds SQLite in a temporary folder (bench_api's synthetic round trip, shifted pe
 with a seasonal temperature), builds the app in this process (scheduler off) and times
 each GET through Starlette's TestClient after signing in with a one-time link: server
 side only (routing, session, queries, templates, PNG encoding), no network, no browser.
-"Warm" is with the status cache filled (a page polled every few seconds); "cold" drops
-the status cache before every call (the first view after a measurement).
+"Warm" is with the status cache (and, for figures, the figure cache) filled: a page
+polled every few seconds, a figure viewed again; "cold" drops both before every call
+(the first view after a measurement).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from fastapi.testclient import TestClient  # noqa: E402
 
 from api.rest import create_app  # noqa: E402
 from api.service.config import Settings, demo_axis  # noqa: E402
+from api.ui.sessions import FigureCache  # noqa: E402
 from core.criteria import BacklashProfile  # noqa: E402
 from core.tbe import decide  # noqa: E402
 from storage.db import (  # noqa: E402
@@ -116,10 +118,14 @@ def main() -> int:
             figures = [(f"figure {n}", f"/ui/axes/{ax}/plots/{n}.png?range=1y") for n in
                        ("backlash_profile", "lead_deviation", "tbe_vs_backlash", "backlash_trend", "tbe_history")]
             figures.append(("history CSV (all)", f"/ui/axes/{ax}/history.csv?range=all"))
-            print(f"median of {a.repeats}, server side, ms        warm    cold (status cache dropped)")
+            print(f"median of {a.repeats}, server side, ms        warm    cold (caches dropped)")
+            def cold_start():  # no cached status, no cached figure
+                svc.status.invalidate()
+                app.state.ui.figures = FigureCache()
+
             for label, path in pages + figures:
                 warm, code = median_ms(client, path, a.repeats)
-                cold, _ = median_ms(client, path, a.repeats, before=svc.status.invalidate)
+                cold, _ = median_ms(client, path, a.repeats, before=cold_start)
                 flag = "" if code == 200 else f"  (HTTP {code})"
                 print(f"  {label:<36} {warm:7.1f} {cold:7.1f}{flag}")
     return 0

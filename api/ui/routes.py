@@ -221,8 +221,16 @@ def axis_plot(request: Request, axis_id: int, name: str, who: Who, range: str = 
     if name not in figures.NAMES:
         raise NotFoundError("figure", name)
     svc = request.app.state.service
-    with session_scope(svc.factory) as s:
-        png = figures.render(s, axis_id, name, direction=direction, since=views.since_of(range))
+    # a figure changes with a new measurement (the status cache knows the newest one, and is
+    # invalidated when a cycle is saved) and, for the history ranges, with the hour
+    st = svc.status.get(axis_id)
+    now = views.utcnow()
+    key = (axis_id, name, range, direction, st.latest.cycle_id if st.latest else None, now.strftime("%Y%m%d%H"))
+    png = ui_state(request).figures.get(key)
+    if png is None:
+        with session_scope(svc.factory) as s:
+            png = figures.render(s, axis_id, name, direction=direction, since=views.since_of(range, now))
+        ui_state(request).figures.put(key, png)
     return Response(png, media_type="image/png", headers={"Cache-Control": "no-cache"})
 
 
