@@ -14,6 +14,7 @@ from fastapi.staticfiles import StaticFiles
 
 from api.ui.routes import HERE, SignInRequired, UiForbidden, page, router
 from api.ui.sessions import UiState
+from storage.db import NotFoundError
 
 __all__ = ["install", "UiState"]
 
@@ -39,5 +40,14 @@ def install(app: FastAPI, state: UiState | None = None) -> UiState:
     @app.exception_handler(UiForbidden)
     async def forbidden(request: Request, exc: UiForbidden):
         return page(request, "error.html", 403, who=None, title="Refused", message=exc.message)
+
+    # an unknown axis, alert or key: an HTML page under /ui, the API's own answer elsewhere
+    api_not_found = app.exception_handlers.get(NotFoundError)
+
+    @app.exception_handler(NotFoundError)
+    async def not_found(request: Request, exc: NotFoundError):
+        if request.url.path.startswith("/ui/") or api_not_found is None:
+            return page(request, "error.html", 404, who=None, title="Not found", message=str(exc))
+        return await api_not_found(request, exc)
 
     return app.state.ui

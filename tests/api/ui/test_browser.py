@@ -192,3 +192,11 @@ def test_admin_creates_a_key_that_signs_in_by_form_then_revokes_it(page, ui_serv
     assert "'shop-tablet' revoked" in page.locator(".flash").inner_text()
     with session_scope(ui_server.svc.factory) as s:
         assert config_repo.authenticate(s, secret) is None
+
+
+def test_unknown_axis_is_a_404_page_and_the_api_keeps_its_json(page, ui_server):
+    sign_in(page, ui_server, "read")
+    resp = page.goto(f"{ui_server.url}/ui/axes/9999")
+    assert resp.status == 404 and "no axis with id 9999" in page.locator("#error-message").inner_text()
+    api = page.request.get(f"{ui_server.url}/api/v1/axes/9999", headers={"X-API-Key": ui_server.keys["read"]})
+    assert api.status == 404 and api.json()["detail"] == "no axis with id 9999"
