@@ -35,7 +35,7 @@ def axis(a: AxisRecord, next_run: datetime | None = None) -> sc.AxisOut:
         position_gain_per_s=st.spec.position_gain_per_s, travel_mm=st.spec.travel_mm,
         controller_url=st.controller_url, measure_feed_mm_min=st.measure_feed_mm_min,
         measure_acceleration_mm_s2=st.measure_acceleration_mm_s2, warning_fraction=st.warning_fraction,
-        decision_rule=st.decision_rule, schedule=sc.ScheduleOut(interval_s=st.schedule.interval_s, cron=st.schedule.cron,
+        decision_rule=st.decision_rule, worst_case_temperature_c=st.worst_case_temperature_c, schedule=sc.ScheduleOut(interval_s=st.schedule.interval_s, cron=st.schedule.cron,
                                 enabled=st.schedule.enabled, next_run_at=next_run),
         tasks=[task(t) for t in st.tasks],
     )

@@ -123,6 +123,8 @@ class AxisIn(In):
     warning_fraction: float = Field(0.9, ge=0.01, le=1)
     decision_rule: Literal["simple", "guarded"] = Field(
         "guarded", description="ISO 14253-1: 'guarded' needs TBE ± U clear of a threshold to call it")
+    worst_case_temperature_c: float = Field(
+        30.0, ge=-50, le=100, description="the shop temperature the prognosis' date is computed for")
     schedule: ScheduleIn = Field(default_factory=ScheduleIn)
     tasks: list[TaskIn] = Field(default_factory=list, max_length=50)
 
@@ -153,6 +155,7 @@ class AxisOut(BaseModel):
     measure_acceleration_mm_s2: float
     warning_fraction: float
     decision_rule: str = "guarded"
+    worst_case_temperature_c: float = 30.0
     schedule: ScheduleOut
     tasks: list[TaskOut]
 

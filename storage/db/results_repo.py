@@ -17,6 +17,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, selectinload
 
 from core.criteria import BacklashProfile, LeadCriteria, RoundTripResult
+from core.criteria.lost_motion import ClearanceEstimate, LostMotion
 from core.criteria.uncertainty import UncertaintyBudget, UncertaintyComponent
 from core.errors import InputError
 from core.tbe import MachiningTask, State
@@ -202,6 +203,9 @@ def _insert_result(s: Session, c: Cycle, fc: FinishedCycle) -> Result:
         outliers_removed=rt.outliers_removed, grid_step_mm=_fin(rt.grid_step_mm), noise_um=_fin(rt.noise_um),
         uncertainty_budget=json.dumps({k: b.to_dict() for k, b in rt.budgets.items()}) if rt.budgets else None,
         decision_rule=d.rule if d else None,
+        reversal_mean_um=_fin(rt.lost_motion.mean_um) if rt.lost_motion else None,
+        reversal_max_um=_fin(rt.lost_motion.max_abs_um) if rt.lost_motion else None,
+        lost_motion=json.dumps(rt.lost_motion.to_dict()) if rt.lost_motion else None,
     )
     s.add(r)
     s.flush()
@@ -299,8 +303,21 @@ def _round_trip(r: Result, lead: list[LeadCriteriaRow], curves: list[Curve] | No
         strokes=strokes, n_samples=r.n_samples, peak_speed_mm_min=r.peak_speed_mm_min,
         grid_step_mm=r.grid_step_mm if r.grid_step_mm is not None else 0.25,
         outliers_removed=r.outliers_removed or 0, noise_um=r.noise_um or 0.0,
-        budgets=_budgets(r.uncertainty_budget),
+        budgets=_budgets(r.uncertainty_budget), lost_motion=_lost_motion(r.lost_motion),
     )
+
+
+def _lost_motion(text: str | None) -> LostMotion | None:
+    if not text:
+        return None
+    d = json.loads(text)
+    c = d.get("clearance") or {}
+    clear = ClearanceEstimate(
+        c.get("clearance_um"), c.get("clearance_uncertainty_um"), c.get("slope_um_per_m_min"),
+        tuple(c.get("feeds_mm_min", ())), tuple(c.get("lost_motion_um", ())), c.get("source", "program"),
+        c.get("reason", ""))
+    return LostMotion(np.asarray(d["reversal_target_mm"], float), np.asarray(d["reversal_um"], float),
+                      float(d["reversal_mean_um"]), float(d["reversal_max_um"]), clear)
 
 
 def _budgets(text: str | None) -> dict[str, UncertaintyBudget]:
