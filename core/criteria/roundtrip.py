@@ -135,6 +135,8 @@ class RoundTripResult:
                 for name in self.strokes:
                     out["strokes"][name][f"{key}_uncertainty_um"] = self.criterion_uncertainty_um(name, key)
             out["uncertainty_budget"] = {k: b.to_dict() for k, b in self.budgets.items()}
+            if "backlash_mean_20c" in self.budgets:
+                out["backlash_mean_20c_uncertainty_um"] = self.budgets["backlash_mean_20c"].expanded_um
         if self.lost_motion is not None:
             lm = self.lost_motion
             out["reversal_mean_um"] = lm.mean_um
@@ -484,3 +486,26 @@ def _budgets(inputs: UncertaintyInputs, *, table, nominal, stride, noise_mm, spa
                                      f"~{n_ind:.0f} independent points"),
             ))
     return out
+
+
+def with_history_uncertainty(result: RoundTripResult, components: dict[str, tuple[float, str]]) -> RoundTripResult:
+    """``result`` with the history's components (``core.history.history_uncertainty``):
+    ``repeatability`` joins b̄'s budget (it changes the decision's U); ``normalisation``
+    makes a budget of its own, ``backlash_mean_20c`` (b̄'s plus the normalisation), as it
+    concerns b̄ referred to 20 °C, not b̄ at the measured temperature the TBE uses."""
+    if not result.budgets or not components:
+        return result
+    from dataclasses import replace
+
+    budgets = dict(result.budgets)
+    if "repeatability" in components and all(c.name != "repeatability" for c in budgets["backlash_mean"].components):
+        u, note = components["repeatability"]
+        budgets["backlash_mean"] = budgets["backlash_mean"].with_components(
+            UncertaintyComponent("repeatability", float(u), note))
+    if "normalisation" in components:
+        u, note = components["normalisation"]
+        base = budgets["backlash_mean"]
+        budgets["backlash_mean_20c"] = UncertaintyBudget(
+            "backlash_mean_20c", base.components + (UncertaintyComponent("normalisation", float(u), note),),
+            base.coverage_factor)
+    return replace(result, budgets=budgets)
