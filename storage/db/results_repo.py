@@ -410,6 +410,47 @@ def backlash_history(s: Session, axis_id: int) -> MomentSums:
     return trend(s, axis_id, max_points=4).stats["temperature_c"]["backlash_mean_um"]
 
 
+def recent_at_temperature(s: Session, axis_id: int, temperature_c: float, *, window_k: float = 1.0,
+                          limit: int = 20, before: datetime | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(temperature_c, backlash_mean_um) of the newest ``limit`` ok measurements within
+    ±``window_k`` of ``temperature_c`` (and before ``before``): for the repeatability."""
+    q = (select(Result.temperature_c, Result.backlash_mean_um)
+         .where(Result.axis_id == axis_id, Result.temperature_c.between(temperature_c - window_k,
+                                                                         temperature_c + window_k)))
+    if before is not None:
+        q = q.where(Result.measured_at < before)
+    rows = s.execute(q.order_by(Result.measured_at.desc(), Result.id.desc()).limit(limit)).all()
+    return (np.array([r[0] for r in rows], dtype=float), np.array([r[1] for r in rows], dtype=float))
+
+
+def history_rows(s: Session, axis_id: int, *, max_rows: int = 3000) -> dict[str, np.ndarray]:
+    """Arrays of the ok measurements with a temperature, oldest first, for a robust fit
+    (the prognosis): measured_at_s (epoch), temperature_c, utility_day, backlash_mean_um,
+    feed_mm_min. At most ``max_rows``: past that, every k-th row (a regular thinning keeps
+    the spread of temperatures and days the fit needs), always with the newest."""
+    where = (Result.axis_id == axis_id, Result.temperature_c.is_not(None))
+    n = int(s.scalar(select(func.count()).select_from(Result).where(*where)) or 0)
+    cols = (Result.measured_at, Result.temperature_c, Result.utility_day, Result.backlash_mean_um,
+            Result.peak_speed_mm_min)
+    if n > max_rows:
+        k = -(-n // max_rows)
+        rn = func.row_number().over(order_by=(Result.measured_at.desc(), Result.id.desc())).label("rn")
+        sub = select(*cols, rn).where(*where).subquery()
+        q = (select(sub.c.measured_at, sub.c.temperature_c, sub.c.utility_day, sub.c.backlash_mean_um,
+                    sub.c.peak_speed_mm_min).where((sub.c.rn - 1) % k == 0).order_by(sub.c.measured_at))
+    else:
+        q = select(*cols).where(*where).order_by(Result.measured_at, Result.id)
+    rows = s.execute(q).all()
+    return {
+        "measured_at_s": np.array([as_utc(r[0]).timestamp() for r in rows], dtype=float),
+        "temperature_c": np.array([r[1] for r in rows], dtype=float),
+        "utility_day": np.array([np.nan if r[2] is None else r[2] for r in rows], dtype=float),
+        "backlash_mean_um": np.array([r[3] for r in rows], dtype=float),
+        "feed_mm_min": np.array([r[4] for r in rows], dtype=float),
+        "total": np.array(n),
+    }
+
+
 def tbe_history(s: Session, axis_id: int, *, since: datetime | None = None,
                 max_points: int | None = None) -> list[tuple[datetime, str, float, float]]:
     """(measured_at, task_name, tbe_um, tolerance_um) of the ok measurements, oldest first:
