@@ -38,16 +38,18 @@ _memo: dict[int, tuple[tuple, HistoryAnswers]] = {}
 _lock = threading.Lock()
 
 
-def _key(axis: AxisRecord, latest: ResultRecord | None) -> tuple:
+def _key(axis: AxisRecord, latest: ResultRecord | None, history_n: int) -> tuple:
     st = axis.settings
-    return (latest.id if latest else None, st.tasks, st.decision_rule, st.warning_fraction,
+    return (latest.id if latest else None, history_n, st.tasks, st.decision_rule, st.warning_fraction,
             st.worst_case_temperature_c,
             latest.round_trip.backlash_mean_uncertainty_um if latest and latest.round_trip.budgets else 0.0)
 
 
-def history_answers(s, axis: AxisRecord, latest: ResultRecord | None) -> HistoryAnswers:
-    """The prognosis and the history's clearance estimate of ``axis`` (memoised)."""
-    key = _key(axis, latest)
+def history_answers(s, axis: AxisRecord, latest: ResultRecord | None, history_n: int) -> HistoryAnswers:
+    """The prognosis and the history's clearance estimate of ``axis``, memoised on the
+    newest result and ``history_n`` (how many results with a temperature the rollups
+    count: a deletion by the retention policy or an import changes it)."""
+    key = _key(axis, latest, history_n)
     with _lock:
         hit = _memo.get(axis.id)
     if hit is not None and hit[0] == key:

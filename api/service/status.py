@@ -62,7 +62,7 @@ def compute_status(s, axis_id: int) -> AxisStatus:
                 pass
     history = history_error = None
     try:
-        history = history_answers(s, axis, latest)
+        history = history_answers(s, axis, latest, sums.n if latest is not None else 0)
     except MebmError as exc:  # the status stands without its prognosis
         history_error = str(exc)
     _, alerts = results_repo.list_alerts(s, "active", axis_id=axis_id, limit=1)
