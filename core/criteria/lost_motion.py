@@ -138,8 +138,10 @@ def clearance_from_feeds(feed_mm_min, lost_motion_um, uncertainty_um=None, *, so
         return none("the feeds and temperatures are collinear: the fit is not identifiable")
     if u is None:
         dof = f.size - p
-        s2 = float(resid @ resid / dof) if dof > 0 else 0.0
-        cov = cov0 * s2
+        if dof <= 0:  # a line through two points: no scatter to take an uncertainty from
+            return ClearanceEstimate(float(coef[0]), None, float(coef[1]), feeds, lost, source,
+                                     COULOMB_NOTE + "; exact through two points, no uncertainty")
+        cov = cov0 * float(resid @ resid / dof)
     else:
         cov = cov0
     u0 = math.sqrt(max(float(cov[0, 0]), 0.0))
