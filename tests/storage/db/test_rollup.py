@@ -166,3 +166,17 @@ def test_the_migration_builds_rollups_for_results_stored_before_it(backend, tmp_
     if handle is not None:
         handle.drop()
     assert n == 300 and v.points_total == 300
+
+
+def test_history_rows_are_bounded_by_a_regular_thinning_that_keeps_the_newest(loaded):
+    # issue 16 item 6: the robust prognosis fit needs rows, not sums; a long history is thinned
+    factory, axis_id, (i, temp, b), _ = loaded
+    with session_scope(factory) as s:
+        rows = results_repo.history_rows(s, axis_id, max_rows=1000)
+        every = results_repo.history_rows(s, axis_id, max_rows=10_000)
+    n_temp = int(np.isfinite(temp).sum())
+    assert int(rows["total"]) == n_temp and every["backlash_mean_um"].size == n_temp
+    assert 500 < rows["backlash_mean_um"].size <= 1000  # every ceil(n / 1000)-th row
+    assert rows["measured_at_s"][-1] == every["measured_at_s"][-1]  # the newest is kept
+    assert np.all(np.diff(rows["measured_at_s"]) > 0)
+    assert np.ptp(rows["temperature_c"]) > 0.9 * np.ptp(every["temperature_c"])
