@@ -28,7 +28,7 @@ import numpy as np
 from scipy import stats
 from scipy.optimize import least_squares
 
-from core.errors import InputError, MebmError
+from core.errors import InputError, MebmError, ModelDomainError
 from core.tbe.decision import MachiningTask, State, decide
 
 REFERENCE_TEMPERATURE_C = 20.0
@@ -266,6 +266,14 @@ class Prognosis:
         }
 
 
+def _limit_um(task: MachiningTask) -> float:
+    """The task's backlash limit; 0 when even no backlash meets its tolerance."""
+    try:
+        return task.backlash_limit_um()
+    except ModelDomainError:
+        return 0.0
+
+
 def _days_per_second(day, time_s) -> float:
     """Utility days per calendar second, from the history (a shop working 5 of 7 days
     ages its axes by 5/7 of a day per day); one per day without a usable history."""
@@ -287,8 +295,13 @@ def _alarm_temperature(fit: ThermalWearFit, tasks, day_now: float, u_b: float, w
 
     def alarm(temp: float) -> bool:
         b = float(fit.predict_um(temp, day_now)[0])
-        return decide(max(b, 0.0), tasks, warning_fraction=warning_fraction, backlash_uncertainty_um=u_b,
-                      rule=rule).state is State.ALARM
+        try:
+            return decide(max(b, 0.0), tasks, warning_fraction=warning_fraction, backlash_uncertainty_um=u_b,
+                          rule=rule).state is State.ALARM
+        except ModelDomainError:
+            # past Eq. 8's domain (ωT > π/2): beyond every circle's backlash limit, which
+            # lies inside the domain, so the tolerance is lost there
+            return True
 
     lo, hi = -20.0, 80.0
     if beta <= 0:
@@ -320,7 +333,7 @@ def prognosis(fit: ThermalWearFit, tasks: Sequence[MachiningTask], *, worst_case
                 days_per_second=float(days_per_second))
     limit = binding = None
     if tasks:
-        limits = [(t.backlash_limit_um(), t.name) for t in tasks]
+        limits = [(_limit_um(t), t.name) for t in tasks]
         limit, binding = min(limits)
         if not math.isfinite(limit):
             limit = None

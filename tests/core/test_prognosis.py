@@ -94,3 +94,14 @@ def test_not_within_the_horizon():
         prognosis(fit, [TASK], worst_case_temperature_c=math.nan, now_s=0.0)
     with pytest.raises(InputError):
         PrognosisSettings(confidence=1.5)
+
+
+def test_a_warm_shop_past_eq_8s_domain_counts_as_alarm():
+    # a small fast circle: b̄ at 80 °C lies beyond Eq. 8's validity; the bisection must not fail there
+    small = MachiningTask(name="r5", profile="circle", radius_mm=5.0, feed_mm_min=2226.5, gain_per_s=5.0,
+                          tolerance_um=10.0)  # backlash limit 10.2 µm
+    t, d, b = _history(8, outliers=0)
+    fit = fit_thermal_wear(t, d, b - 15.0)  # b̄20 = 5 µm, β = 0.5 µm/K
+    p = prognosis(fit, [small], worst_case_temperature_c=30.0, now_s=0.0, day_now=0.0, rule="simple")
+    truth_t = 20.0 + (small.backlash_limit_um() - 5.0) / BETA
+    assert p.alarm_temperature_c == pytest.approx(truth_t, abs=0.5)
