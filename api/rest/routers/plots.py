@@ -11,6 +11,7 @@ import numpy as np
 from fastapi import APIRouter, Query, Response
 
 from api.rest import plots
+from api.rest.plot_prognosis import prognosis as prognosis_plot
 from api.rest.auth import ReadKey
 from api.rest.deps import AxisId, ServiceDep, SessionDep
 from api.rest.routers.axes import Since, utc
@@ -147,4 +148,4 @@ def _prognosis_png(st, title: str) -> bytes:
                    is not None else p.alarm_temperature_reason))
     else:
         note = f"not identifiable: {p.fit.reason}"
-    return plots.prognosis(when, [float(x) for x in b], temps, note=note, title=title, **kw)
+    return prognosis_plot(when, [float(x) for x in b], temps, note=note, title=title, **kw)
