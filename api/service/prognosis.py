@@ -34,10 +34,6 @@ class HistoryAnswers:
     series: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
-_memo: dict[int, tuple[tuple, HistoryAnswers]] = {}
-_lock = threading.Lock()
-
-
 def _key(axis: AxisRecord, latest: ResultRecord | None, history_n: int) -> tuple:
     st = axis.settings
     return (latest.id if latest else None, history_n, st.tasks, st.decision_rule, st.warning_fraction,
@@ -45,15 +41,33 @@ def _key(axis: AxisRecord, latest: ResultRecord | None, history_n: int) -> tuple
             latest.round_trip.backlash_mean_uncertainty_um if latest and latest.round_trip.budgets else 0.0)
 
 
-def history_answers(s, axis: AxisRecord, latest: ResultRecord | None, history_n: int) -> HistoryAnswers:
-    """The prognosis and the history's clearance estimate of ``axis``, memoised on the
-    newest result and ``history_n`` (how many results with a temperature the rollups
-    count: a deletion by the retention policy or an import changes it)."""
+class HistoryMemo:
+    """The last answers per axis of one database (the status cache owns one), with what
+    they were computed from."""
+
+    def __init__(self) -> None:
+        self._memo: dict[int, tuple[tuple, HistoryAnswers]] = {}
+        self._lock = threading.Lock()
+
+    def get(self, axis_id: int, key: tuple) -> HistoryAnswers | None:
+        with self._lock:
+            hit = self._memo.get(axis_id)
+        return hit[1] if hit is not None and hit[0] == key else None
+
+    def put(self, axis_id: int, key: tuple, answers: HistoryAnswers) -> None:
+        with self._lock:
+            self._memo[axis_id] = (key, answers)
+
+
+def history_answers(s, axis: AxisRecord, latest: ResultRecord | None, history_n: int,
+                    memo: HistoryMemo | None = None) -> HistoryAnswers:
+    """The prognosis and the history's clearance estimate of ``axis``, memoised in
+    ``memo`` on the newest result and ``history_n`` (how many results with a temperature
+    the rollups count: a deletion by the retention policy or an import changes it)."""
     key = _key(axis, latest, history_n)
-    with _lock:
-        hit = _memo.get(axis.id)
-    if hit is not None and hit[0] == key:
-        return hit[1]
+    hit = memo.get(axis.id, key) if memo is not None else None
+    if hit is not None:
+        return hit
     rows = results_repo.history_rows(s, axis.id, max_rows=MAX_ROWS)
     t_s, temp, day, b = rows["measured_at_s"], rows["temperature_c"], rows["utility_day"], rows["backlash_mean_um"]
     fit = fit_thermal_wear(temp, day, b)
@@ -67,18 +81,9 @@ def history_answers(s, axis: AxisRecord, latest: ResultRecord | None, history_n:
                   rule=axis.settings.decision_rule)
     clear = clearance_from_feeds(rows["feed_mm_min"], b, source="history", temperature_c=temp)
     out = HistoryAnswers(p, clear, int(t_s.size), int(rows["total"]), now, (t_s, temp, day, b))
-    with _lock:
-        _memo[axis.id] = (key, out)
+    if memo is not None:
+        memo.put(axis.id, key, out)
     return out
-
-
-def forget(axis_id: int | None = None) -> None:
-    """Drop the memo (an axis deleted or reconfigured elsewhere)."""
-    with _lock:
-        if axis_id is None:
-            _memo.clear()
-        else:
-            _memo.pop(axis_id, None)
 
 
 def iso(epoch_s: float) -> str:

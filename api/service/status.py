@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from datetime import datetime
 
 
-from api.service.prognosis import HistoryAnswers, history_answers
+from api.service.prognosis import HistoryAnswers, HistoryMemo, history_answers
 from core.errors import MebmError
 from core.history import TemperatureModel
 from core.tbe import AxisDecision, decide
@@ -37,7 +37,7 @@ class AxisStatus:
     history_error: str | None = None
 
 
-def compute_status(s, axis_id: int) -> AxisStatus:
+def compute_status(s, axis_id: int, history_memo: HistoryMemo | None = None) -> AxisStatus:
     axis = config_repo.get_axis(s, axis_id)
     latest = results_repo.latest_result(s, axis_id)
     decision = None
@@ -62,7 +62,7 @@ def compute_status(s, axis_id: int) -> AxisStatus:
                 pass
     history = history_error = None
     try:
-        history = history_answers(s, axis, latest, sums.n if latest is not None else 0)
+        history = history_answers(s, axis, latest, sums.n if latest is not None else 0, history_memo)
     except MebmError as exc:  # the status stands without its prognosis
         history_error = str(exc)
     _, alerts = results_repo.list_alerts(s, "active", axis_id=axis_id, limit=1)
@@ -92,6 +92,7 @@ class StatusCache:
         self._cache: dict[int, tuple[float, AxisStatus]] = {}
         self._locks: dict[int, threading.Lock] = {}
         self._lock = threading.Lock()
+        self._history_memo = HistoryMemo()  # the prognosis fit, redone only when its inputs change
 
     def fresh(self, axis_id: int) -> AxisStatus | None:
         """The cached status if it is recent enough (no database access)."""
@@ -129,7 +130,7 @@ class StatusCache:
                 return hit
             now = time.monotonic()
             with session_scope(self.factory) as s:
-                st = compute_status(s, axis_id)
+                st = compute_status(s, axis_id, self._history_memo)
             with self._lock:
                 self._cache[axis_id] = (now, st)
             return st

@@ -63,8 +63,10 @@ def test_prognosis_endpoint_status_and_plot(app_env, runner):
     assert p["alarm_temperature_c"] > p["limit_temperature"]["value_c"]  # guarded: U above the limit first
     assert p["limit_date"] is not None or p["limit_date_reason"].startswith("not within")
     assert p["clearance_history"]["source"] == "history" and len(p["clearance_history"]["feeds_mm_min"]) == 81
+    svc.status.invalidate(axis_id)  # recomputed status, unchanged history: the fit is not redone
     st = client.get(f"{V1}/axes/{axis_id}/status", headers=h).json()
     assert st["prognosis"]["alarm_temperature_c"] == p["alarm_temperature_c"]
+    assert st["prognosis"]["computed_at"] == p["computed_at"]
     assert st["reversal_mean_um"] == pytest.approx(st["backlash_mean_um"], abs=0.5)
     assert "total lost motion" in st["lost_motion"]["tbe_basis"]
     r = client.get(f"{V1}/axes/{axis_id}/plots/prognosis.png", headers=h)
