@@ -4,8 +4,8 @@
 Reads at most ``MAX_ROWS`` measurements (a regular thinning past that: a year of
 measurements every ten minutes is 52,560 rows, and the Huber fit's intervals do not
 need them all), and memoises the answer per axis (a HistoryMemo, one per status cache)
-on what it depends on (the newest
-measurement, the tasks, the rule, the worst-case temperature), so the status cache's
+on what it depends on (the newest measurement, the tasks, the rule, the worst-case
+temperature), so the status cache's
 periodic recomputation does not refit an unchanged history.
 """
 
