@@ -42,6 +42,9 @@ class FakeController:
         self.reads: list[tuple[int, int]] = []  # every read request (address, count)
         self.commands: list[Command] = []
         self.connects = 0
+        self.refuse = 0  # connection attempts still to refuse
+        self.gate = None  # an asyncio.Event every read waits for (None: answer at once)
+        self.waiting = None  # an asyncio.Event set when a read waits at the gate
 
     def _record(self, w: int) -> tuple[int, int, int]:
         # record w of the trace: a slow ramp, motor and table moving together
@@ -81,6 +84,9 @@ class FakeClient:
 
     async def connect(self) -> bool:
         self.ctl.connects += 1
+        if self.ctl.refuse:
+            self.ctl.refuse -= 1
+            return False
         return True
 
     def close(self) -> None:
@@ -89,6 +95,10 @@ class FakeClient:
     async def read_holding_registers(self, address: int, *, count: int, device_id: int = 1):
         ctl = self.ctl
         ctl.reads.append((address, count))
+        if ctl.gate is not None:
+            if ctl.waiting is not None:
+                ctl.waiting.set()
+            await ctl.gate.wait()
         if ctl.inject is not None:
             injected = ctl.inject(address, count)
             if injected is not None:
