@@ -222,7 +222,9 @@ class ModbusDriver(ControllerDriver):
         if regs_all:
             counter, motor, table = self.map.decode_records(regs_all, self.scale, ref)
             if int(counter[0]) - ref >= self.ring_records:
-                return await self._skip_lapped(cur)
+                skipped = await self._skip_lapped(cur)
+                if skipped is not None:
+                    return skipped
             older = np.flatnonzero(counter[1:] <= counter[:-1])
             if older.size:
                 # a block read while the controller was writing it (a "torn" read: a record
@@ -251,17 +253,21 @@ class ModbusDriver(ControllerDriver):
         cur.next_counter = int(counter[-1]) + 1
         return SampleBlock(counter, motor, table, finished=finished, caught_up=not full)
 
-    async def _skip_lapped(self, cur: _RingCursor) -> SampleBlock:
+    async def _skip_lapped(self, cur: _RingCursor) -> SampleBlock | None:
         """The controller has lapped the reader: the next record to read is overwritten. Go on
-        from the oldest record the ring still holds (less a block's worth of margin while the
+        from the oldest record the ring still holds (plus a block's worth of margin while the
         trace runs, as the controller keeps writing); the overwritten records show as a gap,
         counted by the trace assembler. Reading on slot by slot would find every next slot
-        overwritten too, and lose the records the ring does hold."""
+        overwritten too, and lose the records the ring does hold. None: the ring was not
+        overwritten past the reader (the controller's own counter jumped): read on."""
         s = await self._status()
         self._check_running(s)
         margin = 0 if s.state == AxisState.DONE else self.map.records_per_read
-        cur.next_w = max(cur.next_w, s.trace_count - self.ring_records + margin)
-        cur.next_counter = cur.first_counter + cur.next_w
+        oldest = s.trace_count - self.ring_records + margin
+        if oldest <= cur.next_w:
+            return None
+        cur.next_w = oldest
+        cur.next_counter = cur.first_counter + oldest
         return SampleBlock(*(np.zeros(0, dtype=t) for t in (np.int64, float, float)), caught_up=False)
 
     async def _poll_sample(self) -> SampleBlock:

@@ -236,6 +236,28 @@ def test_records_written_while_the_reader_is_away_are_read_or_counted_lost(durin
     assert ctl.commands.count(Command.ABORT) == 0
 
 
+class _SkippingController(FakeController):
+    """A controller whose servo counter jumps by more than the ring at record 30 (cycles it
+    never latched): a gap to count, not a lapped reader."""
+
+    def _record(self, w):
+        c, m, t = super()._record(w)
+        return ((c + 150) & 0xFFFFFFFF if w >= 30 else c), m, t
+
+
+def test_a_counter_jump_larger_than_the_ring_is_counted_not_mistaken_for_a_lap():
+    ctl = _SkippingController(ring_records=100, first_counter=5000)
+
+    def run(c):
+        c.write(60)
+        c.state = AxisState.DONE
+
+    ctl.on_start = run
+    tr = _fake_driver(ctl).acquire(PROGRAM, AXIS)
+    assert len(tr) == 60 and tr.lost_samples == 150
+    assert tr.counter.tolist() == [*range(5000, 5030), *range(5180, 5210)]
+
+
 def test_a_trace_across_the_counter_wrap_is_continuous():
     ctl = FakeController(ring_records=64, first_counter=2**32 - 70)
 
