@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import os
 import threading
 import time
 from collections import OrderedDict
@@ -73,6 +74,18 @@ def diagnose_folder(folder: str, n: int) -> dict:
     dataset = newest_runs(Path(folder), n)
     report = diagnose(dataset)
     return {**report.to_dict(), "report": report.text(), "runs_used": [r.spec.file for r in dataset.runs]}
+
+
+WORKER_NICE = 10  # the diagnosis yields the CPU to the service's cycles and requests
+
+
+def _background_priority() -> None:
+    """In the worker process: run below the service (a background analysis must not
+    slow a measurement cycle or a status request on a 2-core shop-floor PC)."""
+    try:
+        os.nice(WORKER_NICE)
+    except OSError:  # not permitted here: run at the service's priority
+        log.warning("the gap diagnosis process could not lower its priority")
 
 
 @dataclass
@@ -159,7 +172,8 @@ class GapJobs:
     def _process(self) -> ProcessPoolExecutor:
         if self._pool is None:
             # spawn, not fork: the service has threads (a fork would copy held locks)
-            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
+                                             initializer=_background_priority)
         return self._pool
 
     def close(self) -> None:

@@ -8,7 +8,7 @@ import os
 
 import pytest
 
-from api.service.gap_jobs import DiagnosisCrashed, GapJobs, TooManyJobs
+from api.service.gap_jobs import WORKER_NICE, DiagnosisCrashed, GapJobs, TooManyJobs
 
 
 def where_am_i(folder: str, runs: int) -> dict:
@@ -16,7 +16,7 @@ def where_am_i(folder: str, runs: int) -> dict:
     dies the way an out-of-memory kill does: the process ends without an answer."""
     if runs == 99:
         os._exit(137)
-    return {"pid": os.getpid(), "folder": folder, "runs": runs}
+    return {"pid": os.getpid(), "folder": folder, "runs": runs, "nice": os.nice(0)}
 
 
 @pytest.fixture
@@ -30,6 +30,7 @@ def test_the_diagnosis_runs_in_another_process_which_is_kept_for_the_next_job(jo
     first = jobs.submit(("a", 2), tmp_path, 2).result(timeout=120)
     second = jobs.submit(("a", 3), tmp_path, 3).result(timeout=120)
     assert first["pid"] != os.getpid()
+    assert first["nice"] == min(os.nice(0) + WORKER_NICE, 19)  # below the service's priority
     assert second["pid"] == first["pid"]
     assert (first["runs"], second["runs"]) == (2, 3) and first["folder"] == str(tmp_path)
     assert jobs.submit(("a", 2), tmp_path, 2).result(timeout=1) == first  # the cached answer
