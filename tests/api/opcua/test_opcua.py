@@ -1,0 +1,207 @@
+"""Issue 17: the OPC UA server, checked with a real asyncua client over TCP on loopback.
+
+One service with its OPC UA server (port 0) per module: asyncua servers take a second
+to start. The tests of this module share it and run in the order written (the value
+seen before a measurement, then after). SQLite: the server only reads the status."""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+import time
+import uuid
+from dataclasses import replace
+
+import pytest
+from asyncua import Client, ua
+from fastapi.testclient import TestClient
+
+from api.cli.serve import opcua_line
+from api.opcua import OpcuaServer
+from api.opcua.nodes import UNECE_URI, unece_unit_id
+from api.opcua.values import prognosis_time
+from api.rest import create_app
+from api.service.config import ConfigError, OpcuaSettings, parse_settings
+from storage.db import config_repo, session_scope
+from tests.api.rest.conftest import FakeRunner, hdr, make_settings
+
+LOOPBACK = "opc.tcp://127.0.0.1:0/mebm/"
+
+
+def _until(pred, what: str, limit_s: float = 30.0):
+    """Wait for ``pred()`` (a deadline for a hang, not a performance bound)."""
+    end = time.monotonic() + limit_s
+    while time.monotonic() < end:
+        v = pred()
+        if v:
+            return v
+        time.sleep(0.05)
+    raise AssertionError(f"{what} did not happen within {limit_s:g} s")
+
+
+@pytest.fixture(scope="module")
+def env(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("opcua")
+    runner = FakeRunner(backlash_um=200.0)
+    settings = make_settings(f"sqlite:///{tmp}/db.sqlite3", tmp, opcua=OpcuaSettings(enabled=True, endpoint=LOOPBACK))
+    app = create_app(settings, runner=runner)
+    with TestClient(app) as client:
+        svc = app.state.service
+        with session_scope(svc.factory) as s:
+            read = config_repo.create_key(s, f"read-{uuid.uuid4().hex[:6]}", "read")[1]
+            axis_id = config_repo.list_axes(s)[0].id
+        yield {"client": client, "app": app, "svc": svc, "runner": runner, "read": read, "axis_id": axis_id,
+               "ua": app.state.opcua}
+
+
+def _measure(env):
+    before = env["ua"].updates
+    env["svc"].scheduler.request(env["axis_id"], "manual")
+    assert env["svc"].scheduler.idle(30)
+    _until(lambda: env["ua"].updates > before, "the OPC UA update")
+
+
+async def _browse_to_axis(c: Client):
+    """From Objects, by browsing (not by node id), to the axis object."""
+    idx = await c.get_namespace_index("urn:mebm")
+    node = c.nodes.objects
+    for name in ("Machines", "vmc-850", "y"):
+        children = {(await ch.read_browse_name()).Name: ch for ch in await node.get_children()}
+        assert name in children, f"{name} not among {sorted(children)}"
+        node = children[name]
+    return idx, node
+
+
+async def _read_axis(endpoint: str) -> dict:
+    async with Client(endpoint, timeout=10) as c:
+        idx, axis = await _browse_to_axis(c)
+        out = {}
+        for name in ("BacklashMean", "BacklashMeanUncertainty", "BacklashLimit", "State", "Message"):
+            dv = await (await axis.get_child(f"{idx}:{name}")).read_data_value(raise_on_bad_status=False)
+            out[name] = dv.Value.Value if dv.StatusCode.is_good() else dv.StatusCode.name
+        mean = await axis.get_child(f"{idx}:BacklashMean")
+        out["eu"] = await (await mean.get_child("0:EngineeringUnits")).read_value()
+        out["type"] = (await mean.read_type_definition())
+        tbe = await axis.get_child(f"{idx}:TBE")
+        out["tbe"] = {}
+        for var in await tbe.get_children():
+            dv = await var.read_data_value(raise_on_bad_status=False)
+            out["tbe"][(await var.read_browse_name()).Name] = dv.Value.Value if dv.StatusCode.is_good() else None
+        prognoses = await c.nodes.objects.get_child([f"{idx}:Machines", f"{idx}:vmc-850", f"{idx}:Notification",
+                                                     f"{idx}:Prognoses"])
+        out["prognoses"] = {}
+        for entry in await prognoses.get_children():
+            out["prognoses"][(await entry.read_browse_name()).Name] = {
+                n: await (await entry.get_child(f"{idx}:{n}")).read_value() for n in ("PredictedTime", "Source")}
+        return out
+
+
+def test_a_client_browses_to_backlash_mean_and_sees_it_change_after_a_measurement(env):
+    ep = env["ua"].endpoint
+    assert env["ua"].running and not ep.endswith(":0/mebm/")
+    before = asyncio.run(_read_axis(ep))
+    assert before["BacklashMean"] == "BadWaitingForInitialData" and before["State"] == "UNKNOWN"
+    eu = before["eu"]
+    assert (eu.NamespaceUri, eu.UnitId, eu.DisplayName.Text) == (UNECE_URI, unece_unit_id("4H"), "µm")
+    assert before["type"] == ua.NodeId(ua.ObjectIds.AnalogItemType)
+
+    _measure(env)
+    after = asyncio.run(_read_axis(ep))
+    rest = env["client"].get(f"/api/v1/axes/{env['axis_id']}/status", headers=hdr(env["read"])).json()
+    assert after["BacklashMean"] == pytest.approx(200.0, abs=2.0)
+    assert after["BacklashMean"] == pytest.approx(rest["backlash_mean_um"])
+    assert after["BacklashLimit"] == pytest.approx(rest["backlash_limit_um"])
+    assert (after["State"], after["Message"]) == (rest["state"], rest["message"]) and rest["state"] == "OK"
+    assert after["tbe"] == pytest.approx({t["name"]: t["tbe_um"] for t in rest["tasks"]}) and after["tbe"]
+    assert after["prognoses"] == {}  # below the limit and no prognosis: nothing predicted
+
+    env["runner"].backlash_um = 400.0  # past the limit: an alert, and its date in Prognoses
+    _measure(env)
+    alarm = asyncio.run(_read_axis(ep))
+    rest = env["client"].get(f"/api/v1/axes/{env['axis_id']}/status", headers=hdr(env["read"])).json()
+    alerts = env["client"].get("/api/v1/alerts?state=active", headers=hdr(env["read"])).json()["items"]
+    (alert,) = [a for a in alerts if a["id"] == rest["active_alert_id"]]
+    assert alarm["BacklashMean"] == pytest.approx(rest["backlash_mean_um"]) and alarm["State"] == "ALARM"
+    (entry,) = alarm["prognoses"].values()
+    assert entry["Source"] == "limit passed"
+    assert prognosis_time(entry["PredictedTime"]) == prognosis_time(alert["raised_at"])
+
+
+def test_a_write_is_refused_and_every_variable_is_read_only(env):
+    async def go():
+        async with Client(env["ua"].endpoint, timeout=10) as c:
+            idx, axis = await _browse_to_axis(c)
+            mean = await axis.get_child(f"{idx}:BacklashMean")
+            before = await mean.read_value()
+            with pytest.raises(ua.UaStatusCodeError) as refused:
+                await mean.write_value(ua.DataValue(ua.Variant(1.0, ua.VariantType.Double)))
+            levels = []
+            for var in await axis.get_children(nodeclassmask=ua.NodeClass.Variable):
+                levels.append((await var.read_attribute(ua.AttributeIds.AccessLevel)).Value.Value)
+                levels.append((await var.read_attribute(ua.AttributeIds.UserAccessLevel)).Value.Value)
+            return before, await mean.read_value(), refused.value, levels
+
+    before, after, refused, levels = asyncio.run(go())
+    assert isinstance(refused, ua.uaerrors.BadUserAccessDenied)
+    assert after == before
+    assert levels and set(levels) == {ua.AccessLevel.CurrentRead.mask}
+
+
+def test_with_a_username_anonymous_and_wrong_passwords_are_refused(env):
+    settings = OpcuaSettings(enabled=True, endpoint=LOOPBACK, anonymous=False, username="mes", password="s3cret")
+    srv = OpcuaServer(env["svc"], settings)
+    assert srv.start(), srv.error
+
+    async def connect(user=None, password=None):
+        c = Client(srv.endpoint, timeout=10)
+        if user is not None:
+            c.set_user(user)
+            c.set_password(password)
+        try:
+            await c.connect()
+        except Exception as exc:  # noqa: BLE001 - the refusal is the result
+            return type(exc).__name__
+        try:
+            _, axis = await _browse_to_axis(c)
+            idx = await c.get_namespace_index("urn:mebm")
+            return await (await axis.get_child(f"{idx}:State")).read_value()
+        finally:
+            await c.disconnect()
+
+    try:
+        anonymous, wrong, right = asyncio.run(connect()), asyncio.run(connect("mes", "nope")), \
+            asyncio.run(connect("mes", "s3cret"))  # fmt: skip
+    finally:
+        srv.close()
+    assert anonymous in ("BadIdentityTokenRejected", "BadUserAccessDenied")
+    assert wrong == "BadUserAccessDenied"
+    assert right in ("OK", "WARNING", "ALARM", "UNKNOWN")
+
+
+def test_a_taken_port_leaves_the_service_measuring_without_opc_ua(env):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen(1)
+        port = taken.getsockname()[1]
+        settings = OpcuaSettings(enabled=True, endpoint=f"opc.tcp://127.0.0.1:{port}/mebm/")
+        srv = OpcuaServer(env["svc"], settings)
+        assert srv.start() is False
+        srv.close()
+    assert not srv.running and "cannot listen" in srv.error
+    line = opcua_line(replace(env["app"].state.service.settings, opcua=settings), srv)
+    assert line.startswith(f"OPC UA: NOT running on opc.tcp://127.0.0.1:{port}/mebm/")
+    health = env["client"].get("/healthz").json()
+    assert health["opcua"] == f"listening on {env['ua'].endpoint}"  # the module's own server is unaffected
+    _measure(env)  # and the service still measures and publishes
+
+
+def test_opcua_configuration_is_checked_by_name():
+    s = parse_settings({"opcua": {"endpoint": "opc.tcp://0.0.0.0:4841/x/", "username": "mes", "password": "pw"}})
+    assert s.opcua.anonymous is False and s.opcua.username == "mes"  # a username turns anonymous off...
+    s = parse_settings({"opcua": {"username": "mes", "password": "pw", "anonymous": True}})
+    assert s.opcua.anonymous is True  # ...unless said otherwise
+    for bad, field in (({"endpoint": "http://x/"}, "opcua.endpoint"), ({"password": "pw"}, "password"),
+                       ({"anonymous": False}, "anonymous"), ({"certificate": "/nonexistent.pem"}, "certificate"),
+                       ({"port": 4840}, "unknown option")):  # fmt: skip
+        with pytest.raises(ConfigError, match=field):
+            parse_settings({"opcua": bad})
