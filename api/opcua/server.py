@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import socket
 import threading
 from urllib.parse import urlsplit, urlunsplit
 
@@ -82,6 +83,7 @@ class OpcuaServer:
 
     async def _start(self) -> None:
         st = self.settings
+        _probe_port(st.endpoint)  # fail in a millisecond, not after building the address space
         users = Users(st)
         srv = Server(user_manager=users)
         await srv.init()
@@ -149,6 +151,18 @@ class OpcuaServer:
                 "anonymous": st.anonymous, "username": st.username is not None,
                 "security_policies": ["None"] + (["Basic256Sha256"] if st.certificate else []),
                 "updates": self.updates}  # fmt: skip
+
+
+def _probe_port(endpoint: str) -> None:
+    """OSError if the endpoint's port is taken (asyncio's server binds the same way, with
+    SO_REUSEADDR; the real bind later still reports a port taken in between)."""
+    u = urlsplit(endpoint)
+    if not u.port:
+        return
+    for family, kind, proto, _, addr in socket.getaddrinfo(u.hostname, u.port, type=socket.SOCK_STREAM):
+        with socket.socket(family, kind, proto) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            s.bind(addr)
 
 
 def _reason(exc: BaseException) -> str:
