@@ -11,9 +11,12 @@ import socket
 import time
 import uuid
 from dataclasses import replace
+from pathlib import Path
 
 import pytest
 from asyncua import Client, ua
+from asyncua.crypto.cert_gen import setup_self_signed_certificate
+from cryptography.x509.oid import ExtendedKeyUsageOID
 from fastapi.testclient import TestClient
 
 from api.cli.serve import opcua_line
@@ -96,6 +99,28 @@ async def _read_axis(endpoint: str) -> dict:
         return out
 
 
+class _Changes:
+    def __init__(self):
+        self.values = []
+
+    def datachange_notification(self, node, val, data):  # asyncua's subscription handler
+        self.values.append(val)
+
+
+async def _subscribe_while_measuring(env) -> list:
+    async with Client(env["ua"].endpoint, timeout=10) as c:
+        idx, axis = await _browse_to_axis(c)
+        changes = _Changes()
+        sub = await c.create_subscription(50, changes)
+        await sub.subscribe_data_change(await axis.get_child(f"{idx}:BacklashMean"))
+        await asyncio.to_thread(_measure, env)
+        end = time.monotonic() + 30
+        while not any(isinstance(v, float) for v in changes.values) and time.monotonic() < end:
+            await asyncio.sleep(0.05)
+        await sub.delete()
+        return [v for v in changes.values if v is not None]
+
+
 def test_a_client_browses_to_backlash_mean_and_sees_it_change_after_a_measurement(env):
     ep = env["ua"].endpoint
     assert env["ua"].running and not ep.endswith(":0/mebm/")
@@ -105,8 +130,9 @@ def test_a_client_browses_to_backlash_mean_and_sees_it_change_after_a_measuremen
     assert (eu.NamespaceUri, eu.UnitId, eu.DisplayName.Text) == (UNECE_URI, unece_unit_id("4H"), "µm")
     assert before["type"] == ua.NodeId(ua.ObjectIds.AnalogItemType)
 
-    _measure(env)
-    after = asyncio.run(_read_axis(ep))
+    seen = asyncio.run(_subscribe_while_measuring(env))  # a data change notification...
+    assert seen == [pytest.approx(200.0, abs=2.0)]  # the one value of the one measurement (before: no value)
+    after = asyncio.run(_read_axis(ep))  # ...and the values read afterwards
     rest = env["client"].get(f"/api/v1/axes/{env['axis_id']}/status", headers=hdr(env["read"])).json()
     assert after["BacklashMean"] == pytest.approx(200.0, abs=2.0)
     assert after["BacklashMean"] == pytest.approx(rest["backlash_mean_um"])
@@ -132,14 +158,14 @@ def test_a_write_is_refused_and_every_variable_is_read_only(env):
         async with Client(env["ua"].endpoint, timeout=10) as c:
             idx, axis = await _browse_to_axis(c)
             mean = await axis.get_child(f"{idx}:BacklashMean")
-            before = await mean.read_value()
+            before = (await mean.read_data_value(raise_on_bad_status=False)).Value  # none yet, if run alone
             with pytest.raises(ua.UaStatusCodeError) as refused:
                 await mean.write_value(ua.DataValue(ua.Variant(1.0, ua.VariantType.Double)))
             levels = []
             for var in await axis.get_children(nodeclassmask=ua.NodeClass.Variable):
                 levels.append((await var.read_attribute(ua.AttributeIds.AccessLevel)).Value.Value)
                 levels.append((await var.read_attribute(ua.AttributeIds.UserAccessLevel)).Value.Value)
-            return before, await mean.read_value(), refused.value, levels
+            return before, (await mean.read_data_value(raise_on_bad_status=False)).Value, refused.value, levels
 
     before, after, refused, levels = asyncio.run(go())
     assert isinstance(refused, ua.uaerrors.BadUserAccessDenied)
@@ -147,35 +173,54 @@ def test_a_write_is_refused_and_every_variable_is_read_only(env):
     assert levels and set(levels) == {ua.AccessLevel.CurrentRead.mask}
 
 
-def test_with_a_username_anonymous_and_wrong_passwords_are_refused(env):
-    settings = OpcuaSettings(enabled=True, endpoint=LOOPBACK, anonymous=False, username="mes", password="s3cret")
+def _certificate(tmp_path, name: str, uri: str, use) -> tuple[Path, Path]:
+    key, cert = tmp_path / f"{name}-key.pem", tmp_path / f"{name}-cert.der"
+    asyncio.run(setup_self_signed_certificate(key, cert, uri, "127.0.0.1", [use], {"commonName": name}))
+    return cert, key
+
+
+def test_with_a_username_anonymous_and_wrong_passwords_are_refused(env, tmp_path):
+    cert, key = _certificate(tmp_path, "server", "urn:mebm:server", ExtendedKeyUsageOID.SERVER_AUTH)
+    client_cert, client_key = _certificate(tmp_path, "client", "urn:freeopcua:client", ExtendedKeyUsageOID.CLIENT_AUTH)
+    settings = OpcuaSettings(enabled=True, endpoint=LOOPBACK, anonymous=False, username="mes", password="s3cret",
+                             certificate=cert, private_key=key)
     srv = OpcuaServer(env["svc"], settings)
     assert srv.start(), srv.error
 
-    async def connect(user=None, password=None):
+    async def connect(user=None, password=None, secure=False):
         c = Client(srv.endpoint, timeout=10)
+        if secure:
+            await c.set_security_string(f"Basic256Sha256,SignAndEncrypt,{client_cert},{client_key}")
         if user is not None:
             c.set_user(user)
             c.set_password(password)
         try:
             await c.connect()
-        except Exception as exc:  # noqa: BLE001 - the refusal is the result
+        except ua.UaStatusCodeError as exc:
             return type(exc).__name__
         try:
-            _, axis = await _browse_to_axis(c)
             idx = await c.get_namespace_index("urn:mebm")
+            _, axis = await _browse_to_axis(c)
             return await (await axis.get_child(f"{idx}:State")).read_value()
         finally:
             await c.disconnect()
 
+    async def policies():
+        endpoints = await Client(srv.endpoint, timeout=10).connect_and_get_server_endpoints()
+        return {(e.SecurityPolicyUri.rsplit("#", 1)[1], e.SecurityMode.name) for e in endpoints}
+
     try:
-        anonymous, wrong, right = asyncio.run(connect()), asyncio.run(connect("mes", "nope")), \
-            asyncio.run(connect("mes", "s3cret"))  # fmt: skip
+        anonymous = asyncio.run(connect())
+        wrong = asyncio.run(connect("mes", "nope"))
+        plain = asyncio.run(connect("mes", "s3cret"))  # the password encrypted with the server's certificate
+        secure = asyncio.run(connect("mes", "s3cret", secure=True))
+        offered = asyncio.run(policies())
     finally:
         srv.close()
-    assert anonymous in ("BadIdentityTokenRejected", "BadUserAccessDenied")
+    assert anonymous == "BadIdentityTokenRejected"
     assert wrong == "BadUserAccessDenied"
-    assert right in ("OK", "WARNING", "ALARM", "UNKNOWN")
+    assert plain in ("OK", "WARNING", "ALARM", "UNKNOWN") and secure == plain
+    assert offered == {("None", "None_"), ("Basic256Sha256", "Sign"), ("Basic256Sha256", "SignAndEncrypt")}
 
 
 def test_a_taken_port_leaves_the_service_measuring_without_opc_ua(env):
