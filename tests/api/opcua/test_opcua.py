@@ -235,6 +235,8 @@ def test_a_taken_port_leaves_the_service_measuring_without_opc_ua(env):
     assert not srv.running and "cannot listen" in srv.error
     line = opcua_line(replace(env["app"].state.service.settings, opcua=settings), srv)
     assert line.startswith(f"OPC UA: NOT running on opc.tcp://127.0.0.1:{port}/mebm/")
+    running = opcua_line(env["app"].state.service.settings, env["ua"])
+    assert running.startswith(f"OPC UA: {env['ua'].endpoint}  (anonymous read-only; security None;")
     health = env["client"].get("/healthz").json()
     assert health["opcua"] == f"listening on {env['ua'].endpoint}"  # the module's own server is unaffected
     _measure(env)  # and the service still measures and publishes
