@@ -1,6 +1,6 @@
 """Service configuration: a TOML file (docs/configuration.md), embedded defaults and
 environment overrides (MEBM_DATABASE_URL, MEBM_DATA_DIR, MEBM_BOOTSTRAP_ADMIN_KEY,
-MEBM_HOST, MEBM_PORT, MEBM_MQTT_URL, MEBM_WEBHOOK_SECRET, MEBM_OPCUA_PASSWORD).
+MEBM_HOST, MEBM_PORT, MEBM_MQTT_URL, MEBM_WEBHOOK_SECRET, MEBM_OPCUA_ENDPOINT, MEBM_OPCUA_PASSWORD).
 
 Without a file the defaults describe the demo: SQLite under ./data, the built-in
 simulated Modbus controller, and the seed paper's Y axis measured every 60 s.
@@ -441,6 +441,9 @@ def apply_env(settings: Settings, env: Mapping[str, str] | None = None) -> Setti
     if env.get("MEBM_WEBHOOK_SECRET"):
         out = replace(out, webhooks=replace(out.webhooks, secret=env["MEBM_WEBHOOK_SECRET"]))
         check_webhooks(out.webhooks, "MEBM_WEBHOOK_SECRET")
+    if "MEBM_OPCUA_ENDPOINT" in env:  # empty: off
+        ep = env["MEBM_OPCUA_ENDPOINT"]
+        out = replace(out, opcua=replace(out.opcua, enabled=bool(ep), endpoint=ep or out.opcua.endpoint))
     if env.get("MEBM_OPCUA_PASSWORD"):
         out = replace(out, opcua=replace(out.opcua, password=env["MEBM_OPCUA_PASSWORD"]))
     if out.opcua.enabled:

@@ -24,7 +24,7 @@ from api.opcua import OpcuaServer
 from api.opcua.nodes import UNECE_URI, unece_unit_id
 from api.opcua.values import prognosis_time
 from api.rest import create_app
-from api.service.config import ConfigError, OpcuaSettings, parse_settings
+from api.service.config import DEFAULT_OPCUA_ENDPOINT, ConfigError, OpcuaSettings, load_settings, parse_settings
 from storage.db import config_repo, session_scope
 from tests.api.rest.conftest import FakeRunner, hdr, make_settings
 
@@ -242,11 +242,23 @@ def test_a_taken_port_leaves_the_service_measuring_without_opc_ua(env):
     _measure(env)  # and the service still measures and publishes
 
 
-def test_opcua_configuration_is_checked_by_name():
+def _toml(tmp_path, text: str) -> Path:
+    p = tmp_path / "mebm.toml"
+    p.write_text(text)
+    return p
+
+
+def test_opcua_configuration_is_checked_by_name(tmp_path):
     s = parse_settings({"opcua": {"endpoint": "opc.tcp://0.0.0.0:4841/x/", "username": "mes", "password": "pw"}})
     assert s.opcua.anonymous is False and s.opcua.username == "mes"  # a username turns anonymous off...
     s = parse_settings({"opcua": {"username": "mes", "password": "pw", "anonymous": True}})
     assert s.opcua.anonymous is True  # ...unless said otherwise
+    assert load_settings(None, {}).opcua == OpcuaSettings(enabled=True, endpoint=DEFAULT_OPCUA_ENDPOINT)  # make run
+    assert load_settings(None, {"MEBM_OPCUA_ENDPOINT": ""}).opcua.enabled is False
+    assert load_settings(None, {"MEBM_OPCUA_ENDPOINT": "opc.tcp://127.0.0.1:0/x/"}).opcua.endpoint.endswith(":0/x/")
+    with pytest.raises(ConfigError, match="MEBM_OPCUA_PASSWORD"):  # a username without a password
+        load_settings(_toml(tmp_path, '[opcua]\nusername = "mes"\n'), {})
+    assert load_settings(_toml(tmp_path, '[opcua]\nusername = "mes"\n'), {"MEBM_OPCUA_PASSWORD": "pw"}).opcua.password == "pw"
     for bad, field in (({"endpoint": "http://x/"}, "opcua.endpoint"), ({"password": "pw"}, "password"),
                        ({"anonymous": False}, "anonymous"), ({"certificate": "/nonexistent.pem"}, "certificate"),
                        ({"port": 4840}, "unknown option")):  # fmt: skip
