@@ -168,16 +168,15 @@ class AddressSpace:
             f"axis {v.axis}: restore the backlash below {v.backlash_limit_um:.1f} µm"
             if v.backlash_limit_um is not None else f"axis {v.axis}: restore the backlash")
         sid = f"Machines/{v.machine}/Notification/Prognoses/{v.axis_id}"
+        props = (("PredictedTime", v.predicted_time, ua.VariantType.DateTime),  # as 40501's PrognosisType
+                 ("Activity", activity, ua.VariantType.LocalizedText),  # as its MaintenancePrognosisType
+                 ("Source", v.prediction_source, ua.VariantType.String))  # fmt: skip
         if entry is None:
             entry = m.entries[v.axis_id] = await m.prognoses.add_object(self._id(sid), self._qn(f"{v.axis}Backlash"))
-            for name, val, vt in (("PredictedTime", v.predicted_time, ua.VariantType.DateTime),
-                                  ("Activity", activity, ua.VariantType.LocalizedText),
-                                  ("Source", v.prediction_source, ua.VariantType.String)):
+            for name, val, vt in props:
                 await entry.add_property(self._id(f"{sid}/{name}"), self._qn(name), val, vt)
         else:
-            for name, val, vt in (("PredictedTime", v.predicted_time, ua.VariantType.DateTime),
-                                  ("Activity", activity, ua.VariantType.LocalizedText),
-                                  ("Source", v.prediction_source, ua.VariantType.String)):
+            for name, val, vt in props:
                 await self.server.write_attribute_value(self._id(f"{sid}/{name}"), _dv(val, vt))
 
     async def apply(self, v: AxisValues) -> None:

@@ -264,3 +264,13 @@ def test_opcua_configuration_is_checked_by_name(tmp_path):
                        ({"port": 4840}, "unknown option")):  # fmt: skip
         with pytest.raises(ConfigError, match=field):
             parse_settings({"opcua": bad})
+
+
+def test_the_prognosis_date_is_found_in_the_shapes_it_may_take():
+    from datetime import datetime, timezone
+
+    t = datetime(2027, 3, 12, tzinfo=timezone.utc)
+    for p in (t, "2027-03-12T00:00:00Z", {"limit_reached_at": "2027-03-12T00:00:00Z", "rate_um_per_day": 0.4},
+              {"other_at": "2027-03-12T00:00:00+00:00"}, type("P", (), {"predicted_at": t})()):
+        assert prognosis_time(p) == t, p
+    assert prognosis_time(None) is None and prognosis_time({"rate_um_per_day": 0.4, "limit_reached_at": None}) is None
