@@ -50,9 +50,10 @@ def opcua_line(settings, opcua) -> str:
     if opcua is None or not opcua.running:
         why = opcua.error if opcua is not None else "not started"
         return f"OPC UA: NOT running on {o.endpoint}: {why} (the service goes on without it)"
-    who = ("anonymous read-only" if o.anonymous else "") + (" + " if o.anonymous and o.username else "") + \
-        (f"user {o.username!r} (read-only)" if o.username else "")
-    sec = "None" + (", Basic256Sha256" if o.certificate else "")
+    who = " + ".join((["anonymous"] if o.anonymous else []) + ([f"user {o.username!r}"] if o.username else [])
+                     + (["certificate users"] if o.trusted_certificates else [])) + " read-only"
+    sec = "Basic256Sha256 only, trusted client certificates" if o.trusted_certificates else \
+        "None" + (", Basic256Sha256" if o.certificate else "")
     return f"OPC UA: {opcua.endpoint}  ({who}; security {sec}; Objects/Machines/<machine>/<axis>/BacklashMean)"
 
 

@@ -6,6 +6,8 @@ from __future__ import annotations
 import hmac
 
 from asyncua import ua
+from asyncua.crypto.truststore import TrustStore
+from cryptography import x509
 from asyncua.crypto.permission_rules import USER_TYPES, PermissionRuleset, User, UserRole
 
 from api.service.config import OpcuaSettings
@@ -28,17 +30,35 @@ class Users:
     """asyncua's user manager: anonymous sessions when allowed, and the configured user.
     None refuses the session (BadUserAccessDenied)."""
 
-    def __init__(self, settings: OpcuaSettings):
+    def __init__(self, settings: OpcuaSettings, trust_store: TrustStore | None = None):
         self.anonymous = settings.anonymous
         self.username = settings.username
         self.password = settings.password
+        self.trust_store = trust_store  # loaded: client certificates trusted as users
+
+    def trusted(self, certificate: bytes | None) -> str | None:
+        """The common name of a trusted certificate (DER), None if it is not trusted."""
+        if not certificate or self.trust_store is None:
+            return None
+        try:
+            cert = x509.load_der_x509_certificate(certificate)
+        except ValueError:
+            return None
+        if not self.trust_store.validate(cert):
+            return None
+        cn = cert.subject.get_attributes_for_oid(x509.OID_COMMON_NAME)
+        return str(cn[0].value) if cn else "certificate"
 
     def get_user(self, iserver, username=None, password=None, certificate=None) -> User | None:
-        # ``certificate`` is the secure channel's peer certificate for every token type, not
-        # an identity: X509 identity tokens are not offered (identity_tokens), so no
-        # username means an anonymous session.
+        # ``certificate`` is the X509 identity token's certificate, or else the secure
+        # channel's client certificate (asyncua passes either): a trusted one is a user.
+        # With a trust store only signed channels are offered (server.security_policies),
+        # so the client has proven it holds the certificate's key.
         if username is None:
-            return User(role=UserRole.Anonymous) if self.anonymous else None
+            if self.anonymous:
+                return User(role=UserRole.Anonymous)
+            name = self.trusted(certificate)
+            return User(role=UserRole.User, name=name) if name is not None else None
         if self.username is None or self.password is None:
             return None
         ok = hmac.compare_digest(username.encode(), self.username.encode())
@@ -47,8 +67,10 @@ class Users:
 
     def identity_tokens(self) -> list[type]:
         tokens: list[type] = []
-        if self.anonymous:
+        if self.anonymous or self.trust_store is not None:  # with a trust store: the channel's certificate identifies
             tokens.append(ua.AnonymousIdentityToken)
         if self.username is not None:
             tokens.append(ua.UserNameIdentityToken)
+        if self.trust_store is not None:
+            tokens.append(ua.X509IdentityToken)
         return tokens

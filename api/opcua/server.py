@@ -16,6 +16,8 @@ import threading
 from urllib.parse import urlsplit, urlunsplit
 
 from asyncua import Server, ua
+from asyncua.crypto.truststore import TrustStore
+from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
 
 from api.opcua.access import ReadOnlyRuleset, Users
 from api.opcua.nodes import NAMESPACE_URI, AddressSpace
@@ -84,18 +86,24 @@ class OpcuaServer:
     async def _start(self) -> None:
         st = self.settings
         _probe_port(st.endpoint)  # fail in a millisecond, not after building the address space
-        users = Users(st)
+        trust = None
+        if st.trusted_certificates is not None:
+            trust = TrustStore([st.trusted_certificates], [])
+            await trust.load()
+        users = Users(st, trust)
         srv = Server(user_manager=users)
         await srv.init()
         srv.set_endpoint(st.endpoint)
         srv.set_server_name("mebm: backlash and TBE of machine-tool feed axes")
         await srv.set_application_uri("urn:mebm:server")
-        policies = [ua.SecurityPolicyType.NoSecurity]
+        policies = security_policies(st)
         if st.certificate is not None:
             await srv.load_certificate(str(st.certificate))
             await srv.load_private_key(str(st.private_key))
-            policies += [ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt, ua.SecurityPolicyType.Basic256Sha256_Sign]
         srv.set_security_policy(policies, permission_ruleset=ReadOnlyRuleset())
+        if trust is not None:  # a client certificate must be trusted (directly or by its CA) for a channel
+            srv.set_certificate_validator(CertificateValidator(
+                CertificateValidatorOptions.TRUSTED_VALIDATION | CertificateValidatorOptions.PEER_CLIENT, trust))
         srv.set_identity_tokens(users.identity_tokens())
         srv.allow_remote_admin(False)
         idx = await srv.register_namespace(NAMESPACE_URI)
@@ -149,8 +157,19 @@ class OpcuaServer:
         st = self.settings
         return {"endpoint": self.endpoint, "running": self.running, "error": self.error,
                 "anonymous": st.anonymous, "username": st.username is not None,
-                "security_policies": ["None"] + (["Basic256Sha256"] if st.certificate else []),
+                "trusted_certificates": st.trusted_certificates is not None,
+                "security_policies": [p.name for p in security_policies(st)],
                 "updates": self.updates}  # fmt: skip
+
+
+def security_policies(st: OpcuaSettings) -> list[ua.SecurityPolicyType]:
+    """None, plus Basic256Sha256 with a server certificate; with trusted client
+    certificates only the signed ones: on a None channel the client's certificate is
+    not proven (it need not hold the key), so it could not be trusted there."""
+    signed = [ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt, ua.SecurityPolicyType.Basic256Sha256_Sign]
+    if st.trusted_certificates is not None:
+        return signed
+    return [ua.SecurityPolicyType.NoSecurity] + (signed if st.certificate is not None else [])
 
 
 def _probe_port(endpoint: str) -> None:

@@ -96,7 +96,11 @@ class OpcuaSettings:
     Anonymous sessions are allowed unless a username is configured (then only that user,
     unless ``anonymous = true`` says otherwise). Without a certificate the only security
     policy is None: the password then travels in clear, so keep such an endpoint on a
-    trusted network or configure ``certificate`` and ``private_key`` (Basic256Sha256)."""
+    trusted network or configure ``certificate`` and ``private_key`` (Basic256Sha256).
+    With ``trusted_certificates`` (a folder), a client's certificate must be trusted
+    (directly or by its CA) to open a signed channel, and a session on such a channel, or
+    one presenting a trusted certificate as its identity, is a (read-only) user even when
+    anonymous sessions are off."""
 
     enabled: bool = False
     endpoint: str = DEFAULT_OPCUA_ENDPOINT  # opc.tcp://host:port/path (port 0: a free one)
@@ -105,6 +109,7 @@ class OpcuaSettings:
     password: str | None = None  # or MEBM_OPCUA_PASSWORD
     certificate: Path | None = None  # PEM or DER server certificate: adds Basic256Sha256 Sign(AndEncrypt)
     private_key: Path | None = None
+    trusted_certificates: Path | None = None  # folder of trusted client certificates (or their CAs)
 
 
 @dataclass(frozen=True)
@@ -342,16 +347,18 @@ def check_mqtt(m: MqttSettings, where: str) -> None:
 def _opcua(table: Mapping | None, base: OpcuaSettings) -> OpcuaSettings:
     if table is None:
         return base
-    _unknown(table, {"enabled", "endpoint", "anonymous", "username", "password", "certificate", "private_key"},
-             "opcua")  # fmt: skip
+    _unknown(table, {"enabled", "endpoint", "anonymous", "username", "password", "certificate", "private_key",
+                     "trusted_certificates"}, "opcua")  # fmt: skip
     username = _get(table, "username", str, "opcua", base.username) or None
     cert, key = _get(table, "certificate", str, "opcua"), _get(table, "private_key", str, "opcua")
+    trusted = _get(table, "trusted_certificates", str, "opcua")
     out = OpcuaSettings(
         enabled=_get(table, "enabled", bool, "opcua", base.enabled),
         endpoint=_get(table, "endpoint", str, "opcua", base.endpoint),
         anonymous=_get(table, "anonymous", bool, "opcua", username is None),
         username=username, password=_get(table, "password", str, "opcua", base.password) or None,
         certificate=Path(cert) if cert else base.certificate, private_key=Path(key) if key else base.private_key,
+        trusted_certificates=Path(trusted) if trusted else base.trusted_certificates,
     )
     check_opcua(out, "opcua", complete=False)  # the password may still come from the environment
     return out
@@ -370,14 +377,21 @@ def check_opcua(o: OpcuaSettings, where: str, complete: bool = True) -> None:
     if complete and o.username is not None and o.password is None:
         raise ConfigError(f"{where}.username (={o.username!r}) needs a password (opcua.password or "
                           "MEBM_OPCUA_PASSWORD)")  # fmt: skip
-    if not o.anonymous and o.username is None:
-        raise ConfigError(f"{where}: anonymous = false needs a username and password (nobody could connect)")
+    if not o.anonymous and o.username is None and o.trusted_certificates is None:
+        raise ConfigError(f"{where}: anonymous = false needs a username and password or trusted_certificates "
+                          "(nobody could connect)")  # fmt: skip
     if (o.certificate is None) != (o.private_key is None):
         raise ConfigError(f"{where}: certificate and private_key go together")
     for name in ("certificate", "private_key"):
         p = getattr(o, name)
         if p is not None and not p.is_file():
             raise ConfigError(f"{where}.{name} (={str(p)!r}) is not a file")
+    if o.trusted_certificates is not None:
+        if o.certificate is None:
+            raise ConfigError(f"{where}.trusted_certificates needs the server's certificate and private_key "
+                              "(client certificates are only seen on signed channels)")  # fmt: skip
+        if not o.trusted_certificates.is_dir():
+            raise ConfigError(f"{where}.trusted_certificates (={str(o.trusted_certificates)!r}) is not a folder")
 
 
 def _webhooks(table: Mapping | None, base: WebhookSettings) -> WebhookSettings:

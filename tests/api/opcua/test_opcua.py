@@ -29,6 +29,7 @@ from storage.db import config_repo, session_scope
 from tests.api.rest.conftest import FakeRunner, hdr, make_settings
 
 LOOPBACK = "opc.tcp://127.0.0.1:0/mebm/"
+CLIENT_URI = "urn:mebm:test-client"  # a client certificate's URI must be the client's ApplicationUri
 
 
 def _until(pred, what: str, limit_s: float = 30.0):
@@ -179,48 +180,80 @@ def _certificate(tmp_path, name: str, uri: str, use) -> tuple[Path, Path]:
     return cert, key
 
 
+async def _connect(endpoint: str, user=None, password=None, cert=None, key=None) -> str:
+    """The axis' State read in a session, or the name of the status code that refused it."""
+    c = Client(endpoint, timeout=10)
+    c.application_uri = CLIENT_URI
+    if cert is not None:
+        await c.set_security_string(f"Basic256Sha256,SignAndEncrypt,{cert},{key}")
+    if user is not None:
+        c.set_user(user)
+        c.set_password(password)
+    try:
+        await c.connect()
+    except ua.UaStatusCodeError as exc:
+        return type(exc).__name__
+    except ua.UaError as exc:  # no endpoint of the requested security
+        return f"UaError: {exc}"
+    try:
+        idx = await c.get_namespace_index("urn:mebm")
+        _, axis = await _browse_to_axis(c)
+        return await (await axis.get_child(f"{idx}:State")).read_value()
+    finally:
+        await c.disconnect()
+
+
+async def _policies(endpoint: str) -> set:
+    endpoints = await Client(endpoint, timeout=10).connect_and_get_server_endpoints()
+    return {(e.SecurityPolicyUri.rsplit("#", 1)[1], e.SecurityMode.name) for e in endpoints}
+
+
+STATES = ("OK", "WARNING", "ALARM", "UNKNOWN")
+
+
 def test_with_a_username_anonymous_and_wrong_passwords_are_refused(env, tmp_path):
     cert, key = _certificate(tmp_path, "server", "urn:mebm:server", ExtendedKeyUsageOID.SERVER_AUTH)
-    client_cert, client_key = _certificate(tmp_path, "client", "urn:freeopcua:client", ExtendedKeyUsageOID.CLIENT_AUTH)
+    client_cert, client_key = _certificate(tmp_path, "client", CLIENT_URI, ExtendedKeyUsageOID.CLIENT_AUTH)
     settings = OpcuaSettings(enabled=True, endpoint=LOOPBACK, anonymous=False, username="mes", password="s3cret",
                              certificate=cert, private_key=key)
     srv = OpcuaServer(env["svc"], settings)
     assert srv.start(), srv.error
-
-    async def connect(user=None, password=None, secure=False):
-        c = Client(srv.endpoint, timeout=10)
-        if secure:
-            await c.set_security_string(f"Basic256Sha256,SignAndEncrypt,{client_cert},{client_key}")
-        if user is not None:
-            c.set_user(user)
-            c.set_password(password)
-        try:
-            await c.connect()
-        except ua.UaStatusCodeError as exc:
-            return type(exc).__name__
-        try:
-            idx = await c.get_namespace_index("urn:mebm")
-            _, axis = await _browse_to_axis(c)
-            return await (await axis.get_child(f"{idx}:State")).read_value()
-        finally:
-            await c.disconnect()
-
-    async def policies():
-        endpoints = await Client(srv.endpoint, timeout=10).connect_and_get_server_endpoints()
-        return {(e.SecurityPolicyUri.rsplit("#", 1)[1], e.SecurityMode.name) for e in endpoints}
-
     try:
-        anonymous = asyncio.run(connect())
-        wrong = asyncio.run(connect("mes", "nope"))
-        plain = asyncio.run(connect("mes", "s3cret"))  # the password encrypted with the server's certificate
-        secure = asyncio.run(connect("mes", "s3cret", secure=True))
-        offered = asyncio.run(policies())
+        anonymous = asyncio.run(_connect(srv.endpoint))
+        wrong = asyncio.run(_connect(srv.endpoint, "mes", "nope"))
+        plain = asyncio.run(_connect(srv.endpoint, "mes", "s3cret"))  # the password encrypted with the server's certificate
+        secure = asyncio.run(_connect(srv.endpoint, "mes", "s3cret", client_cert, client_key))
+        offered = asyncio.run(_policies(srv.endpoint))
     finally:
         srv.close()
     assert anonymous == "BadIdentityTokenRejected"
     assert wrong == "BadUserAccessDenied"
-    assert plain in ("OK", "WARNING", "ALARM", "UNKNOWN") and secure == plain
+    assert plain in STATES and secure == plain
     assert offered == {("None", "None_"), ("Basic256Sha256", "Sign"), ("Basic256Sha256", "SignAndEncrypt")}
+
+
+def test_with_trusted_client_certificates_only_their_holders_get_in(env, tmp_path):
+    cert, key = _certificate(tmp_path, "server", "urn:mebm:server", ExtendedKeyUsageOID.SERVER_AUTH)
+    good_cert, good_key = _certificate(tmp_path, "mes", CLIENT_URI, ExtendedKeyUsageOID.CLIENT_AUTH)
+    bad_cert, bad_key = _certificate(tmp_path, "stranger", CLIENT_URI, ExtendedKeyUsageOID.CLIENT_AUTH)
+    trusted = tmp_path / "trusted"
+    trusted.mkdir()
+    (trusted / "mes.der").write_bytes(good_cert.read_bytes())
+    settings = OpcuaSettings(enabled=True, endpoint=LOOPBACK, anonymous=False, certificate=cert, private_key=key,
+                             trusted_certificates=trusted)
+    srv = OpcuaServer(env["svc"], settings)
+    assert srv.start(), srv.error
+    try:
+        holder = asyncio.run(_connect(srv.endpoint, cert=good_cert, key=good_key))
+        stranger = asyncio.run(_connect(srv.endpoint, cert=bad_cert, key=bad_key))
+        unsigned = asyncio.run(_connect(srv.endpoint))
+        offered = asyncio.run(_policies(srv.endpoint))
+    finally:
+        srv.close()
+    assert holder in STATES
+    assert stranger.startswith("BadCertificate") or stranger == "BadSecurityChecksFailed", stranger
+    assert unsigned != holder and unsigned not in STATES
+    assert offered == {("Basic256Sha256", "Sign"), ("Basic256Sha256", "SignAndEncrypt")}  # no None channel
 
 
 def test_a_taken_port_leaves_the_service_measuring_without_opc_ua(env):
