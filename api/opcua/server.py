@@ -45,6 +45,7 @@ class OpcuaServer:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._started = threading.Event()
+        self._abandoned = False
 
     # -- life cycle ------------------------------------------------------------------------------
     def start(self) -> bool:
@@ -53,6 +54,7 @@ class OpcuaServer:
         self._thread = threading.Thread(target=self._run, name="mebm-opcua", daemon=True)
         self._thread.start()
         if not self._started.wait(START_TIMEOUT_S):
+            self._abandoned = True  # the thread stops the server if it starts after all
             self.error = f"did not start within {START_TIMEOUT_S:g} s"
         if self.error is not None:
             log.error("OPC UA server NOT started on %s: %s; the service goes on without OPC UA",
@@ -78,8 +80,11 @@ class OpcuaServer:
         except Exception as exc:  # noqa: BLE001 - reported by start(), the service goes on
             self.error = _reason(exc)
             loop.run_until_complete(self._quiet_stop())
+        if self._abandoned and self.error is None:
+            self.running = False
+            loop.run_until_complete(self._quiet_stop())
         self._started.set()
-        if self.error is None:
+        if self.error is None and not self._abandoned:
             loop.run_forever()
         loop.close()
 
@@ -113,7 +118,8 @@ class OpcuaServer:
         await srv.start()
         port = srv.bserver.port
         u = urlsplit(st.endpoint)
-        self.endpoint = urlunsplit((u.scheme, f"{u.hostname}:{port}", u.path, u.query, u.fragment))
+        host = f"[{u.hostname}]" if ":" in u.hostname else u.hostname
+        self.endpoint = urlunsplit((u.scheme, f"{host}:{port}", u.path, u.query, u.fragment))
         self.running = True
 
     async def _quiet_stop(self) -> None:
