@@ -1,6 +1,6 @@
 """Issue 17: the OPC UA server, checked with a real asyncua client over TCP on loopback.
 
-One service with its OPC UA server (port 0) per module: asyncua servers take a second
+One service with its OPC UA server (port 0) per module: asyncua servers take seconds
 to start. The tests of this module share it and run in the order written (the value
 seen before a measurement, then after). SQLite: the server only reads the status."""
 
@@ -27,20 +27,10 @@ from api.rest import create_app
 from api.service.config import DEFAULT_OPCUA_ENDPOINT, ConfigError, OpcuaSettings, load_settings, parse_settings
 from storage.db import config_repo, session_scope
 from tests.api.rest.conftest import FakeRunner, hdr, make_settings
+from tests.api.rest.test_interfaces import _until
 
 LOOPBACK = "opc.tcp://127.0.0.1:0/mebm/"
 CLIENT_URI = "urn:mebm:test-client"  # a client certificate's URI must be the client's ApplicationUri
-
-
-def _until(pred, what: str, limit_s: float = 30.0):
-    """Wait for ``pred()`` (a deadline for a hang, not a performance bound)."""
-    end = time.monotonic() + limit_s
-    while time.monotonic() < end:
-        v = pred()
-        if v:
-            return v
-        time.sleep(0.05)
-    raise AssertionError(f"{what} did not happen within {limit_s:g} s")
 
 
 @pytest.fixture(scope="module")
