@@ -4,8 +4,6 @@ thread (it may touch the database); the server's event loop only writes the resu
 
 from __future__ import annotations
 
-import json
-import logging
 import math
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -13,7 +11,6 @@ from datetime import datetime, timezone
 from api.service.status import state_and_message
 from storage.db import results_repo, session_scope
 
-log = logging.getLogger("mebm.opcua")
 TBE_ALERT_KIND = "tbe_exceeded"  # the alert raised when a TBE passes its permissible error
 
 
@@ -39,7 +36,7 @@ class AxisValues:
     backlash_mean_uncertainty_um: float | None  # backlash_mean_uncertainty_um (k = 2)
     backlash_limit_um: float | None  # backlash_limit_um
     tasks: tuple[TaskValue, ...]  # tasks[].tbe_um per tasks[].name
-    predicted_time: datetime | None  # prognosis (when present), else the active alert's raised_at
+    predicted_time: datetime | None  # prognosis.limit_date when there is one, else the active alert's raised_at
     prediction_source: str | None  # "prognosis" | "limit passed"
 
 
@@ -47,54 +44,12 @@ def _finite(x) -> float | None:
     return float(x) if x is not None and math.isfinite(x) else None
 
 
-def _as_time(v) -> datetime | None:
-    if isinstance(v, datetime):
-        return v if v.tzinfo else v.replace(tzinfo=timezone.utc)
-    if isinstance(v, str):
-        try:
-            return _as_time(datetime.fromisoformat(v.replace("Z", "+00:00")))
-        except ValueError:
-            return None
-    return None
-
-
-# The prognosis is being added to the status body in parallel (issue 16): its shape is not
-# fixed yet, so take the first date-time of these names, from a mapping or an object.
-PROGNOSIS_TIME_KEYS = ("limit_reached_at", "predicted_time", "predicted_at", "limit_at", "date", "at")
-
-
-def prognosis_time(p) -> datetime | None:
-    """The predicted date the backlash limit is reached, from a prognosis (dict, object,
-    date-time or ISO string); None when it gives none."""
-    if p is None:
-        return None
-    direct = _as_time(p)
-    if direct is not None:
-        return direct
-    get = p.get if isinstance(p, dict) else (lambda k: getattr(p, k, None))
-    for key in PROGNOSIS_TIME_KEYS:
-        t = _as_time(get(key))
-        if t is not None:
-            return t
-    if isinstance(p, dict):  # any other *_at field
-        for key, v in p.items():
-            if key.endswith("_at") and _as_time(v) is not None:
-                return _as_time(v)
-    return None
-
-
-def _prognosis(service, st) -> datetime | None:
-    t = prognosis_time(getattr(st, "prognosis", None))
-    if t is not None:
-        return t
-    try:
-        doc = service.status_document(st.axis.id)  # the REST body, when a REST app is set up
-    except Exception:  # noqa: BLE001 - the prognosis is optional; the alert date stands in
-        log.debug("status document of axis %s unavailable", st.axis.id, exc_info=True)
-        return None
-    if doc is None:
-        return None
-    return prognosis_time(json.loads(doc).get("prognosis"))
+def prognosis_time(st) -> datetime | None:
+    """The date the prognosis expects b̄ at the worst-case temperature to reach the backlash
+    limit (the status body's ``prognosis.limit_date``); None when it gives none."""
+    history = st.history
+    when_s = history.prognosis.limit_date_s if history is not None else None
+    return datetime.fromtimestamp(when_s, timezone.utc) if when_s is not None else None
 
 
 def _limit_passed_at(service, axis_id: int) -> datetime | None:
@@ -115,7 +70,7 @@ def axis_values(service, axis_id: int) -> AxisValues:
                   assessed[t.name].state.value if t.name in assessed else None)
         for t in st.axis.tasks
     )  # fmt: skip
-    when, source = _prognosis(service, st), "prognosis"
+    when, source = prognosis_time(st), "prognosis"
     if when is None and st.active_alert_id is not None:
         when, source = _limit_passed_at(service, axis_id), "limit passed"
     return AxisValues(

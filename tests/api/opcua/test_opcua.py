@@ -11,6 +11,7 @@ import socket
 import time
 import uuid
 from dataclasses import replace
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
 import pytest
@@ -22,12 +23,12 @@ from fastapi.testclient import TestClient
 from api.cli.serve import opcua_line
 from api.opcua import OpcuaServer
 from api.opcua.nodes import UNECE_URI, unece_unit_id
-from api.opcua.values import prognosis_time
 from api.rest import create_app
 from api.service.config import DEFAULT_OPCUA_ENDPOINT, ConfigError, OpcuaSettings, load_settings, parse_settings
 from storage.db import config_repo, session_scope
 from tests.api.rest.conftest import FakeRunner, hdr, make_settings
 from tests.api.rest.test_interfaces import _until
+from tests.api.rest.test_prognosis import _bulk_history
 
 LOOPBACK = "opc.tcp://127.0.0.1:0/mebm/"
 CLIENT_URI = "urn:mebm:test-client"  # a client certificate's URI must be the client's ApplicationUri
@@ -140,8 +141,9 @@ def test_a_client_browses_to_backlash_mean_and_sees_it_change_after_a_measuremen
     (alert,) = [a for a in alerts if a["id"] == rest["active_alert_id"]]
     assert alarm["BacklashMean"] == pytest.approx(rest["backlash_mean_um"]) and alarm["State"] == "ALARM"
     (entry,) = alarm["prognoses"].values()
-    assert entry["Source"] == "limit passed"
-    assert prognosis_time(entry["PredictedTime"]) == prognosis_time(alert["raised_at"])
+    assert entry["Source"] == "limit passed" and rest["prognosis"]["limit_date"] is None  # two cycles: no fit yet
+    raised_at = datetime.fromisoformat(alert["raised_at"].replace("Z", "+00:00"))
+    assert abs(entry["PredictedTime"].replace(tzinfo=timezone.utc) - raised_at) < timedelta(milliseconds=1)
 
 
 def test_a_write_is_refused_and_every_variable_is_read_only(env):
@@ -289,11 +291,14 @@ def test_opcua_configuration_is_checked_by_name(tmp_path):
             parse_settings({"opcua": bad})
 
 
-def test_the_prognosis_date_is_found_in_the_shapes_it_may_take():
-    from datetime import datetime, timezone
-
-    t = datetime(2027, 3, 12, tzinfo=timezone.utc)
-    for p in (t, "2027-03-12T00:00:00Z", {"limit_reached_at": "2027-03-12T00:00:00Z", "rate_um_per_day": 0.4},
-              {"other_at": "2027-03-12T00:00:00+00:00"}, type("P", (), {"predicted_at": t})()):
-        assert prognosis_time(p) == t, p
-    assert prognosis_time(None) is None and prognosis_time({"rate_um_per_day": 0.4, "limit_reached_at": None}) is None
+def test_predicted_time_is_the_prognosis_limit_date_once_the_history_supports_one(env):
+    """Last in the module: it adds a history of 80 measurements to the shared database."""
+    env["runner"].backlash_um, env["runner"].temperature_c = 200.0, 20.0
+    _bulk_history(env["svc"], env["axis_id"])  # b̄ = 200 + 2 (T - 20) + 0.02 d: wear towards 236 µm at 30 °C
+    _measure(env)
+    rest = env["client"].get(f"/api/v1/axes/{env['axis_id']}/status", headers=hdr(env["read"])).json()
+    assert rest["prognosis"]["identifiable"] is True and rest["prognosis"]["limit_date"] is not None, rest["prognosis"]
+    (entry,) = asyncio.run(_read_axis(env["ua"].endpoint))["prognoses"].values()
+    assert entry["Source"] == "prognosis"
+    limit_date = datetime.fromisoformat(rest["prognosis"]["limit_date"].replace("Z", "+00:00"))
+    assert abs(entry["PredictedTime"].replace(tzinfo=timezone.utc) - limit_date) < timedelta(seconds=1)
