@@ -43,7 +43,21 @@ def _bind(host: str, port: int) -> socket.socket:
     return sock
 
 
-def banner(settings, report, url: str) -> str:
+def opcua_line(settings, opcua) -> str:
+    o = settings.opcua
+    if not o.enabled:
+        return "OPC UA: off ([opcua] enabled)"
+    if opcua is None or not opcua.running:
+        why = opcua.error if opcua is not None else "not started"
+        return f"OPC UA: NOT running on {o.endpoint}: {why} (the service goes on without it)"
+    who = " + ".join((["anonymous"] if o.anonymous else []) + ([f"user {o.username!r}"] if o.username else [])
+                     + (["certificate users"] if o.trusted_certificates else [])) + " read-only"
+    sec = "Basic256Sha256 only, trusted client certificates" if o.trusted_certificates else \
+        "None" + (", Basic256Sha256" if o.certificate else "")
+    return f"OPC UA: {opcua.endpoint}  ({who}; security {sec}; Objects/Machines/<machine>/<axis>/BacklashMean)"
+
+
+def banner(settings, report, url: str, opcua=None) -> str:
     lines = [f"mebm service on {url}  (API {url}/api/v1, OpenAPI docs {url}/docs)",
              f"database: {report.database}"]
     if report.replayed:
@@ -55,6 +69,7 @@ def banner(settings, report, url: str) -> str:
     m = settings.mqtt
     lines.append(f"MQTT: {_redact_url(m.url)}, topics {m.topic_prefix}/<machine>/<axis>/status|alerts" if m.url
                  else "MQTT: off ([mqtt] url or MEBM_MQTT_URL)")  # fmt: skip
+    lines.append(opcua_line(settings, opcua))
     w = settings.webhooks
     lines.append(f"webhooks: {len(w.urls)} receiver(s)" if w.urls else "webhooks: off ([webhooks] urls)")
     if report.demo_keys:  # only the keys created by this start: shown once
@@ -92,19 +107,28 @@ def _serve(a: argparse.Namespace) -> int:
         settings = replace(settings, scheduler_enabled=False)
     logging.basicConfig(level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     logging.getLogger("apscheduler").setLevel(logging.WARNING)  # one line per job run is noise
+    logging.getLogger("asyncua").setLevel(logging.WARNING)  # a line per session and request otherwise
     sock = _bind(settings.host, settings.port)
     port = sock.getsockname()[1]
     service = Service(settings)
+    opcua = None
     try:
         report = service.start()
+        if settings.opcua.enabled:  # before the banner, which says whether it listens
+            from api.opcua import OpcuaServer
+
+            opcua = OpcuaServer(service, settings.opcua)
+            opcua.start()  # logs and goes on when it cannot listen
         host = settings.host if settings.host not in ("0.0.0.0", "::") else "127.0.0.1"
         url = f"http://{host}:{port}"
-        print(banner(settings, report, url), flush=True)
-        app = create_app(settings, service=service)
+        print(banner(settings, report, url, opcua), flush=True)
+        app = create_app(settings, service=service, opcua=opcua)
         config = uvicorn.Config(app, log_level=settings.log_level, access_log=False, timeout_graceful_shutdown=10)
         server = uvicorn.Server(config)
         server.run(sockets=[sock])
     finally:
+        if opcua is not None:
+            opcua.close()
         service.stop()
         sock.close()
     sys.stdout.flush()

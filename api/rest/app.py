@@ -65,7 +65,22 @@ def _start_interfaces(app: FastAPI, svc: Service, settings: Settings) -> list:
     return started
 
 
-def create_app(settings: Settings, *, service: Service | None = None, runner: CycleRunner | None = None) -> FastAPI:
+def _start_opcua(app: FastAPI, svc: Service, settings: Settings, given) -> list:
+    """The OPC UA server: the one handed in (``mebm serve`` starts it before its banner),
+    else one of our own when ``[opcua] enabled``. Started after the service (it seeds from
+    the database); one that cannot listen is logged and left off, never fatal."""
+    app.state.opcua = given
+    if given is not None or not settings.opcua.enabled:
+        return []
+    from api.opcua import OpcuaServer
+
+    app.state.opcua = OpcuaServer(svc, settings.opcua)
+    app.state.opcua.start()
+    return [app.state.opcua]
+
+
+def create_app(settings: Settings, *, service: Service | None = None, runner: CycleRunner | None = None,
+               opcua=None) -> FastAPI:  # fmt: skip
     owned = service is None
     svc = service or Service(settings, runner=runner)
 
@@ -76,6 +91,7 @@ def create_app(settings: Settings, *, service: Service | None = None, runner: Cy
         try:
             if owned:
                 svc.start()
+            started += _start_opcua(app, svc, settings, opcua)
             for machine, _ in settings.machines:
                 if app.state.mqtt is not None:
                     app.state.mqtt.link(machine)  # the birth message, before any measurement
@@ -91,6 +107,7 @@ def create_app(settings: Settings, *, service: Service | None = None, runner: Cy
     install_docs(app, f"{API_PREFIX}/openapi.json")  # Swagger UI from the package, no CDN
     app.state.service = svc
     app.state.mqtt = app.state.webhooks = None
+    app.state.opcua = opcua
     app.state.key_cache = KeyCache()
     app.state.status_json = {}  # axis id -> (status object, its encoded JSON): see status_body.py
     app.state.metrics = make_registry(svc)

@@ -417,3 +417,5 @@ class Health(BaseModel):
     version: str
     uptime_s: float
     spooled_cycles: int
+    opcua: str | None = Field(None, description="the OPC UA server: 'listening on <endpoint>', or why it is off "
+                                                "(it never makes the service degraded); null when not configured")

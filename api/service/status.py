@@ -80,6 +80,23 @@ def compute_status(s, axis_id: int, history_memo: HistoryMemo | None = None) -> 
     )
 
 
+def state_and_message(s: AxisStatus) -> tuple[str, str]:
+    """The axis' state (OK, WARNING, ALARM, UNKNOWN) and the sentence that explains it, as
+    every interface shows them (REST status body, OPC UA)."""
+    d, latest = s.decision, s.latest
+    b = latest.round_trip.backlash.mean_um if latest is not None else None
+    if latest is None:
+        message = "no good measurement yet"
+        if s.last_failure_reason:
+            message += f"; last cycle failed: {s.last_failure_reason}"
+        return "UNKNOWN", message
+    if d is None and s.decision_error:
+        return "UNKNOWN", f"mean backlash {b:.1f} µm; the TBE model cannot evaluate it: {s.decision_error}"
+    if d is None:
+        return "UNKNOWN", f"mean backlash {b:.1f} µm; no machining task configured (PUT /axes/{s.axis.id}/tasks)"
+    return d.state.value, d.message()
+
+
 class StatusCache:
     """Status per axis, recomputed when a cycle is saved or the axis changes (this
     process invalidates it), and at most ``ttl_s`` old otherwise (changes made by

@@ -1,4 +1,4 @@
-"""/webhooks/deliveries and /interfaces: what the publishers did (issue 17)."""
+"""/webhooks/deliveries and /interfaces: what the publishers and the OPC UA server did (issue 17)."""
 
 from __future__ import annotations
 
@@ -24,6 +24,7 @@ def interfaces(request: Request, _k: ReadKey) -> dict:
             "alerts_acknowledged": mqtt.published, "alerts_dropped": mqtt.dropped},
         "webhooks": None if hooks is None else {
             "urls": len(hooks.settings.urls), "delivered": hooks.delivered, "failed_attempts": hooks.failed},
+        "opcua": None if st.opcua is None else st.opcua.describe(),
         "event_consumers": subs,
     }  # fmt: skip
 
