@@ -7,7 +7,7 @@ from datetime import datetime
 import numpy as np
 
 from api.rest import schemas as sc
-from api.service.status import AxisStatus
+from api.service.status import AxisStatus, state_and_message
 from core.history import TemperatureModel
 from core.errors import MebmError
 from storage.db import AlertRecord, AxisRecord, CycleRecord, KeyRecord, MachineRecord, ResultRecord, TrendView
@@ -61,16 +61,7 @@ def status(s: AxisStatus, now: datetime, next_run: datetime | None) -> sc.AxisSt
             unc[f"{key}_uncertainty_um"] = rt.criterion_uncertainty_um("positive", key)
     b = latest.round_trip.backlash.mean_um if latest else None
     limit = sc.fin(d.backlash_limit_um) if d else None
-    if latest is None:
-        state, message = "UNKNOWN", "no good measurement yet"
-        if s.last_failure_reason:
-            message += f"; last cycle failed: {s.last_failure_reason}"
-    elif d is None and s.decision_error:
-        state, message = "UNKNOWN", f"mean backlash {b:.1f} µm; the TBE model cannot evaluate it: {s.decision_error}"
-    elif d is None:
-        state, message = "UNKNOWN", f"mean backlash {b:.1f} µm; no machining task configured (PUT /axes/{a.id}/tasks)"
-    else:
-        state, message = d.state.value, d.message()
+    state, message = state_and_message(s)
     return sc.AxisStatusOut(
         axis_id=a.id, machine_id=a.machine_id, machine_name=a.machine_name, axis_name=a.name, state=state,
         message=message, measurement_id=latest.cycle_id if latest else None,

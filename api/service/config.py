@@ -87,6 +87,16 @@ class WebhookSettings:
 
 
 @dataclass(frozen=True)
+class MtconnectSettings:
+    """``[mtconnect]``: an MTConnect agent (2.4, read-only) under ``/mtconnect`` on the API's port."""
+
+    enabled: bool = True
+    require_key: bool = False  # agents are usually open on the shop network; True: any valid key (X-API-Key)
+    buffer_size: int = 131072  # observations kept for /sample (the ring buffer)
+    sender: str | None = None  # the Header's sender; None: this host's name
+
+
+@dataclass(frozen=True)
 class Settings:
     host: str = "127.0.0.1"
     port: int = 8000
@@ -107,6 +117,7 @@ class Settings:
     retention_interval_s: float = 3600.0
     mqtt: MqttSettings = field(default_factory=MqttSettings)
     webhooks: WebhookSettings = field(default_factory=WebhookSettings)
+    mtconnect: MtconnectSettings = field(default_factory=MtconnectSettings)
 
     @property
     def db_url(self) -> str:
@@ -140,7 +151,7 @@ def default_settings() -> Settings:
 
 # -- parsing -----------------------------------------------------------------------------------
 _TOP = {"server", "storage", "auth", "scheduler", "simulator", "machines", "logging", "limits", "retention", "mqtt",
-        "webhooks"}
+        "webhooks", "mtconnect"}
 
 
 def _get(table: Mapping, key: str, kind, where: str, default=None):
@@ -286,6 +297,7 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
         log_level=_get(logging_, "level", str, "logging", base.log_level), limits=limits,
         retention=retention, retention_interval_s=retention_interval_s,
         mqtt=_mqtt(doc.get("mqtt"), base.mqtt), webhooks=_webhooks(doc.get("webhooks"), base.webhooks),
+        mtconnect=_mtconnect(doc.get("mtconnect"), base.mtconnect),
     )
 
 
@@ -313,6 +325,19 @@ def check_mqtt(m: MqttSettings, where: str) -> None:
         raise ConfigError(f"{where}.topic_prefix (={m.topic_prefix!r}) must be a plain topic level (no + # or leading /)")
     if m.outbox_max < 1:
         raise ConfigError(f"{where}.outbox_max (={m.outbox_max}) must be >= 1")
+
+
+def _mtconnect(table: Mapping | None, base: MtconnectSettings) -> MtconnectSettings:
+    if table is None:
+        return base
+    _unknown(table, {"enabled", "require_key", "buffer_size", "sender"}, "mtconnect")
+    out = MtconnectSettings(enabled=_get(table, "enabled", bool, "mtconnect", base.enabled),
+                            require_key=_get(table, "require_key", bool, "mtconnect", base.require_key),
+                            buffer_size=_get(table, "buffer_size", int, "mtconnect", base.buffer_size),
+                            sender=_get(table, "sender", str, "mtconnect", base.sender) or None)  # fmt: skip
+    if not 1 <= out.buffer_size <= 10_000_000:
+        raise ConfigError(f"mtconnect.buffer_size (={out.buffer_size}) must be 1..10000000 observations")
+    return out
 
 
 def _webhooks(table: Mapping | None, base: WebhookSettings) -> WebhookSettings:

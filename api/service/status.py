@@ -71,6 +71,23 @@ def compute_status(s, axis_id: int) -> AxisStatus:
     )
 
 
+def state_and_message(st: AxisStatus) -> tuple[str, str]:
+    """The maintenance state (OK, WARNING, ALARM or UNKNOWN) and its message, as the
+    status body and every interface (MTConnect, OPC UA) say them."""
+    latest, d = st.latest, st.decision
+    if latest is None:
+        message = "no good measurement yet"
+        if st.last_failure_reason:
+            message += f"; last cycle failed: {st.last_failure_reason}"
+        return "UNKNOWN", message
+    b = latest.round_trip.backlash.mean_um
+    if d is None and st.decision_error:
+        return "UNKNOWN", f"mean backlash {b:.1f} µm; the TBE model cannot evaluate it: {st.decision_error}"
+    if d is None:
+        return "UNKNOWN", f"mean backlash {b:.1f} µm; no machining task configured (PUT /axes/{st.axis.id}/tasks)"
+    return d.state.value, d.message()
+
+
 class StatusCache:
     """Status per axis, recomputed when a cycle is saved or the axis changes (this
     process invalidates it), and at most ``ttl_s`` old otherwise (changes made by
