@@ -57,6 +57,10 @@ def banner(settings, report, url: str) -> str:
                  else "MQTT: off ([mqtt] url or MEBM_MQTT_URL)")  # fmt: skip
     w = settings.webhooks
     lines.append(f"webhooks: {len(w.urls)} receiver(s)" if w.urls else "webhooks: off ([webhooks] urls)")
+    mc = settings.mtconnect
+    lines.append(f"MTConnect agent: {url}/mtconnect/probe, /current, /sample"
+                 + (" (any API key)" if mc.require_key else " (open, read-only)") if mc.enabled
+                 else "MTConnect: off ([mtconnect] enabled)")  # fmt: skip
     if report.demo_keys:  # only the keys created by this start: shown once
         k = report.demo_keys
         lines.append("demo keys created (shown this once; read and operate are kept in "

@@ -133,7 +133,7 @@ def make_router(agent: MTConnectAgent) -> APIRouter:
         def build(as_json):
             devs = devices(device)
             start = _int(request, "from", None)
-            count = _int(request, "count", DEFAULT_COUNT)
+            count = _int(request, "count", min(DEFAULT_COUNT, agent.buffer.size))
             if start is not None and start < 0:
                 raise MTConnectError("OUT_OF_RANGE", f"'from' (={start}) must be a positive sequence number")
             if not 1 <= count <= agent.buffer.size:
