@@ -72,11 +72,12 @@ class MTConnectAgent:
     def handle(self, ev: Event) -> None:
         if ev.kind not in ("measurement_stored", "cycle_failed", "alert_changed"):
             return
+        if not self._seeded:
+            self.seed()  # reads this event's cycle too (events follow the commit)
+            return
+        st = self.service.status.get(ev.axis_id)  # outside the lock: requests never wait on the database
         with self._lock:
-            if not self._seeded:
-                self.seed()  # reads this event's cycle too (events follow the commit)
-                return
-            self._update(self.service.status.get(ev.axis_id), utcnow())
+            self._update(st, utcnow())
 
     def _update(self, st, now, *, seed: bool = False) -> None:
         a = st.axis

@@ -24,7 +24,7 @@ from storage.db import StorageError, config_repo, session_scope
 
 PREFIX = "/mtconnect"
 DEFAULT_COUNT = 100
-UNSUPPORTED = ("interval", "at", "path", "heartbeat")  # streaming, history and XPath filters: not served
+UNSUPPORTED = ("interval", "at", "to", "path", "heartbeat")  # streaming, history and XPath filters: not served
 XML = "application/xml"
 JSON = "application/json"
 STATUS = {"OUT_OF_RANGE": 400, "INVALID_REQUEST": 400, "UNSUPPORTED": 400, "NO_DEVICE": 404, "INVALID_URI": 404,

@@ -154,6 +154,9 @@ def test_probe_current_and_sample_validate_and_say_what_rest_says(tmp_path, sche
         sample = schemas.streams_ok(client.get("/mtconnect/sample", params={"from": 1, "count": 5}).content)
         assert [int(o.get("sequence")) for o in _observations(sample)] == [1, 2, 3, 4, 5]
         assert _header(sample)["nextSequence"] == 6
+        info = client.get("/api/v1/interfaces", headers=hdr(key)).json()
+        assert info["mtconnect"]["next_sequence"] == _header(cur)["nextSequence"]
+        assert info["mtconnect"]["devices"] == 1 and info["event_consumers"]["mtconnect"]["failed"] == 0
 
         # past the limit: ALARM is a Fault, with the active alert as its conditionId
         runner.backlash_um = 400.0
