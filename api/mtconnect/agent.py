@@ -40,10 +40,21 @@ class MTConnectAgent:
         self._lock = threading.RLock()
         self._seeded = False
         self.subscription = None
+        self.shdr = None
 
     # -- life cycle ----------------------------------------------------------------------------------
     def start(self) -> None:
-        """Subscribe to the service's events (before the service starts cycles)."""
+        """Subscribe to the service's events (before the service starts cycles); open the
+        SHDR port if configured (:class:`~core.errors.InputError` if it cannot listen)."""
+        if self.settings.shdr_port is not None:
+            from api.mtconnect.shdr import ShdrAdapter
+            from core.errors import InputError
+
+            try:
+                self.shdr = ShdrAdapter(self.buffer, self.settings.shdr_host, self.settings.shdr_port)
+            except OSError as exc:
+                raise InputError(f"mtconnect.shdr_port: cannot listen on {self.settings.shdr_host}:"
+                                 f"{self.settings.shdr_port}: {exc.strerror}") from exc
         self.subscription = self.service.events.subscribe("mtconnect", self.handle)
 
     def seed(self) -> None:
@@ -64,6 +75,9 @@ class MTConnectAgent:
                      *self.buffer.bounds()[:2])
 
     def close(self) -> None:
+        if self.shdr is not None:
+            self.shdr.close()
+            self.shdr = None
         if self.subscription is not None:
             self.service.events.unsubscribe(self.subscription)
             self.subscription = None

@@ -48,6 +48,7 @@ class ObservationBuffer:
         self._current: dict[str, Observation] = {}  # DataItem id -> its newest observation
         self._next = 1
         self._lock = threading.Lock()
+        self._added = threading.Condition(self._lock)
 
     def add(self, device: str, component: str, values: list[Value], *, only_changed: bool = True) -> int:
         """Append the values (those that differ from the DataItem's current observation in
@@ -63,7 +64,15 @@ class ObservationBuffer:
                 self._ring.append(ob)
                 self._current[v.data_item.id] = ob
                 n += 1
+            if n:
+                self._added.notify_all()
         return n
+
+    def wait(self, next_sequence: int, timeout_s: float) -> bool:
+        """Wait until an observation numbered ``next_sequence`` or later exists (True) or
+        ``timeout_s`` passed (False)."""
+        with self._added:
+            return self._added.wait_for(lambda: self._next > next_sequence, timeout_s)
 
     def _bounds(self) -> tuple[int, int, int]:
         first = self._ring[0].sequence if self._ring else self._next

@@ -94,6 +94,8 @@ class MtconnectSettings:
     require_key: bool = False  # agents are usually open on the shop network; True: any valid key (X-API-Key)
     buffer_size: int = 131072  # observations kept for /sample (the ring buffer)
     sender: str | None = None  # the Header's sender; None: this host's name
+    shdr_port: int | None = None  # an SHDR adapter port for a site's own agent (7878 by convention); None: off
+    shdr_host: str = "127.0.0.1"
 
 
 @dataclass(frozen=True)
@@ -330,11 +332,15 @@ def check_mqtt(m: MqttSettings, where: str) -> None:
 def _mtconnect(table: Mapping | None, base: MtconnectSettings) -> MtconnectSettings:
     if table is None:
         return base
-    _unknown(table, {"enabled", "require_key", "buffer_size", "sender"}, "mtconnect")
+    _unknown(table, {"enabled", "require_key", "buffer_size", "sender", "shdr_port", "shdr_host"}, "mtconnect")
     out = MtconnectSettings(enabled=_get(table, "enabled", bool, "mtconnect", base.enabled),
                             require_key=_get(table, "require_key", bool, "mtconnect", base.require_key),
                             buffer_size=_get(table, "buffer_size", int, "mtconnect", base.buffer_size),
-                            sender=_get(table, "sender", str, "mtconnect", base.sender) or None)  # fmt: skip
+                            sender=_get(table, "sender", str, "mtconnect", base.sender) or None,
+                            shdr_port=_get(table, "shdr_port", int, "mtconnect", base.shdr_port),
+                            shdr_host=_get(table, "shdr_host", str, "mtconnect", base.shdr_host))  # fmt: skip
+    if out.shdr_port is not None and not 0 <= out.shdr_port <= 65535:
+        raise ConfigError(f"mtconnect.shdr_port (={out.shdr_port}) must be 0..65535 (0: a free port)")
     if not 1 <= out.buffer_size <= 10_000_000:
         raise ConfigError(f"mtconnect.buffer_size (={out.buffer_size}) must be 1..10000000 observations")
     return out

@@ -327,6 +327,10 @@ def test_the_mtconnect_table_of_the_configuration():
         parse_settings({"mtconnect": {"buffer_size": 0}})
     with pytest.raises(ConfigError, match="unknown option"):
         parse_settings({"mtconnect": {"port": 5000}})
+    assert parse_settings({"mtconnect": {"shdr_port": 7878}}).mtconnect.shdr_port == 7878
+    assert parse_settings({}).mtconnect.shdr_port is None  # the SHDR port is opened only when asked for
+    with pytest.raises(ConfigError, match="mtconnect.shdr_port"):
+        parse_settings({"mtconnect": {"shdr_port": 70000}})
 
 
 def test_the_start_banner_prints_the_mtconnect_url(tmp_path):
@@ -337,5 +341,55 @@ def test_the_start_banner_prints_the_mtconnect_url(tmp_path):
                          simulators={}, bootstrap_admin=None)  # fmt: skip
     text = banner(make_settings("sqlite:///x", tmp_path), report, "http://127.0.0.1:8000")
     assert "MTConnect agent: http://127.0.0.1:8000/mtconnect/probe" in text and "(open, read-only)" in text
+    assert "SHDR" not in text
+    shdr = banner(make_settings("sqlite:///x", tmp_path, mtconnect=MtconnectSettings(shdr_port=7878)), report, "u")
+    assert "MTConnect SHDR adapter: 127.0.0.1:7878" in shdr
     off = banner(make_settings("sqlite:///x", tmp_path, mtconnect=MtconnectSettings(enabled=False)), report, "u")
     assert "MTConnect: off" in off
+
+
+class _LineClient:
+    """A plain TCP client reading SHDR lines, as an agent's adapter connection does."""
+
+    def __init__(self, port: int):
+        self.sock = socket.create_connection(("127.0.0.1", port), timeout=30)
+        self.file = self.sock.makefile("rb")
+
+    def until(self, pred) -> list[str]:
+        lines = []
+        while True:
+            line = self.file.readline().decode().rstrip("\n")
+            assert line, f"the adapter closed the connection after {lines}"
+            lines.append(line)
+            if pred(line):
+                return lines
+
+    def close(self):
+        self.file.close()
+        self.sock.close()
+
+
+def test_the_shdr_adapter_sends_current_values_then_each_change_and_answers_ping(tmp_path):
+    runner = FakeRunner(backlash_um=200.0)
+    app = _app(tmp_path, runner, mtconnect=MtconnectSettings(shdr_port=0))
+    with TestClient(app):
+        svc, agent = app.state.service, app.state.mtconnect
+        axis_id = _axis(svc)
+        client = _LineClient(agent.shdr.port)
+        try:
+            first = client.until(lambda line: f"|a{axis_id}_backlash_cond|" in line)
+            fields = {line.split("|")[1]: line.split("|")[2:] for line in first}
+            assert fields[f"a{axis_id}_backlash"] == ["UNAVAILABLE"] and fields["m1_avail"] == ["AVAILABLE"]
+            assert fields[f"a{axis_id}_backlash_cond"] == ["unavailable", "", "", "", ""]
+            client.sock.sendall(b"* PING\n")
+            assert client.until(lambda line: line.startswith("* PONG")) == ["* PONG 10000"]
+            runner.backlash_um = 400.0
+            _measure(svc, axis_id, agent, 0)
+            new = client.until(lambda line: f"|a{axis_id}_backlash_cond|" in line)
+            fields = {line.split("|")[1]: line.split("|")[2:] for line in new}
+            assert fields[f"a{axis_id}_backlash"] == ["0.4"]
+            level, code, severity, qualifier, message = fields[f"a{axis_id}_backlash_cond"]
+            assert (level, code, severity, qualifier) == ("fault", "BACKLASH", "ALARM", "HIGH") and "ALARM" in message
+            assert agent.shdr.clients == 1
+        finally:
+            client.close()
