@@ -14,7 +14,7 @@ from datetime import datetime
 from xml.sax.saxutils import escape, quoteattr
 
 from api.mtconnect.buffer import Observation, Window
-from api.mtconnect.model import X_NS, Device, iso
+from api.mtconnect.model import X_DEVICES_NS, X_NS, Device, iso
 
 VERSION = "2.4.0.0"
 SCHEMA_VERSION = "2.4"
@@ -56,7 +56,7 @@ def _number(v: float) -> str:
 
 # -- probe -------------------------------------------------------------------------------------------
 def devices_xml(h: Header, devices: list[Device]) -> bytes:
-    out = ['<?xml version="1.0" encoding="UTF-8"?>', _root("Devices"),
+    out = ['<?xml version="1.0" encoding="UTF-8"?>', _root("Devices", f' xmlns:x="{X_DEVICES_NS}"'),
            f"<Header{_attrs(_header_attrs(h) + [('bufferSize', h.buffer_size), ('assetBufferSize', 1), ('assetCount', 0)])}/>",  # noqa: E501
            "<Devices>"]
     for d in devices:

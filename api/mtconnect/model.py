@@ -30,6 +30,7 @@ from datetime import datetime, timezone
 from api.service.status import AxisStatus, state_and_message
 
 X_NS = "urn:mebm:MTConnectStreams:2.4"  # the x: extension namespace of the streams
+X_DEVICES_NS = "urn:mebm:MTConnectDevices:2.4"  # ...declared in the probe, whose x: types name it
 CONDITION_LEVEL = {"OK": "Normal", "WARNING": "Warning", "ALARM": "Fault", "UNKNOWN": "Unavailable"}
 
 

@@ -393,3 +393,24 @@ def test_the_shdr_adapter_sends_current_values_then_each_change_and_answers_ping
             assert agent.shdr.clients == 1
         finally:
             client.close()
+
+
+def test_the_validators_catch_what_the_schemas_forbid(tmp_path, schemas):
+    """The checks above are not vacuous: a micrometre unit, a Header without its
+    deviceModelChangeTime and a Fault without conditionId are refused."""
+    import xmlschema
+
+    runner = FakeRunner(backlash_um=400.0)
+    app = _app(tmp_path, runner)
+    with TestClient(app) as client:
+        svc, agent = app.state.service, app.state.mtconnect
+        _measure(svc, _axis(svc), agent, 0)
+        probe = client.get("/mtconnect/probe").content
+        cur = client.get("/mtconnect/current").content
+    schemas.devices_ok(probe)
+    schemas.streams_ok(cur)
+    with pytest.raises(xmlschema.XMLSchemaValidationError, match="MICROMETER"):
+        schemas.devices_ok(probe.replace(b'units="MILLIMETER"', b'units="MICROMETER"', 1))
+    assert not schemas.streams.validate(etree.fromstring(cur.replace(b' deviceModelChangeTime="', b' x="', 1)))
+    assert b"conditionId=" in cur
+    assert not schemas.streams.validate(etree.fromstring(cur.replace(b" conditionId=", b" x=", 1)))
