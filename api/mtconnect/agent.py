@@ -6,8 +6,8 @@ interface); ``seed()``, once the service has started, puts every axis' status fr
 database into the buffer, so ``/current`` is right after a restart. Then each
 ``measurement_stored``, ``cycle_failed`` and ``alert_changed`` recomputes that axis'
 status (the same :class:`~api.service.status.StatusCache` the REST status reads) and
-appends the values that changed. An axis added or a task changed shows up in the
-device model at the axis' next event (``deviceModelChangeTime`` says so).
+appends the values that changed; ``axis_changed`` (an axis created, its tasks or
+schedule set through the API) updates the device model at once (``deviceModelChangeTime``).
 """
 
 from __future__ import annotations
@@ -84,7 +84,7 @@ class MTConnectAgent:
 
     # -- events --------------------------------------------------------------------------------------
     def handle(self, ev: Event) -> None:
-        if ev.kind not in ("measurement_stored", "cycle_failed", "alert_changed"):
+        if ev.kind not in ("measurement_stored", "cycle_failed", "alert_changed", "axis_changed"):
             return
         if not self._seeded:
             self.seed()  # reads this event's cycle too (events follow the commit)
@@ -128,6 +128,12 @@ class MTConnectAgent:
                       device_model_change_time=self.model_changed_at, creation_time=utcnow())
 
     def current(self, devices: list[Device]) -> Window:
-        w = self.buffer.current()
-        wanted = {d.id for d in devices}
-        return replace(w, observations=tuple(o for o in w.observations if o.device in wanted))
+        return self.only(self.buffer.current(), devices)
+
+    @staticmethod
+    def only(w: Window, devices: list[Device]) -> Window:
+        """``w`` without the observations of DataItems not in ``devices`` (another device's,
+        or of a task since removed): a client finds every dataItemId in the probe."""
+        wanted = {di.id for d in devices for di in d.data_items}
+        wanted |= {di.id for d in devices for c in d.components for di in c.data_items}
+        return replace(w, observations=tuple(o for o in w.observations if o.v.data_item.id in wanted))

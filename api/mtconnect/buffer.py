@@ -12,7 +12,7 @@ from __future__ import annotations
 import collections
 import itertools
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from api.mtconnect.model import Value
 
@@ -39,6 +39,16 @@ class Window:
     observations: tuple[Observation, ...]
 
 
+def _same(old: Value, new: Value) -> bool:
+    """Nothing to observe: the same value at the same time; or, whatever the time, still
+    UNAVAILABLE, or the same condition (a condition is reported when it changes)."""
+    if old == new:
+        return True
+    if replace(old, timestamp=new.timestamp) != new:
+        return False
+    return new.value is None or new.data_item.category == "CONDITION"
+
+
 class ObservationBuffer:
     def __init__(self, size: int):
         if size < 1:
@@ -57,7 +67,7 @@ class ObservationBuffer:
         with self._lock:
             for v in values:
                 cur = self._current.get(v.data_item.id)
-                if only_changed and cur is not None and cur.v == v:
+                if only_changed and cur is not None and _same(cur.v, v):
                     continue
                 ob = Observation(self._next, device, component, v)
                 self._next += 1

@@ -138,9 +138,7 @@ def make_router(agent: MTConnectAgent) -> APIRouter:
                 raise MTConnectError("OUT_OF_RANGE", f"'from' (={start}) must be a positive sequence number")
             if not 1 <= count <= agent.buffer.size:
                 raise MTConnectError("OUT_OF_RANGE", f"'count' (={count}) must be 1..{agent.buffer.size}")
-            w = agent.buffer.sample(start, count)
-            wanted = {d.id for d in devs}
-            w = type(w)(w.first, w.last, w.next, tuple(o for o in w.observations if o.device in wanted))
+            w = agent.only(agent.buffer.sample(start, count), devs)
             return (doc.streams_json if as_json else doc.streams_xml)(agent.header(), devs, w)
 
         return respond(request, build)

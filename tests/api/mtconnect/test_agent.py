@@ -414,3 +414,32 @@ def test_the_validators_catch_what_the_schemas_forbid(tmp_path, schemas):
     assert not schemas.streams.validate(etree.fromstring(cur.replace(b' deviceModelChangeTime="', b' x="', 1)))
     assert b"conditionId=" in cur
     assert not schemas.streams.validate(etree.fromstring(cur.replace(b" conditionId=", b" x=", 1)))
+
+
+def test_tasks_changed_through_the_api_change_the_device_model_at_once(tmp_path, schemas):
+    app = _app(tmp_path, FakeRunner(backlash_um=200.0))
+    with TestClient(app) as client:
+        svc, agent = app.state.service, app.state.mtconnect
+        axis_id = _axis(svc)
+        _measure(svc, axis_id, agent, 0)
+        with session_scope(svc.factory) as s:
+            admin = config_repo.create_key(s, "admin-mtc", "admin")[1]
+        before = schemas.devices_ok(client.get("/mtconnect/probe").content)
+        changed_at = before.find("d:Header", NS).get("deviceModelChangeTime")
+        tasks = [{"name": "line 30deg", "profile": "line", "feed_mm_min": 1000, "tolerance_um": 20, "angle_deg": 30},
+                 {"name": "circle R50", "profile": "circle", "feed_mm_min": 500, "tolerance_um": 30, "radius_mm": 50}]
+        r = client.put(f"/api/v1/axes/{axis_id}/tasks", json={"tasks": tasks}, headers=hdr(admin))
+        assert r.status_code == 200, r.text
+
+        def tbe_names(doc):
+            return [di.get("name") for di in doc.iter("{%s}DataItem" % NS["d"])
+                    if di.get("type") == "x:TRANSIENT_BACKLASH_ERROR"]  # fmt: skip
+
+        _until(lambda: tbe_names(etree.fromstring(client.get("/mtconnect/probe").content)) == ["line 30deg", "circle R50"],
+               "the new tasks in the probe")
+        after = schemas.devices_ok(client.get("/mtconnect/probe").content)
+        assert after.find("d:Header", NS).get("deviceModelChangeTime") > changed_at
+        cur = schemas.streams_ok(client.get("/mtconnect/current").content)
+        tbe = {el.get("name"): el.text for el in cur.iterfind(".//x:TransientBacklashError", NS)}
+        assert set(tbe) == {"line 30deg", "circle R50"}  # the old task's DataItem is gone from current
+        assert all(float(v) > 0 for v in tbe.values())  # TBE of the new tasks from the stored measurement

@@ -44,6 +44,15 @@ def test_an_unchanged_value_is_not_observed_again():
     assert buf.add("m1", "a1", [v], only_changed=False) == 1
     assert buf.add("m1", "a1", _values(1, start=1)) == 1  # a new measurement, even of the same size
     assert buf.bounds() == (1, 3, 4)
+    later = T0 + timedelta(hours=1)
+    gone = Value(DI, T0, None)
+    assert buf.add("m1", "a1", [gone]) == 1
+    assert buf.add("m1", "a1", [Value(DI, later, None)]) == 0  # still UNAVAILABLE: nothing new
+    cond = DataItem("a1_cond", "CONDITION", "DISPLACEMENT", "")
+    normal = Value(cond, T0, "OK: ...", level="Normal", native_code="OK")
+    assert buf.add("m1", "a1", [normal]) == 1
+    assert buf.add("m1", "a1", [Value(cond, later, "OK: ...", level="Normal", native_code="OK")]) == 0
+    assert buf.add("m1", "a1", [Value(cond, later, "WARNING: ...", level="Warning", native_code="WARNING")]) == 1
 
 
 def test_a_buffer_of_no_size_is_refused():
