@@ -63,8 +63,12 @@ class MTConnectAgent:
             if self._seeded:
                 return
             now = utcnow()
-            with session_scope(self.service.factory) as s:
-                axes = config_repo.list_axes(s)
+            try:
+                with session_scope(self.service.factory) as s:
+                    axes = config_repo.list_axes(s)
+            except StorageError as exc:  # the next event tries again; the API starts meanwhile
+                log.warning("MTConnect agent not seeded yet: %s", exc)
+                return
             for axis in axes:
                 try:
                     self._update(self.service.status.get(axis.id), now, seed=True)
