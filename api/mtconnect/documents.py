@@ -2,7 +2,8 @@
 (current, sample) and MTConnectError, as XML (the standard's representation, valid
 against the 2.4 XSDs; the x: observations against ``mebm_streams_2.4.xsd``) and as JSON
 in the layout of the MTConnect Institute's reference agent (cppagent, JSON version 2):
-the standard defines no JSON schema, so that agent's layout is what JSON clients parse.
+the standard requires only XML ("all other protocols and representations are optional")
+and defines no JSON schema, so that agent's layout is what JSON clients parse.
 """
 
 from __future__ import annotations
