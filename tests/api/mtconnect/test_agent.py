@@ -272,6 +272,7 @@ class _Server:
 
 def test_the_pymtconnect_client_parses_the_json_documents(tmp_path, capsys):
     from pymtconnect.mtconnect_client import current, probe, sample
+    from pymtconnect.probe_example import parse_probe
 
     runner = FakeRunner(backlash_um=400.0)  # an ALARM: a Fault condition
     app = _app(tmp_path, runner)
@@ -283,6 +284,13 @@ def test_the_pymtconnect_client_parses_the_json_documents(tmp_path, capsys):
         header, devices = probe(base)
         assert header.version == "2.4.0.0" and header.buffer_size == agent.buffer.size
         assert [(d.name, d.uuid) for d in devices] == [("vmc-850", agent.devices()[0].uuid)]
+        # its full walk of the device tree resolves the axis to its Linear class, with the DataItems
+        _, (dev,) = parse_probe(base)
+        (linear,) = dev.components
+        assert type(linear).__name__ == "Linear" and linear.name == "y"
+        types = {(di.category, di.type, di.units) for di in linear.data_items}
+        assert {("SAMPLE", "DISPLACEMENT", "MILLIMETER"), ("SAMPLE", "TEMPERATURE", "CELSIUS"),
+                ("CONDITION", "DISPLACEMENT", None), ("SAMPLE", "x:BACKLASH_LIMIT", "MILLIMETER")} <= types
         header, events, conditions = current(base)
         first, last, nxt = agent.buffer.bounds()
         assert (header.first_sequence, header.last_sequence, header.next_sequence) == (first, last, nxt)
