@@ -106,7 +106,8 @@ class ObservationBuffer:
             first, last, nxt = self._bounds()
             start = first if start is None else start
             if not first <= start <= nxt:
-                raise OutOfRangeError(f"'from' must be greater than or equal to {first} and less than or equal to {nxt}")
+                raise OutOfRangeError(f"'from' (={start}) must be greater than or equal to {first} "
+                                      f"and less than or equal to {nxt}")
             offset = start - first
             obs = tuple(itertools.islice(self._ring, offset, offset + count))
         return Window(first, last, obs[-1].sequence + 1 if obs else nxt, obs)

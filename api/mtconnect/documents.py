@@ -57,11 +57,13 @@ def _number(v: float) -> str:
 
 # -- probe -------------------------------------------------------------------------------------------
 def devices_xml(h: Header, devices: list[Device]) -> bytes:
+    # no assets: assetBufferSize must still be >= 1
+    head = _header_attrs(h) + [("bufferSize", h.buffer_size), ("assetBufferSize", 1), ("assetCount", 0)]
     out = ['<?xml version="1.0" encoding="UTF-8"?>', _root("Devices", f' xmlns:x="{X_DEVICES_NS}"'),
-           f"<Header{_attrs(_header_attrs(h) + [('bufferSize', h.buffer_size), ('assetBufferSize', 1), ('assetCount', 0)])}/>",  # noqa: E501
-           "<Devices>"]
+           f"<Header{_attrs(head)}/>", "<Devices>"]
     for d in devices:
-        out.append(f"<Device{_attrs([('id', d.id), ('name', d.name), ('uuid', d.uuid), ('mtconnectVersion', SCHEMA_VERSION)])}>")  # noqa: E501
+        dev = [("id", d.id), ("name", d.name), ("uuid", d.uuid), ("mtconnectVersion", SCHEMA_VERSION)]
+        out.append(f"<Device{_attrs(dev)}>")
         out.append("<Description>a machine tool whose feed axes mebm monitors</Description>")
         out.append("<DataItems>" + "".join(_data_item_xml(di) for di in d.data_items) + "</DataItems>")
         if d.components:
@@ -163,7 +165,8 @@ def streams_xml(h: Header, devices: list[Device], w: Window) -> bytes:
                     tag = o.v.level if cat == "CONDITION" else o.v.data_item.element
                     text = _obs_text(o)
                     text = _number(text) if isinstance(text, float) else escape(text)
-                    out.append(f"<{tag}{_attrs(_obs_attrs(o))}>{text}</{tag}>" if text else f"<{tag}{_attrs(_obs_attrs(o))}/>")
+                    attrs = _attrs(_obs_attrs(o))
+                    out.append(f"<{tag}{attrs}>{text}</{tag}>" if text else f"<{tag}{attrs}/>")
                 out.append(f"</{wrapper}>")
             out.append("</ComponentStream>")
         out.append("</DeviceStream>")

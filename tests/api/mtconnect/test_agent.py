@@ -322,7 +322,8 @@ def test_the_json_documents_say_what_the_xml_says(tmp_path, schemas):
         assert list(linear["Condition"]) == ["Normal"]
         probe = client.get("/mtconnect/probe", headers=JSON).json()["MTConnectDevices"]
         (lin,) = probe["Devices"]["Device"][0]["Components"]["Linear"]
-        assert {di["type"] for di in lin["DataItems"]["DataItem"]} >= {"DISPLACEMENT", "TEMPERATURE", "x:BACKLASH_LIMIT"}
+        types = {di["type"] for di in lin["DataItems"]["DataItem"]}
+        assert types >= {"DISPLACEMENT", "TEMPERATURE", "x:BACKLASH_LIMIT"}
         xsd = client.get("/mtconnect/schemas/mebm_streams_2.4.xsd")
         assert xsd.status_code == 200 and xsd.content == EXTENSION.read_bytes()
 
@@ -443,8 +444,10 @@ def test_tasks_changed_through_the_api_change_the_device_model_at_once(tmp_path,
             return [di.get("name") for di in doc.iter("{%s}DataItem" % NS["d"])
                     if di.get("type") == "x:TRANSIENT_BACKLASH_ERROR"]  # fmt: skip
 
-        _until(lambda: tbe_names(etree.fromstring(client.get("/mtconnect/probe").content)) == ["line 30deg", "circle R50"],
-               "the new tasks in the probe")
+        def probed():
+            return tbe_names(etree.fromstring(client.get("/mtconnect/probe").content))
+
+        _until(lambda: probed() == ["line 30deg", "circle R50"], "the new tasks in the probe")
         after = schemas.devices_ok(client.get("/mtconnect/probe").content)
         assert after.find("d:Header", NS).get("deviceModelChangeTime") > changed_at
         cur = schemas.streams_ok(client.get("/mtconnect/current").content)
