@@ -201,6 +201,21 @@ def streams_json(h: Header, devices: list[Device], w: Window) -> bytes:
                                        "Streams": {"DeviceStream": dstreams} if dstreams else {}}})
 
 
+# -- assets --------------------------------------------------------------------------------------------
+def assets_xml(h: Header) -> bytes:
+    """An empty MTConnectAssets document: mebm has no assets (tools, parts, programs), but
+    clients that poll /assets get the agent's answer, not an error."""
+    head = _header_attrs(h) + [("assetBufferSize", 1), ("assetCount", 0)]
+    return "\n".join(['<?xml version="1.0" encoding="UTF-8"?>', _root("Assets"), f"<Header{_attrs(head)}/>",
+                      "<Assets/>", "</MTConnectAssets>"]).encode()  # fmt: skip
+
+
+def assets_json(h: Header) -> bytes:
+    head = dict(_header_attrs(h), assetBufferSize=1, assetCount=0)
+    return _json({"MTConnectAssets": {"jsonVersion": JSON_VERSION, "schemaVersion": SCHEMA_VERSION, "Header": head,
+                                      "Assets": {}}})
+
+
 # -- errors --------------------------------------------------------------------------------------------
 def _error_header(h: Header) -> list[tuple[str, object]]:
     # the Error document's Header has no deviceModelChangeTime

@@ -1,6 +1,7 @@
 """The agent's HTTP requests under ``/mtconnect`` (MTConnect Part 1, REST protocol):
 ``probe``, ``current``, ``sample?from=&count=``, each for all devices or one
-(``/mtconnect/<device name or uuid>/current``). XML unless the request's ``Accept``
+(``/mtconnect/<device name or uuid>/current``), and ``assets`` (always empty: mebm
+keeps no tool, part or program assets). XML unless the request's ``Accept``
 asks for ``application/json``. Errors are MTConnectError documents (OUT_OF_RANGE,
 INVALID_REQUEST, NO_DEVICE, INVALID_URI, UNSUPPORTED, UNAUTHORIZED), as an agent sends them.
 
@@ -28,7 +29,7 @@ UNSUPPORTED = ("interval", "at", "to", "path", "heartbeat")  # streaming, histor
 XML = "application/xml"
 JSON = "application/json"
 STATUS = {"OUT_OF_RANGE": 400, "INVALID_REQUEST": 400, "UNSUPPORTED": 400, "NO_DEVICE": 404, "INVALID_URI": 404,
-          "UNAUTHORIZED": 401, "INTERNAL_ERROR": 503}  # fmt: skip
+          "ASSET_NOT_FOUND": 404, "UNAUTHORIZED": 401, "INTERNAL_ERROR": 503}  # fmt: skip
 
 
 class MTConnectError(Exception):
@@ -156,6 +157,24 @@ def make_router(agent: MTConnectAgent) -> APIRouter:
     @router.get("/sample")
     def sample_all(request: Request) -> Response:
         return sample(request, None)
+
+    @router.get("/assets")
+    @router.get("/{device}/assets")
+    def assets(request: Request, device: str | None = None) -> Response:
+        def build(as_json):
+            if device is not None:
+                devices(device)
+            return (doc.assets_json if as_json else doc.assets_xml)(agent.header())
+
+        return respond(request, build)
+
+    @router.get("/asset/{asset_id}")
+    @router.get("/assets/{asset_id}")
+    def asset(request: Request, asset_id: str) -> Response:
+        def build(as_json):
+            raise MTConnectError("ASSET_NOT_FOUND", f"no asset {asset_id!r}: mebm keeps no assets")
+
+        return respond(request, build)
 
     @router.get("/schemas/mebm_streams_2.4.xsd")
     def extension_schema() -> Response:

@@ -44,6 +44,14 @@ class Schemas:
         self.streams = etree.XMLSchema(etree.parse(str(tmp / EXTENSION.name)))
         self.error = etree.XMLSchema(etree.parse(str(SCHEMAS / "MTConnectError_2.4.xsd")))
 
+    def assets_ok(self, body: bytes) -> etree._Element:
+        import xmlschema
+
+        # Assets loads in xmlschema only leniently, and libxml2 cannot compile it (the README)
+        schema = xmlschema.XMLSchema11(str(SCHEMAS / "MTConnectAssets_2.4.xsd"), validation="lax")
+        schema.validate(body.decode())
+        return etree.fromstring(body)
+
     def streams_ok(self, body: bytes) -> etree._Element:
         doc = etree.fromstring(body)
         assert self.streams.validate(doc), self.streams.error_log
@@ -232,6 +240,12 @@ def test_errors_are_mtconnect_error_documents(tmp_path, schemas):
             ".//m:DeviceStream", NS).get("name") == "vmc-850"
         # read-only: no other method
         assert client.post("/mtconnect/current").status_code == 405
+        # no assets: an empty document, and ASSET_NOT_FOUND for any one asked for
+        assets = schemas.assets_ok(client.get("/mtconnect/assets").content)
+        assert assets.find("{urn:mtconnect.org:MTConnectAssets:2.4}Header").get("assetCount") == "0"
+        r = client.get("/mtconnect/asset/T1")
+        assert r.status_code == 404
+        assert schemas.error_ok(r.content).find("e:Errors/e:Error", NS).get("errorCode") == "ASSET_NOT_FOUND"
 
 
 def test_a_key_is_needed_only_when_configured(tmp_path, schemas):
