@@ -17,6 +17,7 @@ import socket
 import threading
 import time
 from dataclasses import replace
+from pathlib import Path
 
 from api.mtconnect.buffer import ObservationBuffer, Window
 from api.mtconnect.documents import Header
@@ -26,6 +27,7 @@ from api.service.events import Event
 from storage.db import StorageError, config_repo, session_scope, utcnow
 
 log = logging.getLogger("mebm.mtconnect")
+INSTANCE_FILE = "mtconnect-instance-id"  # in the data folder
 
 
 class MTConnectAgent:
@@ -62,6 +64,7 @@ class MTConnectAgent:
         with self._lock:
             if self._seeded:
                 return
+            self.instance_id = self._next_instance_id()
             now = utcnow()
             try:
                 with session_scope(self.service.factory) as s:
@@ -77,6 +80,19 @@ class MTConnectAgent:
             self._seeded = True
             log.info("MTConnect agent seeded: %d device(s), sequences %d..%d", len(self._machines),
                      *self.buffer.bounds()[:2])
+
+    def _next_instance_id(self) -> int:
+        """The start time in seconds, but always above the last start's (kept in the data
+        folder): a restart within a second still tells clients the sequences began anew."""
+        path = Path(self.service.settings.data_dir) / INSTANCE_FILE
+        new = int(time.time())
+        try:
+            last = int(path.read_text().strip()) if path.is_file() else 0
+            new = max(new, last + 1)
+            path.write_text(f"{new}\n")
+        except (OSError, ValueError) as exc:
+            log.warning("MTConnect instanceId from the clock only (%s: %s)", path, exc)
+        return new
 
     def close(self) -> None:
         if self.shdr is not None:

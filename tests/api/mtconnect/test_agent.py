@@ -208,6 +208,9 @@ def test_current_is_right_after_a_restart(tmp_path, schemas):
     again = _app(tmp_path, FakeRunner())  # a new process on the same database: nothing measured since
     with TestClient(again) as client:
         doc = schemas.streams_ok(client.get("/mtconnect/current").content)
+        # a new instance, even within the same second: clients know the sequences began anew
+        assert again.state.mtconnect.instance_id > agent.instance_id
+        assert int(doc.find("m:Header", NS).get("instanceId")) == again.state.mtconnect.instance_id
         assert float(doc.find(".//m:Displacement", NS).text) == pytest.approx(0.19)
         assert doc.find(".//x:LastCycleStatus", NS).text == "ok"
         assert doc.find(".//m:Condition/m:Normal", NS) is not None
