@@ -11,6 +11,7 @@ Read-only: only GET. With ``require_key`` any valid API key (``X-API-Key`` or
 
 from __future__ import annotations
 
+import re
 import threading
 import time
 from importlib import resources
@@ -80,10 +81,9 @@ def _int(request: Request, name: str, default: int | None) -> int | None:
     raw = request.query_params.get(name)
     if raw is None:
         return default
-    try:
-        return int(raw)
-    except ValueError:
-        raise MTConnectError("INVALID_REQUEST", f"'{name}' must be an integer, not {raw!r}") from None
+    if not re.fullmatch(r"-?[0-9]{1,19}", raw):  # int() would take " 5", "+5" and "1_000"
+        raise MTConnectError("INVALID_REQUEST", f"'{name}' must be an integer, not {raw!r}")
+    return int(raw)
 
 
 def make_router(agent: MTConnectAgent) -> APIRouter:

@@ -224,6 +224,8 @@ def test_errors_are_mtconnect_error_documents(tmp_path, schemas):
                  ("/mtconnect/sample?count=0", 400, "OUT_OF_RANGE"),
                  ("/mtconnect/sample?count=5", 400, "OUT_OF_RANGE"),  # more than the buffer holds
                  ("/mtconnect/sample?from=abc", 400, "INVALID_REQUEST"),
+                 ("/mtconnect/sample?count=1_0", 400, "INVALID_REQUEST"),
+                 ("/mtconnect/sample?from=99999999999999999999", 400, "INVALID_REQUEST"),
                  ("/mtconnect/current?interval=1000", 400, "UNSUPPORTED"),
                  ("/mtconnect/no-such-machine/current", 404, "NO_DEVICE"),
                  ("/mtconnect/vmc-850/current/extra", 404, "INVALID_URI")]  # fmt: skip
