@@ -77,8 +77,27 @@ def config(axes: int, interval_s: float) -> str:
 
 
 def rss_mb(pid: int) -> float:
-    with open(f"/proc/{pid}/status") as fh:
-        return next(int(line.split()[1]) for line in fh if line.startswith("VmRSS:")) / 1024
+    """Resident memory of the service and its child processes (the gap diagnosis worker)."""
+    total = 0.0
+    for p in [pid, *_children(pid)]:
+        try:
+            with open(f"/proc/{p}/status") as fh:
+                total += next(int(line.split()[1]) for line in fh if line.startswith("VmRSS:")) / 1024
+        except (OSError, StopIteration):
+            if p == pid:
+                raise
+    return total
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    try:
+        kids = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+    except OSError:
+        return out
+    for k in kids:
+        out += [int(k), *_children(int(k))]
+    return out
 
 
 def main() -> int:

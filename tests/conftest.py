@@ -9,6 +9,7 @@ reproducible local rerun of the same examples, set ``HYPOTHESIS_PROFILE=derandom
 
 import os
 
+import pytest
 from hypothesis import settings
 
 # derandomize=False spelled out: under CI=true Hypothesis loads its own "ci" profile
@@ -22,19 +23,31 @@ _SEED_OPTION = "--hypothesis-seed"
 
 
 def pytest_configure(config):
-    """Draw the run's Hypothesis seed here (unless one is given), so it can be printed."""
+    """Draw the run's Hypothesis seed here (unless one is given), so it can be printed.
+    Under pytest-xdist the controller draws it and every worker uses the same one, so
+    the printed seed replays a failure whichever worker ran the test."""
     if settings.default.derandomize:
         config.mebm_hypothesis_seed = None
         return
     seed = config.getoption(_SEED_OPTION)
     if seed is None:
-        import random
-
         from hypothesis import core
 
-        seed = random.SystemRandom().randrange(2**32)
+        worker_input = getattr(config, "workerinput", None)
+        if worker_input is not None and worker_input.get("mebm_hypothesis_seed") is not None:
+            seed = worker_input["mebm_hypothesis_seed"]
+        else:
+            import random
+
+            seed = random.SystemRandom().randrange(2**32)
         core.global_force_seed = seed
     config.mebm_hypothesis_seed = seed
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_configure_node(node):
+    """(pytest-xdist, on the controller) hand the run's seed to each worker."""
+    node.workerinput["mebm_hypothesis_seed"] = getattr(node.config, "mebm_hypothesis_seed", None)
 
 
 def _seed_line(config) -> str | None:

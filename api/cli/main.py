@@ -38,6 +38,8 @@ COMMANDS: tuple[CommandGroup, ...] = (
     CommandGroup("keys", "api.cli.keys", "create, list and revoke API keys"),
     CommandGroup("gap", "api.cli.gap", "where and why the nominal model misses a machine (sim-to-real gap)"),
     CommandGroup("import", "api.cli.import_trace", "a controller's scope trace (CSV) into a mebm dataset run"),
+    CommandGroup("export-comp", "api.cli.export_comp",
+                 "a round trip as the controller's compensation table (LinuxCNC, Beckhoff/ISG, CSV)"),
 )
 
 

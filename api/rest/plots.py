@@ -1,14 +1,15 @@
 """PNG figures for the maintenance team, after the seed paper's Figs. 5, 9, 10, 14, 15.
 
 Plain functions from arrays to PNG bytes (matplotlib's object API with the Agg
-canvas: no pyplot state, one lock because matplotlib's caches are not thread-safe).
+canvas: no pyplot state, so no global lock: each render has its own Figure and canvas,
+and matplotlib keeps its font objects per thread; no mathtext is used. Concurrent
+renders are tested to give the same bytes as serial ones).
 Every axis is labelled with its unit; limits are drawn as dash-dot lines as in the paper.
 """
 
 from __future__ import annotations
 
 import io
-import threading
 from collections.abc import Sequence
 from datetime import datetime
 
@@ -24,7 +25,6 @@ from core.downsample import minmax_indices  # noqa: E402
 from core.errors import MebmError  # noqa: E402
 from core.tbe import MachiningTask  # noqa: E402
 
-_LOCK = threading.Lock()
 SCREEN_POINTS = 2000  # a 1000-pixel-wide chart: min and max per pixel column
 NAMES = ("backlash_profile", "lead_deviation", "tbe_vs_backlash", "tbe_history", "backlash_trend")
 COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2")
@@ -45,12 +45,11 @@ def _figure(w=9.0, h=5.0, rows=1) -> tuple[Figure, list]:
 
 
 def _empty(title: str, message: str) -> bytes:
-    with _LOCK:
-        fig, (ax,) = _figure(7, 3)
-        ax.set_axis_off()
-        ax.set_title(title)
-        ax.text(0.5, 0.5, message, ha="center", va="center", fontsize=12, wrap=True)
-        return _png(fig)
+    fig, (ax,) = _figure(7, 3)
+    ax.set_axis_off()
+    ax.set_title(title)
+    ax.text(0.5, 0.5, message, ha="center", va="center", fontsize=12, wrap=True)
+    return _png(fig)
 
 
 def empty(title: str, message: str) -> bytes:
@@ -62,22 +61,21 @@ def backlash_profile(position_mm, backlash_um, pos_dev_um, neg_dev_um, *, mean_u
                      limit_um: float | None, title: str) -> bytes:
     """Fig. 9: (a) the upward side k_a x_m ~ x_l+ and downward side k_a x_m ~ x_l- as
     deviations from the nominal travel, (b) the backlash width b(x) = x_l- - x_l+."""
-    with _LOCK:
-        fig, (a, b) = _figure(9, 6.5, rows=2)
-        a.plot(position_mm, pos_dev_um, color="#d62728", lw=1.2, label="upward side  x_l+ − k_a·x_m (feeding +)")
-        a.plot(position_mm, neg_dev_um, color="#1f77b4", lw=1.2, label="downward side  x_l− − k_a·x_m (feeding −)")
-        a.set_ylabel("table − nominal travel (µm)")
-        a.set_title(f"(a) round trip — {title}")
-        a.legend(loc="best", fontsize=8)
-        b.plot(position_mm, backlash_um, color="black", lw=1.2, label="backlash width b(x)")
-        b.axhline(mean_um, color="#2ca02c", ls="--", lw=1.2, label=f"mean b̄ = {mean_um:.1f} µm")
-        if limit_um is not None:
-            b.axhline(limit_um, color="#d62728", ls="-.", lw=1.4, label=f"backlash limit {limit_um:.1f} µm")
-        b.set_xlabel("position (nominal travel l₀ = k_a·x_m, mm)")
-        b.set_ylabel("backlash width b (µm)")
-        b.set_title("(b) backlash width along the travel")
-        b.legend(loc="best", fontsize=8)
-        return _png(fig)
+    fig, (a, b) = _figure(9, 6.5, rows=2)
+    a.plot(position_mm, pos_dev_um, color="#d62728", lw=1.2, label="upward side  x_l+ − k_a·x_m (feeding +)")
+    a.plot(position_mm, neg_dev_um, color="#1f77b4", lw=1.2, label="downward side  x_l− − k_a·x_m (feeding −)")
+    a.set_ylabel("table − nominal travel (µm)")
+    a.set_title(f"(a) round trip — {title}")
+    a.legend(loc="best", fontsize=8)
+    b.plot(position_mm, backlash_um, color="black", lw=1.2, label="backlash width b(x)")
+    b.axhline(mean_um, color="#2ca02c", ls="--", lw=1.2, label=f"mean b̄ = {mean_um:.1f} µm")
+    if limit_um is not None:
+        b.axhline(limit_um, color="#d62728", ls="-.", lw=1.4, label=f"backlash limit {limit_um:.1f} µm")
+    b.set_xlabel("position (nominal travel l₀ = k_a·x_m, mm)")
+    b.set_ylabel("backlash width b (µm)")
+    b.set_title("(b) backlash width along the travel")
+    b.legend(loc="best", fontsize=8)
+    return _png(fig)
 
 
 def _worst_window(position_mm: np.ndarray, resid: np.ndarray, window_mm: float) -> tuple[float, float, float, float]:
@@ -103,33 +101,32 @@ def lead_deviation(lc: LeadCriteria, *, screw_lead_mm: float, title: str) -> byt
     la = np.asarray(lc.travel_deviation_um, float) - offset
     lm = np.asarray(lc.mean_travel_deviation_um, float) - offset
     resid = la - lm
-    with _LOCK:
-        fig, (ax,) = _figure(10, 5.5)
-        ax.plot(x, la, color="black", lw=1.0, label="actual travel l_a")
-        ax.plot(x, lm, color="#1f77b4", lw=1.6, label="actual mean travel l_m", zorder=4)
-        ax.axhline(0.0, color="#d62728", lw=1.4, label="nominal travel l₀", zorder=1)
-        ax.plot(x, lm + resid.max(), color="#2ca02c", ls=":", lw=1.4, label=f"v_u = {lc.v_u_um:.2f} µm")
-        ax.plot(x, lm + resid.min(), color="#2ca02c", ls=":", lw=1.4)
-        for window, color, ls, name, value in ((300.0, "#d62728", "--", "v_300", lc.v_300_um),
-                                               (screw_lead_mm, "#e377c2", "-.", "v_2π", lc.v_2pi_um)):
-            x0, x1, lo, hi = _worst_window(x, resid, window)
-            sel = (x >= x0) & (x <= x1)
-            ax.plot(x[sel], lm[sel] + hi, color=color, ls=ls, lw=1.6, label=f"{name} = {value:.2f} µm")
-            ax.plot(x[sel], lm[sel] + lo, color=color, ls=ls, lw=1.6)
-        ax.set_xlabel("nominal travel l₀ (mm)")
-        ax.set_ylabel("travel deviation (µm), l₀ subtracted")
-        lo_y = min(float(np.min(la)), float(np.min(lm)), 0.0)
-        hi_y = max(float(np.max(la)), float(np.max(lm)), 0.0)
-        pad = 0.35 * max(hi_y - lo_y, 1.0)
-        ax.set_ylim(lo_y - pad, hi_y + pad)  # room for the legend and the criteria box
-        ax.text(0.01, 0.97, f"stroke offset {offset:+.1f} µm (half the backlash) removed", transform=ax.transAxes,
-                fontsize=8, color="gray", va="top")
-        ax.set_title(f"lead error of the mechanical chain ({lc.direction} stroke) — {title}")
-        ax.text(0.01, 0.02, f"e_p = {lc.e_p_um_per_1000mm:.2f} µm/1000 mm   v_u = {lc.v_u_um:.2f} µm   "
-                f"v_300 = {lc.v_300_um:.2f} µm   v_2π = {lc.v_2pi_um:.2f} µm",
-                transform=ax.transAxes, fontsize=9, bbox=dict(facecolor="white", alpha=0.8, edgecolor="none"))
-        ax.legend(loc="upper right", fontsize=8, ncol=2, framealpha=0.9)
-        return _png(fig)
+    fig, (ax,) = _figure(10, 5.5)
+    ax.plot(x, la, color="black", lw=1.0, label="actual travel l_a")
+    ax.plot(x, lm, color="#1f77b4", lw=1.6, label="actual mean travel l_m", zorder=4)
+    ax.axhline(0.0, color="#d62728", lw=1.4, label="nominal travel l₀", zorder=1)
+    ax.plot(x, lm + resid.max(), color="#2ca02c", ls=":", lw=1.4, label=f"v_u = {lc.v_u_um:.2f} µm")
+    ax.plot(x, lm + resid.min(), color="#2ca02c", ls=":", lw=1.4)
+    for window, color, ls, name, value in ((300.0, "#d62728", "--", "v_300", lc.v_300_um),
+                                           (screw_lead_mm, "#e377c2", "-.", "v_2π", lc.v_2pi_um)):
+        x0, x1, lo, hi = _worst_window(x, resid, window)
+        sel = (x >= x0) & (x <= x1)
+        ax.plot(x[sel], lm[sel] + hi, color=color, ls=ls, lw=1.6, label=f"{name} = {value:.2f} µm")
+        ax.plot(x[sel], lm[sel] + lo, color=color, ls=ls, lw=1.6)
+    ax.set_xlabel("nominal travel l₀ (mm)")
+    ax.set_ylabel("travel deviation (µm), l₀ subtracted")
+    lo_y = min(float(np.min(la)), float(np.min(lm)), 0.0)
+    hi_y = max(float(np.max(la)), float(np.max(lm)), 0.0)
+    pad = 0.35 * max(hi_y - lo_y, 1.0)
+    ax.set_ylim(lo_y - pad, hi_y + pad)  # room for the legend and the criteria box
+    ax.text(0.01, 0.97, f"stroke offset {offset:+.1f} µm (half the backlash) removed", transform=ax.transAxes,
+            fontsize=8, color="gray", va="top")
+    ax.set_title(f"lead error of the mechanical chain ({lc.direction} stroke) — {title}")
+    ax.text(0.01, 0.02, f"e_p = {lc.e_p_um_per_1000mm:.2f} µm/1000 mm   v_u = {lc.v_u_um:.2f} µm   "
+            f"v_300 = {lc.v_300_um:.2f} µm   v_2π = {lc.v_2pi_um:.2f} µm",
+            transform=ax.transAxes, fontsize=9, bbox=dict(facecolor="white", alpha=0.8, edgecolor="none"))
+    ax.legend(loc="upper right", fontsize=8, ncol=2, framealpha=0.9)
+    return _png(fig)
 
 
 def _safe_tbe(task: MachiningTask, b: np.ndarray) -> np.ndarray:
@@ -155,38 +152,37 @@ def tbe_vs_backlash(tasks: Sequence[MachiningTask], limits_um: Sequence[float | 
     finite = [v for v in limits_um if v is not None]
     top = max([*finite, backlash_um or 0.0, 100.0]) * 1.3
     b = np.linspace(0.0, top, 300)
-    with _LOCK:
-        fig, (ax,) = _figure(9, 5.5)
-        for i, (task, limit) in enumerate(zip(tasks, limits_um)):
-            c = COLORS[i % len(COLORS)]
-            # one task: the paper's colours (TBE black, tolerance red, backlash limit blue)
-            c_curve, c_tol, c_lim = ("black", "#d62728", "#1f77b4") if len(tasks) == 1 else (c, c, c)
-            shape = f"R {task.radius_mm:g} mm" if task.profile == "circle" else f"θ {task.angle_deg:g}°"
-            ax.plot(b, _safe_tbe(task, b), color=c_curve, lw=1.8,
-                    label=f"{task.name}: {task.profile} {shape}, {task.feed_mm_min:g} mm/min")
-            ax.axhline(task.tolerance_um, color=c_tol, ls="-.", lw=1.2, alpha=0.9)
-            ax.annotate(f"tolerance {task.tolerance_um:g} µm", (b[5], task.tolerance_um), color=c_tol, fontsize=8,
-                        va="bottom")
-            if limit is not None:
-                ax.axvline(limit, color=c_lim, ls="-.", lw=1.2, alpha=0.9)
-                ax.annotate(f"backlash limit {limit:.1f} µm", (limit, 0), color=c_lim, fontsize=8, rotation=90,
-                            va="bottom", ha="right")
-            if backlash_um is not None:
-                ax.plot([backlash_um], _safe_tbe(task, np.array([backlash_um])), "o", color=c_curve if len(tasks) > 1
-                        else "#ff7f0e", ms=8, mec="black")
+    fig, (ax,) = _figure(9, 5.5)
+    for i, (task, limit) in enumerate(zip(tasks, limits_um)):
+        c = COLORS[i % len(COLORS)]
+        # one task: the paper's colours (TBE black, tolerance red, backlash limit blue)
+        c_curve, c_tol, c_lim = ("black", "#d62728", "#1f77b4") if len(tasks) == 1 else (c, c, c)
+        shape = f"R {task.radius_mm:g} mm" if task.profile == "circle" else f"θ {task.angle_deg:g}°"
+        ax.plot(b, _safe_tbe(task, b), color=c_curve, lw=1.8,
+                label=f"{task.name}: {task.profile} {shape}, {task.feed_mm_min:g} mm/min")
+        ax.axhline(task.tolerance_um, color=c_tol, ls="-.", lw=1.2, alpha=0.9)
+        ax.annotate(f"tolerance {task.tolerance_um:g} µm", (b[5], task.tolerance_um), color=c_tol, fontsize=8,
+                    va="bottom")
+        if limit is not None:
+            ax.axvline(limit, color=c_lim, ls="-.", lw=1.2, alpha=0.9)
+            ax.annotate(f"backlash limit {limit:.1f} µm", (limit, 0), color=c_lim, fontsize=8, rotation=90,
+                        va="bottom", ha="right")
         if backlash_um is not None:
-            u = f" ± {backlash_uncertainty_um:.1f}" if backlash_uncertainty_um > 0 else ""
-            ax.axvline(backlash_um, color="black", ls=":", lw=1.0, label=f"measured b̄ = {backlash_um:.1f}{u} µm (k = 2)")
-            if backlash_uncertainty_um > 0:
-                ax.axvspan(backlash_um - backlash_uncertainty_um, backlash_um + backlash_uncertainty_um,
-                           color="grey", alpha=0.2)
-        ax.set_xlabel("backlash width b (µm)")
-        ax.set_ylabel("transient backlash error ε_b (µm)")
-        ax.set_xlim(0, top)
-        ax.set_ylim(bottom=0)
-        ax.set_title(f"TBE vs backlash and their warning thresholds ({rule} decision rule) — {title}")
-        ax.legend(loc="upper left", fontsize=8)
-        return _png(fig)
+            ax.plot([backlash_um], _safe_tbe(task, np.array([backlash_um])), "o", color=c_curve if len(tasks) > 1
+                    else "#ff7f0e", ms=8, mec="black")
+    if backlash_um is not None:
+        u = f" ± {backlash_uncertainty_um:.1f}" if backlash_uncertainty_um > 0 else ""
+        ax.axvline(backlash_um, color="black", ls=":", lw=1.0, label=f"measured b̄ = {backlash_um:.1f}{u} µm (k = 2)")
+        if backlash_uncertainty_um > 0:
+            ax.axvspan(backlash_um - backlash_uncertainty_um, backlash_um + backlash_uncertainty_um,
+                       color="grey", alpha=0.2)
+    ax.set_xlabel("backlash width b (µm)")
+    ax.set_ylabel("transient backlash error ε_b (µm)")
+    ax.set_xlim(0, top)
+    ax.set_ylim(bottom=0)
+    ax.set_title(f"TBE vs backlash and their warning thresholds ({rule} decision rule) — {title}")
+    ax.legend(loc="upper left", fontsize=8)
+    return _png(fig)
 
 
 def _thin(values, *others, max_points: int = SCREEN_POINTS):
@@ -204,46 +200,44 @@ def tbe_history(series: dict[str, tuple[list[datetime], list[float], list[float]
         tbe_d, t_d, tol_d = _thin(tbe, t, tol)
         thinned[name] = (t_d, tbe_d, tol_d)
     series = thinned
-    with _LOCK:
-        fig, (ax,) = _figure(10, 5)
-        for i, (name, (t, tbe, tol)) in enumerate(series.items()):
-            c = COLORS[i % len(COLORS)]
-            tbe_a, tol_a = np.asarray(tbe, float), np.asarray(tol, float)
-            ax.plot(t, tbe_a, "-", color=c, lw=1.2, label=f"TBE {name}")
-            over = tbe_a > tol_a
-            ax.plot([x for x, o in zip(t, over) if not o], tbe_a[~over], "o", color=c, ms=4)
-            ax.plot([x for x, o in zip(t, over) if o], tbe_a[over], "o", color="#d62728", ms=6, mec="black",
-                    label=f"above tolerance ({int(over.sum())})" if over.any() else None)
-            ax.step(t, tol_a, where="post", color=c, ls="-.", lw=1.4, label=f"threshold {name} ({tol_a[-1]:g} µm)")
-        ax.set_xlabel("measured at (UTC)")
-        ax.set_ylabel("estimated TBE ε_b (µm)")
-        ax.set_title(f"TBE caused by the backlash — {title}")
-        ax.legend(loc="best", fontsize=8)
-        fig.autofmt_xdate()
-        return _png(fig)
+    fig, (ax,) = _figure(10, 5)
+    for i, (name, (t, tbe, tol)) in enumerate(series.items()):
+        c = COLORS[i % len(COLORS)]
+        tbe_a, tol_a = np.asarray(tbe, float), np.asarray(tol, float)
+        ax.plot(t, tbe_a, "-", color=c, lw=1.2, label=f"TBE {name}")
+        over = tbe_a > tol_a
+        ax.plot([x for x, o in zip(t, over) if not o], tbe_a[~over], "o", color=c, ms=4)
+        ax.plot([x for x, o in zip(t, over) if o], tbe_a[over], "o", color="#d62728", ms=6, mec="black",
+                label=f"above tolerance ({int(over.sum())})" if over.any() else None)
+        ax.step(t, tol_a, where="post", color=c, ls="-.", lw=1.4, label=f"threshold {name} ({tol_a[-1]:g} µm)")
+    ax.set_xlabel("measured at (UTC)")
+    ax.set_ylabel("estimated TBE ε_b (µm)")
+    ax.set_title(f"TBE caused by the backlash — {title}")
+    ax.legend(loc="best", fontsize=8)
+    fig.autofmt_xdate()
+    return _png(fig)
 
 
 def backlash_trend(t: list[datetime], backlash_um: list[float], temperature_c: list[float | None], *,
                    limit_um: float | None, title: str) -> bytes:
     """Fig. 10: mean backlash b̄ and ambient temperature over time."""
     backlash_um, t, temperature_c = _thin(backlash_um, t, temperature_c)
-    with _LOCK:
-        fig, (ax,) = _figure(10, 5)
-        ax.plot(t, backlash_um, "o-", color="black", ms=4, lw=1.2, label="mean backlash b̄")
-        if limit_um is not None:
-            ax.axhline(limit_um, color="#d62728", ls="-.", lw=1.4, label=f"backlash limit {limit_um:.1f} µm")
-        ax.set_xlabel("measured at (UTC)")
-        ax.set_ylabel("mean backlash width b̄ (µm)")
-        tt = [(x, v) for x, v in zip(t, temperature_c) if v is not None]
-        lines, labels = ax.get_legend_handles_labels()
-        if tt:
-            ax2 = ax.twinx()
-            ax2.plot([x for x, _ in tt], [v for _, v in tt], "s--", color="#ff7f0e", ms=3, lw=1.0,
-                     label="ambient temperature t")
-            ax2.set_ylabel("ambient temperature t (°C)", color="#ff7f0e")
-            l2, lab2 = ax2.get_legend_handles_labels()
-            lines, labels = lines + l2, labels + lab2
-        ax.legend(lines, labels, loc="best", fontsize=8, framealpha=0.9)
-        ax.set_title(f"mean backlash and temperature — {title}")
-        fig.autofmt_xdate()
-        return _png(fig)
+    fig, (ax,) = _figure(10, 5)
+    ax.plot(t, backlash_um, "o-", color="black", ms=4, lw=1.2, label="mean backlash b̄")
+    if limit_um is not None:
+        ax.axhline(limit_um, color="#d62728", ls="-.", lw=1.4, label=f"backlash limit {limit_um:.1f} µm")
+    ax.set_xlabel("measured at (UTC)")
+    ax.set_ylabel("mean backlash width b̄ (µm)")
+    tt = [(x, v) for x, v in zip(t, temperature_c) if v is not None]
+    lines, labels = ax.get_legend_handles_labels()
+    if tt:
+        ax2 = ax.twinx()
+        ax2.plot([x for x, _ in tt], [v for _, v in tt], "s--", color="#ff7f0e", ms=3, lw=1.0,
+                 label="ambient temperature t")
+        ax2.set_ylabel("ambient temperature t (°C)", color="#ff7f0e")
+        l2, lab2 = ax2.get_legend_handles_labels()
+        lines, labels = lines + l2, labels + lab2
+    ax.legend(lines, labels, loc="best", fontsize=8, framealpha=0.9)
+    ax.set_title(f"mean backlash and temperature — {title}")
+    fig.autofmt_xdate()
+    return _png(fig)

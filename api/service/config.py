@@ -193,7 +193,7 @@ def _task(t: Mapping, gain: float, where: str) -> MachiningTask:
 def _axis(a: Mapping, machine: str, where: str) -> AxisConfig:
     allowed = {"name", "transmission_mm_per_rev", "screw_lead_mm", "position_gain_per_s", "travel_mm",
                "controller", "measure_feed_mm_min", "measure_acceleration_mm_s2", "warning_fraction",
-               "decision_rule", "schedule_interval_s", "schedule_cron", "schedule_enabled", "tasks"}
+               "decision_rule", "worst_case_temperature_c", "schedule_interval_s", "schedule_cron", "schedule_enabled", "tasks"}
     _unknown(a, allowed, where)
     travel = a.get("travel_mm")
     if not (isinstance(travel, list) and len(travel) == 2 and all(isinstance(x, (int, float)) for x in travel)):
@@ -223,7 +223,10 @@ def _axis(a: Mapping, machine: str, where: str) -> AxisConfig:
         measure_acceleration_mm_s2=_get(a, "measure_acceleration_mm_s2", float, where, 500.0),
         warning_fraction=_get(a, "warning_fraction", float, where, 0.9), schedule=schedule, tasks=tasks,
         decision_rule=_get(a, "decision_rule", str, where, "guarded"),
+        worst_case_temperature_c=_get(a, "worst_case_temperature_c", float, where, 30.0),
     )
+    if not -50.0 <= st.worst_case_temperature_c <= 100.0:
+        raise ConfigError(f"{where}.worst_case_temperature_c (={st.worst_case_temperature_c}) must be within -50..100 °C")
     if st.decision_rule not in ("simple", "guarded"):
         raise ConfigError(f"{where}.decision_rule (={st.decision_rule!r}) must be 'simple' or 'guarded'")
     if not st.measure_feed_mm_min > 0 or not st.measure_acceleration_mm_s2 > 0:

@@ -20,6 +20,7 @@ from sqlalchemy import text
 
 from api.service.config import SIM_CONTROLLER, Settings
 from api.service.cycles import CycleExecutor
+from api.service.gap_jobs import GapJobs
 from api.service.demo import DemoController
 from api.service.health import HealthProbe
 from api.service.runner import CycleRunner, DriverRunner
@@ -77,6 +78,7 @@ class Service:
         self.health = HealthProbe(self)
         self.events = EventHub()  # "measurement stored", "cycle failed", "alert changed" -> every interface
         self.render_status = None  # axis_id -> the status body (bytes); set by the REST app
+        self.gap_jobs = GapJobs()  # gap diagnoses: bounded jobs, computed in a worker process
 
     # -- wiring ----------------------------------------------------------------------------------
     def resolve_url(self, axis: AxisRecord) -> str:
@@ -179,6 +181,7 @@ class Service:
         if self.scheduler is not None:
             self.scheduler.stop()
         self.events.close()
+        self.gap_jobs.close()
         for sim in self.simulators.values():
             sim.stop()
         self.simulators.clear()

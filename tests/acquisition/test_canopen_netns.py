@@ -80,4 +80,12 @@ def test_every_tpdo_that_arrived_is_in_the_trace_and_every_missing_one_is_counte
 
 
 def test_duplicated_tpdos_are_counted_and_dropped(run):
-    assert run["sync_stats"]["duplicates"] == 4
+    # four duplicates went on the wire right behind their originals. On a quiet host each
+    # arrives within its SYNC's window and is counted a duplicate; a host that stalls the
+    # drive between the two sends puts the copy on the wire after the window, where CiA 301
+    # makes it invalid and the driver counts it late (seen once under a load of 8 on 2
+    # cores). Either way it is counted, and none reaches the trace (the subsequence test).
+    # The exact count of 4 duplicates is checked in-process, on the virtual bus (test_canopen.py).
+    stats = run["sync_stats"]
+    assert 1 <= stats["duplicates"] <= 4
+    assert stats["duplicates"] + stats["late"] >= 4

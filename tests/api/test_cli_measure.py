@@ -43,8 +43,11 @@ def _reference_dataset(folder, axis: AxisSpec) -> None:
 @pytest.mark.slow
 def test_measure_a_simulated_controller_in_another_process(tmp_path, capsys):
     proc = subprocess.Popen(
-        [sys.executable, "-m", "api.cli", "sim-controller", "modbus", "--port", "0", "--time-scale", "10",
-         "--backlash-um", "120", "--effect", EFFECT, "--duration-s", "90"],
+        # time scale 3 with the largest trace buffer: 3.6 s of wall clock in the ring, more than
+        # the 2 s a real controller's default buffer holds at 1 kHz. At time scale 10 (0.2 s)
+        # a test process stalled by a loaded machine lost 2000 samples (correctly reported)
+        [sys.executable, "-m", "api.cli", "sim-controller", "modbus", "--port", "0", "--time-scale", "3",
+         "--ring-records", "10906", "--backlash-um", "120", "--effect", EFFECT, "--duration-s", "90"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     try:

@@ -1,6 +1,6 @@
 """GET /axes/{id}/gap has bounded work: few jobs at once (429 beyond), abandoned jobs
-are dropped, a cached answer does not read the runs again. The single diagnosis worker
-is held busy with a real job (an Event) so the bounds are seen deterministically."""
+are dropped, a cached answer does not read the runs again. The job queue is held busy
+with a real job (an Event) so the bounds are seen deterministically."""
 
 from __future__ import annotations
 
@@ -9,23 +9,14 @@ import threading
 import pytest
 
 from api.rest.routers import gap
+from api.service.gap_jobs import JobAbandoned
 from tests.api.rest.conftest import hdr
 from tests.api.rest.test_gap import _store_case, get_report
 
 
-@pytest.fixture(autouse=True)
-def no_jobs_of_other_tests():
-    """The job table is per process: start each test without another test's jobs (still
-    queued ones find themselves dropped and end at once)."""
-    with gap._lock:
-        gap._jobs.clear()
-    yield
-    with gap._lock:
-        gap._jobs.clear()
-
-
 @pytest.fixture
-def busy_worker(monkeypatch):
+def busy_queue(app_env, monkeypatch):
+    _client, svc, _keys, _axis_id = app_env
     monkeypatch.setattr(gap, "WAIT_S", 0.05)
     release = threading.Event()
     started = threading.Event()
@@ -34,38 +25,39 @@ def busy_worker(monkeypatch):
         started.set()
         release.wait(60)
 
-    gap._worker.submit(hold)
+    svc.gap_jobs.hold(hold)
     assert started.wait(30)
     yield release
     release.set()
 
 
-def test_more_pending_diagnoses_than_the_bound_are_refused_with_retry_after(app_env, busy_worker):
+def test_more_pending_diagnoses_than_the_bound_are_refused_with_retry_after(app_env, busy_queue):
     client, svc, keys, axis_id = app_env
     _store_case(svc, axis_id, "cyclic_error", seed=11)
+    bound = svc.gap_jobs.max_pending
     codes = [client.get(f"/api/v1/axes/{axis_id}/gap", params={"runs": n}, headers=hdr(keys["read"]))
-             for n in range(2, 2 + gap.MAX_PENDING + 3)]
-    assert [r.status_code for r in codes[:gap.MAX_PENDING]] == [202] * gap.MAX_PENDING
-    assert all(r.status_code == 429 and int(r.headers["Retry-After"]) > 0 for r in codes[gap.MAX_PENDING:])
+             for n in range(2, 2 + bound + 3)]
+    assert [r.status_code for r in codes[:bound]] == [202] * bound
+    assert all(r.status_code == 429 and int(r.headers["Retry-After"]) > 0 for r in codes[bound:])
     again = client.get(f"/api/v1/axes/{axis_id}/gap", params={"runs": 2}, headers=hdr(keys["read"]))
     assert again.status_code == 202  # asking again for a pending one is not refused
 
 
-def test_a_job_nobody_asks_for_any_more_is_dropped_before_it_starts(app_env, busy_worker, monkeypatch):
+def test_a_job_nobody_asks_for_any_more_is_dropped_before_it_starts(app_env, busy_queue):
     client, svc, keys, axis_id = app_env
     _store_case(svc, axis_id, "cyclic_error", seed=11)
-    monkeypatch.setattr(gap, "ABANDON_S", 0.0)
+    svc.gap_jobs.abandon_s = 0.0
     url = f"/api/v1/axes/{axis_id}/gap"
     assert client.get(url, params={"runs": 3}, headers=hdr(keys["read"])).status_code == 202
-    (key,) = list(gap._jobs)
-    fut = gap._jobs[key].future
-    busy_worker.set()
-    with pytest.raises(gap.JobAbandoned):
+    (key,) = svc.gap_jobs.pending_keys()
+    fut = svc.gap_jobs.future(key)
+    busy_queue.set()
+    with pytest.raises(JobAbandoned):
         fut.result(timeout=60)
-    assert key not in gap._jobs  # the next request computes it anew
+    assert key not in svc.gap_jobs.pending_keys()  # the next request computes it anew
 
 
-def test_a_cached_answer_does_not_read_the_runs_again(app_env, monkeypatch):
+def test_a_cached_answer_does_not_read_the_runs_again(app_env):
     client, svc, keys, axis_id = app_env
     case = _store_case(svc, axis_id, "cyclic_error", seed=11)
     url = f"/api/v1/axes/{axis_id}/gap"
