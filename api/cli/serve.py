@@ -72,6 +72,12 @@ def banner(settings, report, url: str, opcua=None) -> str:
     lines.append(opcua_line(settings, opcua))
     w = settings.webhooks
     lines.append(f"webhooks: {len(w.urls)} receiver(s)" if w.urls else "webhooks: off ([webhooks] urls)")
+    mc = settings.mtconnect
+    lines.append(f"MTConnect agent: {url}/mtconnect/probe, /current, /sample"
+                 + (" (any API key)" if mc.require_key else " (open, read-only)") if mc.enabled
+                 else "MTConnect: off ([mtconnect] enabled)")  # fmt: skip
+    if mc.enabled and mc.shdr_port is not None:
+        lines.append(f"MTConnect SHDR adapter: {mc.shdr_host}:{mc.shdr_port} (device file: {url}/mtconnect/probe)")
     if report.demo_keys:  # only the keys created by this start: shown once
         k = report.demo_keys
         lines.append("demo keys created (shown this once; read and operate are kept in "

@@ -88,10 +88,16 @@ def create_app(settings: Settings, *, service: Service | None = None, runner: Cy
     async def lifespan(app: FastAPI):
         svc.render_status = lambda axis_id: status_json(app.state, svc, axis_id, svc.status.get(axis_id))
         started = _start_interfaces(app, svc, settings)  # subscribed before the first cycle can be saved
+        agent = app.state.mtconnect
+        if agent is not None:
+            agent.start()
+            started.append(agent)
         try:
             if owned:
                 svc.start()
             started += _start_opcua(app, svc, settings, opcua)
+            if agent is not None:
+                agent.seed()  # /current is right from the first request after a restart
             for machine, _ in settings.machines:
                 if app.state.mqtt is not None:
                     app.state.mqtt.link(machine)  # the birth message, before any measurement
@@ -123,4 +129,10 @@ def create_app(settings: Settings, *, service: Service | None = None, runner: Cy
         api.include_router(module.router)
     app.include_router(api)
     app.include_router(health.router, responses={k: v for k, v in ERROR_RESPONSES.items() if k in (401, 403, 503)})
+    app.state.mtconnect = None
+    if settings.mtconnect.enabled:  # an MTConnect agent on the same port (issue 17); it imports no REST
+        from api.mtconnect import MTConnectAgent, make_router
+
+        app.state.mtconnect = MTConnectAgent(svc, settings.mtconnect)
+        app.include_router(make_router(app.state.mtconnect))
     return app

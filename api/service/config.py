@@ -113,6 +113,18 @@ class OpcuaSettings:
 
 
 @dataclass(frozen=True)
+class MtconnectSettings:
+    """``[mtconnect]``: an MTConnect agent (2.4, read-only) under ``/mtconnect`` on the API's port."""
+
+    enabled: bool = True
+    require_key: bool = False  # agents are usually open on the shop network; True: any valid key (X-API-Key)
+    buffer_size: int = 131072  # observations kept for /sample (the ring buffer)
+    sender: str | None = None  # the Header's sender; None: this host's name
+    shdr_port: int | None = None  # an SHDR adapter port for a site's own agent (7878 by convention); None: off
+    shdr_host: str = "127.0.0.1"
+
+
+@dataclass(frozen=True)
 class Settings:
     host: str = "127.0.0.1"
     port: int = 8000
@@ -134,6 +146,7 @@ class Settings:
     mqtt: MqttSettings = field(default_factory=MqttSettings)
     webhooks: WebhookSettings = field(default_factory=WebhookSettings)
     opcua: OpcuaSettings = field(default_factory=OpcuaSettings)
+    mtconnect: MtconnectSettings = field(default_factory=MtconnectSettings)
 
     @property
     def db_url(self) -> str:
@@ -168,7 +181,7 @@ def default_settings() -> Settings:
 
 # -- parsing -----------------------------------------------------------------------------------
 _TOP = {"server", "storage", "auth", "scheduler", "simulator", "machines", "logging", "limits", "retention", "mqtt",
-        "webhooks", "opcua"}
+        "webhooks", "opcua", "mtconnect"}
 
 
 def _get(table: Mapping, key: str, kind, where: str, default=None):
@@ -318,6 +331,7 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
         retention=retention, retention_interval_s=retention_interval_s,
         mqtt=_mqtt(doc.get("mqtt"), base.mqtt), webhooks=_webhooks(doc.get("webhooks"), base.webhooks),
         opcua=_opcua(doc.get("opcua"), base.opcua),
+        mtconnect=_mtconnect(doc.get("mtconnect"), base.mtconnect),
     )
 
 
@@ -395,6 +409,23 @@ def check_opcua(o: OpcuaSettings, where: str, complete: bool = True) -> None:
                               "(client certificates are only seen on signed channels)")  # fmt: skip
         if not o.trusted_certificates.is_dir():
             raise ConfigError(f"{where}.trusted_certificates (={str(o.trusted_certificates)!r}) is not a folder")
+
+
+def _mtconnect(table: Mapping | None, base: MtconnectSettings) -> MtconnectSettings:
+    if table is None:
+        return base
+    _unknown(table, {"enabled", "require_key", "buffer_size", "sender", "shdr_port", "shdr_host"}, "mtconnect")
+    out = MtconnectSettings(enabled=_get(table, "enabled", bool, "mtconnect", base.enabled),
+                            require_key=_get(table, "require_key", bool, "mtconnect", base.require_key),
+                            buffer_size=_get(table, "buffer_size", int, "mtconnect", base.buffer_size),
+                            sender=_get(table, "sender", str, "mtconnect", base.sender) or None,
+                            shdr_port=_get(table, "shdr_port", int, "mtconnect", base.shdr_port),
+                            shdr_host=_get(table, "shdr_host", str, "mtconnect", base.shdr_host))  # fmt: skip
+    if out.shdr_port is not None and not 0 <= out.shdr_port <= 65535:
+        raise ConfigError(f"mtconnect.shdr_port (={out.shdr_port}) must be 0..65535 (0: a free port)")
+    if not 1 <= out.buffer_size <= 10_000_000:
+        raise ConfigError(f"mtconnect.buffer_size (={out.buffer_size}) must be 1..10000000 observations")
+    return out
 
 
 def _webhooks(table: Mapping | None, base: WebhookSettings) -> WebhookSettings:

@@ -25,8 +25,19 @@ def interfaces(request: Request, _k: ReadKey) -> dict:
         "webhooks": None if hooks is None else {
             "urls": len(hooks.settings.urls), "delivered": hooks.delivered, "failed_attempts": hooks.failed},
         "opcua": None if st.opcua is None else st.opcua.describe(),
+        "mtconnect": _mtconnect(st),
         "event_consumers": subs,
     }  # fmt: skip
+
+
+def _mtconnect(st) -> dict | None:
+    agent = getattr(st, "mtconnect", None)
+    if agent is None:
+        return None
+    first, last, nxt = agent.buffer.bounds()
+    return {"path": "/mtconnect", "require_key": agent.settings.require_key, "instance_id": agent.instance_id,
+            "buffer_size": agent.buffer.size, "first_sequence": first, "last_sequence": last,
+            "next_sequence": nxt, "devices": len(agent.devices())}
 
 
 @router.get("/webhooks/deliveries", summary="The webhook delivery log, newest first (admin)")
