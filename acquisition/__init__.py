@@ -1,9 +1,12 @@
 """Acquisition: drivers for Modbus TCP and CANopen controllers, simulated controllers, the cycle.
 
 - ``acquisition.driver.ControllerDriver``: the base class that owns the measurement loop
-  (idle check, start, drain, timeouts and bounded retries, abort on failure, counter
-  continuity, stuck/jumping encoders); ``acquisition.modbus.ModbusDriver`` and
-  ``acquisition.canopen.CanopenDriver`` implement only their wire.
+  (idle check, start, drain, abort on failure), composed of ``retry.RetryPolicy`` (every
+  exchange), ``trace_assembler.TraceAssembler`` (counter continuity, gaps, duplicates),
+  ``encoder_monitor.EncoderMonitor`` (stuck/jumping/glitching encoders) and a fresh
+  ``acquisition_cycle.AcquisitionCycle`` per cycle; ``acquisition.modbus.ModbusDriver``
+  (with its register map, ``modbus_map``) and ``acquisition.canopen.CanopenDriver``
+  implement only their wire. See docs/acquisition.md.
 - ``acquisition.cycle.run_cycle`` / ``run_cycle_async``: one measurement cycle ->
   ``CycleResult`` (ok/failed with a reason, trace, criteria, decision, uncertainty).
 - ``acquisition.url.driver_from_url``: ``modbus://HOST:PORT`` / ``canopen://INTERFACE/CHANNEL?node=N``.

@@ -147,12 +147,7 @@ class CanopenDriver(ControllerDriver):
         self._frames: collections.deque = collections.deque()
         self._emcy = None
         self._last_hb = 0.0
-        self._first = 0
-        self._last_status = 0.0
-        self.sync_stats: dict[str, int] = {}  # SYNCs sent, TPDOs paired, late and duplicate ones
-        self._reorder: dict[int, tuple[int, int]] = {}  # paired frames not yet released, by SYNC
-        self._next_k = 0
-        self.frames_too_late = 0  # paired, but after their SYNC was given up as lost
+        self.sync_stats: dict[str, int] = {}  # SYNCs sent, TPDOs paired, late and duplicate ones (last link)
         self.scale: EncoderScale | None = None
 
     def describe(self) -> str:
@@ -315,10 +310,8 @@ class CanopenDriver(ControllerDriver):
         # it takes effect from the axis at rest, where the program begins
         with self._sync.lock:
             first = self._sync.k + 1
-        self._first = first
         self._frames.clear()  # before the start: frames of SYNC >= first may arrive any moment
-        self._reorder = {}
-        self._next_k = first
+        self.cycle.wire = _SyncOrder(first, self.REORDER_HORIZON)
         self._command(Command.START)
         return first
 
@@ -344,15 +337,22 @@ class CanopenDriver(ControllerDriver):
                 f"heartbeat of node {self.node_id} lost for {silent:.2f} s (drive off, cable or bus-off?)"
             )
 
+    @property
+    def frames_too_late(self) -> int:
+        """TPDOs of the cycle under way (or the last one) paired after their SYNC was given up."""
+        c = self._cycle or self.last_cycle
+        return c.wire.frames_too_late if c is not None and isinstance(c.wire, _SyncOrder) else 0
+
     async def _drain(self) -> SampleBlock:
         if self._emcy is not None:
             e = self._emcy
             raise DeviceFaultError(f"drive node {self.node_id} sent EMCY ({e.get_desc() or 'fault'})", code=e.code)
         self._check_link()
+        order: _SyncOrder = self.cycle.wire
         finished = False
         now = time.monotonic()
-        if now - self._last_status >= self.status_interval_s:
-            self._last_status = now
+        if now - order.last_status >= self.status_interval_s:
+            order.last_status = now
             status = await asyncio.to_thread(self._status_blocking)
             if status.state == AxisState.DONE:
                 finished = True
@@ -364,33 +364,48 @@ class CanopenDriver(ControllerDriver):
         # frames are taken only after the status read, which may time out: a retry then finds
         # them still queued (nothing read is lost), and a DONE status covers every frame taken
         while self._frames:
-            k, m, t = self._frames.popleft()
-            if k < self._first:
-                continue  # answers a SYNC from before the start
-            if k < self._next_k:
-                self.frames_too_late += 1  # its SYNC was already given up as lost
-            elif k not in self._reorder:
-                self._reorder[k] = (m, t)
-        frames = self._release(finished)
+            order.take(*self._frames.popleft())
+        frames = order.release(finished)
         if not frames:
             return SampleBlock.empty(finished)
         arr = np.asarray(frames, dtype=np.int64)
         return SampleBlock(arr[:, 0], self.scale.motor_rev(arr[:, 1]), self.scale.table_mm(arr[:, 2]), finished=finished)
 
-    def _release(self, finished: bool) -> list[tuple[int, int, int]]:
-        """Frames in SYNC order. A missing SYNC holds back the later ones until
-        ``REORDER_HORIZON`` later SYNCs have been answered (its frame may be on its way,
-        reordered); then it is given up as lost (a counter gap). At the end all go."""
+
+class _SyncOrder:
+    """One cycle's paired TPDOs put back in SYNC order (per cycle, in ``cycle.wire``).
+
+    A missing SYNC holds back the later ones until ``horizon`` later SYNCs have been
+    answered (its frame may be on its way, reordered); then it is given up as lost (a
+    counter gap, counted by the trace assembler). At the end all go.
+    """
+
+    def __init__(self, first: int, horizon: int):
+        self.first = first  # SYNC of the first sample: earlier ones answer SYNCs before the start
+        self.next_k = first
+        self.horizon = horizon
+        self.buf: dict[int, tuple[int, int]] = {}  # paired frames not yet released, by SYNC
+        self.frames_too_late = 0  # paired, but after their SYNC was given up as lost
+        self.last_status = 0.0  # monotonic time of the last status read while draining
+
+    def take(self, k: int, m: int, t: int) -> None:
+        if k < self.first:
+            return
+        if k < self.next_k:
+            self.frames_too_late += 1
+        elif k not in self.buf:
+            self.buf[k] = (m, t)
+
+    def release(self, finished: bool) -> list[tuple[int, int, int]]:
         out = []
-        buf = self._reorder
+        buf = self.buf
         while buf:
-            if self._next_k in buf:
-                m, t = buf.pop(self._next_k)
-                out.append((self._next_k, m, t))
-                self._next_k += 1
+            if self.next_k in buf:
+                m, t = buf.pop(self.next_k)
+                out.append((self.next_k, m, t))
+                self.next_k += 1
                 continue
-            newest = max(buf)
-            if not finished and newest - self._next_k < self.REORDER_HORIZON:
+            if not finished and max(buf) - self.next_k < self.horizon:
                 break
-            self._next_k = min(buf)  # the SYNCs before it are lost
+            self.next_k = min(buf)  # the SYNCs before it are lost
         return out

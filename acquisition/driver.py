@@ -1,12 +1,19 @@
 """The driver base class: it owns the measurement loop; subclasses own only the wire.
 
 Like python-can's ``BusABC.recv()`` over ``_recv_internal()``: :meth:`ControllerDriver.acquire`
-checks the axis is idle, starts the round trip, drains samples until the controller
-reports the end, with a timeout on every exchange and a bounded number of retries;
-it checks counter continuity and encoder plausibility as samples arrive and sends
-an abort on any failure, so the axis is left stopped. Subclasses implement the
-``_connect``/``_close``/``_read_status``/``_start``/``_abort``/``_acknowledge``/``_drain``
-coroutines and translate their library's exceptions into :mod:`acquisition.errors`.
+checks the axis is idle, starts the round trip and drains samples until the controller
+reports the end. The pieces it composes, each in its own module:
+
+- :class:`acquisition.retry.RetryPolicy`: how every exchange (connection set-up, each
+  request, the abort) is retried, boundedly;
+- :class:`acquisition.trace_assembler.TraceAssembler`: counter continuity, gaps, duplicates;
+- :class:`acquisition.encoder_monitor.EncoderMonitor`: stuck, jumping and glitching encoders;
+- :class:`acquisition.acquisition_cycle.AcquisitionCycle`: everything one cycle knows, made
+  fresh by each :meth:`acquire_async`, so a driver carries nothing from one cycle to the next.
+
+On any failure after the start an abort is sent, so the axis is left stopped. Subclasses
+implement the ``_connect``/``_close``/``_read_status``/``_start``/``_abort``/``_acknowledge``/
+``_drain`` coroutines and translate their library's exceptions into :mod:`acquisition.errors`.
 """
 
 from __future__ import annotations
@@ -18,19 +25,26 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
+from acquisition.acquisition_cycle import AcquisitionCycle
+from acquisition.encoder_monitor import EncoderMonitor
 from acquisition.errors import (
     AcquisitionError,
     AxisBusyError,
     ControllerConnectionError,
     ControllerTimeoutError,
+    DeviceBusyError,
     DeviceFaultError,
-    LostSamplesError,
+    DriverMisuseError,
     ProtocolError,
 )
-from acquisition.encoder_monitor import EncoderMonitor
+from acquisition.retry import RetryPolicy
+from acquisition.trace_assembler import TraceAssembler
 from acquisition.types import AcquiredTrace, AxisState, ControllerStatus, RoundTripProgram, SampleBlock
 from core.dataset import AxisSpec
 from core.errors import InputError, require_positive
+
+#: Samples the encoder checks wait for, so they run in batches: cheap per block, still online.
+ENCODER_BATCH = 256
 
 
 class ControllerDriver(ABC):
@@ -38,7 +52,8 @@ class ControllerDriver(ABC):
 
     ``timeout_s`` bounds every exchange and the connection set-up; transient failures
     (timeouts, dropped connections, busy replies) are retried ``retries`` times with a
-    reconnect in between; ``max_lost_samples`` is how many missing counter values a
+    reconnect in between (``retry`` replaces the whole policy: attempts, back-off, and the
+    sleep and clock it uses); ``max_lost_samples`` is how many missing counter values a
     trace may have (0: any gap fails the cycle).
     """
 
@@ -66,21 +81,45 @@ class ControllerDriver(ABC):
         jump_margin_mm: float = 0.05,
         stuck_travel_mm: float = 1.0,
         stall_timeout_s: float | None = None,
+        retry: RetryPolicy | None = None,
     ):
         self.timeout_s = require_positive("timeout_s", timeout_s)
         if retries < 0:
             raise InputError(f"retries (={retries}) must be >= 0")
-        self.retries = int(retries)
+        self.retry = retry or RetryPolicy(attempts=int(retries) + 1)
         self.poll_interval_s = require_positive("poll_interval_s", poll_interval_s)
+        if max_lost_samples < 0:
+            raise InputError(f"max_lost_samples (={max_lost_samples}) must be >= 0")
         self.max_lost_samples = int(max_lost_samples)
         self.jump_margin_mm = jump_margin_mm
         self.stuck_travel_mm = stuck_travel_mm
         self.stall_timeout_s = stall_timeout_s if stall_timeout_s is not None else max(2.0, 3 * self.timeout_s)
         self._connected = False
-        self._ever_connected = False
         self.connect_attempts = 0  # connection set-ups tried by this driver (tests count them)
-        self.link_trouble: str | None = None  # last transient fault recovered from in this cycle
         self.servo_rate_hz = float("nan")
+        self._cycle: AcquisitionCycle | None = None  # the cycle under way
+        self.last_cycle: AcquisitionCycle | None = None  # the cycle that ended last (for inspection)
+
+    @property
+    def retries(self) -> int:
+        return self.retry.attempts - 1
+
+    @property
+    def cycle(self) -> AcquisitionCycle:
+        """The cycle under way; the wire keeps its per-cycle state in ``cycle.wire``."""
+        if self._cycle is None:
+            raise DriverMisuseError("no acquisition cycle is under way on this driver")
+        return self._cycle
+
+    @property
+    def link_trouble(self) -> str | None:
+        """The last transient fault recovered from in the cycle under way (or the last one)."""
+        c = self._cycle or self.last_cycle
+        return c.link_trouble if c is not None else None
+
+    def note_link_trouble(self, exc: Exception) -> None:
+        if self._cycle is not None:
+            self._cycle.link_trouble = str(exc)
 
     # -- the wire (subclasses) ----------------------------------------------------------------
     @abstractmethod
@@ -112,103 +151,115 @@ class ControllerDriver(ABC):
     async def _drain(self) -> SampleBlock:
         """Samples latched since the last drain (possibly none) and whether the program has ended."""
 
-    # -- plumbing ----------------------------------------------------------------------------------
+    # -- exchanges, each under the one retry policy -------------------------------------------
     async def connect(self) -> None:
         """Open the link; refused connections are retried within ``timeout_s``, an unanswered
         request ends it after one ``timeout_s``."""
-        t_start = time.monotonic()
-        deadline = t_start + self.timeout_s
+        clock = self.retry.clock
+        t_start = clock()
         budget_end = t_start + self.timeout_s * self.connect_exchanges
-        attempt = 0
-        while True:
-            attempt += 1
+
+        async def once(_attempt: int) -> None:
             self.connect_attempts += 1
-            remaining = budget_end - time.monotonic()
             try:
-                await asyncio.wait_for(self._connect(), max(remaining, 0.01))
-                self._connected = True
-                self._ever_connected = True
-                return
-            except AcquisitionError as exc:
-                await self._close()
-                backoff = min(0.05 * 2**attempt, 0.5)
-                refused = isinstance(exc, ControllerConnectionError)  # an unanswered request is not retried
-                if not refused or attempt > self.retries or time.monotonic() + backoff > deadline:
-                    raise
-                await asyncio.sleep(backoff)
+                await asyncio.wait_for(self._connect(), max(budget_end - clock(), 0.01))
+            except AcquisitionError:
+                raise  # before TimeoutError: ours subclass it
             except asyncio.TimeoutError:
-                await self._close()
                 raise ControllerTimeoutError(
-                    f"no answer from {self.describe()} within {time.monotonic() - t_start:.1f} s: check the address "
+                    f"no answer from {self.describe()} within {clock() - t_start:.1f} s: check the address "
                     "(host, port, node id) and that the controller is on and connected"
                 ) from None
+            self._connected = True
+            if self._cycle is not None:
+                self._cycle.ever_connected = True
+
+        async def close_link(_exc: Exception) -> None:
+            await self._close()
+
+        # only a refused connection is retried: an unanswered request is not
+        await self.retry.with_(budget_s=self.timeout_s).run(
+            once, retryable=lambda exc: isinstance(exc, ControllerConnectionError), on_failure=close_link,
+            errors=(AcquisitionError,))
 
     async def close(self) -> None:
         self._connected = False
         await self._close()
 
-    async def _call(self, what: str, fn, *args, retries: int | None = None):
-        """``fn(*args)`` with the timeout and bounded retries (reconnecting after link failures)."""
-        last: AcquisitionError | None = None
-        retries = self.retries if retries is None else retries
-        for attempt in range(retries + 1):
+    async def _call(self, what: str, fn, *args, attempts: int | None = None):
+        """``fn(*args)`` under the retry policy, reconnecting after link failures.
+
+        Transient failures are retried once the link has come up in this cycle (the first
+        connection has its own budget, :meth:`connect`); others end the cycle at once.
+        """
+        cycle = self.cycle
+
+        async def once(_attempt: int):
+            if not self._connected:
+                await self.connect()
+            if self.wire_timeouts:
+                return await fn(*args)  # every request already bounded by the wire's own timeout
             try:
-                if not self._connected:
-                    await self.connect()
-                if self.wire_timeouts:
-                    return await fn(*args)  # every request already bounded by the wire's own timeout
                 async with asyncio.timeout(self.timeout_s):
                     return await fn(*args)
-            except AcquisitionError as exc:  # before TimeoutError: ours subclass it
-                if not exc.transient or not self._ever_connected:
-                    raise  # the first connection has its own budget (connect()); never retried beyond it
-                last = exc
-                self.link_trouble = str(exc)
+            except AcquisitionError:
+                raise
+            except TimeoutError:
+                raise ControllerTimeoutError(f"no reply from {self.describe()} within {self.timeout_s:g} s") from None
+
+        def retryable(exc: AcquisitionError) -> bool:
+            return exc.transient and cycle.ever_connected
+
+        async def on_failure(exc: AcquisitionError) -> None:
+            if retryable(exc):
+                cycle.link_trouble = str(exc)
                 if isinstance(exc, (ControllerConnectionError, ControllerTimeoutError)):
-                    await self.close()
-            except asyncio.TimeoutError:
-                last = ControllerTimeoutError(f"no reply from {self.describe()} within {self.timeout_s:g} s")
-                self.link_trouble = str(last)
-                await self.close()
-            if attempt < retries:
-                await asyncio.sleep(min(0.05 * 2**attempt, 0.5))
-        n = retries + 1
-        msg = f"{what}: {last} (gave up after {n} attempt{'s' if n > 1 else ''})"
-        if isinstance(last, TimeoutError):
-            raise ControllerTimeoutError(msg) from last
-        if isinstance(last, ConnectionError):
-            raise ControllerConnectionError(msg) from last
-        raise ProtocolError(msg, code=getattr(last, "code", None)) from last
+                    await self.close()  # a late reply must never answer the next request
+
+        policy = self.retry if attempts is None else self.retry.with_(attempts=attempts)
+        try:
+            return await policy.run(once, retryable=retryable, on_failure=on_failure, errors=(AcquisitionError,))
+        except AcquisitionError as exc:
+            if not retryable(exc):
+                raise
+            raise _gave_up(what, exc) from exc
 
     async def _safe_abort(self) -> str:
         """Best effort to leave the axis stopped; returns a note for the failure reason."""
-        deadline = time.monotonic() + max(3.0 * self.timeout_s, 2.0)
-        err: Exception | None = None
-        for _ in range(20):
-            if time.monotonic() > deadline:
-                break
+
+        async def once(_attempt: int) -> None:
+            if not self._connected:
+                await self.connect()
             try:
-                if not self._connected:
-                    await self.connect()
                 await asyncio.wait_for(self._abort(), self.timeout_s)
-                return "abort sent, axis stopped"
-            except (AcquisitionError, asyncio.TimeoutError) as exc:
-                err = exc
-                await self.close()
-                await asyncio.sleep(0.1)
-        return f"abort could NOT be sent ({err or 'timeout'}): stop the axis at the controller"
+            except AcquisitionError:
+                raise
+            except asyncio.TimeoutError:
+                raise ControllerTimeoutError(f"no reply to the abort within {self.timeout_s:g} s") from None
+
+        async def close_link(_exc: Exception) -> None:
+            await self.close()
+
+        policy = self.retry.with_(attempts=20, backoff_s=0.1, backoff_max_s=0.1,
+                                  budget_s=max(3.0 * self.timeout_s, 2.0))
+        try:
+            await policy.run(once, retryable=lambda _exc: True, on_failure=close_link, errors=(AcquisitionError,))
+        except AcquisitionError as err:
+            return f"abort could NOT be sent ({err}): stop the axis at the controller"
+        return "abort sent, axis stopped"
 
     # -- the measurement loop -------------------------------------------------------------------
     async def acquire_async(self, program: RoundTripProgram, axis: AxisSpec) -> AcquiredTrace:
         """Run one round trip and return its trace; raise :class:`AcquisitionError` on any fault.
 
         On failure after the start, an abort is sent first; the exception's
-        ``abort_note`` says whether it reached the controller.
+        ``abort_note`` says whether it reached the controller. One cycle at a time per driver.
         """
-        started = False
-        self._ever_connected = False
-        self.link_trouble = None
-        t_wall0 = time.monotonic()
+        if self._cycle is not None:
+            raise DriverMisuseError(
+                f"a cycle is already under way on the driver for {self.describe()}: one cycle at a time per driver"
+            )
+        cycle = self._cycle = AcquisitionCycle(program=program, axis=axis, t_wall0=time.monotonic())
         try:
             status = await self._call("reading the axis state", self._read_status)
             if status.state == AxisState.RUNNING:
@@ -226,31 +277,31 @@ class ControllerDriver(ABC):
                         f"axis {axis.name} on {self.describe()} is {status.state.name}{code} and did not "
                         "return to IDLE after an acknowledge: clear the fault at the controller"
                     )
-            temp0 = status.temperature_c
-            started = True  # from here on, any failure sends an abort
+            cycle.temperature0_c = status.temperature_c
+            cycle.started = True  # from here on, any failure sends an abort
             # not retried: a start that timed out may have started the axis; the abort handles it
-            first = await self._call("starting the round trip", self._start, program, retries=0)
-            trace = await self._drain_loop(program, axis, first, t_wall0, temp0)
-            started = False
+            first = await self._call("starting the round trip", self._start, program, attempts=1)
+            trace = await self._drain_loop(cycle, first)
+            cycle.started = False
             return trace
         except (AcquisitionError, asyncio.CancelledError, KeyboardInterrupt) as exc:
-            if started:
+            if cycle.started:
                 note = await self._safe_abort()
                 if isinstance(exc, AcquisitionError):
                     exc.abort_note = note
             raise
         finally:
             await self.close()
+            self._cycle, self.last_cycle = None, cycle
 
-    async def _drain_loop(self, program, axis, first, t_wall0, temp0) -> AcquiredTrace:
+    async def _drain_loop(self, cycle: AcquisitionCycle, first: int | None) -> AcquiredTrace:
+        program, axis = cycle.program, cycle.axis
         rate = self.servo_rate_hz
         monitor = EncoderMonitor(program, axis.transmission_mm_per_rev, rate,
                                  jump_margin_mm=self.jump_margin_mm, stuck_travel_mm=self.stuck_travel_mm)
-        counters, motors, tables, times = [], [], [], []
-        expected = first  # next counter value (continuous modes)
-        last_counter = None
-        lost = 0
-        skew_s = 0.0
+        assembler = cycle.assembler = TraceAssembler(
+            continuous=self.continuous, max_lost_samples=self.max_lost_samples,
+            first_counter=first if self.continuous else None)
         deadline = time.monotonic() + 1.5 * program.duration_s + 3 * self.timeout_s + 5.0
         max_iter = int((deadline - time.monotonic()) / min(self.poll_interval_s, 0.001)) + 1000
         last_progress = time.monotonic()
@@ -261,55 +312,17 @@ class ControllerDriver(ABC):
             now = time.monotonic()
             if now > deadline:
                 raise ControllerTimeoutError(
-                    f"the round trip did not finish within {deadline - t_wall0:.1f} s "
+                    f"the round trip did not finish within {deadline - cycle.t_wall0:.1f} s "
                     f"(programmed {program.duration_s:.1f} s)"
                 )
             block = await self._call("reading samples", self._drain)
-            c = np.asarray(block.counter, dtype=np.int64)
-            m, t = block.motor_rev, block.table_mm
-            if c.size and not self.continuous and last_counter is not None:
-                keep = c > last_counter  # the same latched sample read twice
-                c, m, t = c[keep], m[keep], t[keep]
+            c, m, t = assembler.add(block)
             if c.size:
-                prev = expected if self.continuous and expected is not None else None
-                if prev is None and self.continuous:
-                    prev = int(c[0])
-                contiguous = (self.continuous and int(c[0]) == prev and int(c[-1]) - prev == c.size - 1
-                              and bool((c[1:] > c[:-1]).all()))  # the common case, checked cheaply
-                if self.continuous and not contiguous:
-                    steps = np.diff(np.concatenate([[prev - 1], c]))
-                    if np.any(steps <= 0):
-                        i = int(np.argmax(steps <= 0))
-                        raise ProtocolError(
-                            f"sample counter went backwards or repeated ({int(c[i])} after {prev - 1 if i == 0 else int(c[i - 1])})"
-                        )
-                    gaps = steps - 1
-                    if gaps.any():
-                        i = int(np.argmax(gaps > 0))
-                        lost += int(gaps.sum())
-                        if lost > self.max_lost_samples:
-                            before = int(c[i]) - int(gaps[i])
-                            tm = float(t[i])
-                            raise LostSamplesError(
-                                f"{int(gaps[i])} sample(s) lost: counter jumps from {before - 1} to {int(c[i])} "
-                                f"(table near {tm:.3f} mm); {lost} lost in all. Samples are never "
-                                "interpolated: check the network load and the trace-buffer/SYNC settings",
-                                lost_samples=lost, first_missing=before,
-                            )
-                if self.continuous:
-                    expected = int(c[-1]) + 1
-                skew_s = max(skew_s, block.skew_s)
                 pending.append((c, m, t))
                 pending_n += c.size
-                if pending_n >= 256:  # encoder checks in batches: cheap per block, still online
-                    monitor.check(*_join(pending), skew_s=skew_s)
+                if pending_n >= ENCODER_BATCH:
+                    monitor.check(*_join(pending), skew_s=assembler.skew_s)
                     pending, pending_n = [], 0
-                counters.append(c)
-                motors.append(np.asarray(m, dtype=float))
-                tables.append(np.asarray(t, dtype=float))
-                if block.time_s is not None:
-                    times.append(np.asarray(block.time_s, dtype=float)[-c.size:])
-                last_counter = int(c[-1])
                 if t_first_block is None:
                     t_first_block = now
                 last_progress = time.monotonic()
@@ -317,7 +330,7 @@ class ControllerDriver(ABC):
                 finished = True
                 break
             if block.caught_up and pending:
-                monitor.check(*_join(pending), skew_s=skew_s)
+                monitor.check(*_join(pending), skew_s=assembler.skew_s)
                 pending, pending_n = [], 0
             if c.size == 0 and time.monotonic() - last_progress > self.stall_timeout_s:
                 raise ControllerTimeoutError(
@@ -329,32 +342,27 @@ class ControllerDriver(ABC):
         if not finished:
             raise ControllerTimeoutError(f"the round trip did not finish ({max_iter} reads)")
         if pending:
-            monitor.check(*_join(pending), skew_s=skew_s)
-        monitor.finish(skew_s=skew_s)
-        counter = np.concatenate(counters) if counters else np.zeros(0, dtype=np.int64)
+            monitor.check(*_join(pending), skew_s=assembler.skew_s)
+        monitor.finish(skew_s=assembler.skew_s)
+        time_s, counter, motor, table = assembler.arrays(rate)
         if counter.size < 2:
             raise ControllerTimeoutError(f"{self.describe()} reported the round trip done with {counter.size} sample(s)")
-        if times:
-            time_s = np.concatenate(times)
-            time_s = time_s - time_s[0]
-        else:
-            time_s = (counter - counter[0]) / rate
         status = await self._call("reading the axis state", self._read_status)
-        temps = [x for x in (temp0, status.temperature_c) if math.isfinite(x)]
+        temps = [x for x in (cycle.temperature0_c, status.temperature_c) if math.isfinite(x)]
         return AcquiredTrace(
             protocol=self.protocol,
             mode=self.mode,
             time_s=time_s,
             counter=counter,
-            motor_rev=np.concatenate(motors),
-            table_mm=np.concatenate(tables),
+            motor_rev=motor,
+            table_mm=table,
             temperature_c=float(np.mean(temps)) if temps else float("nan"),
             latched=self.latched,
-            skew_uncertainty_um=skew_s * program.speed_mm_s * 1e3,
-            lost_samples=lost,
+            skew_uncertainty_um=assembler.skew_s * program.speed_mm_s * 1e3,
+            lost_samples=assembler.lost_samples,
             servo_rate_hz=rate,
             program=program,
-            wall_time_s=time.monotonic() - t_wall0,
+            wall_time_s=time.monotonic() - cycle.t_wall0,
             drain_time_s=(last_progress - t_first_block) if t_first_block is not None else float("nan"),
         )
 
@@ -364,11 +372,25 @@ class ControllerDriver(ABC):
             asyncio.get_running_loop()
         except RuntimeError:
             return asyncio.run(self.acquire_async(program, axis))
-        raise InputError("acquire() called inside a running event loop: await acquire_async() instead")
+        raise DriverMisuseError("acquire() called inside a running event loop: await acquire_async() instead")
 
 
 def _join(blocks):
     return tuple(np.concatenate([b[i] for b in blocks]) for i in range(3))
+
+
+def _gave_up(what: str, last: AcquisitionError) -> AcquisitionError:
+    """The error that ends a cycle once a transient fault outlived its retries: same kind, with
+    the attempts in the message (a busy controller stays busy; any other reply, a protocol error)."""
+    n = getattr(last, "attempts", 1)
+    msg = f"{what}: {last} (gave up after {n} attempt{'s' if n > 1 else ''})"
+    if isinstance(last, TimeoutError):
+        return ControllerTimeoutError(msg)
+    if isinstance(last, ConnectionError):
+        return ControllerConnectionError(msg)
+    if isinstance(last, DeviceBusyError):
+        return DeviceBusyError(msg, code=last.code)
+    return ProtocolError(msg, code=getattr(last, "code", None))
 
 
 def raise_device_fault(status: ControllerStatus, where: str, link_trouble: str | None = None) -> None:

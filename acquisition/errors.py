@@ -47,6 +47,23 @@ class ProtocolError(AcquisitionError):
         super().__init__(message)
 
 
+class DeviceBusyError(ProtocolError):
+    """The controller answered that it cannot serve the request now but may shortly
+    (Modbus exception 5 acknowledge, 6 device busy): the same request is retried."""
+
+    reason_code = "device_busy"
+    transient = True
+
+
+class TransientProtocolError(ProtocolError):
+    """An error reply the protocol says may pass (Modbus exception 4 server device failure,
+    11 gateway target did not respond): retried; if it persists, the cycle fails with
+    ``protocol``."""
+
+    reason_code = "protocol_transient"
+    transient = True
+
+
 class DeviceFaultError(AcquisitionError):
     """The controller or drive reported a fault (CANopen EMCY, Modbus fault register).
 
@@ -79,6 +96,11 @@ class EncoderFaultError(AcquisitionError):
     def __init__(self, message: str, *, encoder: str):
         self.encoder = encoder
         super().__init__(message)
+
+
+class DriverMisuseError(MebmError, RuntimeError):
+    """A driver was used the wrong way by the program calling it (a bug there, not a fault of
+    the machine): ``acquire()`` inside a running event loop, two cycles at once on one driver."""
 
 
 class AxisBusyError(AcquisitionError):

@@ -2,19 +2,27 @@
 throughput and latency percentiles. A measurement, not a test.
 
     .venv/bin/python benchmarks/bench_api.py [--clients 50] [--duration-s 20] [--days 365]
-                                             [--database-url URL]
+                                             [--database-url URL] [--publishers]
 
 It seeds a fresh database (SQLite in a temporary folder by default) with a year of
 daily measurements of the demo axis (curves, TBE, a few alerts), starts
 ``mebm serve --no-scheduler`` as a subprocess on a free port, and runs the clients
 (keep-alive HTTP/1.1 over raw asyncio streams, so the client costs little CPU) in
 this process. Every loop is bounded in count and in time.
+
+``--publishers``: the same load with every event interface on and busy. The scheduler
+runs, a second axis on the built-in simulated controller is measured every few seconds
+(high time scale), and each stored measurement is published: MQTT to the broker at
+127.0.0.1:1883, webhooks to a receiver in this process, and the MTConnect and OPC UA
+interfaces where the service has them. It prints how many measurements were stored and
+delivered during the load, so "publishers on" is seen, not assumed.
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import base64
 import os
 import re
 import signal
@@ -68,6 +76,89 @@ name = "bench-vmc"
     feed_mm_min = 200
     tolerance_um = 45
 """
+
+
+PUBLISHERS = """
+[simulator]
+time_scale = 40
+[mqtt]
+url = "mqtt://127.0.0.1:1883"
+topic_prefix = "{prefix}"
+[webhooks]
+urls = ["http://127.0.0.1:{hook_port}/hook"]
+secret = "whsec_{secret}"
+{extra}
+[[machines]]
+name = "bench-sim"
+  [[machines.axes]]
+  name = "x"
+  transmission_mm_per_rev = 6.857
+  screw_lead_mm = 16
+  position_gain_per_s = 10
+  travel_mm = [0, 300]
+  controller = "sim"
+  measure_feed_mm_min = 6000
+  schedule_interval_s = 3
+    [[machines.axes.tasks]]
+    name = "circle R200 F200"
+    profile = "circle"
+    radius_mm = 200
+    feed_mm_min = 200
+    tolerance_um = 45
+"""
+# The MTConnect and OPC UA interfaces, on in this run where the service has them (each
+# table is only written when the service's configuration knows it).
+INTERFACE_TABLES = {"mtconnect": "[mtconnect]\nenabled = true\n",
+                    "opcua": "[opcua]\nenabled = true\nendpoint = \"opc.tcp://127.0.0.1:{opcua_port}/mebm/\"\n"}
+
+
+class Receivers:
+    """What the publishers deliver during the load: MQTT status messages (a paho client
+    subscribed to the run's own topic prefix) and webhook POSTs (an HTTP receiver)."""
+
+    def __init__(self, prefix: str):
+        import http.server
+        import threading
+
+        import paho.mqtt.client as mqtt
+
+        self.mqtt_status = 0
+        self.webhooks = 0
+        outer = self
+
+        class Hook(http.server.BaseHTTPRequestHandler):
+            def do_POST(self):  # noqa: N802 - http.server's name
+                self.rfile.read(int(self.headers.get("content-length", 0)))
+                outer.webhooks += 1
+                self.send_response(204)
+                self.end_headers()
+
+            def log_message(self, *_a):
+                pass
+
+        self.http = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Hook)
+        threading.Thread(target=self.http.serve_forever, daemon=True).start()
+        self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
+
+        def on_message(_c, _u, msg):
+            if msg.topic.endswith("/status"):
+                outer.mqtt_status += 1
+
+        self.client.on_message = on_message
+        self.client.on_connect = lambda c, *_a: c.subscribe(f"{prefix}/#", qos=1)
+        self.client.connect("127.0.0.1", 1883)
+        self.client.loop_start()
+
+    def close(self) -> None:
+        self.client.loop_stop()
+        self.client.disconnect()
+        self.http.shutdown()
+
+
+def _known_tables() -> set[str]:
+    from api.service import config as service_config
+
+    return set(getattr(service_config, "_TOP", ()))
 
 
 def synthetic_round_trip(axis: AxisRecord):
@@ -144,6 +235,27 @@ async def load(host, port, path, key, clients, duration_s):
     return latencies, errors, time.monotonic() - t0
 
 
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as so:
+        so.bind(("127.0.0.1", 0))
+        return so.getsockname()[1]
+
+
+def _stored(port: int, key: str) -> int:
+    """Measurements stored on the simulated axis (id 2) so far."""
+    import json
+    import urllib.request
+
+    req = urllib.request.Request(f"http://127.0.0.1:{port}/api/v1/axes/2/measurements?limit=1000",
+                                 headers={"X-API-Key": key})
+    with urllib.request.urlopen(req, timeout=10) as r:
+        body = json.loads(r.read())
+    items = body if isinstance(body, list) else body.get("items", body.get("measurements", []))
+    return sum(1 for m in items if m.get("status") == "ok")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--clients", type=int, default=50)
@@ -151,6 +263,8 @@ def main() -> int:
     ap.add_argument("--days", type=int, default=365, help="days of daily history to seed")
     ap.add_argument("--database-url", help="default: SQLite in a temporary folder (a PostgreSQL database "
                                            "must be empty)")
+    ap.add_argument("--publishers", action="store_true",
+                    help="every event interface on, with a simulated axis measured every 3 s during the load")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="mebm-bench-") as tmp:
         url = a.database_url or f"sqlite:///{tmp}/bench.sqlite3"
@@ -158,12 +272,23 @@ def main() -> int:
         key = seed(url, a.days)
         print(f"seeded {a.days} daily measurements in {time.monotonic() - t:.1f} s ({url.split('://')[0]})")
         cfg = Path(tmp) / "bench.toml"
-        cfg.write_text(CONFIG)
+        receivers = None
+        if a.publishers:
+            prefix = f"mebm-bench-{uuid.uuid4().hex[:8]}"
+            receivers = Receivers(prefix)
+            extra = "".join(table.format(opcua_port=_free_port()) for name, table in INTERFACE_TABLES.items()
+                            if name in _known_tables())
+            head, machines = CONFIG.split("[[machines]]", 1)
+            cfg.write_text(head + PUBLISHERS.format(prefix=prefix, hook_port=receivers.http.server_address[1],
+                                                    secret=base64.b64encode(os.urandom(32)).decode(), extra=extra)
+                           + "[[machines]]" + machines)
+        else:
+            cfg.write_text(CONFIG)
         log = open(Path(tmp) / "serve.log", "w+")  # noqa: SIM115
         env = {**os.environ, "MEBM_DATABASE_URL": url}
         proc = subprocess.Popen([sys.executable, "-m", "api.cli", "serve", "--config", str(cfg), "--port", "0",
-                                 "--data-dir", tmp, "--no-scheduler"], cwd=ROOT, env=env, stdout=log,
-                                stderr=subprocess.STDOUT, start_new_session=True)
+                                 "--data-dir", tmp, *([] if a.publishers else ["--no-scheduler"])], cwd=ROOT,
+                                env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         try:
             port = None
             deadline = time.monotonic() + 60
@@ -178,8 +303,21 @@ def main() -> int:
                 return 1
             path = "/api/v1/axes/1/status"
             asyncio.run(load("127.0.0.1", port, path, key, 2, 1.0))  # warm up
+            before = _stored(port, key) if a.publishers else 0
+            seen0 = (receivers.mqtt_status, receivers.webhooks) if receivers else (0, 0)
             lat, errors, wall = asyncio.run(load("127.0.0.1", port, path, key, a.clients, a.duration_s))
+            if a.publishers:
+                stored = _stored(port, key) - before
+                log.seek(0)
+                banner = [ln for ln in log.read().splitlines()[:20] if ln.startswith(("MQTT", "webhooks", "MTConnect",
+                                                                                      "OPC UA"))]
+                print("publishers on:", "; ".join(banner))
+                print(f"during the load: {stored} measurement(s) stored on the simulated axis; "
+                      f"{receivers.mqtt_status - seen0[0]} MQTT status message(s) and "
+                      f"{receivers.webhooks - seen0[1]} webhook POST(s) received")
         finally:
+            if receivers is not None:
+                receivers.close()
             proc.send_signal(signal.SIGTERM)
             try:
                 proc.wait(20)

@@ -56,7 +56,7 @@ AXIS = """
   screw_lead_mm = 16
   position_gain_per_s = 10
   travel_mm = [0, 300]
-  controller = "sim"
+  controller = "{controller}"
   measure_feed_mm_min = 6000
   schedule_interval_s = {interval}
     [[machines.axes.tasks]]
@@ -68,12 +68,35 @@ AXIS = """
 """
 
 
-def config(axes: int, interval_s: float) -> str:
-    head = ('[auth]\ndemo_keys = false\n[scheduler]\nspool_retry_s = 2\n[simulator]\ntime_scale = 40\n'
+TIME_SCALE = 40
+
+
+def config(controllers: list[str], interval_s: float) -> str:
+    head = (f'[auth]\ndemo_keys = false\n[scheduler]\nspool_retry_s = 2\n[simulator]\ntime_scale = {TIME_SCALE}\n'
             '[limits]\ntriggers_per_minute = 30\ntrigger_burst = 5\n'
             '[retention]\nkeep_last_runs = 50\nmax_runs = 400\ninterval_s = 60\n'
             '[[machines]]\nname = "soak-vmc"\n')
-    return head + "".join(AXIS.format(name=n, interval=interval_s) for n in "xyzuvw"[:axes])
+    return head + "".join(AXIS.format(name=n, interval=interval_s, controller=c)
+                          for n, c in zip("xyzuvw", controllers))
+
+
+def start_controllers(n: int, run_s: float) -> tuple[list[subprocess.Popen], list[str]]:
+    """``n`` simulated Modbus controllers, each its own process (as real controllers are
+    their own devices): ``mebm sim-controller modbus`` on a free port at the soak's time scale."""
+    procs, urls = [], []
+    for _ in range(n):
+        p = subprocess.Popen([sys.executable, "-m", "api.cli", "sim-controller", "modbus", "--port", "0",
+                              "--time-scale", str(TIME_SCALE), "--duration-s", f"{run_s:.0f}"], cwd=ROOT,
+                             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, start_new_session=True)
+        procs.append(p)
+        line = p.stdout.readline()  # "... on modbus://127.0.0.1:PORT ..." once it listens
+        m = re.search(r"modbus://127\.0\.0\.1:\d+", line)
+        if m is None:
+            for q in procs:
+                q.kill()
+            raise SystemExit(f"soak: a simulated controller did not start: {line!r}")
+        urls.append(m.group(0))
+    return procs, urls
 
 
 def rss_mb(pid: int) -> float:
@@ -109,6 +132,9 @@ def main() -> int:
     ap.add_argument("--keep", action="store_true", help="keep the data folder (printed) for a look afterwards")
     ap.add_argument("--no-full-disk", action="store_true", help="skip the full-disk fault (needs root for unshare -m)")
     ap.add_argument("--disk-mb", type=int, default=2048, help="size of the data folder's tmpfs (full-disk fault)")
+    ap.add_argument("--controllers", choices=("external", "inprocess"), default="external",
+                    help="simulated controllers as their own processes (default, as real ones are devices of "
+                         "their own), or the service's built-in simulator threads (the demo's set-up)")
     a = ap.parse_args()
     full_disk = not a.no_full_disk
     if full_disk and os.environ.get("MEBM_SOAK_NS") != "1":
@@ -127,7 +153,13 @@ def main() -> int:
         read = config_repo.create_key(s, "soak-read", "read")[1]
         operate = config_repo.create_key(s, "soak-operate", "operate")[1]
     eng.dispose()
-    (tmp / "soak.toml").write_text(config(a.axes, a.interval_s))
+    sims: list[subprocess.Popen] = []
+    if a.controllers == "external":
+        sims, urls = start_controllers(a.axes, a.minutes * 60 + 600)
+    else:
+        urls = ["sim"] * a.axes
+    print(f"controllers: {a.controllers} ({', '.join(urls)})", flush=True)
+    (tmp / "soak.toml").write_text(config(urls, a.interval_s))
     log = open(tmp / "serve.log", "w+")  # noqa: SIM115
     proc = subprocess.Popen([sys.executable, "-m", "api.cli", "serve", "--config", str(tmp / "soak.toml"),
                              "--port", "0", "--data-dir", str(tmp)], cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
@@ -247,6 +279,8 @@ def main() -> int:
         proc.wait(30)
     except subprocess.TimeoutExpired:
         proc.kill()
+    for sim in sims:
+        sim.kill()
     try:
         return report(tmp, url, status_ms, answers, rss)
     finally:

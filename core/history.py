@@ -68,7 +68,14 @@ class TemperatureModel:
         self.n_ = int(t.size)
         resid = b - (res.intercept + res.slope * (t - self.reference_c))
         self.residual_std_um_ = float(np.sqrt(np.sum(resid**2) / max(t.size - 2, 1)))
+        self.beta_uncertainty_um_per_k_ = self._u_beta(float(np.sum((t - t.mean()) ** 2)))
         return self
+
+    def _u_beta(self, cxx: float) -> float:
+        """Standard uncertainty of β: s / √Σ(T - T̄)² (0 with no residual degree of freedom)."""
+        if self.n_ <= 2 or not cxx > 0:
+            return 0.0
+        return float(self.residual_std_um_ / math.sqrt(cxx))
 
     def fit_sums(self, sums: MomentSums) -> TemperatureModel:
         """:meth:`fit` from the :class:`MomentSums` of (temperature_c, backlash_um)."""
@@ -83,6 +90,7 @@ class TemperatureModel:
         self.r_ = sums.pearson_r() if sums.n > 2 else None
         self.n_ = int(sums.n)
         self.residual_std_um_ = float(math.sqrt(max(cyy - slope * cxy, 0.0) / max(sums.n - 2, 1)))
+        self.beta_uncertainty_um_per_k_ = self._u_beta(cxx)
         return self
 
     def _check(self) -> None:
@@ -163,3 +171,41 @@ class MomentSums:
         if cxx <= 0 or cyy <= 0:
             return None
         return float(np.clip(cxy / math.sqrt(cxx * cyy), -1.0, 1.0))
+
+
+THERMOMETER_UNCERTAINTY_K = 0.25  # standard: a class B Pt100 (±0.3 K + 0.005 |T|) near 20 °C, rectangular
+
+
+def history_uncertainty(temperature_c: float | None, recent_temperature_c, recent_backlash_um, *,
+                        beta_um_per_k: float | None = None, beta_uncertainty_um_per_k: float = 0.0,
+                        thermometer_uncertainty_k: float = THERMOMETER_UNCERTAINTY_K,
+                        min_cycles: int = 5) -> dict[str, tuple[float, str]]:
+    """The history's components of b̄'s budget (standard uncertainties, µm, with a note):
+
+    - ``repeatability``: the scatter (s, n - 1) of b̄ over recent cycles at a similar
+      temperature (the caller picks them), each moved to ``temperature_c`` with β when
+      known; given from ``min_cycles`` cycles on. It holds the noise of a single run too,
+      so it is an upper estimate of what repeats between runs (GUM 4.2.2, Type A);
+    - ``normalisation``: of b̄ referred to 20 °C, b̄ - β (T - 20): √((T - 20)² u(β)² + β² u(T)²),
+      u(T) the thermometer's standard uncertainty (GUM 5.1.2, uncorrelated).
+    """
+    out: dict[str, tuple[float, str]] = {}
+    t = np.asarray(recent_temperature_c, dtype=float)
+    b = np.asarray(recent_backlash_um, dtype=float)
+    keep = np.isfinite(b) & (np.isfinite(t) if t.shape == b.shape else True)
+    b = b[keep]
+    if t.shape == keep.shape:
+        t = t[keep]
+    if b.size >= min_cycles:
+        moved = b
+        if beta_um_per_k is not None and temperature_c is not None and t.shape == b.shape:
+            moved = b - beta_um_per_k * (t - temperature_c)
+        s = float(np.std(moved, ddof=1))
+        out["repeatability"] = (s, f"s of b̄ over the last {b.size} cycles within ±1 K"
+                                   + (", moved to this temperature with β" if moved is not b else ""))
+    if beta_um_per_k is not None and temperature_c is not None:
+        dt = temperature_c - REFERENCE_TEMPERATURE_C
+        u = math.hypot(dt * beta_uncertainty_um_per_k, beta_um_per_k * thermometer_uncertainty_k)
+        out["normalisation"] = (u, f"β {beta_um_per_k:.3g} ± {beta_uncertainty_um_per_k:.2g} µm/K over "
+                                   f"{dt:+.1f} K, thermometer u(T) {thermometer_uncertainty_k:g} K")
+    return out

@@ -46,3 +46,13 @@ def test_storage_importing_acquisition_breaks_the_contract(tmp_path):
     res = _lint(tree)
     assert res.returncode != 0
     assert "BROKEN" in res.stdout
+
+
+def test_mtconnect_importing_rest_or_mqtt_breaks_the_contracts(tmp_path):
+    tree = _copy_tree(tmp_path)
+    with open(tree / "api" / "mtconnect" / "model.py", "a") as fh:
+        fh.write("\nimport api.rest.convert  # noqa\nimport api.mqtt  # noqa\n")
+    res = _lint(tree)
+    assert res.returncode != 0
+    assert "Event interfaces (MQTT, webhooks, OPC UA, MTConnect) do not import each other BROKEN" in res.stdout
+    assert "Event interfaces depend on the service, not on REST or the CLI BROKEN" in res.stdout

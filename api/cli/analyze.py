@@ -7,6 +7,7 @@ import sys
 
 from api.cli.output import print_json, print_table
 from core.criteria import RoundTripSettings, analyze_round_trip
+from core.criteria.lost_motion import clearance_from_feeds
 from core.criteria.uncertainty import UncertaintyInputs
 from core.errors import MebmError, TraceError
 from storage.dataset import read_dataset
@@ -58,16 +59,26 @@ def run(a: argparse.Namespace) -> int:
                 **({"utility_day": r.spec.utility_day} if r.spec.utility_day is not None else {}),
                 **res.to_dict(curves=a.curves),
             })
+    clearances = _dataset_clearance(results)
     if a.json:
         print_json(results)
     elif results:
         print_table(
-            ["run", "axis", "b̄ (µm)", "U(b̄) (µm)", "b min (µm)", "b max (µm)", "e_p (µm)", "e_p (µm/1000mm)",
-             "v_u (µm)", "v_300 (µm)", "v_2π (µm)", "outliers"],
+            ["run", "axis", "b̄ (µm)", "U(b̄) (µm)", "b min (µm)", "b max (µm)", "B̄ (µm)", "B (µm)", "e_p (µm)",
+             "e_p (µm/1000mm)", "v_u (µm)", "v_300 (µm)", "v_2π (µm)", "outliers"],
             [[x["file"], x["axis"], x["backlash_mean_um"], x["backlash_mean_uncertainty_um"], x["backlash_min_um"],
-              x["backlash_max_um"], x["e_p_um"], x["e_p_um_per_1000mm"], x["v_u_um"], x["v_300_um"], x["v_2pi_um"],
-              x["outliers_removed"]] for x in results],
+              x["backlash_max_um"], x["reversal_mean_um"], x["reversal_max_um"], x["e_p_um"], x["e_p_um_per_1000mm"],
+              x["v_u_um"], x["v_300_um"], x["v_2pi_um"], x["outliers_removed"]] for x in results],
         )
+        for axis_name, c in clearances.items():
+            if c.clearance_um is not None:
+                u = f" ± {c.clearance_uncertainty_um:.2f} µm (k = 2)" if c.clearance_uncertainty_um is not None else " µm"
+                print(f"axis {axis_name}: feed-independent lost motion {c.clearance_um:.2f}{u} from {len(c.feeds_mm_min)} runs at "
+                      f"{min(c.feeds_mm_min):.0f}..{max(c.feeds_mm_min):.0f} mm/min, "
+                      f"{c.slope_um_per_m_min:+.2f} µm per m/min: the clearance plus the Coulomb wind-up")
+            else:
+                print(f"axis {axis_name}: clearance not separated: {c.reason}")
+        print("B̄, B: ISO 230-2 reversal values (lost motion); the TBE uses the total lost motion b̄")
         print("lead criteria of the positive stroke; --json gives both directions, the GUM budgets and "
               "U for each criterion; U: expanded uncertainty, k = 2")
     if skipped and not a.json:
@@ -79,3 +90,23 @@ def run(a: argparse.Namespace) -> int:
     if not results:
         raise AnalysisFailed(f"dataset {a.dataset} has no round-trip run to analyse")
     return 0
+
+
+def _dataset_clearance(results: list[dict]) -> dict:
+    """Per axis, the lost motion's feed-independent part over the dataset's runs (their
+    feeds and temperatures: core.criteria.lost_motion.clearance_from_feeds), added to
+    each run's ``lost_motion`` as ``clearance_dataset``."""
+    out = {}
+    for axis_name in dict.fromkeys(x["axis"] for x in results):
+        rows = [x for x in results if x["axis"] == axis_name and "lost_motion" in x]
+        if not rows:
+            continue
+        temps = [x.get("temperature_c") for x in rows]
+        c = clearance_from_feeds(
+            [x["peak_speed_mm_min"] for x in rows], [x["reversal_mean_um"] for x in rows],
+            [max(x.get("backlash_mean_uncertainty_um", 0.0) / 2.0, 0.01) for x in rows], source="dataset",
+            temperature_c=None if any(t is None for t in temps) else temps)
+        out[axis_name] = c
+        for x in rows:
+            x["lost_motion"]["clearance_dataset"] = c.to_dict()
+    return out

@@ -59,7 +59,21 @@ def demo_read_key(settings, report) -> str | None:
     return key if isinstance(key, str) else None
 
 
-def banner(settings, report, url: str, sign_in_url: str | None = None) -> str:
+def opcua_line(settings, opcua) -> str:
+    o = settings.opcua
+    if not o.enabled:
+        return "OPC UA: off ([opcua] enabled)"
+    if opcua is None or not opcua.running:
+        why = opcua.error if opcua is not None else "not started"
+        return f"OPC UA: NOT running on {o.endpoint}: {why} (the service goes on without it)"
+    who = " + ".join((["anonymous"] if o.anonymous else []) + ([f"user {o.username!r}"] if o.username else [])
+                     + (["certificate users"] if o.trusted_certificates else [])) + " read-only"
+    sec = "Basic256Sha256 only, trusted client certificates" if o.trusted_certificates else \
+        "None" + (", Basic256Sha256" if o.certificate else "")
+    return f"OPC UA: {opcua.endpoint}  ({who}; security {sec}; Objects/Machines/<machine>/<axis>/BacklashMean)"
+
+
+def banner(settings, report, url: str, opcua=None, sign_in_url: str | None = None) -> str:
     lines = [f"mebm service on {url}  (API {url}/api/v1, OpenAPI docs {url}/docs)",
              f"dashboard: {url}/ui/"
              + (f"  (one-time sign-in link for the demo read key, valid 10 min: {sign_in_url})" if sign_in_url
@@ -74,8 +88,15 @@ def banner(settings, report, url: str, sign_in_url: str | None = None) -> str:
     m = settings.mqtt
     lines.append(f"MQTT: {_redact_url(m.url)}, topics {m.topic_prefix}/<machine>/<axis>/status|alerts" if m.url
                  else "MQTT: off ([mqtt] url or MEBM_MQTT_URL)")  # fmt: skip
+    lines.append(opcua_line(settings, opcua))
     w = settings.webhooks
     lines.append(f"webhooks: {len(w.urls)} receiver(s)" if w.urls else "webhooks: off ([webhooks] urls)")
+    mc = settings.mtconnect
+    lines.append(f"MTConnect agent: {url}/mtconnect/probe, /current, /sample"
+                 + (" (any API key)" if mc.require_key else " (open, read-only)") if mc.enabled
+                 else "MTConnect: off ([mtconnect] enabled)")  # fmt: skip
+    if mc.enabled and mc.shdr_port is not None:
+        lines.append(f"MTConnect SHDR adapter: {mc.shdr_host}:{mc.shdr_port} (device file: {url}/mtconnect/probe)")
     if report.demo_keys:  # only the keys created by this start: shown once
         k = report.demo_keys
         lines.append("demo keys created (shown this once; read and operate are kept in "
@@ -111,22 +132,31 @@ def _serve(a: argparse.Namespace) -> int:
         settings = replace(settings, scheduler_enabled=False)
     logging.basicConfig(level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     logging.getLogger("apscheduler").setLevel(logging.WARNING)  # one line per job run is noise
+    logging.getLogger("asyncua").setLevel(logging.WARNING)  # a line per session and request otherwise
     sock = _bind(settings.host, settings.port)
     port = sock.getsockname()[1]
     service = Service(settings)
+    opcua = None
     try:
         report = service.start()
+        if settings.opcua.enabled:  # before the banner, which says whether it listens
+            from api.opcua import OpcuaServer
+
+            opcua = OpcuaServer(service, settings.opcua)
+            opcua.start()  # logs and goes on when it cannot listen
         host = settings.host if settings.host not in ("0.0.0.0", "::") else "127.0.0.1"
         url = f"http://{host}:{port}"
-        app = create_app(settings, service=service)
+        app = create_app(settings, service=service, opcua=opcua)
         read_key = demo_read_key(settings, report) if settings.demo_keys else None
         # the link carries a one-time token, never the key; the dashboard keeps the token in memory
         link = f"{url}/ui/sign-in/{app.state.ui.links.issue(read_key)}" if read_key else None
-        print(banner(settings, report, url, link), flush=True)
+        print(banner(settings, report, url, opcua, sign_in_url=link), flush=True)
         config = uvicorn.Config(app, log_level=settings.log_level, access_log=False, timeout_graceful_shutdown=10)
         server = uvicorn.Server(config)
         server.run(sockets=[sock])
     finally:
+        if opcua is not None:
+            opcua.close()
         service.stop()
         sock.close()
     sys.stdout.flush()

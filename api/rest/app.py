@@ -66,7 +66,22 @@ def _start_interfaces(app: FastAPI, svc: Service, settings: Settings) -> list:
     return started
 
 
-def create_app(settings: Settings, *, service: Service | None = None, runner: CycleRunner | None = None) -> FastAPI:
+def _start_opcua(app: FastAPI, svc: Service, settings: Settings, given) -> list:
+    """The OPC UA server: the one handed in (``mebm serve`` starts it before its banner),
+    else one of our own when ``[opcua] enabled``. Started after the service (it seeds from
+    the database); one that cannot listen is logged and left off, never fatal."""
+    app.state.opcua = given
+    if given is not None or not settings.opcua.enabled:
+        return []
+    from api.opcua import OpcuaServer
+
+    app.state.opcua = OpcuaServer(svc, settings.opcua)
+    app.state.opcua.start()
+    return [app.state.opcua]
+
+
+def create_app(settings: Settings, *, service: Service | None = None, runner: CycleRunner | None = None,
+               opcua=None) -> FastAPI:  # fmt: skip
     owned = service is None
     svc = service or Service(settings, runner=runner)
 
@@ -74,9 +89,16 @@ def create_app(settings: Settings, *, service: Service | None = None, runner: Cy
     async def lifespan(app: FastAPI):
         svc.render_status = lambda axis_id: status_json(app.state, svc, axis_id, svc.status.get(axis_id))
         started = _start_interfaces(app, svc, settings)  # subscribed before the first cycle can be saved
+        agent = app.state.mtconnect
+        if agent is not None:
+            agent.start()
+            started.append(agent)
         try:
             if owned:
                 svc.start()
+            started += _start_opcua(app, svc, settings, opcua)
+            if agent is not None:
+                agent.seed()  # /current is right from the first request after a restart
             for machine, _ in settings.machines:
                 if app.state.mqtt is not None:
                     app.state.mqtt.link(machine)  # the birth message, before any measurement
@@ -92,6 +114,7 @@ def create_app(settings: Settings, *, service: Service | None = None, runner: Cy
     install_docs(app, f"{API_PREFIX}/openapi.json")  # Swagger UI from the package, no CDN
     app.state.service = svc
     app.state.mqtt = app.state.webhooks = None
+    app.state.opcua = opcua
     app.state.key_cache = KeyCache()
     app.state.status_json = {}  # axis id -> (status object, its encoded JSON): see status_body.py
     app.state.metrics = make_registry(svc)
@@ -108,4 +131,10 @@ def create_app(settings: Settings, *, service: Service | None = None, runner: Cy
     app.include_router(api)
     app.include_router(health.router, responses={k: v for k, v in ERROR_RESPONSES.items() if k in (401, 403, 503)})
     install_ui(app)  # the dashboard under /ui/ (issue 12); app.state.ui issues sign-in links
+    app.state.mtconnect = None
+    if settings.mtconnect.enabled:  # an MTConnect agent on the same port (issue 17); it imports no REST
+        from api.mtconnect import MTConnectAgent, make_router
+
+        app.state.mtconnect = MTConnectAgent(svc, settings.mtconnect)
+        app.include_router(make_router(app.state.mtconnect))
     return app

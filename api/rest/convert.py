@@ -7,7 +7,9 @@ from datetime import datetime
 import numpy as np
 
 from api.rest import schemas as sc
-from api.service.status import AxisStatus, verdict
+from api.service.prognosis import to_dict as prognosis_body
+from api.service.status import AxisStatus, state_and_message
+from core.criteria.roundtrip import TBE_BASIS
 from core.history import TemperatureModel
 from core.errors import MebmError
 from storage.db import AlertRecord, AxisRecord, CycleRecord, KeyRecord, MachineRecord, ResultRecord, TrendView
@@ -35,7 +37,7 @@ def axis(a: AxisRecord, next_run: datetime | None = None) -> sc.AxisOut:
         position_gain_per_s=st.spec.position_gain_per_s, travel_mm=st.spec.travel_mm,
         controller_url=st.controller_url, measure_feed_mm_min=st.measure_feed_mm_min,
         measure_acceleration_mm_s2=st.measure_acceleration_mm_s2, warning_fraction=st.warning_fraction,
-        decision_rule=st.decision_rule, schedule=sc.ScheduleOut(interval_s=st.schedule.interval_s, cron=st.schedule.cron,
+        decision_rule=st.decision_rule, worst_case_temperature_c=st.worst_case_temperature_c, schedule=sc.ScheduleOut(interval_s=st.schedule.interval_s, cron=st.schedule.cron,
                                 enabled=st.schedule.enabled, next_run_at=next_run),
         tasks=[task(t) for t in st.tasks],
     )
@@ -59,9 +61,13 @@ def status(s: AxisStatus, now: datetime, next_run: datetime | None) -> sc.AxisSt
         unc["backlash_mean_uncertainty_um"] = rt.backlash_mean_uncertainty_um
         for key in ("e_p", "v_u", "v_300", "v_2pi"):
             unc[f"{key}_uncertainty_um"] = rt.criterion_uncertainty_um("positive", key)
+        unc["uncertainty_budget"] = {k: v.to_dict() for k, v in rt.budgets.items() if "." not in k}
+        if "backlash_mean_20c" in rt.budgets:
+            unc["backlash_mean_20c_uncertainty_um"] = rt.budgets["backlash_mean_20c"].expanded_um
+    lm = _lost_motion(rt, s)
     b = latest.round_trip.backlash.mean_um if latest else None
     limit = sc.fin(d.backlash_limit_um) if d else None
-    state, message = verdict(s)
+    state, message = state_and_message(s)
     return sc.AxisStatusOut(
         axis_id=a.id, machine_id=a.machine_id, machine_name=a.machine_name, axis_name=a.name, state=state,
         message=message, measurement_id=latest.cycle_id if latest else None,
@@ -77,7 +83,28 @@ def status(s: AxisStatus, now: datetime, next_run: datetime | None) -> sc.AxisSt
         binding_task=d.binding_task if d else None, tasks=tasks, active_alert_id=s.active_alert_id,
         last_cycle_status=s.last_cycle_status, last_cycle_at=s.last_cycle_at,
         last_failure_reason=s.last_failure_reason, next_run_at=next_run, last_raw_run_lost=s.last_raw_run_lost,
+        **lm, prognosis=_prognosis(s),
     )
+
+
+def _lost_motion(rt, s: AxisStatus) -> dict:
+    """The status' lost-motion keys: B̄, B, B_i, and both clearance estimates."""
+    out: dict = {}
+    if rt is not None and rt.lost_motion is not None:
+        lm = rt.lost_motion
+        out = {"reversal_mean_um": lm.mean_um, "reversal_max_um": lm.max_abs_um,
+               "lost_motion": {**lm.to_dict(), "tbe_basis": TBE_BASIS}}
+    if s.history is not None:
+        out.setdefault("lost_motion", {"tbe_basis": TBE_BASIS})["clearance_history"] = s.history.clearance.to_dict()
+    return out
+
+
+def _prognosis(s: AxisStatus) -> dict | None:
+    if s.history is not None:
+        return prognosis_body(s.history)
+    if s.history_error:
+        return {"identifiable": False, "reason": f"the prognosis could not be computed: {s.history_error}"}
+    return None
 
 
 def summary(c: CycleRecord) -> sc.MeasurementSummary:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from datetime import datetime
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -123,6 +123,8 @@ class AxisIn(In):
     warning_fraction: float = Field(0.9, ge=0.01, le=1)
     decision_rule: Literal["simple", "guarded"] = Field(
         "guarded", description="ISO 14253-1: 'guarded' needs TBE ± U clear of a threshold to call it")
+    worst_case_temperature_c: float = Field(
+        30.0, ge=-50, le=100, description="the shop temperature the prognosis' date is computed for")
     schedule: ScheduleIn = Field(default_factory=ScheduleIn)
     tasks: list[TaskIn] = Field(default_factory=list, max_length=50)
 
@@ -153,6 +155,7 @@ class AxisOut(BaseModel):
     measure_acceleration_mm_s2: float
     warning_fraction: float
     decision_rule: str = "guarded"
+    worst_case_temperature_c: float = 30.0
     schedule: ScheduleOut
     tasks: list[TaskOut]
 
@@ -195,6 +198,17 @@ class AxisStatusOut(BaseModel):
     v_300_uncertainty_um: float | None = None
     v_2pi_uncertainty_um: float | None = None
     outliers_removed: int | None = None
+    backlash_mean_20c_uncertainty_um: float | None = Field(
+        None, description="expanded (k = 2) uncertainty of b̄ at 20 °C: b̄'s budget plus the normalisation (β, thermometer)")
+    uncertainty_budget: dict[str, Any] | None = Field(None, description="the GUM budget of b̄ (and of b̄ at 20 °C)")
+    reversal_mean_um: float | None = Field(None, description="ISO 230-2 mean reversal value B̄ (lost motion), µm")
+    reversal_max_um: float | None = Field(None, description="ISO 230-2 reversal value B = max |B_i|, µm")
+    lost_motion: dict[str, Any] | None = Field(
+        None, description="B_i at the targets, the clearance estimate from the program's feeds and from the "
+                          "history's, and the TBE's basis (the total lost motion)")
+    prognosis: dict[str, Any] | None = Field(
+        None, description="GET /axes/{id}/prognosis: the ALARM temperature, the date the worst-case b̄ reaches "
+                          "the backlash limit, or why the history does not support the fit")
     decision_rule: Literal["simple", "guarded"] | None = None
     backlash_limit_um: float | None
     backlash_reduction_needed_um: float | None = Field(
@@ -403,3 +417,5 @@ class Health(BaseModel):
     version: str
     uptime_s: float
     spooled_cycles: int
+    opcua: str | None = Field(None, description="the OPC UA server: 'listening on <endpoint>', or why it is off "
+                                                "(it never makes the service degraded); null when not configured")

@@ -1,6 +1,6 @@
 """Service configuration: a TOML file (docs/configuration.md), embedded defaults and
 environment overrides (MEBM_DATABASE_URL, MEBM_DATA_DIR, MEBM_BOOTSTRAP_ADMIN_KEY,
-MEBM_HOST, MEBM_PORT).
+MEBM_HOST, MEBM_PORT, MEBM_MQTT_URL, MEBM_WEBHOOK_SECRET, MEBM_OPCUA_ENDPOINT, MEBM_OPCUA_PASSWORD).
 
 Without a file the defaults describe the demo: SQLite under ./data, the built-in
 simulated Modbus controller, and the seed paper's Y axis measured every 60 s.
@@ -86,6 +86,44 @@ class WebhookSettings:
     log_max: int = 200
 
 
+DEFAULT_OPCUA_ENDPOINT = "opc.tcp://127.0.0.1:4840/mebm/"
+
+
+@dataclass(frozen=True)
+class OpcuaSettings:
+    """``[opcua]``: an OPC UA server with the axes' status (read-only for every user).
+
+    Anonymous sessions are allowed unless a username is configured (then only that user,
+    unless ``anonymous = true`` says otherwise). Without a certificate the only security
+    policy is None: the password then travels in clear, so keep such an endpoint on a
+    trusted network or configure ``certificate`` and ``private_key`` (Basic256Sha256).
+    With ``trusted_certificates`` (a folder), a client's certificate must be trusted
+    (directly or by its CA) to open a signed channel, and a session on such a channel, or
+    one presenting a trusted certificate as its identity, is a (read-only) user even when
+    anonymous sessions are off."""
+
+    enabled: bool = False
+    endpoint: str = DEFAULT_OPCUA_ENDPOINT  # opc.tcp://host:port/path (port 0: a free one)
+    anonymous: bool = True
+    username: str | None = None
+    password: str | None = None  # or MEBM_OPCUA_PASSWORD
+    certificate: Path | None = None  # PEM or DER server certificate: adds Basic256Sha256 Sign(AndEncrypt)
+    private_key: Path | None = None
+    trusted_certificates: Path | None = None  # folder of trusted client certificates (or their CAs)
+
+
+@dataclass(frozen=True)
+class MtconnectSettings:
+    """``[mtconnect]``: an MTConnect agent (2.4, read-only) under ``/mtconnect`` on the API's port."""
+
+    enabled: bool = True
+    require_key: bool = False  # agents are usually open on the shop network; True: any valid key (X-API-Key)
+    buffer_size: int = 131072  # observations kept for /sample (the ring buffer)
+    sender: str | None = None  # the Header's sender; None: this host's name
+    shdr_port: int | None = None  # an SHDR adapter port for a site's own agent (7878 by convention); None: off
+    shdr_host: str = "127.0.0.1"
+
+
 @dataclass(frozen=True)
 class Settings:
     host: str = "127.0.0.1"
@@ -107,6 +145,8 @@ class Settings:
     retention_interval_s: float = 3600.0
     mqtt: MqttSettings = field(default_factory=MqttSettings)
     webhooks: WebhookSettings = field(default_factory=WebhookSettings)
+    opcua: OpcuaSettings = field(default_factory=OpcuaSettings)
+    mtconnect: MtconnectSettings = field(default_factory=MtconnectSettings)
 
     @property
     def db_url(self) -> str:
@@ -135,12 +175,13 @@ def demo_axis() -> AxisConfig:
 
 def default_settings() -> Settings:
     return Settings(machines=((DEMO_MACHINE, "demo: the seed paper's Y axis on a simulated controller"),),
-                    axes=(demo_axis(),), mqtt=MqttSettings(url=DEFAULT_MQTT_URL))
+                    axes=(demo_axis(),), mqtt=MqttSettings(url=DEFAULT_MQTT_URL),
+                    opcua=OpcuaSettings(enabled=True))
 
 
 # -- parsing -----------------------------------------------------------------------------------
 _TOP = {"server", "storage", "auth", "scheduler", "simulator", "machines", "logging", "limits", "retention", "mqtt",
-        "webhooks"}
+        "webhooks", "opcua", "mtconnect"}
 
 
 def _get(table: Mapping, key: str, kind, where: str, default=None):
@@ -180,7 +221,7 @@ def _task(t: Mapping, gain: float, where: str) -> MachiningTask:
 def _axis(a: Mapping, machine: str, where: str) -> AxisConfig:
     allowed = {"name", "transmission_mm_per_rev", "screw_lead_mm", "position_gain_per_s", "travel_mm",
                "controller", "measure_feed_mm_min", "measure_acceleration_mm_s2", "warning_fraction",
-               "decision_rule", "schedule_interval_s", "schedule_cron", "schedule_enabled", "tasks"}
+               "decision_rule", "worst_case_temperature_c", "schedule_interval_s", "schedule_cron", "schedule_enabled", "tasks"}
     _unknown(a, allowed, where)
     travel = a.get("travel_mm")
     if not (isinstance(travel, list) and len(travel) == 2 and all(isinstance(x, (int, float)) for x in travel)):
@@ -210,7 +251,10 @@ def _axis(a: Mapping, machine: str, where: str) -> AxisConfig:
         measure_acceleration_mm_s2=_get(a, "measure_acceleration_mm_s2", float, where, 500.0),
         warning_fraction=_get(a, "warning_fraction", float, where, 0.9), schedule=schedule, tasks=tasks,
         decision_rule=_get(a, "decision_rule", str, where, "guarded"),
+        worst_case_temperature_c=_get(a, "worst_case_temperature_c", float, where, 30.0),
     )
+    if not -50.0 <= st.worst_case_temperature_c <= 100.0:
+        raise ConfigError(f"{where}.worst_case_temperature_c (={st.worst_case_temperature_c}) must be within -50..100 °C")
     if st.decision_rule not in ("simple", "guarded"):
         raise ConfigError(f"{where}.decision_rule (={st.decision_rule!r}) must be 'simple' or 'guarded'")
     if not st.measure_feed_mm_min > 0 or not st.measure_acceleration_mm_s2 > 0:
@@ -286,6 +330,8 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
         log_level=_get(logging_, "level", str, "logging", base.log_level), limits=limits,
         retention=retention, retention_interval_s=retention_interval_s,
         mqtt=_mqtt(doc.get("mqtt"), base.mqtt), webhooks=_webhooks(doc.get("webhooks"), base.webhooks),
+        opcua=_opcua(doc.get("opcua"), base.opcua),
+        mtconnect=_mtconnect(doc.get("mtconnect"), base.mtconnect),
     )
 
 
@@ -313,6 +359,73 @@ def check_mqtt(m: MqttSettings, where: str) -> None:
         raise ConfigError(f"{where}.topic_prefix (={m.topic_prefix!r}) must be a plain topic level (no + # or leading /)")
     if m.outbox_max < 1:
         raise ConfigError(f"{where}.outbox_max (={m.outbox_max}) must be >= 1")
+
+
+def _opcua(table: Mapping | None, base: OpcuaSettings) -> OpcuaSettings:
+    if table is None:
+        return base
+    _unknown(table, {"enabled", "endpoint", "anonymous", "username", "password", "certificate", "private_key",
+                     "trusted_certificates"}, "opcua")  # fmt: skip
+    username = _get(table, "username", str, "opcua", base.username) or None
+    cert, key = _get(table, "certificate", str, "opcua"), _get(table, "private_key", str, "opcua")
+    trusted = _get(table, "trusted_certificates", str, "opcua")
+    out = OpcuaSettings(
+        enabled=_get(table, "enabled", bool, "opcua", base.enabled),
+        endpoint=_get(table, "endpoint", str, "opcua", base.endpoint),
+        anonymous=_get(table, "anonymous", bool, "opcua", username is None),
+        username=username, password=_get(table, "password", str, "opcua", base.password) or None,
+        certificate=Path(cert) if cert else base.certificate, private_key=Path(key) if key else base.private_key,
+        trusted_certificates=Path(trusted) if trusted else base.trusted_certificates,
+    )
+    check_opcua(out, "opcua", complete=False)  # the password may still come from the environment
+    return out
+
+
+def check_opcua(o: OpcuaSettings, where: str, complete: bool = True) -> None:
+    u = urlsplit(o.endpoint)
+    if u.scheme != "opc.tcp" or not u.hostname:
+        raise ConfigError(f"{where}.endpoint (={o.endpoint!r}) must be opc.tcp://host:port/path")
+    try:
+        u.port
+    except ValueError as exc:
+        raise ConfigError(f"{where}.endpoint (={o.endpoint!r}): {exc}") from exc
+    if o.password is not None and o.username is None:
+        raise ConfigError(f"{where}: a password needs a username")
+    if complete and o.username is not None and o.password is None:
+        raise ConfigError(f"{where}.username (={o.username!r}) needs a password (opcua.password or "
+                          "MEBM_OPCUA_PASSWORD)")  # fmt: skip
+    if not o.anonymous and o.username is None and o.trusted_certificates is None:
+        raise ConfigError(f"{where}: anonymous = false needs a username and password or trusted_certificates "
+                          "(nobody could connect)")  # fmt: skip
+    if (o.certificate is None) != (o.private_key is None):
+        raise ConfigError(f"{where}: certificate and private_key go together")
+    for name in ("certificate", "private_key"):
+        p = getattr(o, name)
+        if p is not None and not p.is_file():
+            raise ConfigError(f"{where}.{name} (={str(p)!r}) is not a file")
+    if o.trusted_certificates is not None:
+        if o.certificate is None:
+            raise ConfigError(f"{where}.trusted_certificates needs the server's certificate and private_key "
+                              "(client certificates are only seen on signed channels)")  # fmt: skip
+        if not o.trusted_certificates.is_dir():
+            raise ConfigError(f"{where}.trusted_certificates (={str(o.trusted_certificates)!r}) is not a folder")
+
+
+def _mtconnect(table: Mapping | None, base: MtconnectSettings) -> MtconnectSettings:
+    if table is None:
+        return base
+    _unknown(table, {"enabled", "require_key", "buffer_size", "sender", "shdr_port", "shdr_host"}, "mtconnect")
+    out = MtconnectSettings(enabled=_get(table, "enabled", bool, "mtconnect", base.enabled),
+                            require_key=_get(table, "require_key", bool, "mtconnect", base.require_key),
+                            buffer_size=_get(table, "buffer_size", int, "mtconnect", base.buffer_size),
+                            sender=_get(table, "sender", str, "mtconnect", base.sender) or None,
+                            shdr_port=_get(table, "shdr_port", int, "mtconnect", base.shdr_port),
+                            shdr_host=_get(table, "shdr_host", str, "mtconnect", base.shdr_host))  # fmt: skip
+    if out.shdr_port is not None and not 0 <= out.shdr_port <= 65535:
+        raise ConfigError(f"mtconnect.shdr_port (={out.shdr_port}) must be 0..65535 (0: a free port)")
+    if not 1 <= out.buffer_size <= 10_000_000:
+        raise ConfigError(f"mtconnect.buffer_size (={out.buffer_size}) must be 1..10000000 observations")
+    return out
 
 
 def _webhooks(table: Mapping | None, base: WebhookSettings) -> WebhookSettings:
@@ -376,6 +489,13 @@ def apply_env(settings: Settings, env: Mapping[str, str] | None = None) -> Setti
     if env.get("MEBM_WEBHOOK_SECRET"):
         out = replace(out, webhooks=replace(out.webhooks, secret=env["MEBM_WEBHOOK_SECRET"]))
         check_webhooks(out.webhooks, "MEBM_WEBHOOK_SECRET")
+    if "MEBM_OPCUA_ENDPOINT" in env:  # empty: off
+        ep = env["MEBM_OPCUA_ENDPOINT"]
+        out = replace(out, opcua=replace(out.opcua, enabled=bool(ep), endpoint=ep or out.opcua.endpoint))
+    if env.get("MEBM_OPCUA_PASSWORD"):
+        out = replace(out, opcua=replace(out.opcua, password=env["MEBM_OPCUA_PASSWORD"]))
+    if out.opcua.enabled:
+        check_opcua(out.opcua, "opcua")
     if env.get("MEBM_HOST"):
         out = replace(out, host=env["MEBM_HOST"])
     if env.get("MEBM_PORT"):

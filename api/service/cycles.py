@@ -36,7 +36,9 @@ import numpy as np
 from api.service.folders import dataset_folder_name, migrate_legacy_folders
 from api.service.runner import CycleOutcome, CycleRunner, analyse
 from core.dataset import MachineSpec, Run, RunSpec
+from core.criteria.roundtrip import with_history_uncertainty
 from core.errors import MebmError
+from core.history import TemperatureModel, history_uncertainty
 from core.tbe import AxisDecision, MachiningTask, decide
 from storage.dataset import append_runs, dataset_lock, fsync_dir, next_run_name, read_dataset, read_run_csv
 from storage.db import (
@@ -212,6 +214,9 @@ class CycleExecutor:
                 log.error("cycle %s: %s", req.uuid, note)
         decision = None
         if outcome.ok and outcome.round_trip is not None:
+            rt = self._with_history(axis, outcome.round_trip, outcome.temperature_c, finished)
+            if rt is not outcome.round_trip:
+                outcome = replace(outcome, round_trip=rt, uncertainty_um=rt.budgets["backlash_mean"].combined_um)
             decision = make_decision(axis, axis.tasks, outcome.round_trip.backlash.mean_um,
                                      _expanded(outcome.round_trip))
         reason = outcome.reason if not outcome.ok else None
@@ -226,6 +231,28 @@ class CycleExecutor:
         )
         spool = self._spool(fc, folder, axis.tasks, trace_file=trace_file)
         return self._save(fc, spool)
+
+    def _with_history(self, axis: AxisRecord, rt, temperature_c: float | None, finished: datetime):
+        """``rt`` with the history's budget components (repeatability at similar temperature,
+        the 20 °C normalisation); unchanged without a temperature, a history, or a database."""
+        if temperature_c is None or not math.isfinite(temperature_c) or not rt.budgets:
+            return rt
+        try:
+            with session_scope(self.factory) as s:
+                sums = results_repo.backlash_history(s, axis.id)
+                t, b = results_repo.recent_at_temperature(s, axis.id, temperature_c, before=finished)
+        except StorageError as exc:
+            log.info("axis %s: no history for the budget (%s)", axis.id, exc)
+            return rt
+        beta = u_beta = None
+        if sums.n >= 3 and sums.x_max - sums.x_min >= 1.0:
+            try:
+                model = TemperatureModel().fit_sums(sums)
+                beta, u_beta = model.beta_um_per_k_, model.beta_uncertainty_um_per_k_
+            except MebmError:
+                pass
+        comps = history_uncertainty(temperature_c, t, b, beta_um_per_k=beta, beta_uncertainty_um_per_k=u_beta or 0.0)
+        return with_history_uncertainty(rt, comps)
 
     def _save(self, fc: FinishedCycle, spool: Path | None) -> CycleRecord | None:
         try:

@@ -22,7 +22,7 @@ from storage.db import AlertRecord, CycleRecord, utcnow
 
 log = logging.getLogger("mebm.events")
 
-KINDS = ("measurement_stored", "cycle_failed", "alert_changed")
+KINDS = ("measurement_stored", "cycle_failed", "alert_changed", "axis_changed")  # axis_changed: created or reconfigured
 
 
 @dataclass(frozen=True)

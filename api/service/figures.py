@@ -7,13 +7,17 @@ One function for every reader: the REST plot endpoint and the dashboard both cal
 from __future__ import annotations
 
 import math
-from datetime import datetime
+from datetime import datetime, timezone
+
+import numpy as np
 
 from api.service import plots
+from api.service.plot_prognosis import prognosis as prognosis_plot
+from core.prognosis import forecast_band
 from core.errors import MebmError
 from storage.db import NotFoundError, config_repo, results_repo
 
-NAMES = plots.NAMES
+NAMES = (*plots.NAMES, "prognosis")
 
 
 def backlash_limit_um(tasks) -> float | None:
@@ -29,9 +33,10 @@ def backlash_limit_um(tasks) -> float | None:
 
 
 def render(s, axis_id: int, name: str, *, measurement_id: int | None = None, direction: str = "positive",
-           since: datetime | None = None) -> bytes:
+           since: datetime | None = None, status=None) -> bytes:
     """The PNG of figure ``name`` (one of :data:`NAMES`) for ``axis_id``; an explanatory
-    empty figure when there is nothing to draw yet."""
+    empty figure when there is nothing to draw yet. ``status`` (the axis' AxisStatus,
+    from the service's status cache) is needed for the prognosis."""
     axis = config_repo.get_axis(s, axis_id)
     title = f"{axis.machine_name} axis {axis.name}"
     limit = backlash_limit_um(axis.tasks)
@@ -88,4 +93,40 @@ def render(s, axis_id: int, name: str, *, measurement_id: int | None = None, dir
             return plots.empty(title, "no good measurement yet")
         return plots.backlash_trend(list(tr.measured_at), list(tr.backlash_mean_um), list(tr.temperature_c),
                                     limit_um=limit, title=title)
+    if name == "prognosis":
+        if status is None:
+            raise ValueError("the prognosis figure needs the axis' status")
+        return prognosis_png(status, title)
     raise ValueError(f"name (={name!r}) must be one of {', '.join(NAMES)}")
+
+
+def prognosis_png(st, title: str) -> bytes:
+    """Fig. 10 with the forecast of b̄ at the worst-case temperature and its band (issue 16)."""
+    h = st.history
+    if h is None or h.rows_used == 0:
+        return plots.empty(title, "no measurement with a temperature yet" if h is not None else
+                           f"no prognosis: {st.history_error}")
+    t_s, temp, _day, b = h.series
+    p = h.prognosis
+    when = [datetime.fromtimestamp(x, tz=timezone.utc) for x in t_s]
+    temps = [None if not math.isfinite(v) else float(v) for v in temp]
+    kw = dict(forecast_t=None, worst_case_temperature_c=p.worst_case_temperature_c, limit_um=p.backlash_limit_um,
+              limit_date=None)
+    if p.fit.identifiable:
+        horizon_s = p.limit_date_s if p.limit_date_s is not None else p.now_s + 365.25 * 86400.0
+        end_s = max(horizon_s + 0.15 * (horizon_s - float(t_s[0])), p.now_s + 30 * 86400.0)
+        end_s = min(end_s, p.now_s + 5 * 365.25 * 86400.0)
+        ts = np.linspace(float(t_s[0]), end_s, 200)
+        days = p.day_now + (ts - p.now_s) * p.days_per_second
+        mean, lo, hi = forecast_band(p.fit, p.worst_case_temperature_c, days)
+        kw.update(forecast_t=[datetime.fromtimestamp(x, tz=timezone.utc) for x in ts], forecast_um=mean,
+                  band_low_um=lo, band_high_um=hi,
+                  limit_date=datetime.fromtimestamp(p.limit_date_s, tz=timezone.utc) if p.limit_date_s else None)
+        f = p.fit
+        note = (f"b̄20 {f.backlash_20c_um.value:.1f} µm, β {f.beta_um_per_k.value:.2f} µm/K, "
+                f"γ {f.gamma_um_per_day.value * 365.25:.2f} µm/year ({f.n_cycles} cycles); "
+                + (f"ALARM above {p.alarm_temperature_c:.1f} °C today ({p.rule} rule)" if p.alarm_temperature_c
+                   is not None else p.alarm_temperature_reason))
+    else:
+        note = f"not identifiable: {p.fit.reason}"
+    return prognosis_plot(when, [float(x) for x in b], temps, note=note, title=title, **kw)

@@ -25,7 +25,7 @@ from api.service.demo import DemoController
 from api.service.health import HealthProbe
 from api.service.runner import CycleRunner, DriverRunner
 from api.service.scheduler import CycleScheduler
-from api.service.events import EventHub, events_of_saved_cycle
+from api.service.events import Event, EventHub, events_of_saved_cycle
 from api.service.status import StatusCache
 from core.errors import MebmError
 from storage.retention import apply_retention
@@ -42,6 +42,7 @@ from storage.db import (
     results_repo,
     session_scope,
     upgrade,
+    utcnow,
 )
 
 log = logging.getLogger("mebm.service")
@@ -337,6 +338,8 @@ class Service:
         self.executor.remember(axis)
         if self.settings.scheduler_enabled:
             self.scheduler.schedule(axis)
+        # an interface that describes the axes (MTConnect's device model) follows at once
+        self.events.publish(Event("axis_changed", axis.id, axis.machine_name, axis.name, utcnow()))
 
     def db_ok(self) -> bool:
         try:

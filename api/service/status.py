@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from datetime import datetime
 
 
+from api.service.prognosis import HistoryAnswers, HistoryMemo, history_answers
 from core.errors import MebmError
 from core.history import TemperatureModel
 from core.tbe import AxisDecision, decide
@@ -32,9 +33,11 @@ class AxisStatus:
     last_failure_reason: str | None
     decision_error: str | None = None
     last_raw_run_lost: str | None = None  # why the last finished cycle's raw run was lost
+    history: HistoryAnswers | None = None  # prognosis and history clearance (api.service.prognosis)
+    history_error: str | None = None
 
 
-def compute_status(s, axis_id: int) -> AxisStatus:
+def compute_status(s, axis_id: int, history_memo: HistoryMemo | None = None) -> AxisStatus:
     axis = config_repo.get_axis(s, axis_id)
     latest = results_repo.latest_result(s, axis_id)
     decision = None
@@ -57,6 +60,11 @@ def compute_status(s, axis_id: int) -> AxisStatus:
                 beta = model.beta_um_per_k_
             except MebmError:
                 pass
+    history = history_error = None
+    try:
+        history = history_answers(s, axis, latest, sums.n if latest is not None else 0, history_memo)
+    except MebmError as exc:  # the status stands without its prognosis
+        history_error = str(exc)
     _, alerts = results_repo.list_alerts(s, "active", axis_id=axis_id, limit=1)
     _, last = results_repo.list_measurements(s, axis_id, limit=1)
     last_final = next((c for c in last if c.status not in ("queued", "running")), None)
@@ -68,22 +76,24 @@ def compute_status(s, axis_id: int) -> AxisStatus:
         last_failure_reason=last_final.failure_reason if last_final is not None else None,
         decision_error=decision_error,
         last_raw_run_lost=last_final.raw_run_lost if last_final is not None else None,
+        history=history, history_error=history_error,
     )
 
 
-def verdict(st: AxisStatus) -> tuple[str, str]:
-    """The axis' state (OK, WARNING, ALARM or UNKNOWN) and its one-sentence message."""
-    latest, d = st.latest, st.decision
-    b = latest.round_trip.backlash.mean_um if latest else None
+def state_and_message(s: AxisStatus) -> tuple[str, str]:
+    """The axis' state (OK, WARNING, ALARM, UNKNOWN) and the sentence that explains it, as
+    every interface shows them (REST status body, OPC UA)."""
+    d, latest = s.decision, s.latest
+    b = latest.round_trip.backlash.mean_um if latest is not None else None
     if latest is None:
         message = "no good measurement yet"
-        if st.last_failure_reason:
-            message += f"; last cycle failed: {st.last_failure_reason}"
+        if s.last_failure_reason:
+            message += f"; last cycle failed: {s.last_failure_reason}"
         return "UNKNOWN", message
-    if d is None and st.decision_error:
-        return "UNKNOWN", f"mean backlash {b:.1f} µm; the TBE model cannot evaluate it: {st.decision_error}"
+    if d is None and s.decision_error:
+        return "UNKNOWN", f"mean backlash {b:.1f} µm; the TBE model cannot evaluate it: {s.decision_error}"
     if d is None:
-        return "UNKNOWN", f"mean backlash {b:.1f} µm; no machining task configured (PUT /axes/{st.axis.id}/tasks)"
+        return "UNKNOWN", f"mean backlash {b:.1f} µm; no machining task configured (PUT /axes/{s.axis.id}/tasks)"
     return d.state.value, d.message()
 
 
@@ -99,6 +109,7 @@ class StatusCache:
         self._cache: dict[int, tuple[float, AxisStatus]] = {}
         self._locks: dict[int, threading.Lock] = {}
         self._lock = threading.Lock()
+        self._history_memo = HistoryMemo()  # the prognosis fit, redone only when its inputs change
 
     def fresh(self, axis_id: int) -> AxisStatus | None:
         """The cached status if it is recent enough (no database access)."""
@@ -136,7 +147,7 @@ class StatusCache:
                 return hit
             now = time.monotonic()
             with session_scope(self.factory) as s:
-                st = compute_status(s, axis_id)
+                st = compute_status(s, axis_id, self._history_memo)
             with self._lock:
                 self._cache[axis_id] = (now, st)
             return st

@@ -229,7 +229,7 @@ def axis_plot(request: Request, axis_id: int, name: str, who: Who, range: str = 
     png = ui_state(request).figures.get(key)
     if png is None:
         with session_scope(svc.factory) as s:
-            png = figures.render(s, axis_id, name, direction=direction, since=views.since_of(range, now))
+            png = figures.render(s, axis_id, name, direction=direction, since=views.since_of(range, now), status=st)
         ui_state(request).figures.put(key, png)
     return Response(png, media_type="image/png", headers={"Cache-Control": "no-cache"})
 

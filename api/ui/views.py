@@ -8,7 +8,7 @@ import math
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 
-from api.service.status import AxisStatus, verdict
+from api.service.status import AxisStatus, state_and_message
 from storage.db import AlertRecord, config_repo, results_repo, utcnow
 
 URGENCY = {"ALARM": 0, "WARNING": 1, "UNKNOWN": 2, "OK": 3}
@@ -50,7 +50,7 @@ class AxisRow:
 
 
 def axis_row(st: AxisStatus, next_run_at: datetime | None, now: datetime) -> AxisRow:
-    state, message = verdict(st)
+    state, message = state_and_message(st)
     latest, d = st.latest, st.decision
     rt = latest.round_trip if latest else None
     binding = next((a for a in d.assessments if a.task.name == d.binding_task), None) if d else None

@@ -18,6 +18,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from core.criteria.lead import LeadCriteria, lead_criteria
+from core.criteria.lost_motion import LostMotion, lost_motion, stroke_lost_motion
 from core.criteria.outliers import OutlierSettings, check_outlier_fraction, encoder_outliers, noise_sigma_mm
 from core.criteria.segmentation import SegmentationSettings, find_strokes
 from core.criteria.uncertainty import (
@@ -34,6 +35,8 @@ from core.errors import InputError, TraceError
 
 CRITERIA = ("e_p", "v_u", "v_300", "v_2pi")
 REDUCTION_BOUND_UM = 0.01  # see _budgets
+TBE_BASIS = ("the TBE uses the total lost motion b̄ (= B̄, clearance and friction wind-up together), "
+             "as the seed paper's table does")
 
 
 @dataclass(frozen=True)
@@ -84,6 +87,8 @@ class RoundTripResult:
     noise_um: float = 0.0
     # GUM budgets: "backlash_mean", and "<stroke>.<criterion>" (e.g. "positive.v_2pi")
     budgets: dict[str, UncertaintyBudget] = field(default_factory=dict)
+    # ISO 230-2 reversal values and the clearance estimate (core.criteria.lost_motion)
+    lost_motion: LostMotion | None = None
 
     @property
     def backlash_mean_uncertainty_um(self) -> float:
@@ -130,6 +135,14 @@ class RoundTripResult:
                 for name in self.strokes:
                     out["strokes"][name][f"{key}_uncertainty_um"] = self.criterion_uncertainty_um(name, key)
             out["uncertainty_budget"] = {k: b.to_dict() for k, b in self.budgets.items()}
+            if "backlash_mean_20c" in self.budgets:
+                out["backlash_mean_20c_uncertainty_um"] = self.budgets["backlash_mean_20c"].expanded_um
+        if self.lost_motion is not None:
+            lm = self.lost_motion
+            out["reversal_mean_um"] = lm.mean_um
+            out["reversal_max_um"] = lm.max_abs_um
+            out["clearance_um"] = lm.clearance.clearance_um
+            out["lost_motion"] = {**lm.to_dict(), "tbe_basis": TBE_BASIS}
         if curves:
             out["curves"] = {
                 "position_mm": self.backlash.position_mm.tolist(),
@@ -391,6 +404,9 @@ def analyze_round_trip(
                                                & (travel[s.engaged : s.end + 1] <= end))) for s in by_dir[d])
                for d, name in ((1, "positive"), (-1, "negative"))},
     )
+    feeds, feed_lost, feed_u = stroke_lost_motion(t, travel, dev, strokes, start, end, stride)
+    lm = lost_motion(grid, b_um, start_mm=start, end_mm=end, feeds_mm_min=feeds, feed_lost_motion_um=feed_lost,
+                     feed_uncertainty_um=feed_u)
     return RoundTripResult(
         axis=axis.name,
         useful_travel_mm=(float(start), float(end)),
@@ -404,6 +420,7 @@ def analyze_round_trip(
         outliers_removed=n_out,
         noise_um=noise_mm * 1e3,
         budgets=budgets,
+        lost_motion=lm,
     )
 
 
@@ -469,3 +486,26 @@ def _budgets(inputs: UncertaintyInputs, *, table, nominal, stride, noise_mm, spa
                                      f"~{n_ind:.0f} independent points"),
             ))
     return out
+
+
+def with_history_uncertainty(result: RoundTripResult, components: dict[str, tuple[float, str]]) -> RoundTripResult:
+    """``result`` with the history's components (``core.history.history_uncertainty``):
+    ``repeatability`` joins b̄'s budget (it changes the decision's U); ``normalisation``
+    makes a budget of its own, ``backlash_mean_20c`` (b̄'s plus the normalisation), as it
+    concerns b̄ referred to 20 °C, not b̄ at the measured temperature the TBE uses."""
+    if not result.budgets or not components:
+        return result
+    from dataclasses import replace
+
+    budgets = dict(result.budgets)
+    if "repeatability" in components and all(c.name != "repeatability" for c in budgets["backlash_mean"].components):
+        u, note = components["repeatability"]
+        budgets["backlash_mean"] = budgets["backlash_mean"].with_components(
+            UncertaintyComponent("repeatability", float(u), note))
+    if "normalisation" in components:
+        u, note = components["normalisation"]
+        base = budgets["backlash_mean"]
+        budgets["backlash_mean_20c"] = UncertaintyBudget(
+            "backlash_mean_20c", base.components + (UncertaintyComponent("normalisation", float(u), note),),
+            base.coverage_factor)
+    return replace(result, budgets=budgets)

@@ -65,6 +65,7 @@ def _axis(a: Axis) -> AxisRecord:
         spec=spec, controller_url=a.controller_url, measure_feed_mm_min=a.measure_feed_mm_min,
         measure_acceleration_mm_s2=a.measure_acceleration_mm_s2, warning_fraction=a.warning_fraction,
         decision_rule=a.decision_rule or "guarded",
+        **({} if a.worst_case_temperature_c is None else {"worst_case_temperature_c": a.worst_case_temperature_c}),
         schedule=Schedule(a.schedule_interval_s, a.schedule_cron, a.schedule_enabled),
         tasks=tuple(_task(t, a.position_gain_per_s) for t in a.tasks),
         in_service_since=as_utc(a.in_service_since),
@@ -81,6 +82,8 @@ def _check_settings(st: AxisSettings) -> None:
         raise InputError(f"warning_fraction (={st.warning_fraction}) must be in (0, 1]")
     if st.decision_rule not in DECISION_RULES:
         raise InputError(f"decision_rule (={st.decision_rule!r}) must be one of {DECISION_RULES}")
+    if not (math.isfinite(st.worst_case_temperature_c) and -50.0 <= st.worst_case_temperature_c <= 100.0):
+        raise InputError(f"worst_case_temperature_c (={st.worst_case_temperature_c}) must be within -50..100 °C")
     if not st.controller_url:
         raise InputError("controller_url must not be empty")
 
@@ -100,7 +103,8 @@ def create_axis(s: Session, machine_id: int, st: AxisSettings) -> AxisRecord:
         travel_start_mm=st.spec.travel_mm[0], travel_end_mm=st.spec.travel_mm[1],
         controller_url=st.controller_url, measure_feed_mm_min=st.measure_feed_mm_min,
         measure_acceleration_mm_s2=st.measure_acceleration_mm_s2, warning_fraction=st.warning_fraction,
-        decision_rule=st.decision_rule, schedule_interval_s=st.schedule.interval_s, schedule_cron=st.schedule.cron,
+        decision_rule=st.decision_rule, worst_case_temperature_c=st.worst_case_temperature_c,
+        schedule_interval_s=st.schedule.interval_s, schedule_cron=st.schedule.cron,
         schedule_enabled=st.schedule.enabled, in_service_since=st.in_service_since or now, created_at=now,
     )
     s.add(a)

@@ -63,6 +63,8 @@ class Axis(Base):
     measure_acceleration_mm_s2: Mapped[float] = mapped_column(Float)
     warning_fraction: Mapped[float] = mapped_column(Float)
     decision_rule: Mapped[str] = mapped_column(String(10), default="guarded", server_default="guarded")
+    # the shop's worst-case temperature for the prognosis (None: the default, AxisSettings)
+    worst_case_temperature_c: Mapped[float | None] = mapped_column(Float, nullable=True)
     schedule_interval_s: Mapped[float | None] = mapped_column(Float, nullable=True)
     schedule_cron: Mapped[str | None] = mapped_column(String(120), nullable=True)
     schedule_enabled: Mapped[bool] = mapped_column(Boolean, default=True)
@@ -158,6 +160,10 @@ class Result(Base):
     noise_um: Mapped[float | None] = mapped_column(Float, nullable=True)
     uncertainty_budget: Mapped[str | None] = mapped_column(Text, nullable=True)  # JSON: the GUM budgets
     decision_rule: Mapped[str | None] = mapped_column(String(10), nullable=True)
+    # ISO 230-2 lost motion (issue 16 item 5): B̄, B, and JSON of B_i and the clearance estimate
+    reversal_mean_um: Mapped[float | None] = mapped_column(Float, nullable=True)
+    reversal_max_um: Mapped[float | None] = mapped_column(Float, nullable=True)
+    lost_motion: Mapped[str | None] = mapped_column(Text, nullable=True)
 
     cycle: Mapped[Cycle] = relationship(back_populates="result")
     lead: Mapped[list[LeadCriteriaRow]] = relationship(order_by="LeadCriteriaRow.id", cascade="all, delete-orphan")

@@ -71,6 +71,7 @@ class AxisSettings:
     warning_fraction: float = 0.9
     schedule: Schedule = field(default_factory=Schedule)
     decision_rule: str = "guarded"  # ISO 14253-1: "simple" or "guarded" (core.tbe.decision)
+    worst_case_temperature_c: float = 30.0  # the prognosis' date is for b̄ at this shop temperature
     tasks: tuple[MachiningTask, ...] = ()
     in_service_since: datetime | None = None
 

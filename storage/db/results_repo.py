@@ -17,6 +17,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, selectinload
 
 from core.criteria import BacklashProfile, LeadCriteria, RoundTripResult
+from core.criteria.lost_motion import ClearanceEstimate, LostMotion
 from core.criteria.uncertainty import UncertaintyBudget, UncertaintyComponent
 from core.errors import InputError
 from core.tbe import MachiningTask, State
@@ -202,6 +203,9 @@ def _insert_result(s: Session, c: Cycle, fc: FinishedCycle) -> Result:
         outliers_removed=rt.outliers_removed, grid_step_mm=_fin(rt.grid_step_mm), noise_um=_fin(rt.noise_um),
         uncertainty_budget=json.dumps({k: b.to_dict() for k, b in rt.budgets.items()}) if rt.budgets else None,
         decision_rule=d.rule if d else None,
+        reversal_mean_um=_fin(rt.lost_motion.mean_um) if rt.lost_motion else None,
+        reversal_max_um=_fin(rt.lost_motion.max_abs_um) if rt.lost_motion else None,
+        lost_motion=json.dumps(rt.lost_motion.to_dict()) if rt.lost_motion else None,
     )
     s.add(r)
     s.flush()
@@ -299,8 +303,21 @@ def _round_trip(r: Result, lead: list[LeadCriteriaRow], curves: list[Curve] | No
         strokes=strokes, n_samples=r.n_samples, peak_speed_mm_min=r.peak_speed_mm_min,
         grid_step_mm=r.grid_step_mm if r.grid_step_mm is not None else 0.25,
         outliers_removed=r.outliers_removed or 0, noise_um=r.noise_um or 0.0,
-        budgets=_budgets(r.uncertainty_budget),
+        budgets=_budgets(r.uncertainty_budget), lost_motion=_lost_motion(r.lost_motion),
     )
+
+
+def _lost_motion(text: str | None) -> LostMotion | None:
+    if not text:
+        return None
+    d = json.loads(text)
+    c = d.get("clearance") or {}
+    clear = ClearanceEstimate(
+        c.get("clearance_um"), c.get("clearance_uncertainty_um"), c.get("slope_um_per_m_min"),
+        tuple(c.get("feeds_mm_min", ())), tuple(c.get("lost_motion_um", ())), c.get("source", "program"),
+        c.get("reason", ""))
+    return LostMotion(np.asarray(d["reversal_target_mm"], float), np.asarray(d["reversal_um"], float),
+                      float(d["reversal_mean_um"]), float(d["reversal_max_um"]), clear)
 
 
 def _budgets(text: str | None) -> dict[str, UncertaintyBudget]:
@@ -391,6 +408,47 @@ def backlash_history(s: Session, axis_id: int) -> MomentSums:
     """Moment sums of (temperature_c, backlash_mean_um) over every ok measurement with a
     temperature (for the thermal model: core.history.TemperatureModel.fit_sums)."""
     return trend(s, axis_id, max_points=4).stats["temperature_c"]["backlash_mean_um"]
+
+
+def recent_at_temperature(s: Session, axis_id: int, temperature_c: float, *, window_k: float = 1.0,
+                          limit: int = 20, before: datetime | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(temperature_c, backlash_mean_um) of the newest ``limit`` ok measurements within
+    ±``window_k`` of ``temperature_c`` (and before ``before``): for the repeatability."""
+    q = (select(Result.temperature_c, Result.backlash_mean_um)
+         .where(Result.axis_id == axis_id, Result.temperature_c.between(temperature_c - window_k,
+                                                                         temperature_c + window_k)))
+    if before is not None:
+        q = q.where(Result.measured_at < before)
+    rows = s.execute(q.order_by(Result.measured_at.desc(), Result.id.desc()).limit(limit)).all()
+    return (np.array([r[0] for r in rows], dtype=float), np.array([r[1] for r in rows], dtype=float))
+
+
+def history_rows(s: Session, axis_id: int, *, max_rows: int = 3000) -> dict[str, np.ndarray]:
+    """Arrays of the ok measurements with a temperature, oldest first, for a robust fit
+    (the prognosis): measured_at_s (epoch), temperature_c, utility_day, backlash_mean_um,
+    feed_mm_min. At most ``max_rows``: past that, every k-th row (a regular thinning keeps
+    the spread of temperatures and days the fit needs), always with the newest."""
+    where = (Result.axis_id == axis_id, Result.temperature_c.is_not(None))
+    n = int(s.scalar(select(func.count()).select_from(Result).where(*where)) or 0)
+    cols = (Result.measured_at, Result.temperature_c, Result.utility_day, Result.backlash_mean_um,
+            Result.peak_speed_mm_min)
+    if n > max_rows:
+        k = -(-n // max_rows)
+        rn = func.row_number().over(order_by=(Result.measured_at.desc(), Result.id.desc())).label("rn")
+        sub = select(*cols, rn).where(*where).subquery()
+        q = (select(sub.c.measured_at, sub.c.temperature_c, sub.c.utility_day, sub.c.backlash_mean_um,
+                    sub.c.peak_speed_mm_min).where((sub.c.rn - 1) % k == 0).order_by(sub.c.measured_at))
+    else:
+        q = select(*cols).where(*where).order_by(Result.measured_at, Result.id)
+    rows = s.execute(q).all()
+    return {
+        "measured_at_s": np.array([as_utc(r[0]).timestamp() for r in rows], dtype=float),
+        "temperature_c": np.array([r[1] for r in rows], dtype=float),
+        "utility_day": np.array([np.nan if r[2] is None else r[2] for r in rows], dtype=float),
+        "backlash_mean_um": np.array([r[3] for r in rows], dtype=float),
+        "feed_mm_min": np.array([r[4] for r in rows], dtype=float),
+        "total": np.array(n),
+    }
 
 
 def tbe_history(s: Session, axis_id: int, *, since: datetime | None = None,

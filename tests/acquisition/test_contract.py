@@ -100,3 +100,18 @@ def test_slow_replies_time_out(peer_factory):
         peer.recover()
         _ok(peer)
 
+
+
+def test_one_driver_measures_again_after_a_failed_cycle(peer_factory):
+    # per-cycle state lives in the cycle, not on the driver: the same driver object runs a
+    # clean cycle right after one that failed mid-way, with nothing carried over
+    with peer_factory(faults=["lost:at=0.5,n=3"]) as peer:
+        d = peer.driver()
+        r1 = run_cycle(d, AXIS, PROGRAM)
+        assert not r1.ok and r1.reason_code == "lost_samples", r1.reason
+        failed = d.last_cycle
+        r2 = run_cycle(d, AXIS, PROGRAM)
+        assert r2.ok, r2.reason
+        assert d.last_cycle is not failed and r2.trace.lost_samples == 0
+        assert np.all(np.diff(r2.trace.counter) == 1) and r2.trace.counter[0] > r1.error.first_missing
+        assert abs(r2.result.backlash_mean_um - 120.0) < 1.0

@@ -2,20 +2,22 @@
 
 from __future__ import annotations
 
-import asyncio
 import socket
 
 import numpy as np
 import pytest
+from pymodbus.client import AsyncModbusTcpClient
+from pymodbus.exceptions import ModbusIOException
 
 from acquisition import modbus_map as mm
 from acquisition.cycle import run_cycle
-from acquisition.errors import ControllerConnectionError, ControllerTimeoutError, ProtocolError
+from acquisition.errors import ControllerConnectionError, DeviceBusyError, ProtocolError
 from acquisition.modbus import ModbusDriver
-from acquisition.modbus import _new_records as mm_new
 from acquisition.scale import EncoderScale
-from acquisition.types import AxisState, RoundTripProgram
+from acquisition.retry import RetryPolicy
+from acquisition.types import AxisState, Command, RoundTripProgram
 from tests.acquisition.conftest import AXIS, PROGRAM, modbus_peer
+from tests.acquisition.fake_modbus import FakeController, busy
 
 
 def _free_port() -> int:
@@ -81,69 +83,89 @@ def test_brief_exception_is_retried_without_losing_samples():
         assert r.trace.lost_samples == 0
 
 
-class _StatusFailsOnce(ModbusDriver):
-    """Fails the first status read that follows a partly new trace block with a transient
-    exception (device busy): the records of that block were read but not yet handed over."""
+class _Relay:
+    """A ``client_factory`` that hands the driver a real pymodbus client (to the simulated
+    controller) with one fault injected into its replies, as the network or the controller
+    would produce it; ``injected`` counts them."""
 
-    def __init__(self, *a, **kw):
-        super().__init__(*a, **kw)
-        self.injected = 0
-        self._after_partial = False
+    def __init__(self, port: int, fault):
+        self.port, self.fault, self.injected = port, fault, 0
+        self.ring_records_read = 0  # records read from the trace ring so far
+        self.ring_reads_since_status = 0
+        self.last_was_ring = False
 
-    async def _drain_trace(self):
-        self._after_partial = True
+    def __call__(self):
+        return _RelayClient(self, AsyncModbusTcpClient("127.0.0.1", port=self.port, timeout=0.5, retries=0,
+                                                       reconnect_delay=0))
+
+
+class _RelayClient:
+    def __init__(self, relay: _Relay, client):
+        self.relay, self.client = relay, client
+
+    async def connect(self):
+        return await self.client.connect()
+
+    def close(self):
+        self.client.close()
+
+    async def write_registers(self, *a, **kw):
+        return await self.client.write_registers(*a, **kw)
+
+    async def read_holding_registers(self, address, *, count, device_id=1):
+        r = self.relay
+        ring = address >= mm.RING_BASE
         try:
-            return await super()._drain_trace()
-        finally:
-            self._after_partial = False
+            reply = r.fault(r, address, count)
+        except Exception:
+            r.injected += 1
+            raise
+        r.last_was_ring = ring
+        if ring:
+            r.ring_records_read += count // mm.RECORD_WORDS
+            r.ring_reads_since_status += 1
+        elif count >= mm.STATUS_WORDS:
+            r.ring_reads_since_status = 0
+        if reply is not None:
+            r.injected += 1
+            return reply
+        return await self.client.read_holding_registers(address, count=count, device_id=device_id)
 
-    async def _status(self):
-        if self._after_partial and not self.injected and self._next_w > 100:
-            self.injected += 1
-            err = ProtocolError("injected: Modbus exception 6 (device busy)", code=6)
-            err.transient = True
-            raise err
-        return await super()._status()
+
+def _busy_once_after_a_partly_new_block(r: _Relay, address, count):
+    # a status read straight after a ring read is the one a partly new block triggers: its
+    # records were read but not yet handed over when the status read fails
+    if not r.injected and not address and count == mm.STATUS_WORDS and r.last_was_ring and r.ring_records_read > 100:
+        return busy()
+    return None
 
 
 def test_records_read_before_a_failed_status_read_are_not_lost():
     # deterministic form of the brief-exception case: the failure lands between reading a
     # block of records and handing it over, which once dropped that block
     with modbus_peer(time_scale=2.0) as peer:
-        d = _StatusFailsOnce("127.0.0.1", peer.driver().port, timeout_s=0.5, retries=3)
+        relay = _Relay(peer.driver().port, _busy_once_after_a_partly_new_block)
+        d = ModbusDriver("127.0.0.1", relay.port, timeout_s=0.5, retries=3, client_factory=relay)
         r = run_cycle(d, AXIS, PROGRAM)
-        assert d.injected == 1
+        assert relay.injected == 1
         assert r.ok, r.reason
         assert r.trace.lost_samples == 0 and np.all(np.diff(r.trace.counter) == 1)
 
 
-class _ReadFailsMidBatch(ModbusDriver):
-    """Fails the third trace-block read of one drain with a timeout, once."""
-
-    def __init__(self, *a, **kw):
-        super().__init__(*a, **kw)
-        self.reads_this_drain = 0
-        self.injected = 0
-
-    async def _drain_trace(self):
-        self.reads_this_drain = 0
-        return await super()._drain_trace()
-
-    async def _read(self, address, count, what):
-        if address >= mm.RING_BASE:
-            self.reads_this_drain += 1
-            if self.reads_this_drain == 3 and not self.injected:
-                self.injected += 1
-                raise ControllerTimeoutError("injected: no reply within 0.5 s while reading the trace buffer")
-        return await super()._read(address, count, what)
+def _timeout_on_third_block_of_a_drain(r: _Relay, address, count):
+    # blocks_per_drain is 16: the third ring read of a batch since the last status read
+    if not r.injected and address >= mm.RING_BASE and r.ring_reads_since_status % 16 == 2:
+        raise ModbusIOException("injected: no reply")
+    return None
 
 
 def test_a_failed_read_mid_batch_loses_no_sample():
     # time_scale 50: the controller runs ahead, so drains read several blocks at once
     with modbus_peer(time_scale=50.0) as peer:
-        d = _ReadFailsMidBatch("127.0.0.1", peer.driver().port, timeout_s=0.5, retries=3)
+        relay = _Relay(peer.driver().port, _timeout_on_third_block_of_a_drain)
+        d = ModbusDriver("127.0.0.1", relay.port, timeout_s=0.5, retries=3, client_factory=relay)
         r = run_cycle(d, AXIS, PROGRAM)
-        assert d.injected == 1
+        assert relay.injected == 1
         assert r.ok, r.reason
         assert r.trace.lost_samples == 0 and np.all(np.diff(r.trace.counter) == 1)
         assert abs(r.result.backlash_mean_um - 120.0) < 1.0
@@ -155,111 +177,144 @@ def test_block_validity_from_first_and_last_counter():
         return mm.encode_records(rec).astype(int).tolist()
 
     n = mm.RECORDS_PER_READ
-    assert mm_new(block(range(500, 500 + n)), n, 500) == (n, 500 + n)
+    assert mm.new_records(block(range(500, 500 + n)), n, 500) == (n, 500 + n)
     # the ring's newest record is 506: the rest of the block is an older lap
-    assert mm_new(block([*range(500, 507), *range(507 - 2000, 507 - 2000 + n - 7)]), n, 500) == (7, 507)
-    assert mm_new(block(range(400, 400 + n)), n, 500) == (0, 500)  # nothing new yet
+    assert mm.new_records(block([*range(500, 507), *range(507 - 2000, 507 - 2000 + n - 7)]), n, 500) == (7, 507)
+    assert mm.new_records(block(range(400, 400 + n)), n, 500) == (0, 500)  # nothing new yet
     # across the u32 wrap of the counter
     top = 2**32 - 5
     wrapped = [(top + i) % 2**32 for i in range(n)]
-    assert mm_new(block(wrapped), n, top) == (n, top + n)
+    assert mm.new_records(block(wrapped), n, top) == (n, top + n)
     # a gap (samples never latched) is not hidden: the block is new, the base loop reports the gap
-    assert mm_new(block([*range(500, 505), *range(510, 510 + n - 5)]), n, 500) == (n, 510 + n - 5)
+    assert mm.new_records(block([*range(500, 505), *range(510, 510 + n - 5)]), n, 500) == (n, 510 + n - 5)
 
 
-class _FakeRing(ModbusDriver):
-    """The trace-buffer wire without a server: ``ring[slot]`` is the record (counter, motor,
-    table) a read returns; ``torn`` = {slot: record} is returned once instead, as a read
-    racing the controller's write would."""
-
-    def __init__(self, ring, torn, trace_count, state=AxisState.RUNNING):
-        super().__init__("127.0.0.1", 1)
-        self.ring, self.torn, self.trace_count, self.state = ring, dict(torn), trace_count, state
-        self.scale, self.ring_records, self._first_counter = EncoderScale(), len(ring), int(ring[0][0])
-
-    async def _read(self, address, count, what):
-        s0 = (address - mm.RING_BASE) // mm.RECORD_WORDS
-        rec = []
-        for slot in range(s0, s0 + count // mm.RECORD_WORDS):
-            rec.append(self.torn.pop(slot) if slot in self.torn else self.ring[slot])
-        return mm.encode_records(np.array(rec)).astype(int).tolist()
-
-    async def _status(self):
-        return {"state": self.state, "fault_code": 0, "trace_count": self.trace_count}
+def _fake_driver(ctl: FakeController, **kw) -> ModbusDriver:
+    kw.setdefault("max_lost_samples", 10**6)
+    return ModbusDriver("fake", 1, client_factory=ctl.client, timeout_s=0.5, poll_interval_s=1e-4, **kw)
 
 
 def test_a_torn_block_is_cut_at_the_older_record_and_read_again():
-    ring = [(1000 + i, 10 * i, -i) for i in range(100)]
-    # slot 25 still held a record of the previous lap when the read passed it
-    d = _FakeRing(ring, {25: (1000 + 25 - 100, 0, 0)}, trace_count=100)
-    first = asyncio.run(d._drain_trace())
-    assert first.counter.tolist() == list(range(1000, 1025)) and first.caught_up and not first.finished
-    second = asyncio.run(d._drain_trace())
-    assert second.counter.tolist() == list(range(1025, 1100))
-    assert second.table_mm.tolist() == pytest.approx([-i * 1e-5 for i in range(25, 100)])
+    ctl = FakeController(ring_records=100, first_counter=1000)
+
+    def run_whole_trace(c):
+        c.write(100)
+        c.state = AxisState.DONE  # all latched before the first read
+        c.torn = {25: (1000 + 25 - 100, 0, 0)}  # slot 25 still held the previous lap when the read passed it
+
+    ctl.on_start = run_whole_trace
+    tr = _fake_driver(ctl, max_lost_samples=0).acquire(PROGRAM, AXIS)
+    assert tr.counter.tolist() == list(range(1000, 1100)) and tr.lost_samples == 0
+    assert tr.table_mm == pytest.approx([50 * w * 1e-5 for w in range(100)])
+    reads = ctl.ring_reads()  # the batch with the torn record is cut there and read again from slot 25
+    assert reads[:2] == [0, 20] and 25 in reads and reads.index(25) > 1
 
 
-@pytest.mark.parametrize("behind", [99, 100, 101, 150, 199, 200, 201, 350])
-def test_a_reader_behind_the_ring_loses_nothing_silently(behind):
-    # a ring of 100 records; the reader has read records 0..9 when it looks again, and the
-    # program is DONE with 10 + behind records written (the ring holds the last 100)
-    n_ring, done_at = 100, 10 + behind
-    ring = [None] * n_ring
-    for w in range(done_at):
-        ring[w % n_ring] = (5000 + w, w, -w)
-    d = _FakeRing(ring, {}, trace_count=done_at, state=AxisState.DONE)
-    d._first_counter, d._next_w, d._next_counter = 5000, 10, 5010
-    got = []
-    for _ in range(20):
-        block = asyncio.run(d._drain_trace())
-        got += block.counter.tolist()
-        if block.finished:
-            break
-    assert block.finished  # it ends, it does not spin
-    assert got == sorted(set(got)) and got[-1] == 5000 + done_at - 1  # in order, up to the last record
-    if behind <= n_ring:  # nothing was overwritten: every record is read
-        assert got == list(range(5010, 5000 + done_at))
-    else:  # overwritten records show as a gap in the counters (the base loop reports them)
-        assert len(got) < done_at - 10 and (got[0] > 5010 or np.any(np.diff(got) > 1))
+@pytest.mark.parametrize("during", [99, 100, 101, 150, 199, 200, 201, 350])
+def test_records_written_while_the_reader_is_away_are_read_or_counted_lost(during):
+    # a ring of 100 records; the reader has read records 0..29 when a status read takes so
+    # long that the controller writes ``during`` more and ends (the ring holds the last 100)
+    ctl = FakeController(ring_records=100, first_counter=5000)
+    ctl.on_start = lambda c: c.write(30)
 
+    def away(c):
+        if not c.ring_reads():
+            return  # the status read of the start
+        c.on_status = None
+        c.write(during)
+        c.state = AxisState.DONE
 
-class _SlowStatusRing(_FakeRing):
-    """The controller writes ``during`` more records and ends while one status read is
-    under way (a status reply slower than the ring's span)."""
-
-    def __init__(self, ring, trace_count, during):
-        super().__init__(ring, {}, trace_count)
-        self.during = during
-
-    async def _status(self):
-        if self.during:
-            for w in range(self.trace_count, self.trace_count + self.during):
-                self.ring[w % len(self.ring)] = (5000 + w, w, -w)
-            self.trace_count += self.during
-            self.during, self.state = 0, AxisState.DONE
-        return await super()._status()
-
-
-@pytest.mark.parametrize("during", [99, 100, 101])
-def test_records_written_during_a_slow_status_read_are_still_read(during):
-    n_ring = 100
-    ring = [(5000 + w - n_ring, 0, 0) for w in range(n_ring)]  # the previous trace's records
-    for w in range(30):
-        ring[w] = (5000 + w, w, -w)
-    d = _SlowStatusRing(ring, trace_count=30, during=during)
-    d._first_counter, d._next_w, d._next_counter = 5000, 10, 5010
-    got = []
-    for _ in range(20):
-        block = asyncio.run(d._drain_trace())
-        got += block.counter.tolist()
-        if block.finished:
-            break
-    assert block.finished
+    ctl.on_status = away
+    tr = _fake_driver(ctl).acquire(PROGRAM, AXIS)
+    got = tr.counter.tolist()
     end = 5000 + 30 + during
-    if during <= n_ring:  # all of it still in the ring when the reader looks again
-        assert got == list(range(5010, end))
-    else:
-        assert got[-1] == end - 1 and np.any(np.diff(got) > 1)  # the overwritten ones show as a gap
+    assert got[-1] == end - 1 and np.all(np.diff(got) >= 1)  # in order, up to the last record
+    if during <= 100:  # nothing was overwritten: every record is read
+        assert got == list(range(5000, end)) and tr.lost_samples == 0
+    else:  # overwritten records show as a gap in the counters, every one of them counted
+        assert tr.lost_samples == int(np.sum(np.diff(got) - 1)) == during - 100
+    assert ctl.commands.count(Command.ABORT) == 0
+
+
+class _SkippingController(FakeController):
+    """A controller whose servo counter jumps by more than the ring at record 30 (cycles it
+    never latched): a gap to count, not a lapped reader."""
+
+    def _record(self, w):
+        c, m, t = super()._record(w)
+        return ((c + 150) & 0xFFFFFFFF if w >= 30 else c), m, t
+
+
+def test_a_counter_jump_larger_than_the_ring_is_counted_not_mistaken_for_a_lap():
+    ctl = _SkippingController(ring_records=100, first_counter=5000)
+
+    def run(c):
+        c.write(60)
+        c.state = AxisState.DONE
+
+    ctl.on_start = run
+    tr = _fake_driver(ctl).acquire(PROGRAM, AXIS)
+    assert len(tr) == 60 and tr.lost_samples == 150
+    assert tr.counter.tolist() == [*range(5000, 5030), *range(5180, 5210)]
+
+
+def test_a_trace_across_the_counter_wrap_is_continuous():
+    ctl = FakeController(ring_records=64, first_counter=2**32 - 70)
+
+    def run(c):
+        c.write(40)
+        c.on_status = later
+
+    def later(c):
+        if c.ring_reads():
+            c.write(20)
+            c.state, c.on_status = AxisState.DONE, None
+
+    ctl.on_start = run
+    tr = _fake_driver(ctl, max_lost_samples=0).acquire(PROGRAM, AXIS)
+    assert tr.counter.tolist() == list(range(2**32 - 70, 2**32 - 10)) and tr.lost_samples == 0
+    assert np.allclose(np.diff(tr.time_s), 1e-3)
+
+
+def test_a_persistently_busy_controller_fails_as_device_busy_after_its_retries():
+    ctl = FakeController()
+    ctl.on_start = lambda c: c.write(10)
+    ring_reads = []
+
+    def busy_ring(address, count):
+        if address >= mm.RING_BASE:
+            ring_reads.append(address)
+            return busy()
+        return None
+
+    ctl.inject = busy_ring
+    r = run_cycle(_fake_driver(ctl, retries=2, retry=RetryPolicy(attempts=3, sleep=_no_sleep)), AXIS, PROGRAM)
+    assert not r.ok and r.reason_code == "device_busy" and "gave up after 3 attempts" in r.reason
+    assert len(ring_reads) == 3 and isinstance(r.error, DeviceBusyError) and r.error.code == 6
+    assert ctl.commands[-1] == Command.ABORT and "abort sent" in r.reason
+
+
+async def _no_sleep(_s: float) -> None:
+    return None
+
+
+def test_exception_codes_map_to_classes_whose_transience_is_fixed():
+    from acquisition.modbus import exception_error
+
+    assert type(exception_error(6, "x")) is DeviceBusyError and DeviceBusyError.transient
+    assert type(exception_error(2, "x")) is ProtocolError and not ProtocolError.transient
+    assert exception_error(4, "x").transient and exception_error(4, "x").code == 4
+    assert "transient" not in vars(exception_error(6, "x"))  # a class fact, never set per instance
+
+
+def test_status_block_is_a_typed_decode_of_the_register_map():
+    words = mm.encode_status(AxisState.RUNNING, 0x7305, 2**32 - 1, -5, 7, -3.25, 123, 456)
+    s = mm.decode_status(words)
+    assert isinstance(s, mm.StatusBlock)
+    assert (s.state, s.fault_code, s.counter, s.motor_counts, s.table_counts) == (AxisState.RUNNING, 0x7305, 2**32 - 1, -5, 7)
+    assert (s.temperature_c, s.trace_first, s.trace_count) == (-3.25, 123, 456)
+    unknown = mm.decode_status([1, 9] + words[2:])
+    assert unknown.state is None and unknown.state_raw == 9
 
 
 def test_a_ring_overrun_over_the_wire_is_counted_and_the_cycle_still_ends():

@@ -146,3 +146,26 @@ def test_analyze_malformed_dataset_names_file_and_row(tmp_path, capsys):
 def test_analyze_missing_folder(tmp_path, capsys):
     code, _, err = run_cli(capsys, "analyze", str(tmp_path / "nope"))
     assert code != 0 and "not a folder" in err
+
+
+def test_analyze_reports_the_reversal_values_and_the_datasets_clearance(capsys, tmp_path):
+    # issue 16 item 5: two runs at different feeds on a twin with friction; the lost
+    # motion's feed-independent part is the clearance (20 µm) plus the Coulomb wind-up
+    # 2 F_c / k = 2 x 1000 N / 200 N/µm = 10 µm
+    out_dir = tmp_path / "ds"
+    for feed in ("1000", "4000"):
+        code, _, err = run_cli(capsys, "sim", "round-trip", "--travel-mm", "60", "--feed-mm-min", feed,
+                               "--backlash-um", "20", "--effect", "friction:coulomb_n=1000,viscous_n_s_per_mm=5",
+                               "--effect", "compliance:stiffness_n_per_um=200", "--rate-hz", "500",
+                               "--out", str(out_dir))
+        assert code == 0, err
+    code, out, _ = run_cli(capsys, "analyze", str(out_dir), "--json")
+    assert code == 0
+    runs = json.loads(out)
+    for r in runs:
+        assert r["reversal_mean_um"] == pytest.approx(r["backlash_mean_um"], abs=0.5)
+        assert r["reversal_max_um"] >= r["reversal_mean_um"] - 1e-9
+    c = runs[0]["lost_motion"]["clearance_dataset"]
+    assert c["clearance_um"] == pytest.approx(30.0, abs=0.5) and "Coulomb" in c["reason"]
+    code, out, _ = run_cli(capsys, "analyze", str(out_dir))
+    assert code == 0 and "feed-independent lost motion 30." in out and "B̄ (µm)" in out

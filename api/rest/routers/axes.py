@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from datetime import datetime, timezone
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, Response, status
 from pydantic import AfterValidator
@@ -15,6 +15,7 @@ from api.rest.deps import AxisId, ServiceDep, SessionDep
 from api.rest.errors import TooManyRequestsError
 from api.rest.routers.machines import tasks_from
 from api.rest.status_body import cached_status, status_json
+from api.service.prognosis import to_dict as prognosis_body
 from api.service.scheduler import make_trigger
 from storage.db import CycleRecord, Schedule, config_repo, results_repo
 
@@ -50,6 +51,18 @@ async def axis_status(axis_id: AxisId, svc: ServiceDep, _k: ReadKey, request: Re
         st = await run_in_threadpool(svc.status.get, axis_id)
     return Response(status_json(request.app.state, svc, axis_id, st), media_type="application/json")
 
+
+
+@router.get("/axes/{axis_id}/prognosis", response_model=dict[str, Any],
+            summary="Prognosis from the history: the shop temperature above which the binding task goes ALARM "
+                    "today, the date b̄ at the worst-case temperature reaches the backlash limit, the robust fit "
+                    "b̄(T, d) = b̄20 + β (T - 20 °C) + γ d behind them, or why the history does not support it")
+def axis_prognosis(axis_id: AxisId, svc: ServiceDep, _k: ReadKey):
+    # computed and cached with the status (api.service.prognosis memoises the fit)
+    st = svc.status.get(axis_id)
+    if st.history is None:
+        return {"identifiable": False, "reason": f"the prognosis could not be computed: {st.history_error}"}
+    return prognosis_body(st.history)
 
 
 @router.put("/axes/{axis_id}/tasks", response_model=sc.AxisOut, summary="Replace the machining tasks (admin)")

@@ -19,13 +19,15 @@ VERSION = "0.1.0"
 @router.get("/healthz", response_model=sc.Health, responses={503: {"model": sc.Health}},
             summary="Can the service store what it measures: database writable, data folder writable, "
                     "free disk above the floor (no key needed); 503 when degraded, with the reasons")
-def healthz(svc: ServiceDep):
+def healthz(request: Request, svc: ServiceDep):
     rep = svc.health.report()
+    ua = request.app.state.opcua
+    opcua = None if ua is None else (f"listening on {ua.endpoint}" if ua.running else f"off: {ua.error or 'stopped'}")
     body = sc.Health(status=rep.status, database=rep.database,
                      data_dir="ok" if rep.data_dir_writable else "not writable",
                      free_disk_mb=None if rep.free_disk_bytes is None else round(rep.free_disk_bytes / 1e6, 1),
                      problems=list(rep.problems), version=VERSION, uptime_s=time.time() - svc.started_at,
-                     spooled_cycles=len(svc.executor.pending()) + len(svc.executor.unsaved))
+                     spooled_cycles=len(svc.executor.pending()) + len(svc.executor.unsaved), opcua=opcua)
     return JSONResponse(body.model_dump(), status_code=200 if rep.ok else 503)
 
 

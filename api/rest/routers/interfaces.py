@@ -1,4 +1,4 @@
-"""/webhooks/deliveries and /interfaces: what the publishers did (issue 17)."""
+"""/webhooks/deliveries and /interfaces: what the publishers and the OPC UA server did (issue 17)."""
 
 from __future__ import annotations
 
@@ -24,8 +24,20 @@ def interfaces(request: Request, _k: ReadKey) -> dict:
             "alerts_acknowledged": mqtt.published, "alerts_dropped": mqtt.dropped},
         "webhooks": None if hooks is None else {
             "urls": len(hooks.settings.urls), "delivered": hooks.delivered, "failed_attempts": hooks.failed},
+        "opcua": None if st.opcua is None else st.opcua.describe(),
+        "mtconnect": _mtconnect(st),
         "event_consumers": subs,
     }  # fmt: skip
+
+
+def _mtconnect(st) -> dict | None:
+    agent = getattr(st, "mtconnect", None)
+    if agent is None:
+        return None
+    first, last, nxt = agent.buffer.bounds()
+    return {"path": "/mtconnect", "require_key": agent.settings.require_key, "instance_id": agent.instance_id,
+            "buffer_size": agent.buffer.size, "first_sequence": first, "last_sequence": last,
+            "next_sequence": nxt, "devices": len(agent.devices())}
 
 
 @router.get("/webhooks/deliveries", summary="The webhook delivery log, newest first (admin)")

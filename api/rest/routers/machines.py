@@ -58,7 +58,7 @@ def create_axis(machine_id: MachineId, body: sc.AxisIn, s: SessionDep, svc: Serv
     st = AxisSettings(
         spec=spec, controller_url=body.controller_url, measure_feed_mm_min=body.measure_feed_mm_min,
         measure_acceleration_mm_s2=body.measure_acceleration_mm_s2, warning_fraction=body.warning_fraction,
-        decision_rule=body.decision_rule, schedule=Schedule(body.schedule.interval_s, body.schedule.cron, body.schedule.enabled),
+        decision_rule=body.decision_rule, worst_case_temperature_c=body.worst_case_temperature_c, schedule=Schedule(body.schedule.interval_s, body.schedule.cron, body.schedule.enabled),
         tasks=tasks_from(body.tasks, body.position_gain_per_s),
     )
     if st.schedule.cron is not None:

@@ -8,7 +8,7 @@ from typing import Annotated
 from fastapi import APIRouter, Query, Response
 
 from api.rest.auth import ReadKey
-from api.rest.deps import AxisId, SessionDep
+from api.rest.deps import AxisId, ServiceDep, SessionDep
 from api.rest.routers.axes import Since, utc
 from api.service import figures
 
@@ -22,18 +22,20 @@ class PlotName(str, Enum):
     tbe_vs_backlash = "tbe_vs_backlash"
     tbe_history = "tbe_history"
     backlash_trend = "backlash_trend"
+    prognosis = "prognosis"
 
 
 @router.get("/axes/{axis_id}/plots/{name}.png", response_class=Response, responses=PNG,
             summary="A figure: backlash_profile (Fig. 9), lead_deviation (Fig. 5), tbe_vs_backlash (Fig. 14), "
-                    "tbe_history (Fig. 15), backlash_trend (Fig. 10)")
+                    "tbe_history (Fig. 15), backlash_trend (Fig. 10), prognosis (Fig. 10 with the forecast and its band)")
 def plot(
-    axis_id: AxisId, name: PlotName, s: SessionDep, _k: ReadKey,
+    axis_id: AxisId, name: PlotName, s: SessionDep, svc: ServiceDep, _k: ReadKey,
     measurement_id: Annotated[int | None, Query(ge=1, le=2**31 - 1,
                                                 description="for profile/lead plots; default the newest")] = None,
     direction: Annotated[str, Query(pattern="^(positive|negative)$", description="lead_deviation stroke")] = "positive",
     since: Since = None,
 ):
     png = figures.render(s, axis_id, name.value, measurement_id=measurement_id, direction=direction,
-                         since=utc(since))
+                         since=utc(since), status=svc.status.get(axis_id) if name is PlotName.prognosis else None)
     return Response(content=png, media_type="image/png", headers={"Cache-Control": "no-cache"})
+

@@ -8,7 +8,7 @@ import os
 
 import pytest
 
-from api.service.gap_jobs import DiagnosisCrashed, GapJobs, TooManyJobs
+from api.service.gap_jobs import WORKER_NICE, DiagnosisCrashed, GapJobs, TooManyJobs
 
 
 def where_am_i(folder: str, runs: int) -> dict:
@@ -16,7 +16,7 @@ def where_am_i(folder: str, runs: int) -> dict:
     dies the way an out-of-memory kill does: the process ends without an answer."""
     if runs == 99:
         os._exit(137)
-    return {"pid": os.getpid(), "folder": folder, "runs": runs}
+    return {"pid": os.getpid(), "folder": folder, "runs": runs, "nice": os.nice(0)}
 
 
 @pytest.fixture
@@ -30,6 +30,7 @@ def test_the_diagnosis_runs_in_another_process_which_is_kept_for_the_next_job(jo
     first = jobs.submit(("a", 2), tmp_path, 2).result(timeout=120)
     second = jobs.submit(("a", 3), tmp_path, 3).result(timeout=120)
     assert first["pid"] != os.getpid()
+    assert first["nice"] == min(os.nice(0) + WORKER_NICE, 19)  # below the service's priority
     assert second["pid"] == first["pid"]
     assert (first["runs"], second["runs"]) == (2, 3) and first["folder"] == str(tmp_path)
     assert jobs.submit(("a", 2), tmp_path, 2).result(timeout=1) == first  # the cached answer
@@ -63,3 +64,36 @@ def test_the_pending_bound_holds_without_a_process(tmp_path):
     finally:
         release.set()
         j.close()
+
+
+def test_the_worker_ends_when_the_service_process_is_killed(tmp_path):
+    """A service killed with SIGKILL leaves no diagnosis process behind."""
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    script = tmp_path / "svc.py"
+    script.write_text(
+        "import os, sys\n"
+        f"sys.path[:0] = [{str(Path(__file__).resolve().parents[3])!r}, {str(Path(__file__).parent)!r}]\n"
+        "from api.service.gap_jobs import GapJobs\n"
+        "from test_gap_jobs import where_am_i\n"
+        "if __name__ == '__main__':\n"
+        "    j = GapJobs(compute=where_am_i)\n"
+        "    print(j.submit(('k', 2), '.', 2).result(timeout=120)['pid'], flush=True)\n"
+        "    import time; time.sleep(600)\n")
+    svc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    try:
+        worker = int(svc.stdout.readline())
+        assert Path(f"/proc/{worker}").exists()
+    finally:
+        svc.send_signal(signal.SIGKILL)
+        svc.wait(30)
+    for _ in range(300):  # the watchdog looks every PARENT_POLL_S; wait up to 30 s
+        if not Path(f"/proc/{worker}").exists() or Path(f"/proc/{worker}/stat").read_text().split()[2] == "Z":
+            break
+        time.sleep(0.1)
+    else:
+        raise AssertionError(f"the diagnosis process {worker} outlived its killed service")

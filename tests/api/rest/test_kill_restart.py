@@ -27,6 +27,8 @@ host = "127.0.0.1"
 port = 0
 [scheduler]
 spool_retry_s = 2
+[opcua]
+enabled = false
 [simulator]
 time_scale = 5
 temperature_amplitude_c = 0

@@ -87,7 +87,7 @@ def test_axis_page_renders_its_charts(page, ui_server, alarm):
     page.wait_for_url(re.compile(rf"/ui/axes/{ui_server.axis_id}$"))
     assert "restore the chain to a backlash below" in page.locator("#verdict").inner_text()
     imgs = page.locator(".chart img")
-    assert imgs.count() == 5
+    assert imgs.count() == 6
     for i in range(imgs.count()):
         img = imgs.nth(i)
         img.scroll_into_view_if_needed()

@@ -15,7 +15,7 @@ from sqlalchemy import func, insert, select, text
 from core.history import TemperatureModel, pearson_r
 from storage.db import config_repo, make_session_factory, results_repo, session_scope, upgrade
 from storage.db import rollup
-from storage.db.models import Cycle, LeadCriteriaRow, Result, TbeRow, TrendRollup
+from storage.db.models import Axis, Cycle, LeadCriteriaRow, Machine, Result, TbeRow, TrendRollup
 from tests.storage.db import factories as f
 from tests.storage.db.backends import BACKENDS, make_database
 
@@ -145,9 +145,17 @@ def test_the_migration_builds_rollups_for_results_stored_before_it(backend, tmp_
     engine = make_engine(url)
     upgrade(engine, "0003")
     factory = make_session_factory(engine)
-    with session_scope(factory) as s:
-        m = config_repo.create_machine(s, "old", "stored before 0004")
-        axis_id = config_repo.create_axis(s, m.id, f.settings()).id
+    # the machine and axis as 0003 stored them: columns a later revision adds (0005's
+    # worst_case_temperature_c) are not there yet, so the ORM's create_axis cannot write them
+    now = T0
+    with engine.begin() as c:
+        machine_id = c.execute(insert(Machine).values(name="old", description="stored before 0004",
+                                                      created_at=now)).inserted_primary_key[0]
+        axis_id = c.execute(insert(Axis).values(
+            machine_id=machine_id, name="y", transmission_mm_per_rev=6.857, screw_lead_mm=16.0,
+            position_gain_per_s=10.0, travel_start_mm=0.0, travel_end_mm=500.0, controller_url="sim",
+            measure_feed_mm_min=2000.0, measure_acceleration_mm_s2=500.0, warning_fraction=0.9,
+            schedule_enabled=True, in_service_since=now, created_at=now)).inserted_primary_key[0]
     i, temp, b = _history(300, seed=1)
     _bulk(engine, axis_id, i, temp, b)
     upgrade(engine)
@@ -158,3 +166,17 @@ def test_the_migration_builds_rollups_for_results_stored_before_it(backend, tmp_
     if handle is not None:
         handle.drop()
     assert n == 300 and v.points_total == 300
+
+
+def test_history_rows_are_bounded_by_a_regular_thinning_that_keeps_the_newest(loaded):
+    # issue 16 item 6: the robust prognosis fit needs rows, not sums; a long history is thinned
+    factory, axis_id, (i, temp, b), _ = loaded
+    with session_scope(factory) as s:
+        rows = results_repo.history_rows(s, axis_id, max_rows=1000)
+        every = results_repo.history_rows(s, axis_id, max_rows=10_000)
+    n_temp = int(np.isfinite(temp).sum())
+    assert int(rows["total"]) == n_temp and every["backlash_mean_um"].size == n_temp
+    assert 500 < rows["backlash_mean_um"].size <= 1000  # every ceil(n / 1000)-th row
+    assert rows["measured_at_s"][-1] == every["measured_at_s"][-1]  # the newest is kept
+    assert np.all(np.diff(rows["measured_at_s"]) > 0)
+    assert np.ptp(rows["temperature_c"]) > 0.9 * np.ptp(every["temperature_c"])
