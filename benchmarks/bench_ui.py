@@ -116,7 +116,8 @@ def main() -> int:
                      ("axis page", f"/ui/axes/{ax}?range=1y"), ("axis verdict fragment", f"/ui/axes/{ax}/part/verdict.frag"),
                      ("axis cycles fragment", f"/ui/axes/{ax}/part/cycles.frag"), ("gap page", f"/ui/axes/{ax}/gap")]
             figures = [(f"figure {n}", f"/ui/axes/{ax}/plots/{n}.png?range=1y") for n in
-                       ("backlash_profile", "lead_deviation", "tbe_vs_backlash", "backlash_trend", "tbe_history")]
+                       ("backlash_profile", "lead_deviation", "tbe_vs_backlash", "backlash_trend", "tbe_history",
+                        "prognosis")]
             figures.append(("history CSV (all)", f"/ui/axes/{ax}/history.csv?range=all"))
             print(f"median of {a.repeats}, server side, ms        warm    cold (caches dropped)")
             def cold_start():  # no cached status, no cached figure
