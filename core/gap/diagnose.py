@@ -351,7 +351,7 @@ class _Diagnosis:
         x0 = np.array([vals["chain_frequency_hz"], vals["coulomb_per_mass_mm_s2"], vals["static_excess_per_mass_mm_s2"]])
         starts = [x0 * np.array([fm, 1.0, em]) for fm in (1.0, 1.5, 2.0) for em in (1.0, 3.0, 6.0)]
         lo, hi = np.array([5.0, 0.0, 0.0]), np.array([300.0, 20000.0, 40000.0])
-        r = rt.fit_ls(res, starts, lo, hi, n_starts=2, max_nfev=15, diff_step=0.05)
+        r = rt.fit_ls(res, starts, lo, hi, n_starts=1, max_nfev=12, diff_step=0.05)
         fx, b = make(r.theta)
         return fx, b, r.theta
 
