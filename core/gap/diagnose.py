@@ -33,7 +33,7 @@ import numpy as np
 from core.dataset import Dataset
 from core.gap import contour as ct
 from core.gap import roundtrip as rt
-from core.gap.candidates import ASSUMED_STIFFNESS_N_PER_UM, EFFECTS, REGISTRY, SERVO_LOWER, SERVO_NAMES, SERVO_UPPER, compose, derived, servo_piece
+from core.gap.candidates import ASSUMED_MASS_KG, ASSUMED_STIFFNESS_N_PER_UM, EFFECTS, REGISTRY, SERVO_LOWER, SERVO_NAMES, SERVO_UPPER, compose, derived, servo_piece
 from core.gap.candidates import sim_piece, stage_starts, train_residuals
 from core.gap.data import Contour, GapError, RoundTrip, choose_split, prepare_contour, prepare_round_trip
 from core.gap.report import Candidate, GapReport
@@ -197,9 +197,9 @@ class _Diagnosis:
                 f.notes.append(f"{new} on axis {a}: {NOT_IDENTIFIABLE} (train round trips at one temperature)")
                 continue
             n = sum(r.fit_idx.size for r in runs)
-            # the family's forms in order of preference (the more general first): the first
-            # whose train fit passes the BIC test against the reference is taken
-            taken = None
+            # each of the family's forms is fitted; the one with the best BIC is taken if it
+            # passes the BIC test against the reference
+            tried = []
             for st in made if isinstance(made, tuple) else (made,):
                 stages = (bfit.stages if bfit else ()) + (st,)
                 if sum(1 for x in stages if x.kernel) > 1:
@@ -215,14 +215,13 @@ class _Diagnosis:
                 else:
                     starts = stage_starts(stages, np.array([self.b_um[a]]))
                 fr = rt.fit_model(model, runs, starts, n_starts=2 if st.starts and not bfit else 1)
-                if _bic_accepts(ref_fit.rss, fr.rss, n, len(st.names)):
-                    taken = (st, stages, model, fr)
-                    break
-            if taken is None:
-                if not any("not composed" in x for x in f.notes):
-                    f.notes.append(f"{new} on axis {a}: no train improvement (kept {'+'.join(base.effects) if bfit else 'nominal'})")
+                tried.append((n * math.log(max(fr.rss, 1e-12)) + len(st.names) * math.log(max(n, 2)), st, stages, model, fr))
+            if not tried:
                 continue
-            st, stages, model, fr = taken
+            _, st, stages, model, fr = min(tried, key=lambda x: x[0])
+            if not _bic_accepts(ref_fit.rss, fr.rss, n, len(st.names)):
+                f.notes.append(f"{new} on axis {a}: no train improvement (kept {'+'.join(base.effects) if bfit else 'nominal'})")
+                continue
             f.rt_fits[a] = _AxisFit(model, fr, stages, tuple(s.effect for s in stages))
         # parameters of the round-trip fits
         for a, af in f.rt_fits.items():
@@ -285,11 +284,24 @@ class _Diagnosis:
                 for n, v in zip(("chain_frequency_hz", "coulomb_per_mass_mm_s2", "static_excess_per_mass_mm_s2"), th):
                     f.params[f"{a}.contour_{n}"] = float(v)
             elif "friction" in af.effects and a in pieces and self.train_ct:
-                fr, b_sim = self._friction_on_contours(a, pieces, bl, float(af.fit.theta[0]))
-                pieces[a] = pieces[a].with_effect("friction", fr)
-                bl[a] = b_sim
-                f.params[f"{a}.coulomb_lost_motion_um"] = fr.coulomb_n / ASSUMED_STIFFNESS_N_PER_UM
-                f.params[f"{a}.static_to_coulomb"] = fr.static_n / max(fr.coulomb_n, 1e-9)
+                b_rt = float(af.fit.theta[0])
+                fr, b_sim = self._friction_on_contours(a, pieces, bl, b_rt)
+                stiff = pieces[a].with_effect("friction", fr)
+                # the same friction on a chain of its own frequency (the lost-motion form's
+                # assumed chain as the start): kept when it matches the train contours better
+                k, m = ASSUMED_STIFFNESS_N_PER_UM, ASSUMED_MASS_KG
+                start = {"chain_frequency_hz": math.sqrt(k * 1e6 / m) / (2 * math.pi), "chain_damping_ratio": 0.2,
+                         "coulomb_per_mass_mm_s2": max(fr.coulomb_n / m * 1e3, 50.0),
+                         "static_excess_per_mass_mm_s2": max((fr.static_n - fr.coulomb_n) / m * 1e3, 50.0)}  # fmt: skip
+                fx_c, b_c, th = self._friction_chain_on_contours(a, pieces, b_rt, start)
+                if self._axis_envelope_cost(a, fx_c, b_c) < self._axis_envelope_cost(a, stiff, b_sim):
+                    pieces[a], bl[a] = fx_c, b_c
+                    for n, v in zip(("chain_frequency_hz", "coulomb_per_mass_mm_s2", "static_excess_per_mass_mm_s2"), th):
+                        f.params[f"{a}.contour_{n}"] = float(v)
+                else:
+                    pieces[a], bl[a] = stiff, b_sim
+                    f.params[f"{a}.coulomb_lost_motion_um"] = fr.coulomb_n / ASSUMED_STIFFNESS_N_PER_UM
+                    f.params[f"{a}.static_to_coulomb"] = fr.static_n / max(fr.coulomb_n, 1e-9)
         gains = {a: spec.position_gain_per_s for a, spec in self.axes.items()}
         servo_src = base.servo if base is not None and "servo_dynamics" in base.effects else {}
         if f.effects[-1] == "servo_dynamics" and self.train_ct:
@@ -320,6 +332,12 @@ class _Diagnosis:
             sims[c.file] = self.memo.table(c, models)
         f.ct_res = [ct.contour_residual_um(c, sims[c.file]) for c in self.test_ct]
 
+
+    def _axis_envelope_cost(self, a: str, fx, b_um: float) -> float:
+        """Envelope-scored tracking RSS of axis ``a`` on the train contours for effects ``fx``."""
+        m = AxisModel.from_axis_spec(self.axes[a], max(0.0, b_um), effects=fx)
+        return sum(float(np.sum(ct.tracking_envelope_residual_um(c, {a: self.memo.axis(c, a, m)}, [a]) ** 2))
+                   for c in self.train_ct if a in c.axes)  # fmt: skip
 
     def _friction_chain_on_contours(self, a: str, pieces: dict, b_rt_um: float, vals: Mapping[str, float]):
         """Friction on a compliant chain on contours: the chain frequency, Coulomb and static
