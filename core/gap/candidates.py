@@ -69,6 +69,8 @@ class Stage:
     out_map: Callable | None = None  # (theta, run, x) -> x
     prior: Callable | None = None  # theta -> extra residuals
     starts: tuple[np.ndarray, ...] = ()
+    # starts derived from the fitted values of the family's forms fitted before it
+    derive_starts: Callable | None = None  # (values by name) -> tuple of starts
 
 
 # ---- round-trip stages ------------------------------------------------------------
@@ -175,11 +177,25 @@ def friction_chain_stage() -> Stage:
         "friction", ("chain_frequency_hz", "chain_damping_ratio", "coulomb_per_mass_mm_s2", "static_excess_per_mass_mm_s2",
                      "stick_band_mm_s"),
         np.array([40.0, 0.1, 1000.0, 1000.0, 0.3]), np.array([5.0, 0.01, 0.0, 0.0, 0.0]),
-        np.array([300.0, 1.0, 20000.0, 40000.0, 5.0]), kernel="friction_chain",
-        starts=tuple(np.array([fn, 0.1, mu, ex * mu, 0.5]) for fn in (20.0, 50.0, 100.0) for mu in (300.0, 2000.0)
+        np.array([200.0, 1.0, 20000.0, 40000.0, 5.0]), kernel="friction_chain",
+        starts=tuple(np.array([fn, 0.1, mu, ex * mu, 0.5]) for fn in (25.0, 80.0) for mu in (300.0, 2000.0)
                      for ex in (0.5, 2.0)),
-        info={"form": "chain"},
+        info={"form": "chain"}, derive_starts=_chain_starts_from_lost_motion,
     )  # fmt: skip
+
+
+def _chain_starts_from_lost_motion(prev: Mapping[str, float]) -> tuple[np.ndarray, ...]:
+    """Chain starts from a fitted lost-motion form: its break-away lost motion L_s is the
+    static excess's stretch, (mu_s - mu_c) / w^2; the Coulomb stretch is inside its backlash."""
+    ls = prev.get("breakaway_lost_motion_um")
+    if ls is None:
+        return ()
+    out = []
+    for fn in (40.0, 100.0):
+        w2 = (2 * np.pi * fn) ** 2
+        for mu in (500.0, 2000.0):
+            out.append(np.array([fn, 0.1, mu, max(1e-3 * ls * w2, 10.0), 0.5]))
+    return tuple(out)
 
 
 def compliance_stage() -> Stage:
@@ -284,7 +300,8 @@ def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
                 mu_s = v_band = 0.0
             w = 2 * np.pi * fn
             hbc = np.maximum(0.0, hb - mu / (w * w))  # backlash_um is the apparent one
-            nsub = max(1, int(math.ceil(run.dt_s * w / 0.05)))
+            # sub-steps: omega h <= 0.05 (0.1 for the friction chain, fitted from many starts)
+            nsub = max(1, int(math.ceil(run.dt_s * w / (0.1 if kern[0].kernel == "friction_chain" else 0.05))))
             us, vs_ = smooth_u(run, memo)
             if u is not run.u_mm:
                 us = us + (u - run.u_mm)
@@ -419,7 +436,7 @@ def _cyclic_factory(runs, axis, resid):
 
 REGISTRY: dict[str, Strategy] = {
     "friction": Strategy("friction", f"{friction_stage.__doc__}\n{friction_chain_stage.__doc__}",
-                         lambda runs, axis, resid: (friction_chain_stage(), friction_stage())),
+                         lambda runs, axis, resid: (friction_stage(), friction_chain_stage())),
     "compliance": Strategy("compliance", compliance_stage.__doc__, lambda runs, axis, resid: compliance_stage()),
     "thermal": Strategy("thermal", thermal_stage.__doc__, lambda runs, axis, resid: thermal_stage(runs, axis)),
     "backlash_profile": Strategy("backlash_profile", profile_stage.__doc__,

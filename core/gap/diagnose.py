@@ -200,7 +200,10 @@ class _Diagnosis:
             # each of the family's forms is fitted; the one with the best BIC is taken if it
             # passes the BIC test against the reference
             tried = []
+            fitted_vals: dict[str, float] = {}  # the forms fitted so far, for derived starts
             for st in made if isinstance(made, tuple) else (made,):
+                if st.derive_starts is not None:
+                    st = replace(st, starts=st.starts + tuple(st.derive_starts(fitted_vals)))
                 stages = (bfit.stages if bfit else ()) + (st,)
                 if sum(1 for x in stages if x.kernel) > 1:
                     note = (f"axis {a}: {' and '.join(x.effect for x in stages)} both model the chain's dynamics; "
@@ -215,6 +218,7 @@ class _Diagnosis:
                 else:
                     starts = stage_starts(stages, np.array([self.b_um[a]]))
                 fr = rt.fit_model(model, runs, starts, n_starts=2 if st.starts and not bfit else 1)
+                fitted_vals.update(zip(model.names[-len(st.names):], fr.theta[-len(st.names):]))
                 tried.append((n * math.log(max(fr.rss, 1e-12)) + len(st.names) * math.log(max(n, 2)), st, stages, model, fr))
             if not tried:
                 continue
