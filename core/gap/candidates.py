@@ -71,6 +71,7 @@ class Stage:
     starts: tuple[np.ndarray, ...] = ()
     # starts derived from the fitted values of the family's forms fitted before it
     derive_starts: Callable | None = None  # (values by name) -> tuple of starts
+    max_nfev: int | None = None  # cap on the fit's evaluations (a costly kernel)
 
 
 # ---- round-trip stages ------------------------------------------------------------
@@ -180,7 +181,7 @@ def friction_chain_stage() -> Stage:
         np.array([200.0, 1.0, 20000.0, 40000.0, 5.0]), kernel="friction_chain",
         starts=tuple(np.array([fn, 0.1, mu, ex * mu, 0.5]) for fn in (25.0, 80.0) for mu in (300.0, 2000.0)
                      for ex in (0.5, 2.0)),
-        info={"form": "chain"}, derive_starts=_chain_starts_from_lost_motion,
+        info={"form": "chain"}, derive_starts=_chain_starts_from_lost_motion, max_nfev=40,
     )  # fmt: skip
 
 

@@ -242,7 +242,7 @@ class _Diagnosis:
                     starts = [np.concatenate([bfit.fit.theta, s0]) for s0 in st.starts]
                 else:
                     starts = stage_starts(stages, np.array([self.b_um[a]]))
-                fr = rt.fit_model(model, runs, starts, n_starts=2 if st.starts and not bfit else 1)
+                fr = rt.fit_model(model, runs, starts, n_starts=2 if st.starts and not bfit else 1, max_nfev=st.max_nfev)
                 fitted_vals.update(zip(model.names[-len(st.names):], fr.theta[-len(st.names):]))
                 tried.append((n * math.log(max(fr.rss, 1e-12)) + len(st.names) * math.log(max(n, 2)), st, stages, model, fr))
             if not tried:
