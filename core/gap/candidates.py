@@ -49,6 +49,7 @@ ASSUMED_MASS_KG = 500.0  # to express a fitted natural frequency as a chain stif
 ASSUMED_STIFFNESS_N_PER_UM = 200.0  # to express friction lost motion as a force
 GUIDE_FRICTION_PRIOR_MM_S2 = 196.0
 GUIDE_FRICTION_PRIOR_WEIGHT = 100.0
+GUIDE_DAMPING_PER_S = 1.0  # friction on a chain: a light oil-film damping of the table (1/s)
 PROFILE_SMOOTHNESS_WEIGHT = 0.05  # µm of residual per µm of second difference between knots
 
 
@@ -64,10 +65,13 @@ class Stage:
     info: dict = field(default_factory=dict)
     u_map: Callable | None = None  # (theta, run, u) -> u
     width: Callable | None = None  # (theta, run, u, hb) -> hb   (mm)
-    kernel: str | None = None  # "friction" | "compliance"
+    kernel: str | None = None  # "friction" | "friction_chain" | "compliance"
     out_map: Callable | None = None  # (theta, run, x) -> x
     prior: Callable | None = None  # theta -> extra residuals
     starts: tuple[np.ndarray, ...] = ()
+    # starts derived from the fitted values of the family's forms fitted before it
+    derive_starts: Callable | None = None  # (values by name) -> tuple of starts
+    max_nfev: int | None = None  # cap on the fit's evaluations (a costly kernel)
 
 
 # ---- round-trip stages ------------------------------------------------------------
@@ -144,17 +148,55 @@ def cyclic_stage(periods_mm: Sequence[float]) -> Stage:
 
 
 def friction_stage() -> Stage:
-    """Lost motion of the chain under friction: a break-away threshold (stick until the
-    chain's stretch exceeds it, then slip: Karnopp-type static friction on a compliant
-    chain), a Stribeck part decaying with speed, a viscous part. The Coulomb part of the
-    lost motion is inseparable from the backlash on round trips (it is in
-    ``backlash_um``). Not covered: pre-sliding hysteresis below 0.1 µm, position-
-    dependent friction."""
+    """Friction as lost motion of a stiff chain: a break-away threshold (stick until the
+    chain's stretch exceeds it, then slip: Karnopp-type static friction), a Stribeck part
+    decaying with speed, a viscous part. The Coulomb part of the lost motion is
+    inseparable from the backlash on round trips (it is in ``backlash_um``). Not
+    covered: the chain's own dynamics (see :func:`friction_chain_stage`), pre-sliding
+    hysteresis below 0.1 µm, position-dependent friction."""
     return Stage(
         "friction", ("breakaway_lost_motion_um", "stribeck_velocity_mm_s", "viscous_lost_motion_um_per_mm_s"),
         np.array([1.0, 2.0, 0.0]), np.array([0.0, 0.05, 0.0]), np.array([100.0, 20.0, 0.3]), kernel="friction",
         starts=tuple(np.array([ls, vs, cv]) for ls in (1.0, 4.0, 12.0) for vs in (0.5, 3.0) for cv in (0.01, 0.05)),
+        info={"form": "lost_motion"},
     )  # fmt: skip
+
+
+def friction_chain_stage() -> Stage:
+    """Friction on a compliant chain (per unit table mass): the table is a mass behind
+    the nut's spring-damper, held by Coulomb friction and a static friction above it
+    (Karnopp): it sticks until the chain's stretch breaks it away, then slips and rings
+    at the chain's frequency; below a critical speed it stick-slips throughout, and with
+    the position loop closed on the table scale it hunts about a target (on contours this
+    is scored by its envelope, see :mod:`core.gap.contour`). Dahl/LuGre pre-sliding
+    (friction building over a few µm) is taken as its Coulomb limit, which the chain's
+    own compliance smooths at these stiffnesses. A light guide damping (an oil film,
+    ``GUIDE_DAMPING_PER_S``) is fixed. The Coulomb stretch F_c/k is part of the apparent
+    backlash (``backlash_um``). Not covered: friction that changes along the travel, a
+    second chain resonance, the mass itself (only ratios to it are identifiable)."""
+    return Stage(
+        "friction", ("chain_frequency_hz", "chain_damping_ratio", "coulomb_per_mass_mm_s2", "static_excess_per_mass_mm_s2",
+                     "stick_band_mm_s"),
+        np.array([40.0, 0.1, 1000.0, 1000.0, 0.3]), np.array([5.0, 0.01, 0.0, 0.0, 0.0]),
+        np.array([200.0, 1.0, 20000.0, 40000.0, 5.0]), kernel="friction_chain",
+        starts=tuple(np.array([fn, 0.1, mu, ex * mu, 0.5]) for fn in (25.0, 80.0) for mu in (300.0, 2000.0)
+                     for ex in (0.5, 2.0)),
+        info={"form": "chain"}, derive_starts=_chain_starts_from_lost_motion, max_nfev=40,
+    )  # fmt: skip
+
+
+def _chain_starts_from_lost_motion(prev: Mapping[str, float]) -> tuple[np.ndarray, ...]:
+    """Chain starts from a fitted lost-motion form: its break-away lost motion L_s is the
+    static excess's stretch, (mu_s - mu_c) / w^2; the Coulomb stretch is inside its backlash."""
+    ls = prev.get("breakaway_lost_motion_um")
+    if ls is None:
+        return ()
+    out = []
+    for fn in (40.0, 100.0):
+        w2 = (2 * np.pi * fn) ** 2
+        for mu in (500.0, 2000.0):
+            out.append(np.array([fn, 0.1, mu, max(1e-3 * ls * w2, 10.0), 0.5]))
+    return tuple(out)
 
 
 def compliance_stage() -> Stage:
@@ -251,14 +293,21 @@ def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
             lost = 1e-3 * (ls * np.exp(-((v / vs) ** 2)) + cv * v)
             x = play_friction(u, hb, lost, 1e-3 * ls, _x0(run, float(hb[0])))
         else:
-            fn, zeta, c_guide, mu = kern[1]
+            if kern[0].kernel == "friction_chain":
+                fn, zeta, mu, ex, v_band = kern[1]
+                c_guide, mu_s = GUIDE_DAMPING_PER_S, mu + ex
+            else:
+                fn, zeta, c_guide, mu = kern[1]
+                mu_s = v_band = 0.0
             w = 2 * np.pi * fn
             hbc = np.maximum(0.0, hb - mu / (w * w))  # backlash_um is the apparent one
-            nsub = max(1, int(math.ceil(run.dt_s * w / 0.05)))
+            # sub-steps: omega h <= 0.05 (0.1 for the friction chain, fitted from many starts)
+            nsub = max(1, int(math.ceil(run.dt_s * w / (0.1 if kern[0].kernel == "friction_chain" else 0.05))))
             us, vs_ = smooth_u(run, memo)
             if u is not run.u_mm:
                 us = us + (u - run.u_mm)
-            x = play_inertia(us, vs_, run.t_s, hbc, w * w, 2 * zeta * w, c_guide, mu, nsub, _x0(run, float(hbc[0])))
+            x = play_inertia(us, vs_, run.t_s, hbc, w * w, 2 * zeta * w, c_guide, mu, nsub, _x0(run, float(hbc[0])),
+                             mu_s, v_band)  # fmt: skip
         for st, th in zip(stages, ths):
             if st.out_map is not None:
                 x = st.out_map(th, run, x)
@@ -314,6 +363,14 @@ def sim_piece(effect: str, params: Mapping[str, float], info: Mapping, axis: Axi
             if math.hypot(a, b) > 0:
                 comps.append((per, math.hypot(a, b), math.degrees(math.atan2(b, a))))
         return (CyclicError.of(*comps) if comps else None), 0.0
+    if effect == "friction" and info.get("form") == "chain":
+        w = 2 * math.pi * p["chain_frequency_hz"]
+        m = ASSUMED_MASS_KG  # every force scales with it: any mass gives the same motion
+        mu, ex = p["coulomb_per_mass_mm_s2"], p["static_excess_per_mass_mm_s2"]
+        comp = Compliance(stiffness_n_per_um=w * w * m * 1e-6, table_mass_kg=m, damping_ratio=p["chain_damping_ratio"],
+                          guide_damping_n_s_per_mm=GUIDE_DAMPING_PER_S * m * 1e-3)  # fmt: skip
+        fr = Friction(coulomb_n=mu * m * 1e-3, static_n=(mu + ex) * m * 1e-3, stribeck_velocity_mm_s=0.1)
+        return [("compliance", comp), ("friction", fr)], 2e3 * mu / (w * w)
     if effect == "friction":
         k = ASSUMED_STIFFNESS_N_PER_UM
         coulomb_um = min(4.0 * p["breakaway_lost_motion_um"], 0.45 * b_um)  # static = 1.25 Coulomb assumed
@@ -339,6 +396,10 @@ def derived(effect: str, params: Mapping[str, float], b_um: float) -> dict[str, 
     if effect == "compliance":
         w2 = (2 * math.pi * params["natural_frequency_hz"]) ** 2
         return {"m_over_k_ms2": 1e6 / w2, "clearance_um": max(0.0, b_um - 2e3 * params["guide_friction_mm_s2"] / w2)}
+    if effect == "friction" and "chain_frequency_hz" in params:
+        w2 = (2 * math.pi * params["chain_frequency_hz"]) ** 2
+        return {"coulomb_lost_motion_um": 2e3 * params["coulomb_per_mass_mm_s2"] / w2,
+                "breakaway_excess_um": 1e3 * params["static_excess_per_mass_mm_s2"] / w2}  # fmt: skip
     if effect == "friction":
         return {"static_excess_n_at_200n_per_um": params["breakaway_lost_motion_um"] * ASSUMED_STIFFNESS_N_PER_UM}
     return {}
@@ -366,7 +427,7 @@ class Strategy:
 
     effect: str
     forms: str
-    stage: Callable | None  # (runs, axis_spec, residuals) -> Stage | None; None: contour-only
+    stage: Callable | None  # (runs, axis_spec, residuals) -> Stage | tuple of alternative forms | None; None: contour-only
 
 
 def _cyclic_factory(runs, axis, resid):
@@ -375,7 +436,8 @@ def _cyclic_factory(runs, axis, resid):
 
 
 REGISTRY: dict[str, Strategy] = {
-    "friction": Strategy("friction", friction_stage.__doc__, lambda runs, axis, resid: friction_stage()),
+    "friction": Strategy("friction", f"{friction_stage.__doc__}\n{friction_chain_stage.__doc__}",
+                         lambda runs, axis, resid: (friction_stage(), friction_chain_stage())),
     "compliance": Strategy("compliance", compliance_stage.__doc__, lambda runs, axis, resid: compliance_stage()),
     "thermal": Strategy("thermal", thermal_stage.__doc__, lambda runs, axis, resid: thermal_stage(runs, axis)),
     "backlash_profile": Strategy("backlash_profile", profile_stage.__doc__,

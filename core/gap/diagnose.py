@@ -33,7 +33,7 @@ import numpy as np
 from core.dataset import Dataset
 from core.gap import contour as ct
 from core.gap import roundtrip as rt
-from core.gap.candidates import ASSUMED_STIFFNESS_N_PER_UM, EFFECTS, REGISTRY, SERVO_LOWER, SERVO_NAMES, SERVO_UPPER, compose, derived, servo_piece
+from core.gap.candidates import ASSUMED_MASS_KG, ASSUMED_STIFFNESS_N_PER_UM, EFFECTS, REGISTRY, SERVO_LOWER, SERVO_NAMES, SERVO_UPPER, compose, derived, servo_piece
 from core.gap.candidates import sim_piece, stage_starts, train_residuals
 from core.gap.data import Contour, GapError, RoundTrip, choose_split, prepare_contour, prepare_round_trip
 from core.gap.report import Candidate, GapReport
@@ -169,10 +169,36 @@ class _Diagnosis:
         self.rt_nom = [rt.residual_um(self.nom_model[r.axis].predict(self.nom_fit[r.axis].theta, r), r)
                        for r in self.test_rt]  # fmt: skip
         self.ct_nom = [ct.contour_residual_um(c, self.sim_nom[c.file]) for c in self.test_ct]
+        self.ct_nom_plain = [ct.contour_plain_residual_um(c, self.sim_nom[c.file]) for c in self.test_ct]
         self.train_ct_rss_nom = self._ct_train_rss(self.sim_nom)
+        self.fast_motion = {a: self._fast_motion(a) for a in ct_axes}
+
+    def _fast_motion(self, a: str) -> bool:
+        """Do the train contours of axis ``a`` carry fast motion (faster than the envelope
+        window) beyond the nominal model's, above 3x the encoder noise? A chain that rings,
+        stick-slips or hunts does; only then is a chain's dynamics refitted on contours."""
+        if a not in self.rt_axes:
+            return True  # no round trips to tell the encoder noise: the refit is tried
+        # the encoder noise from the train round trips (smooth there but for it)
+        d = np.concatenate([np.diff(r) for r in train_residuals(self.nom_model[a], self.nom_fit[a].theta,
+                                                                  self.train_rt[a])])  # fmt: skip
+        sigma = float(np.median(np.abs(d - np.median(d))) / 0.6745 / math.sqrt(2))
+        fast = []
+        for c in self.train_ct:
+            if a not in c.axes:
+                continue
+            k = c.scored
+            r = (c.table_mm[a][k] - self.sim_nom[c.file][a][k]) * 1e3
+            n = max(3, int(round(ct.ENVELOPE_WINDOW_S * c.rate_hz)))
+            if r.size < 2 * n:
+                continue
+            fast.append(r - ct.uniform_filter1d(r, n, mode="nearest"))
+        if not fast:
+            return False
+        return rt.rms(np.concatenate(fast)) > 3.0 * sigma
 
     def _ct_train_rss(self, sims: Mapping[str, dict]) -> float:
-        return sum(float(np.sum(ct.tracking_residual_um(c, sims[c.file]) ** 2)) for c in self.train_ct)
+        return sum(float(np.sum(ct.tracking_envelope_residual_um(c, sims[c.file]) ** 2)) for c in self.train_ct)
 
     # ---- candidates ----------------------------------------------------------------
     def fit_candidate(self, effects: tuple[str, ...], base: Fitted | None = None) -> Fitted:
@@ -191,23 +217,37 @@ class _Diagnosis:
             if strat.stage is None:
                 continue
             resid = train_residuals(ref_model, ref_fit.theta, runs)
-            st = strat.stage(runs, spec, resid)
-            if st is None:
+            made = strat.stage(runs, spec, resid)
+            if made is None:
                 f.notes.append(f"{new} on axis {a}: {NOT_IDENTIFIABLE} (train round trips at one temperature)")
                 continue
-            stages = (bfit.stages if bfit else ()) + (st,)
-            if sum(1 for x in stages if x.kernel) > 1:
-                f.notes.append(f"axis {a}: {' and '.join(x.effect for x in stages)} both model the chain's dynamics; "
-                               "not composed")  # fmt: skip
-                continue
-            model = compose(stages, self.b_um[a], self.memo.misc)
-            if bfit:
-                model = replace(model, x0=np.concatenate([bfit.fit.theta, st.x0]))
-                starts = [np.concatenate([bfit.fit.theta, s0]) for s0 in st.starts]
-            else:
-                starts = stage_starts(stages, np.array([self.b_um[a]]))
-            fr = rt.fit_model(model, runs, starts, n_starts=2 if st.starts and not bfit else 1)
             n = sum(r.fit_idx.size for r in runs)
+            # each of the family's forms is fitted; the one with the best BIC is taken if it
+            # passes the BIC test against the reference
+            tried = []
+            fitted_vals: dict[str, float] = {}  # the forms fitted so far, for derived starts
+            for st in made if isinstance(made, tuple) else (made,):
+                if st.derive_starts is not None:
+                    st = replace(st, starts=st.starts + tuple(st.derive_starts(fitted_vals)))
+                stages = (bfit.stages if bfit else ()) + (st,)
+                if sum(1 for x in stages if x.kernel) > 1:
+                    note = (f"axis {a}: {' and '.join(x.effect for x in stages)} both model the chain's dynamics; "
+                            "not composed")  # fmt: skip
+                    if note not in f.notes:
+                        f.notes.append(note)
+                    continue
+                model = compose(stages, self.b_um[a], self.memo.misc)
+                if bfit:
+                    model = replace(model, x0=np.concatenate([bfit.fit.theta, st.x0]))
+                    starts = [np.concatenate([bfit.fit.theta, s0]) for s0 in st.starts]
+                else:
+                    starts = stage_starts(stages, np.array([self.b_um[a]]))
+                fr = rt.fit_model(model, runs, starts, n_starts=2 if st.starts and not bfit else 1, max_nfev=st.max_nfev)
+                fitted_vals.update(zip(model.names[-len(st.names):], fr.theta[-len(st.names):]))
+                tried.append((n * math.log(max(fr.rss, 1e-12)) + len(st.names) * math.log(max(n, 2)), st, stages, model, fr))
+            if not tried:
+                continue
+            _, st, stages, model, fr = min(tried, key=lambda x: x[0])
             if not _bic_accepts(ref_fit.rss, fr.rss, n, len(st.names)):
                 f.notes.append(f"{new} on axis {a}: no train improvement (kept {'+'.join(base.effects) if bfit else 'nominal'})")
                 continue
@@ -257,19 +297,42 @@ class _Diagnosis:
             for st in af.stages:
                 mine = {n: vals[n] for n in st.names}
                 piece, b_share = sim_piece(st.effect, mine, st.info, self.axes[a], b)
-                if piece is not None:
-                    fx = fx.with_effect(st.effect, piece)
+                for name, pc in piece if isinstance(piece, list) else [(st.effect, piece)]:
+                    if pc is not None:
+                        fx = fx.with_effect(name, pc)
                 b -= b_share
             if not fx.is_nominal:
                 pieces[a] = fx
                 bl[a] = max(0.0, b)
         for a, af in f.rt_fits.items():
-            if "friction" in af.effects and a in pieces and self.train_ct:
-                fr, b_sim = self._friction_on_contours(a, pieces, bl, float(af.fit.theta[0]))
-                pieces[a] = pieces[a].with_effect("friction", fr)
-                bl[a] = b_sim
-                f.params[f"{a}.coulomb_lost_motion_um"] = fr.coulomb_n / ASSUMED_STIFFNESS_N_PER_UM
-                f.params[f"{a}.static_to_coulomb"] = fr.static_n / max(fr.coulomb_n, 1e-9)
+            chain = any(st.kernel == "friction_chain" for st in af.stages) and self.fast_motion.get(a, False)
+            if chain and a in pieces and self.train_ct:
+                fx, b_sim, th = self._friction_chain_on_contours(a, pieces, float(af.fit.theta[0]),
+                                                                 dict(zip(af.model.names, af.fit.theta)))  # fmt: skip
+                pieces[a], bl[a] = fx, b_sim
+                for n, v in zip(("chain_frequency_hz", "coulomb_per_mass_mm_s2", "static_excess_per_mass_mm_s2"), th):
+                    f.params[f"{a}.contour_{n}"] = float(v)
+            elif "friction" in af.effects and a in pieces and self.train_ct:
+                b_rt = float(af.fit.theta[0])
+                fr, b_sim = self._friction_on_contours(a, pieces, bl, b_rt)
+                stiff = pieces[a].with_effect("friction", fr)
+                # the same friction on a chain of its own frequency (the lost-motion form's
+                # assumed chain as the start): kept when it matches the train contours better
+                k, m = ASSUMED_STIFFNESS_N_PER_UM, ASSUMED_MASS_KG
+                start = {"chain_frequency_hz": math.sqrt(k * 1e6 / m) / (2 * math.pi), "chain_damping_ratio": 0.2,
+                         "coulomb_per_mass_mm_s2": max(fr.coulomb_n / m * 1e3, 50.0),
+                         "static_excess_per_mass_mm_s2": max((fr.static_n - fr.coulomb_n) / m * 1e3, 50.0)}  # fmt: skip
+                fx_c = None
+                if self.fast_motion.get(a, False):
+                    fx_c, b_c, th = self._friction_chain_on_contours(a, pieces, b_rt, start)
+                if fx_c is not None and self._axis_envelope_cost(a, fx_c, b_c) < self._axis_envelope_cost(a, stiff, b_sim):
+                    pieces[a], bl[a] = fx_c, b_c
+                    for n, v in zip(("chain_frequency_hz", "coulomb_per_mass_mm_s2", "static_excess_per_mass_mm_s2"), th):
+                        f.params[f"{a}.contour_{n}"] = float(v)
+                else:
+                    pieces[a], bl[a] = stiff, b_sim
+                    f.params[f"{a}.coulomb_lost_motion_um"] = fr.coulomb_n / ASSUMED_STIFFNESS_N_PER_UM
+                    f.params[f"{a}.static_to_coulomb"] = fr.static_n / max(fr.coulomb_n, 1e-9)
         gains = {a: spec.position_gain_per_s for a, spec in self.axes.items()}
         servo_src = base.servo if base is not None and "servo_dynamics" in base.effects else {}
         if f.effects[-1] == "servo_dynamics" and self.train_ct:
@@ -300,6 +363,46 @@ class _Diagnosis:
             sims[c.file] = self.memo.table(c, models)
         f.ct_res = [ct.contour_residual_um(c, sims[c.file]) for c in self.test_ct]
 
+
+    def _axis_envelope_cost(self, a: str, fx, b_um: float) -> float:
+        """Envelope-scored tracking RSS of axis ``a`` on the train contours for effects ``fx``."""
+        m = AxisModel.from_axis_spec(self.axes[a], max(0.0, b_um), effects=fx)
+        return sum(float(np.sum(ct.tracking_envelope_residual_um(c, {a: self.memo.axis(c, a, m)}, [a]) ** 2))
+                   for c in self.train_ct if a in c.axes)  # fmt: skip
+
+    def _friction_chain_on_contours(self, a: str, pieces: dict, b_rt_um: float, vals: Mapping[str, float]):
+        """Friction on a compliant chain on contours: the chain frequency, Coulomb and static
+        friction (per unit mass) refitted on the train contours of axis ``a``, starting from
+        the round trips' values, scored by :func:`core.gap.contour.envelope_residual_um` (a
+        table that stick-slips or hunts with the loop closed on it is matched by the
+        amplitude and frequency of that motion, not its phase). Returns (Effects, backlash
+        for the twin, fitted (f_n, mu_c, mu_s - mu_c))."""
+        mine = [c for c in self.train_ct if a in c.axes]
+        spec = self.axes[a]
+        info = {"form": "chain"}
+        zeta = vals["chain_damping_ratio"]
+
+        def make(th):
+            p = {"chain_frequency_hz": th[0], "chain_damping_ratio": zeta, "coulomb_per_mass_mm_s2": th[1],
+                 "static_excess_per_mass_mm_s2": th[2]}  # fmt: skip
+            piece, b_share = sim_piece("friction", p, info, spec, b_rt_um)
+            fx = pieces[a]
+            for name, pc in piece:
+                fx = fx.with_effect(name, pc)
+            return fx, max(0.0, b_rt_um - b_share)
+
+        def res(th):
+            fx, b = make(th)
+            m = AxisModel.from_axis_spec(spec, b, effects=fx)
+            return np.concatenate([ct.tracking_envelope_residual_um(c, {a: self.memo.axis(c, a, m)}, [a], stacked=True)
+                                   for c in mine])  # fmt: skip
+
+        x0 = np.array([vals["chain_frequency_hz"], vals["coulomb_per_mass_mm_s2"], vals["static_excess_per_mass_mm_s2"]])
+        starts = [x0 * np.array([fm, 1.0, em]) for fm in (1.0, 2.0) for em in (1.0, 3.0, 6.0)]
+        lo, hi = np.array([5.0, 0.0, 0.0]), np.array([300.0, 20000.0, 40000.0])
+        r = rt.fit_ls(res, starts, lo, hi, n_starts=1, max_nfev=12, diff_step=0.05)
+        fx, b = make(r.theta)
+        return fx, b, r.theta
 
     def _friction_on_contours(self, a: str, pieces: dict, bl: dict, b_rt_um: float):
         """Friction on contours, fitted on the train contours' tracking error of axis ``a``:
@@ -371,7 +474,7 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None) -> GapReport
         parts = [r for c, r in zip(d.test_ct, ct_nom) if c.kind == kind]
         if parts:
             by_kind[kind] = _rms_all(parts)
-    noise = noise_floor_um(rt_nom + ct_nom)
+    noise = noise_floor_um(rt_nom + d.ct_nom_plain)  # white noise: from the plain sample-by-sample residuals
 
     fits = {e: d.fit_candidate((e,)) for e in EFFECTS}
     ranked = sorted(fits.values(), key=lambda f: f.score(s.penalty_per_param))
@@ -443,9 +546,9 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None) -> GapReport
     for r in d.rts:
         all_runs.append((r, rt.residual_um(d.nom_model[r.axis].predict(d.nom_fit[r.axis].theta, r), r)))
     for c in d.cts:
-        all_runs.append((c, ct.contour_residual_um(c, d.sim_nom[c.file])))
+        all_runs.append((c, ct.contour_plain_residual_um(c, d.sim_nom[c.file])))
     where = locate(
-        d.test_rt, rt_nom, d.test_ct, ct_nom, d.b_um,
+        d.test_rt, rt_nom, d.test_ct, d.ct_nom_plain, d.b_um,
         {a: v.screw_lead_mm for a, v in d.axes.items()}, {a: v.transmission_mm_per_rev for a, v in d.axes.items()},
         all_runs,
     )  # fmt: skip

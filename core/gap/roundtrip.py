@@ -125,7 +125,7 @@ def fit(model: RTModel, runs: Sequence[RoundTrip], starts: Sequence[np.ndarray] 
 
 
 def fit_model(model: RTModel, runs: Sequence[RoundTrip], starts: Sequence[np.ndarray] = (),
-              n_starts: int = 1) -> FitResult:
+              n_starts: int = 1, max_nfev: int | None = None) -> FitResult:
     """Least-squares fit of a round-trip model on ``runs``: ``starts`` are extra start
     points beside ``model.x0``; the RSS excludes the priors."""
     n_prior = 0 if model.prior is None else int(np.size(model.prior(model.x0)))
@@ -136,7 +136,7 @@ def fit_model(model: RTModel, runs: Sequence[RoundTrip], starts: Sequence[np.nda
             parts.append(model.prior(theta))
         return np.concatenate(parts)
 
-    r = fit_ls(res, [model.x0, *starts], model.lower, model.upper, n_starts, n_prior)
+    r = fit_ls(res, [model.x0, *starts], model.lower, model.upper, n_starts, n_prior, max_nfev=max_nfev)
     rss = float(np.sum(np.concatenate([residual_um(model.predict(r.theta, x), x, x.fit_idx) for x in runs]) ** 2))
     return FitResult(r.theta, rss, r.jac, r.n_res)
 

@@ -20,8 +20,6 @@ KNOWN_MISSES = {  # seen on the first run of this file; docs/gap-diagnosis.md "K
                         "so the wear bumps the test strokes cross were never seen",
     "compliance": "the two-mass chain's gap on these draws is within 2.5x the noise floor, and the candidate's "
                   "mass-behind-the-nut form does not reproduce it",
-    "friction": "Karnopp/Dahl friction on a soft chain hunts around the whole circle; the candidate's friction on "
-                "an assumed stiff chain does not reproduce it",
 }
 
 
