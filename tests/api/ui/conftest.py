@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import shutil
 import socket
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -21,7 +22,12 @@ from tests.api.rest.conftest import FakeRunner, make_settings
 CHROMIUM = os.environ.get("MEBM_TEST_CHROMIUM", "/usr/bin/chromium")
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                   "--disable-background-networking", "--disable-component-update", "--disable-sync"]
-SCREENSHOTS = Path(__file__).resolve().parents[3] / "docs" / "screenshots"
+# The README's screenshots (docs/screenshots) are taken by the browser tests when asked
+# (MEBM_UPDATE_SCREENSHOTS=1 .venv/bin/python -m pytest tests/api/ui); otherwise they go
+# to a temporary folder, so a test run leaves the checkout as it found it.
+SCREENSHOTS = (Path(__file__).resolve().parents[3] / "docs" / "screenshots"
+               if os.environ.get("MEBM_UPDATE_SCREENSHOTS") == "1"
+               else Path(tempfile.gettempdir()) / f"mebm-screenshots-{os.getpid()}")
 
 
 def wait_for(pred, timeout_s: float = 60.0, every_s: float = 0.05):
