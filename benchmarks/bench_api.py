@@ -248,12 +248,10 @@ def _stored(port: int, key: str) -> int:
     import json
     import urllib.request
 
-    req = urllib.request.Request(f"http://127.0.0.1:{port}/api/v1/axes/2/measurements?limit=1000",
+    req = urllib.request.Request(f"http://127.0.0.1:{port}/api/v1/axes/2/measurements?limit=1",
                                  headers={"X-API-Key": key})
     with urllib.request.urlopen(req, timeout=10) as r:
-        body = json.loads(r.read())
-    items = body if isinstance(body, list) else body.get("items", body.get("measurements", []))
-    return sum(1 for m in items if m.get("status") == "ok")
+        return int(json.loads(r.read())["total"])
 
 
 def main() -> int:
