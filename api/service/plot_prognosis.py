@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from datetime import datetime
 
-from api.service.plots import _figure, _png, _thin
+from api.service.plots import _figure, _png, _thin, with_temperature_axis
 
 
 def prognosis(t: list[datetime], backlash_um: list[float], temperature_c: list[float | None], *,
@@ -32,15 +32,7 @@ def prognosis(t: list[datetime], backlash_um: list[float], temperature_c: list[f
         ax.axvline(limit_date, color="#d62728", ls=":", lw=1.2, label=f"limit reached {limit_date:%Y-%m-%d}")
     ax.set_xlabel("date (UTC)")
     ax.set_ylabel("mean backlash width b̄ (µm)")
-    lines, labels = ax.get_legend_handles_labels()
-    tt = [(x, v) for x, v in zip(t, temperature_c) if v is not None]
-    if tt:
-        ax2 = ax.twinx()
-        ax2.plot([x for x, _ in tt], [v for _, v in tt], "s", color="#ff7f0e", ms=2, alpha=0.6,
-                 label="ambient temperature t")
-        ax2.set_ylabel("ambient temperature t (°C)", color="#ff7f0e")
-        l2, lab2 = ax2.get_legend_handles_labels()
-        lines, labels = lines + l2, labels + lab2
+    lines, labels = with_temperature_axis(ax, t, temperature_c, "s", ms=2, alpha=0.6)
     ax.legend(lines, labels, loc="upper left", fontsize=8, framealpha=0.9)
     ax.set_title(f"backlash prognosis — {title}\n{note}", fontsize=10)
     fig.autofmt_xdate()

@@ -218,6 +218,20 @@ def tbe_history(series: dict[str, tuple[list[datetime], list[float], list[float]
     return _png(fig)
 
 
+def with_temperature_axis(ax, t, temperature_c, fmt: str, **style) -> tuple[list, list]:
+    """The ambient temperature on a second y axis (Figs. 10 and the prognosis), where it
+    was recorded; the legend handles and labels of both axes, for one legend."""
+    lines, labels = ax.get_legend_handles_labels()
+    tt = [(x, v) for x, v in zip(t, temperature_c) if v is not None]
+    if tt:
+        ax2 = ax.twinx()
+        ax2.plot([x for x, _ in tt], [v for _, v in tt], fmt, color="#ff7f0e", label="ambient temperature t", **style)
+        ax2.set_ylabel("ambient temperature t (°C)", color="#ff7f0e")
+        l2, lab2 = ax2.get_legend_handles_labels()
+        lines, labels = lines + l2, labels + lab2
+    return lines, labels
+
+
 def backlash_trend(t: list[datetime], backlash_um: list[float], temperature_c: list[float | None], *,
                    limit_um: float | None, title: str) -> bytes:
     """Fig. 10: mean backlash b̄ and ambient temperature over time."""
@@ -228,15 +242,7 @@ def backlash_trend(t: list[datetime], backlash_um: list[float], temperature_c: l
         ax.axhline(limit_um, color="#d62728", ls="-.", lw=1.4, label=f"backlash limit {limit_um:.1f} µm")
     ax.set_xlabel("measured at (UTC)")
     ax.set_ylabel("mean backlash width b̄ (µm)")
-    tt = [(x, v) for x, v in zip(t, temperature_c) if v is not None]
-    lines, labels = ax.get_legend_handles_labels()
-    if tt:
-        ax2 = ax.twinx()
-        ax2.plot([x for x, _ in tt], [v for _, v in tt], "s--", color="#ff7f0e", ms=3, lw=1.0,
-                 label="ambient temperature t")
-        ax2.set_ylabel("ambient temperature t (°C)", color="#ff7f0e")
-        l2, lab2 = ax2.get_legend_handles_labels()
-        lines, labels = lines + l2, labels + lab2
+    lines, labels = with_temperature_axis(ax, t, temperature_c, "s--", ms=3, lw=1.0)
     ax.legend(lines, labels, loc="best", fontsize=8, framealpha=0.9)
     ax.set_title(f"mean backlash and temperature — {title}")
     fig.autofmt_xdate()
