@@ -164,7 +164,9 @@ class ModbusDriver(ControllerDriver):
         """A status read mid-cycle: anything but RUNNING/DONE ends the cycle with its reason."""
         if s.state is None:
             raise ProtocolError(f"{self.describe()}: unknown axis state {s.state_raw}")
-        if s.state not in (AxisState.RUNNING, AxisState.DONE):
+        # passive: the CNC may acknowledge its program the moment it ends (DONE -> IDLE)
+        ended = (AxisState.DONE, AxisState.IDLE) if self.trigger == "passive" else (AxisState.DONE,)
+        if s.state != AxisState.RUNNING and s.state not in ended:
             raise_device_fault(ControllerStatus(s.state, s.fault_code), self.describe(), self.link_trouble)
 
     async def _read_status(self) -> ControllerStatus:
@@ -256,7 +258,7 @@ class ModbusDriver(ControllerDriver):
             # records from the ring instead of losing them
             s = await self._status()
             self._check_running(s)
-            finished = s.state == AxisState.DONE and next_w >= s.trace_count
+            finished = s.state != AxisState.RUNNING and next_w >= s.trace_count
         cur.next_w = next_w
         if not regs_all:
             return SampleBlock.empty(finished)
@@ -315,8 +317,10 @@ class ModbusDriver(ControllerDriver):
                 lis.ring = None  # the program ended and its trace is read: back to polling
             if len(block):
                 lis.last_counter = int(block.counter[-1])
-            return SampleBlock(block.counter, block.motor_rev, block.table_mm, caught_up=block.caught_up and
-                               lis.ring is None, running=np.ones(len(block), dtype=bool))
+            # caught up with a running trace: wait a poll interval; its end: poll again at once
+            return SampleBlock(block.counter, block.motor_rev, block.table_mm,
+                               caught_up=block.caught_up and lis.ring is not None,
+                               running=np.ones(len(block), dtype=bool))
         t0 = time.monotonic()
         if self.mode == "separate":
             motor_regs = await self._read(self.map.separate_first, "reading the motor position")

@@ -28,9 +28,10 @@ PROGRAM = RoundTripProgram(-2.0, 22.0, 1000.0, acceleration_mm_s2=500.0, dwell_s
 USEFUL = AXIS.travel_mm
 
 
-def start_cnc(port: int, delay_s: float, program: RoundTripProgram = PROGRAM) -> subprocess.Popen:
+def start_cnc(port: int, delay_s: float, program: RoundTripProgram = PROGRAM, *, ack: bool = False) -> subprocess.Popen:
     args = [str(port), f"{delay_s:.3f}", *(repr(float(v)) for v in (
         program.start_mm, program.end_mm, program.feed_mm_min, program.acceleration_mm_s2, program.dwell_s))]
+    args += ["--ack"] if ack else []
     return subprocess.Popen([sys.executable, "-m", "tests.acquisition.cnc_process", *args], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
@@ -84,6 +85,23 @@ def test_a_round_trip_started_by_another_process_is_measured_as_an_active_one_is
         assert sim.cycles_started == started_before + 1
         assert passive.to_run("rt").spec.extra["trigger"] == "passive"
         assert passive.to_dict()["acquisition"]["trigger"] == "passive"
+
+
+def test_a_cnc_that_acknowledges_the_end_at_once_is_measured_all_the_same():
+    """DONE -> IDLE while mebm is still reading the trace: the end of the program, not a fault."""
+    with modbus_peer(time_scale=3.0) as peer:
+        writes = count_writes(peer.server)
+        driver = peer.driver(trigger="passive", passive={"start_timeout_s": 120.0})
+        cnc = start_cnc(peer.server.port, 0.5, ack=True)
+        try:
+            res = run_cycle(driver, AXIS, PROGRAM, useful_travel_mm=USEFUL)
+        finally:
+            _, err = cnc.communicate(timeout=60)
+        assert cnc.returncode == 0, err
+        assert res.ok, res.reason
+        assert res.result.backlash_mean_um == pytest.approx(120.0, abs=1.0)
+        assert [a for a, _ in writes] == [mm.COMMAND, mm.COMMAND]  # the CNC's start and acknowledge
+        assert [v[0] for _, v in writes] == [1, 3]
 
 
 def test_positions_only_on_polled_samples_without_a_trace_buffer():
