@@ -136,19 +136,37 @@ def test_no_round_trip_within_the_time_out_is_a_typed_failure_and_nothing_is_wri
         assert writes == [] and peer.axis.cycles_started == 0
 
 
-def test_a_program_already_running_when_listening_begins_is_not_taken_halfway():
-    """With the running flag: a program under way at connect is waited out, the next one measured."""
+def test_a_program_running_when_listening_begins_is_read_whole_from_the_trace_buffer():
+    """The CNC started just before mebm listened; the controller's trace still holds the
+    program's first record, so the run is taken whole, from its start."""
     with modbus_peer(time_scale=3.0) as peer:
-        peer.axis.start(PROGRAM)  # the CNC started one before mebm listened
-        server = peer.server
+        writes = count_writes(peer.server)
+        peer.axis.start(PROGRAM)  # the CNC started it a moment before mebm connected
+        driver = peer.driver(trigger="passive", passive={"start_timeout_s": 60.0})
+        res = run_cycle(driver, AXIS, PROGRAM, useful_travel_mm=USEFUL)
+        assert res.ok, res.reason
+        assert res.trace.counter[0] == peer.axis.trace_first  # from the program's first sample
+        assert res.result.backlash_mean_um == pytest.approx(120.0, abs=1.0)
+        assert writes == [] and peer.axis.cycles_started == 1
+
+
+def test_a_program_running_when_listening_begins_without_its_start_is_waited_out():
+    """Polled samples only (no trace buffer): a program under way at connect cannot be had
+    whole, so it is waited out (the running flag must first be seen clear) and the next
+    one, started by the CNC process, is measured."""
+    slow = RoundTripProgram(-2.0, 22.0, 300.0, acceleration_mm_s2=500.0, dwell_s=0.5)
+    with modbus_peer(time_scale=1.0, mode="latched") as peer:
+        peer.axis.start(slow)  # under way before mebm listens
         driver = peer.driver(trigger="passive", passive={"start_timeout_s": 120.0})
-        cnc = start_cnc(server.port, 3.0)  # after the first one has ended
+        t_end = slow.duration_s + 1.0
+        cnc = start_cnc(peer.server.port, t_end, slow)  # the next one, after the first has ended
         try:
-            res = run_cycle(driver, AXIS, PROGRAM, useful_travel_mm=USEFUL)
+            res = run_cycle(driver, AXIS, slow, useful_travel_mm=USEFUL)
         finally:
-            cnc.communicate(timeout=60)
+            cnc.communicate(timeout=120)
         assert res.ok, res.reason
         assert peer.axis.cycles_started == 2
+        assert res.trace.counter[0] >= peer.axis.trace_first - 1  # within the second program's run
 
 
 # -- the default: passive unless the controller is a simulator ------------------------------
