@@ -1,0 +1,188 @@
+"""The same twin round trip through every Modbus path gives the same b̄ (issue 19, "Done means").
+
+Reference: ``mebm-modbus/1`` trace mode (every servo cycle, latched). Each other path must
+give b̄ within 1 µm of it, or within the skew uncertainty that an unlatched path reports:
+a float32 CDAB holding profile (one PDU), int32 input registers read separately, RTU over
+a pseudo-terminal pair (socat), and a Modbus server from another library (pyModbusTCP)
+fed with the twin's round trip by a thread playing the PLC. Polled paths sample at the
+rate polling reaches; each result says that rate. The axis runs in real time
+(``time_scale = 1``): the host clock times polled samples.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import shutil
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from acquisition.cycle import run_cycle
+from acquisition.modbus_polled import ProfileModbusDriver
+from acquisition.modbus_profile import load_profile
+from acquisition.sim.axis import SimAxis
+from acquisition.sim.profile_server import SimProfileController, profile_words
+from acquisition.sim.twin import KinematicTwin
+from acquisition.types import AxisState
+from acquisition.url import driver_from_url
+from acquisition.types import RoundTripProgram
+from tests.acquisition.conftest import AXIS, modbus_peer
+
+# a slow feed: polled paths run on the host clock, and a host stall of up to 0.3 s (a loaded
+# machine) must not leave a gap over the analysis' 2 mm limit
+PROGRAM = RoundTripProgram(-2.0, 22.0, 400.0, acceleration_mm_s2=500.0, dwell_s=0.1)
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples" / "modbus-profiles"
+FLOAT_CDAB = load_profile(EXAMPLES / "plc-gateway-float32-cdab.toml")
+INT32_SEPARATE = load_profile(EXAMPLES / "drive-int32-input-separate.toml")
+SERVO_HZ = 1000.0
+
+
+def _twin():
+    return KinematicTwin(backlash_um=120.0, position_gain_per_s=30.0)
+
+
+def _axis():
+    return SimAxis(_twin(), servo_rate_hz=SERVO_HZ, time_scale=1.0)
+
+
+@pytest.fixture(scope="module")
+def trace_mode_b_um():
+    with modbus_peer(time_scale=1.0, servo_rate_hz=SERVO_HZ) as peer:
+        r = run_cycle(peer.driver(), AXIS, PROGRAM)
+    assert r.ok, r.reason
+    assert r.trace.mode == "trace" and r.trace.latched and r.trace.lost_samples == 0
+    return r.result.backlash_mean_um
+
+
+def _check_same_b(r, reference_um: float, *, latched: bool):
+    assert r.ok, r.reason
+    t = r.trace
+    assert t.latched is latched and t.mode == ("latched" if latched else "separate")
+    if latched:
+        assert t.skew_uncertainty_um == 0.0
+    # the rate polling reached is the trace's sample rate, and said in its notes
+    assert math.isfinite(t.servo_rate_hz) and t.servo_rate_hz > 5
+    assert any("samples/s" in n for n in t.notes)
+    assert r.to_dict()["acquisition"]["sample_rate_hz"] == t.servo_rate_hz
+    allowed = max(1.0, t.skew_uncertainty_um)
+    assert abs(r.result.backlash_mean_um - reference_um) <= allowed, (
+        f"b̄ {r.result.backlash_mean_um:.3f} µm vs trace mode {reference_um:.3f} µm, allowed {allowed:.3f} µm "
+        f"(polled at {t.servo_rate_hz:.0f}/s)")
+
+
+def test_float32_cdab_holding_profile_reads_both_positions_in_one_pdu(trace_mode_b_um):
+    assert FLOAT_CDAB.mode == "latched"
+    axis = _axis()
+    with SimProfileController(axis, FLOAT_CDAB, PROGRAM) as sim:
+        driver = driver_from_url(f"modbus://127.0.0.1:{sim.port}?profile={EXAMPLES / 'plc-gateway-float32-cdab.toml'}",
+                                 timeout_s=1.0)
+        assert isinstance(driver, ProfileModbusDriver)
+        r = run_cycle(driver, AXIS, PROGRAM)
+    _check_same_b(r, trace_mode_b_um, latched=True)
+    assert axis.cycles_started == 1 and axis.state == AxisState.DONE
+    assert r.trace.temperature_c == pytest.approx(20.0, abs=0.1)  # int16 at 0.1 °C
+
+
+def test_int32_input_registers_read_separately_carry_their_skew(trace_mode_b_um):
+    assert INT32_SEPARATE.mode == "separate"
+    with SimProfileController(_axis(), INT32_SEPARATE, PROGRAM) as sim:
+        r = run_cycle(ProfileModbusDriver("127.0.0.1", sim.port, profile=INT32_SEPARATE, timeout_s=1.0), AXIS,
+                      PROGRAM)
+    assert r.ok, r.reason
+    assert r.trace.skew_uncertainty_um > 0
+    _check_same_b(r, trace_mode_b_um, latched=False)
+
+
+@contextlib.contextmanager
+def pty_pair(tmp_path: Path):
+    """Two linked pseudo-terminals made by socat: (server end, client end)."""
+    socat = shutil.which("socat")
+    if socat is None:
+        if os.environ.get("CI") == "true":
+            pytest.fail("socat is missing (Debian package socat)")
+        pytest.skip("socat is missing (Debian package socat)")
+    a, b = tmp_path / "plc", tmp_path / "mebm"
+    proc = subprocess.Popen([socat, f"pty,raw,echo=0,link={a}", f"pty,raw,echo=0,link={b}"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        for _ in range(500):  # wait for both links, at most 10 s
+            if a.exists() and b.exists():
+                break
+            if proc.poll() is not None:
+                pytest.fail(f"socat ended: {proc.stderr.read().decode(errors='replace')}")
+            time.sleep(0.02)
+        else:
+            pytest.fail("socat made no pty pair within 10 s")
+        yield str(a), str(b)
+    finally:
+        proc.terminate()
+        proc.wait(5)
+
+
+def test_rtu_over_a_pty_pair_with_a_profile(trace_mode_b_um, tmp_path):
+    with pty_pair(tmp_path) as (plc_end, mebm_end):
+        line = dict(baudrate=115200, parity="N", stopbits=2, bytesize=8)
+        with SimProfileController(_axis(), FLOAT_CDAB, PROGRAM, serial=dict(port=plc_end, **line), device_id=7):
+            url = (f"modbus+rtu://{mebm_end}?baudrate=115200&parity=N&stopbits=2&device_id=7"
+                   f"&profile={EXAMPLES / 'plc-gateway-float32-cdab.toml'}")
+            driver = driver_from_url(url, timeout_s=1.0)
+            assert driver.describe().startswith(f"modbus+rtu://{mebm_end}")
+            r = run_cycle(driver, AXIS, PROGRAM)
+    _check_same_b(r, trace_mode_b_um, latched=True)
+
+
+class _PyModbusTcpPlc:
+    """pyModbusTCP's server (a Modbus implementation mebm did not write) holding the
+    float32 CDAB layout, and a thread playing the PLC: it copies the twin's latched
+    positions into the registers every 0.5 ms and starts the program on a rising edge
+    of the start coil."""
+
+    def __init__(self, profile, program):
+        from pyModbusTCP.server import DataBank, ModbusServer
+
+        self.axis, self.profile, self.program = _axis(), profile, program
+        self.bank = DataBank()
+        self.server = ModbusServer("127.0.0.1", 0, no_block=True, data_bank=self.bank)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._plc, name="pymodbustcp-plc", daemon=True)
+
+    def __enter__(self):
+        self.server.start()
+        self.port = self.server._service.server_address[1]
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join(5)
+        self.server.stop()
+
+    def _plc(self):
+        start = self.profile.get("start")
+        last = False
+        while not self._stop.is_set():
+            coil = bool(self.bank.get_coils(start.address, 1)[0])
+            if coil and not last:
+                self.axis.acknowledge()
+                self.axis.start(self.program)
+            last = coil
+            held = profile_words(self.profile, self.axis, int(coil))
+            regs = held["holding"]
+            lo = min(regs)
+            self.bank.set_holding_registers(lo, [regs.get(a, 0) for a in range(lo, max(regs) + 1)])
+            bits = held["discrete_input"]
+            self.bank.set_discrete_inputs(min(bits), [bool(bits[a]) for a in sorted(bits)])
+            time.sleep(0.0005)
+
+
+def test_a_server_from_another_library_serving_a_vendor_profile(trace_mode_b_um):
+    with _PyModbusTcpPlc(FLOAT_CDAB, PROGRAM) as plc:
+        r = run_cycle(ProfileModbusDriver("127.0.0.1", plc.port, profile=FLOAT_CDAB, timeout_s=1.0), AXIS, PROGRAM)
+        assert plc.axis.cycles_started == 1
+    _check_same_b(r, trace_mode_b_um, latched=True)
