@@ -5,8 +5,7 @@ give b̄ within 1 µm of it, or within the skew uncertainty that an unlatched pa
 a float32 CDAB holding profile (one PDU), int32 input registers read separately, RTU over
 a pseudo-terminal pair (socat), and a Modbus server from another library (pyModbusTCP)
 fed with the twin's round trip by a thread playing the PLC. Polled paths sample at the
-rate polling reaches; each result says that rate. The axis runs in real time
-(``time_scale = 1``): the host clock times polled samples.
+rate polling reaches; each result says that rate. The host clock times polled samples.
 """
 
 from __future__ import annotations
@@ -34,11 +33,17 @@ from acquisition.url import driver_from_url
 from core.dataset import AxisSpec
 from tests.acquisition.conftest import modbus_peer
 
-# A slow feed over a short travel: polled paths run on the host clock, and a stall of the
-# test process of up to 1 s (0.9 s seen on a machine loaded 9x over its cores) must not leave
-# a gap over the analysis' 2 mm limit.
+# Polled paths run on the host clock: a stall of the test process (1.1 s seen on a machine
+# loaded 9x over its cores) leaves a gap in the samples, and the analysis refuses a stroke
+# with a gap over 2 mm. So the simulated PLCs run the round trip at half speed (time_scale
+# 0.5: 1.3 mm/s of wall-clock motion, 1.5 s of stall tolerated). The twin's round trip in
+# machine time is the same at any time scale; the skew bounds the polled paths report are
+# then twice the true ones (the driver multiplies wall-clock skew by the programmed feed).
 AXIS = AxisSpec("y", 6.857, 16.0, 30.0, (0.0, 5.0))
-PROGRAM = RoundTripProgram(-2.5, 7.5, 120.0, acceleration_mm_s2=500.0, dwell_s=0.1)
+PROGRAM = RoundTripProgram(-2.5, 7.5, 160.0, acceleration_mm_s2=500.0, dwell_s=0.1)
+TIME_SCALE = 0.5
+TIMEOUT_S = 2.0  # the drain deadline grows by 3 timeouts: room for the half-speed round trip
+
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples" / "modbus-profiles"
 FLOAT_CDAB = load_profile(EXAMPLES / "plc-gateway-float32-cdab.toml")
 INT32_SEPARATE = load_profile(EXAMPLES / "drive-int32-input-separate.toml")
@@ -62,12 +67,12 @@ def _twin():
 
 
 def _axis():
-    return SimAxis(_twin(), servo_rate_hz=SERVO_HZ, time_scale=1.0)
+    return SimAxis(_twin(), servo_rate_hz=SERVO_HZ, time_scale=TIME_SCALE)
 
 
 @pytest.fixture(scope="module")
 def trace_mode_b_um():
-    with modbus_peer(time_scale=1.0, servo_rate_hz=SERVO_HZ) as peer:
+    with modbus_peer(time_scale=2.0, servo_rate_hz=SERVO_HZ) as peer:  # the ring: every servo cycle
         r = run_cycle(peer.driver(), AXIS, PROGRAM)
     assert r.ok, r.reason
     assert r.trace.mode == "trace" and r.trace.latched and r.trace.lost_samples == 0
@@ -97,7 +102,7 @@ def test_float32_cdab_holding_profile_reads_both_positions_in_one_pdu(trace_mode
     axis = _axis()
     with SimProfileController(axis, FLOAT_CDAB, PROGRAM) as sim:
         driver = driver_from_url(f"modbus://127.0.0.1:{sim.port}?profile={EXAMPLES / 'plc-gateway-float32-cdab.toml'}",
-                                 timeout_s=1.0)
+                                 timeout_s=TIMEOUT_S)
         assert isinstance(driver, ProfileModbusDriver)
         r = run_cycle(driver, AXIS, PROGRAM)
     _check_same_b(r, trace_mode_b_um, latched=True)
@@ -108,7 +113,7 @@ def test_float32_cdab_holding_profile_reads_both_positions_in_one_pdu(trace_mode
 def test_int32_input_registers_read_separately_carry_their_skew(trace_mode_b_um):
     assert INT32_SEPARATE.mode == "separate"
     with SimProfileController(_axis(), INT32_SEPARATE, PROGRAM) as sim:
-        r = run_cycle(ProfileModbusDriver("127.0.0.1", sim.port, profile=INT32_SEPARATE, timeout_s=1.0), AXIS,
+        r = run_cycle(ProfileModbusDriver("127.0.0.1", sim.port, profile=INT32_SEPARATE, timeout_s=TIMEOUT_S), AXIS,
                       PROGRAM)
     assert r.ok, r.reason
     assert r.trace.skew_uncertainty_um > 0
@@ -147,7 +152,7 @@ def test_rtu_over_a_pty_pair_with_a_profile(trace_mode_b_um, tmp_path):
         with SimProfileController(_axis(), FLOAT_CDAB, PROGRAM, serial=dict(port=plc_end, **line), device_id=7):
             url = (f"modbus+rtu://{mebm_end}?baudrate=115200&parity=N&stopbits=2&device_id=7"
                    f"&profile={EXAMPLES / 'plc-gateway-float32-cdab.toml'}")
-            driver = driver_from_url(url, timeout_s=1.0)
+            driver = driver_from_url(url, timeout_s=TIMEOUT_S)
             assert driver.describe().startswith(f"modbus+rtu://{mebm_end}")
             r = run_cycle(driver, AXIS, PROGRAM)
     _check_same_b(r, trace_mode_b_um, latched=True)
@@ -208,6 +213,6 @@ class _PyModbusTcpPlc:
 
 def test_a_server_from_another_library_serving_a_vendor_profile(trace_mode_b_um):
     with _PyModbusTcpPlc(FLOAT_CDAB, PROGRAM) as plc:
-        r = run_cycle(ProfileModbusDriver("127.0.0.1", plc.port, profile=FLOAT_CDAB, timeout_s=1.0), AXIS, PROGRAM)
+        r = run_cycle(ProfileModbusDriver("127.0.0.1", plc.port, profile=FLOAT_CDAB, timeout_s=TIMEOUT_S), AXIS, PROGRAM)
         assert plc.axis.cycles_started == 1
     _check_same_b(r, trace_mode_b_um, latched=True)

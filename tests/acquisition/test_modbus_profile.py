@@ -184,3 +184,49 @@ def test_bad_modbus_urls_are_refused_naming_the_option(url, words):
     with pytest.raises(InputError) as ei:
         driver_from_url(url)
     assert words in str(ei.value)
+
+
+# -- the driver's two entry points: poll one sample (passive), start the PLC's program (active) ----
+def _plc(profile):
+    from acquisition.sim.axis import SimAxis
+    from acquisition.sim.profile_server import SimProfileController
+    from acquisition.sim.twin import KinematicTwin
+    from tests.acquisition.conftest import PROGRAM
+
+    axis = SimAxis(KinematicTwin(backlash_um=120.0), servo_rate_hz=1000.0, time_scale=10.0)
+    return axis, SimProfileController(axis, profile, PROGRAM)
+
+
+def test_poll_reads_one_sample_with_its_flags():
+    import asyncio
+
+    profile = load_profile(EXAMPLES / "plc-gateway-float32-cdab.toml")
+    axis, sim = _plc(profile)
+    with sim:
+        d = ProfileModbusDriver("127.0.0.1", sim.port, profile=profile, timeout_s=2.0)
+
+        async def two_polls():
+            await d.connect()
+            try:
+                return await d.poll(), await d.poll()
+            finally:
+                await d.close()
+
+        a, b = asyncio.run(two_polls())
+    assert (a.motor_rev, a.table_mm, a.running, a.done) == (0.0, 0.0, False, False)
+    assert a.temperature_c == pytest.approx(axis.twin.temperature_c, abs=0.1) and a.skew_s == 0.0
+    assert b.t_s > a.t_s
+
+
+def test_a_profile_without_start_refuses_an_active_measurement_and_moves_nothing():
+    from acquisition.cycle import run_cycle
+    from tests.acquisition.conftest import AXIS, PROGRAM
+
+    doc = _doc(running={"function": "discrete_input", "address": 0})
+    profile = parse_profile(doc)
+    assert not profile.can_start
+    axis, sim = _plc(profile)
+    with sim:
+        r = run_cycle(ProfileModbusDriver("127.0.0.1", sim.port, profile=profile, timeout_s=2.0), AXIS, PROGRAM)
+    assert not r.ok and "no start value" in r.reason and r.result is None
+    assert axis.cycles_started == 0
