@@ -216,3 +216,43 @@ def test_a_server_from_another_library_serving_a_vendor_profile(trace_mode_b_um)
         r = run_cycle(ProfileModbusDriver("127.0.0.1", plc.port, profile=FLOAT_CDAB, timeout_s=TIMEOUT_S), AXIS, PROGRAM)
         assert plc.axis.cycles_started == 1
     _check_same_b(r, trace_mode_b_um, latched=True)
+
+
+def test_mebm_modbus_1_trace_mode_over_rtu(trace_mode_b_um, tmp_path):
+    """The default profile on a serial line: the simulated controller's registers served by
+    pymodbus' RTU server on one end of the pty pair, the trace ring drained on the other."""
+    import asyncio
+
+    from pymodbus.datastore import ModbusServerContext
+    from pymodbus.framer import FramerType
+    from pymodbus.server import ModbusSerialServer
+
+    from acquisition.sim import modbus_server
+
+    axis = SimAxis(_twin(), servo_rate_hz=SERVO_HZ, time_scale=2.0, ring_records=10906)
+    sim = modbus_server.SimModbusController(axis)
+    with pty_pair(tmp_path) as (plc_end, mebm_end):
+        loop = asyncio.new_event_loop()
+        box = {}
+
+        async def serve():
+            box["server"] = ModbusSerialServer(ModbusServerContext(devices=modbus_server._Context(sim), single=True),
+                                               framer=FramerType.RTU, port=plc_end, baudrate=115200)
+            await box["server"].listen()
+
+        loop.run_until_complete(serve())
+        server = box["server"]
+        thread = threading.Thread(target=loop.run_forever, daemon=True)
+        thread.start()
+        try:
+            r = run_cycle(driver_from_url(f"modbus+rtu://{mebm_end}?baudrate=115200", timeout_s=TIMEOUT_S), AXIS,
+                          PROGRAM)
+        finally:
+            asyncio.run_coroutine_threadsafe(server.shutdown(), loop).result(5)
+            loop.call_soon_threadsafe(loop.stop)
+            thread.join(5)
+            loop.close()
+    assert r.ok, r.reason
+    assert r.trace.mode == "trace" and r.trace.latched and r.trace.lost_samples == 0
+    assert r.controller.startswith("modbus+rtu://")
+    assert abs(r.result.backlash_mean_um - trace_mode_b_um) <= 1.0
