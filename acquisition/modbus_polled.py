@@ -49,7 +49,6 @@ class PolledSample:
 @dataclass
 class _PollCycle:
     t0: float
-    done_before: bool
     seen_running: bool = False
     seen_done_low: bool = False
     last_counter: int = -1
@@ -126,8 +125,8 @@ class ProfileModbusDriver(ModbusDriver):
     async def _start(self, program: RoundTripProgram) -> int | None:
         start = self.profile.get("start")
         s = await self.poll()
-        self.cycle.wire = _PollCycle(t0=time.monotonic(), done_before=bool(s.done))
-        self.cycle.wire.seen_done_low = not s.done
+        # a done flag still set from the last round trip must fall before its rise counts
+        self.cycle.wire = _PollCycle(t0=time.monotonic(), seen_done_low=not s.done)
         await self._write_value(start, start.value, "writing the start value")
         return 0
 
@@ -188,6 +187,6 @@ class ProfileModbusDriver(ModbusDriver):
         trace = await super().acquire_async(program, axis)
         span = float(trace.time_s[-1] - trace.time_s[0]) if len(trace) > 1 else 0.0
         rate = (len(trace) - 1) / span if span > 0 else float("nan")
-        return replace(trace, servo_rate_hz=rate, notes=(*trace.notes, (
-            f"polled at {rate:.0f} samples/s ({'one request' if self.latched else 'separate requests, table interpolated to the motor read time'} per sample, "
-            f"profile {self.profile.name})" if math.isfinite(rate) else "polled")))
+        how = "one request" if self.latched else "separate requests, the table interpolated to the motor's read time"
+        note = f"polled at {rate:.0f} samples/s ({how}; profile {self.profile.name})" if math.isfinite(rate) else "polled"
+        return replace(trace, servo_rate_hz=rate, notes=(*trace.notes, note))
