@@ -24,8 +24,9 @@ class CycleFailed(MebmError):
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("measure", help="measure an axis' backlash and lead criteria on the machine")
     p.add_argument("--controller", required=True, metavar="URL",
-                   help="modbus://HOST:PORT[?mode=trace|latched|separate], sim://HOST:PORT (mebm sim-controller) "
-                        "or canopen://INTERFACE/CHANNEL?node=N[&rate_hz=250]")
+                   help="modbus://HOST:PORT[?mode=trace|latched|separate|profile=P.toml], "
+                        "modbus+rtu:///dev/DEVICE?baudrate=N[&parity=E&profile=P.toml], sim://HOST:PORT "
+                        "(mebm sim-controller) or canopen://INTERFACE/CHANNEL?node=N[&rate_hz=250]")
     p.add_argument("--trigger", choices=("active", "passive"), default=None,
                    help="who starts the round trip: active (mebm commands it) or passive (the CNC runs it, mebm "
                         "records). Default: active for a simulator (sim://, canopen://virtual/...), else passive")

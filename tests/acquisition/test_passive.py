@@ -219,3 +219,50 @@ def test_the_passive_trace_counts_lost_samples_only_in_the_controllers_own_trace
     dc = np.diff(res.trace.counter)
     assert dc.max() > 1  # the polled rest has gaps
     assert res.trace.lost_samples == 0
+
+
+# -- register profiles: a polled PLC the CNC drives ---------------------------------------------
+@pytest.mark.parametrize("running_flag", [True, False], ids=["profile-running-flag", "profile-positions-only"])
+def test_a_profile_controller_gets_passive_mode_from_its_polled_samples(running_flag):
+    """The float32 CDAB gateway profile: polled samples (no trace ring), its [running] flag or
+    the positions alone; mebm writes nothing (the profile's start coil stays untouched)."""
+    import gc
+    import threading
+
+    from acquisition.modbus_profile import load_profile
+    from acquisition.sim.axis import SimAxis
+    from acquisition.sim.profile_server import SimProfileController
+    from acquisition.sim.twin import KinematicTwin
+
+    profile_file = ROOT / "examples" / "modbus-profiles" / "plc-gateway-float32-cdab.toml"
+    profile = load_profile(profile_file)
+    # polled on the host clock: the PLC runs at half speed so a stall of a loaded host leaves
+    # no gap the analysis refuses (as tests/acquisition/test_modbus_paths.py does)
+    slow = RoundTripProgram(-2.0, 22.0, 300.0, acceleration_mm_s2=500.0, dwell_s=0.3)
+    axis = SimAxis(KinematicTwin(backlash_um=120.0, position_gain_per_s=30.0), servo_rate_hz=1000.0, time_scale=0.5)
+    gc.collect()
+    gc.freeze()
+    try:
+        with SimProfileController(axis, profile, slow) as sim:
+            writes = []
+            inner = sim.write
+
+            def write(func_code, address, values):
+                writes.append((func_code, address))
+                return inner(func_code, address, values)
+
+            sim.write = write
+            url = f"modbus://127.0.0.1:{sim.port}?profile={profile_file}&start_timeout_s=60"
+            if not running_flag:
+                url += "&running_flag=0"
+            driver = driver_from_url(url, timeout_s=2.0)
+            assert driver.trigger == "passive" and driver.running_flag is running_flag
+            threading.Timer(1.0, axis.start, args=(slow,)).start()  # the CNC starts the PLC's program
+            res = run_cycle(driver, AXIS, slow, useful_travel_mm=USEFUL)
+    finally:
+        gc.unfreeze()
+    assert res.ok, res.reason
+    assert res.trace.trigger == "passive" and res.trace.mode == "latched"
+    assert ("flag" if running_flag else "positions") in res.trace.notes[0]
+    assert res.result.backlash_mean_um == pytest.approx(120.0, abs=1.0)
+    assert writes == [] and axis.cycles_started == 1
