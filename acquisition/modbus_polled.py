@@ -27,6 +27,8 @@ from acquisition.modbus_profile import RegisterProfile, ValueSpec
 from acquisition.types import AcquiredTrace, AxisState, ControllerStatus, RoundTripProgram, SampleBlock
 
 COUNTER_HZ = 1e6  # the counter of polled samples: microseconds of the host clock since the start
+#: Passive mode: a repeated reading counts as a new sample after this long (the axis rests).
+REST_TICK_S = 0.02
 
 
 @dataclass(frozen=True)
@@ -54,6 +56,9 @@ class _PollCycle:
     last_counter: int = -1
     last_raw: tuple[float, float] | None = None  # (motor, table) as last read
     prev_table: tuple[float, float] | None = None  # (host time, table mm) of the previous table read
+    # passive mode: the flag of the last poll, and when a sample was last delivered as new
+    last_running: bool | None = None
+    last_new_t: float = float("-inf")
 
 
 class ProfileModbusDriver(ModbusDriver):
@@ -150,7 +155,17 @@ class ProfileModbusDriver(ModbusDriver):
         if cur is None:
             cur = self.cycle.wire = _PollCycle(t0=time.monotonic())
         s = await self.poll()
+        if (s.motor_rev, s.table_mm) == cur.last_raw and (
+                (s.running is not None and s.running != cur.last_running) or s.t_s - cur.last_new_t > REST_TICK_S):
+            # the same values again, but the flag changed, or the axis rests (a perfect encoder at
+            # standstill repeats itself): a new sample, so the detector sees the flag fall and
+            # the rest last, instead of a stream that stopped
+            cur.last_raw = None
+        before = cur.last_counter
         block = self._sample(cur, s, finished=False)
+        if cur.last_counter != before:
+            cur.last_new_t = s.t_s
+        cur.last_running = s.running
         return block if s.running is None else replace(block, running=np.array([bool(s.running)]))
 
     async def _drain(self) -> SampleBlock:
