@@ -31,6 +31,7 @@ from canopen.sdo import SdoAbortedError
 from acquisition import canopen_od as co
 from acquisition.scale import EncoderScale
 from acquisition.sim.axis import SimAxis
+from acquisition.sim import wear as sim_wear
 from acquisition.sim.twin import Twin
 from acquisition.types import AxisState, Command, RoundTripProgram
 from core.errors import InputError
@@ -67,6 +68,7 @@ class SimCanopenDrive:
         self.axis.on_fault = self._on_axis_fault
         self.od = co.object_dictionary(self.node_id, counts_per_rev=self.scale.counts_per_rev,
                                        table_nm_per_count=int(round(self.scale.table_nm_per_count)))
+        sim_wear.add_canopen_objects(self.od)  # the simulator's wear and repair objects
         self.node = canopen.LocalNode(self.node_id, self.od)
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
@@ -249,6 +251,9 @@ class SimCanopenDrive:
 
     def _on_read(self, index, subindex, od):
         ax = self.axis
+        wear = sim_wear.canopen_read(ax.twin, index)
+        if wear is not None:
+            return wear
         if index == co.POSITION_ACTUAL:
             return int(self.scale.motor_counts(ax.position_at()[0]))
         if index == co.ADDITIONAL_POSITION and subindex == 1:
@@ -270,6 +275,9 @@ class SimCanopenDrive:
                                 acceleration_mm_s2=float(v[3]), dwell_s=v[4] / 1000.0)
 
     def _on_write(self, index, subindex, od, data):
+        repaired = sim_wear.canopen_repair_write(self.axis.twin, index, data)  # the simulator's repair
+        if repaired is False:
+            raise SdoAbortedError(ABORT_VALUE_RANGE)
         if index == co.COMM_CYCLE_PERIOD:
             us = struct.unpack("<L", bytes(data))[0]
             if us == 0:

@@ -46,6 +46,20 @@ class SimulatorSettings:
     temperature_amplitude_c: float = 6.0
     temperature_period_s: float = 900.0
     cyclic_error_um: float = 4.0
+    # wear (issue 20): b̄ grows by wear_um_per_day per utility day, the simulated clock
+    # making utility_days_per_s of them each second; a recorded repair restores it
+    wear_um_per_day: float = 0.0
+    utility_days_per_s: float = 1.0 / 86400.0
+
+
+@dataclass(frozen=True)
+class MaintenanceSettings:
+    """``[maintenance]``: work orders, the verification of repairs, the managers' summary."""
+
+    enabled: bool = True
+    horizon_days: float = 30.0  # WARNING opens a condition-based order when the prognosis dates the limit within this
+    verify_at: str = "now"  # when a repair's verification cycle runs: "now", or "HH:MM" (UTC, the next such time)
+    fixed_interval_days: float = 90.0  # the fixed maintenance plan the summary compares against
 
 
 @dataclass(frozen=True)
@@ -147,6 +161,7 @@ class Settings:
     webhooks: WebhookSettings = field(default_factory=WebhookSettings)
     opcua: OpcuaSettings = field(default_factory=OpcuaSettings)
     mtconnect: MtconnectSettings = field(default_factory=MtconnectSettings)
+    maintenance: MaintenanceSettings = field(default_factory=MaintenanceSettings)
 
     @property
     def db_url(self) -> str:
@@ -181,7 +196,7 @@ def default_settings() -> Settings:
 
 # -- parsing -----------------------------------------------------------------------------------
 _TOP = {"server", "storage", "auth", "scheduler", "simulator", "machines", "logging", "limits", "retention", "mqtt",
-        "webhooks", "opcua", "mtconnect"}
+        "webhooks", "opcua", "mtconnect", "maintenance"}
 
 
 def _get(table: Mapping, key: str, kind, where: str, default=None):
@@ -295,7 +310,9 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
     if not 0 <= port <= 65535:
         raise ConfigError(f"server.port (={port}) must be 0..65535 (0: a free port)")
     simulator = replace(base.simulator, **{k: _get(sim, k, float, "simulator") for k in sim})
-    for k in ("time_scale", "servo_rate_hz", "temperature_period_s"):
+    if simulator.wear_um_per_day < 0:
+        raise ConfigError(f"simulator.wear_um_per_day (={simulator.wear_um_per_day}) must be >= 0")
+    for k in ("time_scale", "servo_rate_hz", "temperature_period_s", "utility_days_per_s"):
         if not getattr(simulator, k) > 0:
             raise ConfigError(f"simulator.{k} (={getattr(simulator, k)}) must be > 0")
     machines, axes = base.machines, base.axes
@@ -332,7 +349,32 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
         mqtt=_mqtt(doc.get("mqtt"), base.mqtt), webhooks=_webhooks(doc.get("webhooks"), base.webhooks),
         opcua=_opcua(doc.get("opcua"), base.opcua),
         mtconnect=_mtconnect(doc.get("mtconnect"), base.mtconnect),
+        maintenance=_maintenance(doc.get("maintenance"), base.maintenance),
     )
+
+
+def _maintenance(table: Mapping | None, base: MaintenanceSettings) -> MaintenanceSettings:
+    if table is None:
+        return base
+    _unknown(table, {"enabled", "horizon_days", "verify_at", "fixed_interval_days"}, "maintenance")
+    out = MaintenanceSettings(
+        enabled=_get(table, "enabled", bool, "maintenance", base.enabled),
+        horizon_days=_get(table, "horizon_days", float, "maintenance", base.horizon_days),
+        verify_at=_get(table, "verify_at", str, "maintenance", base.verify_at),
+        fixed_interval_days=_get(table, "fixed_interval_days", float, "maintenance", base.fixed_interval_days))
+    check_maintenance(out)
+    return out
+
+
+def check_maintenance(m: MaintenanceSettings) -> None:
+    if not m.horizon_days >= 0:
+        raise ConfigError(f"maintenance.horizon_days (={m.horizon_days}) must be >= 0")
+    if not m.fixed_interval_days > 0:
+        raise ConfigError(f"maintenance.fixed_interval_days (={m.fixed_interval_days}) must be > 0")
+    if m.verify_at != "now":
+        hh, sep, mm = m.verify_at.partition(":")
+        if not (sep and hh.isdigit() and mm.isdigit() and int(hh) < 24 and int(mm) < 60):
+            raise ConfigError(f"maintenance.verify_at (={m.verify_at!r}) must be \"now\" or \"HH:MM\" (UTC)")
 
 
 def _mqtt(table: Mapping | None, base: MqttSettings) -> MqttSettings:

@@ -1,7 +1,7 @@
 """The service's one internal event source, fanned out to every interface (issue 17).
 
 The cycle executor calls the service when a cycle is saved; the service turns that into
-:class:`Event` objects (``measurement_stored``, ``cycle_failed``, ``alert_changed``) and
+:class:`Event` objects (``measurement_stored``, ``cycle_failed``, ``alert_changed``, ``work_order_changed``) and
 :meth:`EventHub.publish` hands each to every subscriber's own bounded queue, without
 waiting: a slow or dead consumer never delays a cycle or another consumer. Each
 subscriber runs its handler on its own thread; a full queue drops its oldest event and
@@ -18,11 +18,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import datetime
 
-from storage.db import AlertRecord, CycleRecord, utcnow
+from storage.db import AlertRecord, CycleRecord, WorkOrderRecord, utcnow
 
 log = logging.getLogger("mebm.events")
 
-KINDS = ("measurement_stored", "cycle_failed", "alert_changed", "axis_changed")  # axis_changed: created or reconfigured
+# axis_changed: created or reconfigured; work_order_changed: a maintenance order opened or moved (issue 20)
+KINDS = ("measurement_stored", "cycle_failed", "alert_changed", "axis_changed", "work_order_changed")
 
 
 @dataclass(frozen=True)
@@ -34,6 +35,7 @@ class Event:
     at: datetime
     cycle: CycleRecord | None = None
     alert: AlertRecord | None = None
+    order: WorkOrderRecord | None = None  # work_order_changed: the order after the step (transitions[-1] is it)
 
 
 class Subscription:
