@@ -136,3 +136,18 @@ def events_of_saved_cycle(axis_id: int, machine: str, axis: str, cycle: CycleRec
         out.append(Event("cycle_failed", axis_id, machine, axis, now, cycle=cycle))
     out += [Event("alert_changed", axis_id, machine, axis, now, cycle=cycle, alert=a) for a in alerts]
     return out
+
+
+def order_document(ev: Event) -> dict:
+    """A work-order step (issue 20) as the MQTT and webhook outputs carry it."""
+    o = ev.order
+    last = o.transitions[-1] if o.transitions else None
+    return {
+        "machine": ev.machine, "axis": ev.axis, "axis_id": ev.axis_id, "order_id": o.id, "kind": o.kind,
+        "state": o.state, "from": last.from_state if last else None, "at": last.at.isoformat() if last else None,
+        "by": last.by if last else None, "note": last.note if last else "", "binding_task": o.binding_task,
+        "tolerance_um": o.tolerance_um, "backlash_um": o.backlash_um, "tbe_um": o.tbe_um,
+        "restore_below_um": o.restore_below_um, "due_at": o.due_at.isoformat() if o.due_at else None,
+        "recommendation": o.recommendation,
+        "verification": {k: o.verification.get(k) for k in ("passed", "against", "message")} if o.verification else None,
+    }  # fmt: skip
