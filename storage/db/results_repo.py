@@ -411,14 +411,18 @@ def backlash_history(s: Session, axis_id: int) -> MomentSums:
 
 
 def recent_at_temperature(s: Session, axis_id: int, temperature_c: float, *, window_k: float = 1.0,
-                          limit: int = 20, before: datetime | None = None) -> tuple[np.ndarray, np.ndarray]:
+                          limit: int = 20, before: datetime | None = None,
+                          since: datetime | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(temperature_c, backlash_mean_um) of the newest ``limit`` ok measurements within
-    ±``window_k`` of ``temperature_c`` (and before ``before``): for the repeatability."""
+    ±``window_k`` of ``temperature_c`` (and before ``before``, after ``since``: the last
+    repair, which changed b̄): for the repeatability."""
     q = (select(Result.temperature_c, Result.backlash_mean_um)
          .where(Result.axis_id == axis_id, Result.temperature_c.between(temperature_c - window_k,
                                                                          temperature_c + window_k)))
     if before is not None:
         q = q.where(Result.measured_at < before)
+    if since is not None:
+        q = q.where(Result.measured_at > since)
     rows = s.execute(q.order_by(Result.measured_at.desc(), Result.id.desc()).limit(limit)).all()
     return (np.array([r[0] for r in rows], dtype=float), np.array([r[1] for r in rows], dtype=float))
 
