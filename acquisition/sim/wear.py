@@ -62,12 +62,15 @@ class Wear:
 
 
 class WearingTwin:
-    """A :class:`~acquisition.sim.twin.CoreSimTwin` whose backlash grows with :class:`Wear`."""
+    """A twin whose backlash grows with :class:`Wear`: a
+    :class:`~acquisition.sim.twin.CoreSimTwin` (its model's ``backlash_um``) or a
+    :class:`~acquisition.sim.twin.KinematicTwin` (its ``backlash_mm``)."""
 
     def __init__(self, twin, wear: Wear):
         self.twin = twin
         self.wear = wear
-        self.base_backlash_um = float(twin.model.backlash_um)
+        model = getattr(twin, "model", None)
+        self.base_backlash_um = float(model.backlash_um if model is not None else twin.backlash_mm * 1000.0)
 
     @property
     def temperature_c(self) -> float:
@@ -81,7 +84,10 @@ class WearingTwin:
         return self.base_backlash_um + self.wear.extra_um()
 
     def round_trip(self, program, rate_hz: float):
-        self.twin.model = replace(self.twin.model, backlash_um=self.backlash_um())
+        if getattr(self.twin, "model", None) is not None:
+            self.twin.model = replace(self.twin.model, backlash_um=self.backlash_um())
+        else:
+            self.twin.backlash_mm = self.backlash_um() / 1000.0
         return self.twin.round_trip(program, rate_hz)
 
     def warm_up(self) -> None:
