@@ -193,8 +193,18 @@ def _thin(values, *others, max_points: int = SCREEN_POINTS):
     return tuple([seq[i] for i in idx] for seq in (values, *others))
 
 
-def tbe_history(series: dict[str, tuple[list[datetime], list[float], list[float]]], *, title: str) -> bytes:
-    """Fig. 15: the estimated TBE of each task over time against its threshold."""
+def mark_repairs(ax, repairs: Sequence[tuple[datetime, str]]) -> None:
+    """Each repair (issue 20) as a vertical line labelled with its kind: the history on
+    either side belongs to a different chain."""
+    for i, (when, kind) in enumerate(repairs):
+        ax.axvline(when, color="#2ca02c", ls=":", lw=1.6, label="repair" if i == 0 else None)
+        ax.annotate(kind.replace("_", " "), xy=(when, 1.0), xycoords=("data", "axes fraction"), xytext=(3, -3),
+                    textcoords="offset points", rotation=90, va="top", ha="left", fontsize=7, color="#2ca02c")
+
+
+def tbe_history(series: dict[str, tuple[list[datetime], list[float], list[float]]], *, title: str,
+                repairs: Sequence[tuple[datetime, str]] = ()) -> bytes:
+    """Fig. 15: the estimated TBE of each task over time against its threshold (repairs marked)."""
     thinned = {}
     for name, (t, tbe, tol) in series.items():
         tbe_d, t_d, tol_d = _thin(tbe, t, tol)
@@ -210,6 +220,7 @@ def tbe_history(series: dict[str, tuple[list[datetime], list[float], list[float]
         ax.plot([x for x, o in zip(t, over) if o], tbe_a[over], "o", color="#d62728", ms=6, mec="black",
                 label=f"above tolerance ({int(over.sum())})" if over.any() else None)
         ax.step(t, tol_a, where="post", color=c, ls="-.", lw=1.4, label=f"threshold {name} ({tol_a[-1]:g} µm)")
+    mark_repairs(ax, repairs)
     ax.set_xlabel("measured at (UTC)")
     ax.set_ylabel("estimated TBE ε_b (µm)")
     ax.set_title(f"TBE caused by the backlash — {title}")
@@ -233,13 +244,14 @@ def with_temperature_axis(ax, t, temperature_c, fmt: str, **style) -> tuple[list
 
 
 def backlash_trend(t: list[datetime], backlash_um: list[float], temperature_c: list[float | None], *,
-                   limit_um: float | None, title: str) -> bytes:
-    """Fig. 10: mean backlash b̄ and ambient temperature over time."""
+                   limit_um: float | None, title: str, repairs: Sequence[tuple[datetime, str]] = ()) -> bytes:
+    """Fig. 10: mean backlash b̄ and ambient temperature over time, repairs marked."""
     backlash_um, t, temperature_c = _thin(backlash_um, t, temperature_c)
     fig, (ax,) = _figure(10, 5)
     ax.plot(t, backlash_um, "o-", color="black", ms=4, lw=1.2, label="mean backlash b̄")
     if limit_um is not None:
         ax.axhline(limit_um, color="#d62728", ls="-.", lw=1.4, label=f"backlash limit {limit_um:.1f} µm")
+    mark_repairs(ax, repairs)
     ax.set_xlabel("measured at (UTC)")
     ax.set_ylabel("mean backlash width b̄ (µm)")
     lines, labels = with_temperature_axis(ax, t, temperature_c, "s--", ms=3, lw=1.0)

@@ -166,3 +166,21 @@ def test_cli_records_a_repair_and_shows_the_order_verified(server, capsys, tmp_p
     (tmp_path / "demo-keys.json").write_text(json.dumps({"operate": keys["operate"]}))
     assert main(["maintenance", "show", str(o["id"]), "--url", url, "--data-dir", str(tmp_path)]) == 0
     assert "new nut, preload class P2" in capsys.readouterr().out
+
+
+def test_history_plots_mark_the_repairs(app_env, runner):
+    from api.service import plots
+
+    client, svc, keys, axis_id = app_env
+    for b in (150.0, 160.0):
+        _measure(svc, runner, axis_id, b)
+    before = client.get(f"{V1}/axes/{axis_id}/plots/backlash_trend.png", headers=hdr(keys["read"])).content
+    r = client.post(f"{V1}/axes/{axis_id}/repairs", json={"kind": "screw_replaced"}, headers=hdr(keys["operate"]))
+    assert r.status_code == 201 and r.json()["order"] is None  # no order: recorded, nothing to verify
+    after = client.get(f"{V1}/axes/{axis_id}/plots/backlash_trend.png", headers=hdr(keys["read"])).content
+    assert after[:8] == b"\x89PNG\r\n\x1a\n" and after != before
+    t = [datetime(2026, 1, d, tzinfo=timezone.utc) for d in (1, 2, 3)]
+    plain = plots.tbe_history({"c": (t, [30.0, 40.0, 20.0], [45.0] * 3)}, title="x")
+    marked = plots.tbe_history({"c": (t, [30.0, 40.0, 20.0], [45.0] * 3)}, title="x",
+                               repairs=[(datetime(2026, 1, 2, 12, tzinfo=timezone.utc), "nut_replaced")])
+    assert plain != marked
