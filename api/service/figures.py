@@ -15,7 +15,7 @@ from api.service import plots
 from api.service.plot_prognosis import prognosis as prognosis_plot
 from core.prognosis import forecast_band
 from core.errors import MebmError
-from storage.db import NotFoundError, config_repo, results_repo
+from storage.db import NotFoundError, config_repo, maintenance_repo, results_repo
 
 NAMES = (*plots.NAMES, "prognosis")
 
