@@ -4,9 +4,12 @@ A simulated Modbus TCP controller (``acquisition.sim``) on a free loopback port,
 whose axis is the project's digital twin (``core.sim``): the paper's Y axis with a
 cyclic lead error at the screw lead, a lead that grows with temperature, encoder
 resolution and noise, and a backlash that follows a simulated shop temperature:
-b(T) = b_20 + beta (T - 20 °C), T swinging sinusoidally. With the defaults b̄
-crosses the paper's 236 µm limit a couple of minutes after start (an alert) and
-falls back below it some minutes later (the alert clears).
+b(T) = b_20 + beta (T - 20 °C), T swinging sinusoidally, plus the wear of the chain
+(``simulator.wear_um_per_day`` per utility day, acquisition.sim.wear). With `make run`'s
+settings (config.DEMO_SIMULATOR) b̄ starts OK, is WARNING after about a minute and
+crosses the paper's 236 µm limit after about three (an alert and a corrective work
+order); a repair recorded on the axis (``mebm maintenance repair``) is simulated through
+the controller's repair register and the verification measurement proves it.
 """
 
 from __future__ import annotations
