@@ -36,6 +36,7 @@ from storage.db import (
     WorkOrderRecord,
     config_repo,
     maintenance_repo,
+    results_repo,
     session_scope,
     utcnow,
 )
@@ -215,16 +216,25 @@ class MaintenanceLoop:
             return maintenance_repo.get_order(s, order_id)
 
     def resume(self) -> None:
-        """At start-up: queue the verification of each repaired order whose verification
-        cycle is not there (cancelled by a stop, or never queued)."""
+        """At start-up: conclude each repaired order whose verification measurement was
+        stored but not judged (a stop in between), and queue the verification of those
+        whose measurement is not there (cancelled by a stop, or never queued)."""
         try:
             with session_scope(self.service.factory) as s:
                 _, orders = maintenance_repo.list_orders(s, "repaired", limit=10_000)
                 waiting = [o for o in orders if o.verification_measurement_id is None
                            or not maintenance_repo.cycle_pending_or_ok(s, o.verification_measurement_id)]
+                measured = [(o, results_repo.get_measurement(s, o.verification_measurement_id, curves=False)[0])
+                            for o in orders if o not in waiting
+                            and maintenance_repo.result_id_of(s, o.verification_measurement_id) is not None]
         except StorageError as exc:
             log.warning("repaired orders not resumed: %s", exc)
             return
+        for o, cycle in measured:
+            try:
+                self._verify(o.axis_id, cycle)
+            except (MebmError, StorageError) as exc:
+                log.error("work order %s: verification not concluded: %s", o.id, exc)
         for o in waiting:
             by = o.transitions[-1].by if o.transitions else maintenance_repo.SERVICE
             try:

@@ -101,3 +101,41 @@ def test_verify_at_a_configured_time():
     assert next_verify_time("22:00", now) == datetime(2026, 5, 4, 22, 0, tzinfo=timezone.utc)
     assert next_verify_time("06:15", now) == datetime(2026, 5, 5, 6, 15, tzinfo=timezone.utc)
     assert next_verify_time("10:30", now) == now + timedelta(days=1)
+
+
+def test_maintenance_and_wear_settings_are_read_and_checked():
+    from api.service.config import DEMO_SIMULATOR, ConfigError, default_settings, parse_settings
+
+    s = parse_settings({"maintenance": {"horizon_days": 14, "verify_at": "06:00", "fixed_interval_days": 60},
+                        "simulator": {"wear_um_per_day": 2.5, "utility_days_per_s": 0.5}})
+    assert (s.maintenance.horizon_days, s.maintenance.verify_at, s.maintenance.fixed_interval_days) == (14, "06:00", 60)
+    assert (s.simulator.wear_um_per_day, s.simulator.utility_days_per_s) == (2.5, 0.5)
+    for bad, what in (({"maintenance": {"verify_at": "25:00"}}, "verify_at"),
+                      ({"maintenance": {"fixed_interval_days": 0}}, "fixed_interval_days"),
+                      ({"maintenance": {"horizon_days": -1}}, "horizon_days"),
+                      ({"maintenance": {"horizon": 3}}, "horizon"),
+                      ({"simulator": {"wear_um_per_day": -1}}, "wear_um_per_day"),
+                      ({"simulator": {"utility_days_per_s": 0}}, "utility_days_per_s")):
+        with pytest.raises(ConfigError, match=what):
+            parse_settings(bad)
+    # make run's demo wears; a file with machines of its own starts from the plain simulator
+    assert default_settings().simulator == DEMO_SIMULATOR and DEMO_SIMULATOR.wear_um_per_day > 0
+    own = parse_settings({"machines": [{"name": "m"}], "simulator": {"time_scale": 5}}, base=default_settings())
+    assert own.simulator.wear_um_per_day == 0.0 and own.simulator.backlash_um_at_20c == 226.0
+
+
+def test_a_restart_concludes_a_stored_but_unjudged_verification(env):
+    factory, axis_id = env
+    loop = _loop(factory, None)
+    cycle, alerts = _store(factory, axis_id, 260.0)
+    loop.after_cycle(axis_id, cycle, alerts)
+    with session_scope(factory) as s:
+        repair, order = maintenance_repo.record_repair(s, axis_id, "nut_replaced", by="bob")
+    verification, _ = _store(factory, axis_id, 150.0)  # stored; then the service stopped before judging it
+    with session_scope(factory) as s:
+        maintenance_repo.set_verification_cycle(s, order.id, verification.id)
+    loop.resume()
+    with session_scope(factory) as s:
+        o = maintenance_repo.get_order(s, order.id)
+    assert o.state == "verified" and o.verification["after"]["measurement_id"] == verification.id
+    assert o.verification["before"]["measurement_id"] == cycle.id
