@@ -100,6 +100,13 @@ def _with_wear(twin, a: argparse.Namespace):
     return WearingTwin(twin, Wear(a.wear_um_per_day, a.utility_days_per_s))
 
 
+def _wear_note(a: argparse.Namespace) -> str:
+    if not a.wear_um_per_day:
+        return ""
+    return (f", wearing {a.wear_um_per_day:g} µm per utility day, {a.utility_days_per_s * 86400:g} utility days "
+            f"per day; `mebm sim-controller repair` restores it")
+
+
 def repair(a: argparse.Namespace) -> int:
     """Write the simulator's repair register (acquisition.sim.wear) and print the wear it read before."""
     from urllib.parse import urlsplit
@@ -155,7 +162,7 @@ async def _serve_modbus(a, twin, scale, faults) -> int:
     except OSError as exc:
         raise InputError(f"cannot listen on {a.host}:{a.port}: {exc.strerror or exc}") from exc
     print(f"simulated controller listening on modbus://{a.host}:{port} "
-          f"(axis {a.axis}, b = {a.backlash_um:g} µm, time scale {a.time_scale:g})", flush=True)
+          f"(axis {a.axis}, b = {a.backlash_um:g} µm, time scale {a.time_scale:g}{_wear_note(a)})", flush=True)
     try:
         if a.duration_s is not None:
             await asyncio.sleep(a.duration_s)
@@ -184,7 +191,7 @@ def _serve_canopen(a, twin, scale, faults) -> int:
     except Exception as exc:  # noqa: BLE001 - python-can raises many kinds on a bad interface
         raise InputError(f"cannot open CAN interface {a.interface!r} channel {a.channel!r}: {exc}") from exc
     print(f"simulated drive on canopen://{a.interface}/{a.channel}?node={a.node} "
-          f"(axis {a.axis}, b = {a.backlash_um:g} µm)", flush=True)
+          f"(axis {a.axis}, b = {a.backlash_um:g} µm{_wear_note(a)})", flush=True)
     try:
         deadline = time.monotonic() + (a.duration_s if a.duration_s is not None else float("inf"))
         while time.monotonic() < deadline:

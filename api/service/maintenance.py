@@ -84,6 +84,8 @@ class MaintenanceLoop:
             log.error("axis %s: maintenance step after measurement %s failed: %s", axis_id, cycle.id, exc)
 
     def _maybe_open(self, axis_id: int, cycle: CycleRecord, alerts: list[AlertRecord]) -> None:
+        if cycle.state not in ("WARNING", "ALARM"):
+            return  # judged OK when stored (or not judged): nothing to open, no status to compute
         st = self.service.status.get(axis_id)
         d = st.decision
         if d is None or st.latest is None or st.latest.cycle_id != cycle.id:
