@@ -229,7 +229,8 @@ def axis_plot(request: Request, axis_id: int, name: str, who: Who, range: str = 
     png = ui_state(request).figures.get(key)
     if png is None:
         with session_scope(svc.factory) as s:
-            png = figures.render(s, axis_id, name, direction=direction, since=views.since_of(range, now), status=st)
+            png = figures.render(s, axis_id, name, direction=direction, since=views.since_of(range, now), status=st,
+                                 draw=svc.plots.draw)
         ui_state(request).figures.put(key, png)
     return Response(png, media_type="image/png", headers={"Cache-Control": "no-cache"})
 
