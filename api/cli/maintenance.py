@@ -27,7 +27,7 @@ class ServiceError(InputError):
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("maintenance", help="work orders, repairs and the maintenance summary (REST client)")
+    p = sub.add_parser("maintenance", help="work orders, repairs and the maintenance summary of a running service")
     ms = p.add_subparsers(dest="maintenance_command", metavar="ACTION")
     ms.required = True
 
