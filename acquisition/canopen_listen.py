@@ -27,6 +27,7 @@ import can
 import numpy as np
 
 from acquisition.canopen_mapping import ListenMapping
+from acquisition.driver import ControllerDriver
 from acquisition.errors import ControllerConnectionError, ControllerTimeoutError, DriverMisuseError
 from acquisition.sync_matcher import SYNC_COUNTER_MAX, SyncMatcher
 from acquisition.types import SampleBlock
@@ -259,5 +260,90 @@ class CanopenListenWire:
                            time_s=k / float(self.sync_rate_hz))
 
 
-async def _to_thread(fn, *args):  # pragma: no cover - thin
-    return await asyncio.to_thread(fn, *args)
+class CanopenListenDriver(ControllerDriver):
+    """Listen-only CANopen: samples the master's SYNC-latched TPDOs; starts, stops and asks nothing.
+
+    The round trip is the CNC's: it is cut from the stream passively. Status, start,
+    abort and acknowledge do not exist here (they would need a frame on the bus).
+    """
+
+    protocol = "canopen"
+    mode = "listen-only"
+    REORDER_HORIZON = 32
+
+    def __init__(self, channel: str, node_id: int, *, mapping: ListenMapping, interface: str = "socketcan",
+                 sync_rate_hz: float | None = None, time_scale: float = 1.0, window_s: float | None = None,
+                 bus_kwargs: dict | None = None, bus_factory: Callable[[], can.BusABC] | None = None, **kwargs):
+        super().__init__(**kwargs)
+        if not 1 <= int(node_id) <= 127:
+            raise InputError(f"node (={node_id}) must be a CANopen node id 1..127")
+        self.node_id = int(node_id)
+        self.wire = CanopenListenWire(channel, mapping, interface=interface, sync_rate_hz=sync_rate_hz,
+                                      time_scale=time_scale, window_s=window_s, bus_kwargs=bus_kwargs,
+                                      bus_factory=bus_factory)
+        self._order = None
+        self.sends_refused = 0
+
+    def describe(self) -> str:
+        w = self.wire
+        return f"canopen://{w.interface}/{w.channel}?node={self.node_id}&mode=listen-only"
+
+    @property
+    def listen_stats(self) -> dict[str, int]:
+        """SYNCs and TPDOs heard, paired, missed, late (of the link under way, else the last)."""
+        li = self.wire.listener
+        return li.stats() if li is not None and self.wire.bus is not None else dict(self.wire.last_stats)
+
+    def _connect_blocking(self) -> None:
+        self.wire.open()
+        self.wire.wait_for_traffic(self.timeout_s)
+        self.servo_rate_hz = float(self.wire.sync_rate_hz)
+
+    def _close_blocking(self) -> None:
+        if self.wire.bus is not None:
+            self.sends_refused += self.wire.bus.sends_refused
+        self.wire.close()
+
+    async def _connect(self) -> None:
+        await asyncio.to_thread(self._close_blocking)
+        try:
+            await asyncio.to_thread(self._connect_blocking)
+        except BaseException:
+            await asyncio.to_thread(self._close_blocking)
+            raise
+
+    async def _close(self) -> None:
+        await asyncio.to_thread(self._close_blocking)
+
+    def _refuse(self, what: str):
+        raise DriverMisuseError(f"{self.describe()} is listen-only: mebm cannot {what} (it sends no frame); the CNC "
+                                "starts the round trip and mebm records it passively")
+
+    async def _read_status(self):
+        self._refuse("read the axis state")
+
+    async def _start(self, program):
+        self._refuse("start a round trip")
+
+    async def _abort(self) -> None:
+        return None  # nothing to stop: mebm never started anything
+
+    async def _acknowledge(self) -> None:
+        self._refuse("acknowledge a fault")
+
+    def _take(self, finished: bool = False) -> SampleBlock:
+        from acquisition.canopen import _SyncOrder
+
+        frames = self.wire.take()
+        if self._order is None:
+            if not frames:
+                return SampleBlock.empty(finished)
+            self._order = _SyncOrder(min(f[0] for f in frames), self.REORDER_HORIZON)
+        for f in frames:
+            self._order.take(*f)
+        return self.wire.samples(self._order.release(finished), finished)
+
+    async def _drain(self) -> SampleBlock:
+        if self.wire.bus is None:
+            raise ControllerConnectionError(f"not connected to {self.describe()}")
+        return self._take()

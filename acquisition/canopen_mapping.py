@@ -25,7 +25,6 @@ _INT_TYPES = {  # CiA 301 data type -> (struct code, bytes)
     0x15: ("q", 8), 0x1B: ("Q", 8),
 }
 _FMT_BY_TYPE_NAME = {"i16": "h", "i32": "l", "u16": "H", "u32": "L", "i64": "q"}
-_FIELD = "axis.canopen"
 
 
 @dataclass(frozen=True)
@@ -42,7 +41,10 @@ class PdoField:
 
 @dataclass(frozen=True)
 class ListenMapping:
-    """What a listen-only mebm needs to know about the bus (see the module docstring)."""
+    """What a listen-only mebm needs to know about the bus (see the module docstring).
+
+    Errors name the field as the configuration does (``tpdo_cob_id (=...) ...``); the
+    caller puts where it came from in front."""
 
     tpdo_cob_id: int
     motor: PdoField
@@ -55,28 +57,28 @@ class ListenMapping:
     source: str = "configuration"
 
     def __post_init__(self) -> None:
-        check_cob_id(f"{_FIELD}.tpdo_cob_id", self.tpdo_cob_id)
-        check_cob_id(f"{_FIELD}.sync_cob_id", self.sync_cob_id)
+        check_cob_id(f"tpdo_cob_id", self.tpdo_cob_id)
+        check_cob_id(f"sync_cob_id", self.sync_cob_id)
         if self.tpdo_cob_id == self.sync_cob_id:
-            raise InputError(f"{_FIELD}.tpdo_cob_id and sync_cob_id (=0x{self.sync_cob_id:X}) must differ")
+            raise InputError(f"tpdo_cob_id and sync_cob_id (=0x{self.sync_cob_id:X}) must differ")
         for name, f in (("motor", self.motor), ("table", self.table)):
             if f.fmt not in "bhlqBHLQ" or len(f.fmt) != 1:
-                raise InputError(f"{_FIELD}.{name}_type: unknown PDO data type {f.fmt!r}")
+                raise InputError(f"{name}_type: unknown PDO data type {f.fmt!r}")
             if not 0 <= f.offset_bytes <= 8 - f.size_bytes:
-                raise InputError(f"{_FIELD}.{name}_offset_bytes (={f.offset_bytes}) must leave its "
+                raise InputError(f"{name}_offset_bytes (={f.offset_bytes}) must leave its "
                                  f"{f.size_bytes} bytes inside the 8-byte PDO")
         a, b = self.motor, self.table
         if a.offset_bytes < b.offset_bytes + b.size_bytes and b.offset_bytes < a.offset_bytes + a.size_bytes:
-            raise InputError(f"{_FIELD}.motor_offset_bytes (={a.offset_bytes}) and table_offset_bytes "
+            raise InputError(f"motor_offset_bytes (={a.offset_bytes}) and table_offset_bytes "
                              f"(={b.offset_bytes}) overlap")
         for name in ("counts_per_rev", "table_nm_per_count"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise InputError(f"{_FIELD}.{name} (={v!r}) must be > 0")
+                raise InputError(f"{name} (={v!r}) must be > 0")
         for name in ("sync_period_s", "window_s"):
             v = getattr(self, name)
             if v is not None and not (math.isfinite(v) and v > 0):
-                raise InputError(f"{_FIELD}.{name} (={v!r}) must be > 0")
+                raise InputError(f"{name} (={v!r}) must be > 0")
 
     @property
     def min_length(self) -> int:
@@ -90,7 +92,8 @@ class ListenMapping:
 
 def check_cob_id(field: str, cob_id: int) -> None:
     if not isinstance(cob_id, int) or not 0x001 <= cob_id <= 0x7FF:
-        raise InputError(f"{field} (={cob_id!r}) must be an 11-bit CAN identifier 0x001..0x7FF")
+        shown = f"0x{cob_id:X}" if isinstance(cob_id, int) else repr(cob_id)
+        raise InputError(f"{field} (={shown}) must be an 11-bit CAN identifier 0x001..0x7FF")
 
 
 def pdo_type(field: str, name: str) -> str:
@@ -113,7 +116,7 @@ def mapping_from_eds(path: str | Path, node_id: int, *, counts_per_rev: float | 
     """The listen mapping from a drive's EDS or DCF (canopen's EDS import); arguments override the file."""
     import canopen
 
-    where = f"{_FIELD}.eds (={str(path)!r})"
+    where = f"eds (={str(path)!r})"
     if not Path(path).is_file():
         raise InputError(f"{where}: no such file")
     try:
@@ -162,7 +165,7 @@ def mapping_from_eds(path: str | Path, node_id: int, *, counts_per_rev: float | 
     if found is None:
         raise InputError(f"{where}: no TPDO maps both 0x6064 (position actual value) and 0x60E4 sub 1 "
                          "(additional position actual value): map them into one TPDO, or give the mapping in "
-                         f"[{_FIELD}] (tpdo_cob_id, motor_offset_bytes, table_offset_bytes)")
+                         f"the configuration (tpdo_cob_id, motor_offset_bytes, table_offset_bytes)")
     n, comm_idx, fields = found
     cob = value(comm_idx, 1)
     if cob is None:
@@ -177,13 +180,13 @@ def mapping_from_eds(path: str | Path, node_id: int, *, counts_per_rev: float | 
         inc, revs = value(co.ENCODER_RESOLUTION, 1), value(co.ENCODER_RESOLUTION, 2)
         if not inc:
             raise InputError(f"{where}: no 0x608F (position encoder resolution) in the file: give "
-                             f"{_FIELD}.counts_per_rev")
+                             f"counts_per_rev")
         counts_per_rev = inc / max(revs or 1, 1)
     if table_nm_per_count is None:
         table_nm_per_count = value(co.TABLE_NM_PER_COUNT)
         if not table_nm_per_count:
             raise InputError(f"{where}: the table encoder's resolution is not in the file (0x2005): give "
-                             f"{_FIELD}.table_nm_per_count")
+                             f"table_nm_per_count")
     # the cycle the master configured: only a DCF knows it (an EDS default says nothing of this bus)
     period_us = value(co.COMM_CYCLE_PERIOD, configured_only=True)
     window_us = value(co.SYNC_WINDOW, configured_only=True)

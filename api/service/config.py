@@ -221,7 +221,8 @@ def _task(t: Mapping, gain: float, where: str) -> MachiningTask:
 def _axis(a: Mapping, machine: str, where: str) -> AxisConfig:
     allowed = {"name", "transmission_mm_per_rev", "screw_lead_mm", "position_gain_per_s", "travel_mm",
                "controller", "measure_feed_mm_min", "measure_acceleration_mm_s2", "warning_fraction",
-               "decision_rule", "worst_case_temperature_c", "schedule_interval_s", "schedule_cron", "schedule_enabled", "tasks"}
+               "decision_rule", "worst_case_temperature_c", "schedule_interval_s", "schedule_cron", "schedule_enabled", "tasks",
+               "canopen"}
     _unknown(a, allowed, where)
     travel = a.get("travel_mm")
     if not (isinstance(travel, list) and len(travel) == 2 and all(isinstance(x, (int, float)) for x in travel)):
@@ -245,6 +246,7 @@ def _axis(a: Mapping, machine: str, where: str) -> AxisConfig:
     controller = _get(a, "controller", str, where, SIM_CONTROLLER)
     if controller != SIM_CONTROLLER and not controller.startswith(("modbus://", "canopen://")):
         raise ConfigError(f"{where}.controller (={controller!r}) must be 'sim', modbus://host:port or canopen://...")
+    controller = _canopen_controller(a, controller, where)
     st = AxisSettings(
         spec=spec, controller_url=controller,
         measure_feed_mm_min=_get(a, "measure_feed_mm_min", float, where, 2000.0),
@@ -262,6 +264,27 @@ def _axis(a: Mapping, machine: str, where: str) -> AxisConfig:
     if not 0 < st.warning_fraction <= 1:
         raise ConfigError(f"{where}.warning_fraction (={st.warning_fraction}) must be in (0, 1]")
     return AxisConfig(machine, st)
+
+
+def _canopen_controller(a: Mapping, controller: str, where: str) -> str:
+    """An axis' CANopen controller, checked now: ``[machines.axes.canopen]`` (mode, node, EDS or
+    mapping; folded into the stored URL) or a ``canopen://`` URL (acquisition/canopen_url.py)."""
+    from acquisition.canopen_url import driver_from_canopen_url, url_from_table
+
+    try:
+        if "canopen" in a:
+            if not isinstance(a["canopen"], Mapping):
+                raise ConfigError(f"{where}.canopen must be a table")
+            given = a.get("controller")
+            return url_from_table(a["canopen"], given if given and given != SIM_CONTROLLER else None,
+                                  f"{where}.canopen")
+        if controller.startswith("canopen://"):
+            driver_from_canopen_url(controller, where=f"{where}.controller (={controller!r}):")
+    except ConfigError:
+        raise
+    except InputError as exc:
+        raise ConfigError(str(exc)) from exc
+    return controller
 
 
 def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
