@@ -53,11 +53,20 @@ class PositionFollower:
 
     @classmethod
     def from_twin(cls, twin, motor_rev: float, table_mm: float) -> "PositionFollower":
-        needed = ("k_a", "gain_per_s", "backlash_mm", "cyclic_mm", "lead_mm", "_side")
-        if not all(hasattr(twin, n) for n in needed):
-            raise InputError(f"CiA 402 motion in the simulated drive needs a KinematicTwin, not {type(twin).__name__}")
-        f = cls(k_a_mm_per_rev=twin.k_a, gain_per_s=twin.gain_per_s, backlash_mm=twin.backlash_mm,
-                cyclic_mm=twin.cyclic_mm, lead_mm=twin.lead_mm, nut_mm=motor_rev * twin.k_a, side=twin._side)
+        """From a :class:`KinematicTwin` (its own equations), or a :class:`CoreSimTwin`'s nominal
+        model (k_a, K, b only: the core twin's other effects are not stepped here)."""
+        if all(hasattr(twin, n) for n in ("k_a", "gain_per_s", "backlash_mm", "cyclic_mm", "lead_mm", "_side")):
+            kw = dict(k_a_mm_per_rev=twin.k_a, gain_per_s=twin.gain_per_s, backlash_mm=twin.backlash_mm,
+                      cyclic_mm=twin.cyclic_mm, lead_mm=twin.lead_mm, side=twin._side)
+        elif hasattr(twin, "model") and hasattr(twin.model, "backlash_um"):
+            m = twin.model
+            kw = dict(k_a_mm_per_rev=m.transmission_mm_per_rev, gain_per_s=m.position_gain_per_s,
+                      backlash_mm=m.backlash_um * 1e-3, lead_mm=m.screw_lead_mm,
+                      side=1.0 if getattr(twin, "_side", "negative") == "positive" else -1.0)
+        else:
+            raise InputError(f"CiA 402 motion in the simulated drive needs a KinematicTwin or a CoreSimTwin, "
+                             f"not {type(twin).__name__}")
+        f = cls(nut_mm=motor_rev * kw["k_a_mm_per_rev"], **kw)
         if math.isfinite(table_mm) and abs(table_mm - f.nut_mm) <= f.h:
             f.x_mm = table_mm  # keep where the table really is within the play
         return f

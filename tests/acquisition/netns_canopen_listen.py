@@ -39,7 +39,7 @@ SCRIPT = Path(__file__).resolve()
 ROOT = SCRIPT.parents[2]
 EDS = ROOT / "examples" / "canopen" / "mebm-sim-drive.eds"
 RATE_HZ = 250.0  # SYNC rate of the master: real time, 4 ms cycle
-WINDOW_MS = 2.0
+WINDOW_MS = 3.0
 PROGRAM = dict(start_mm=-2.0, end_mm=22.0, feed_mm_min=1000.0, acceleration_mm_s2=500.0, dwell_s=0.1)
 TWIN = dict(backlash_um=120.0, position_gain_per_s=30.0)
 
