@@ -26,9 +26,19 @@ from collections.abc import Callable
 import can
 import numpy as np
 
+from acquisition.acquisition_cycle import AcquisitionCycle
 from acquisition.canopen_mapping import ListenMapping
 from acquisition.driver import ControllerDriver
-from acquisition.errors import ControllerConnectionError, ControllerTimeoutError, DriverMisuseError
+from acquisition.encoder_monitor import EncoderMonitor
+from acquisition.errors import (
+    ControllerConnectionError,
+    ControllerTimeoutError,
+    DriverMisuseError,
+    IncompleteRoundTrip,
+    LostSamplesError,
+)
+from acquisition.round_trip_detector import DetectedRoundTrip, DetectorSettings, RoundTripDetector
+from acquisition.types import AcquiredTrace, RoundTripProgram
 from acquisition.sync_matcher import SYNC_COUNTER_MAX, SyncMatcher
 from acquisition.types import SampleBlock
 from core.errors import InputError
@@ -268,13 +278,16 @@ class CanopenListenDriver(ControllerDriver):
     """
 
     protocol = "canopen"
-    mode = "listen-only"
+    mode = "sync"  # SYNC-latched, numbered by SYNC: a gap is a lost sample (validate_trace checks it)
     REORDER_HORIZON = 32
 
     def __init__(self, channel: str, node_id: int, *, mapping: ListenMapping, interface: str = "socketcan",
                  sync_rate_hz: float | None = None, time_scale: float = 1.0, window_s: float | None = None,
-                 bus_kwargs: dict | None = None, bus_factory: Callable[[], can.BusABC] | None = None, **kwargs):
+                 bus_kwargs: dict | None = None, bus_factory: Callable[[], can.BusABC] | None = None,
+                 detector: DetectorSettings | None = None, **kwargs):
+        kwargs.setdefault("timeout_s", 5.0)  # the first SYNC and TPDO may take a while on a busy master
         super().__init__(**kwargs)
+        self.detector = detector or DetectorSettings()
         if not 1 <= int(node_id) <= 127:
             raise InputError(f"node (={node_id}) must be a CANopen node id 1..127")
         self.node_id = int(node_id)
@@ -347,3 +360,80 @@ class CanopenListenDriver(ControllerDriver):
         if self.wire.bus is None:
             raise ControllerConnectionError(f"not connected to {self.describe()}")
         return self._take()
+
+    # -- passive acquisition: the CNC runs the round trip, mebm cuts it from the stream ----------------
+    async def acquire_async(self, program: RoundTripProgram, axis) -> AcquiredTrace:
+        """Listen until one round trip has been seen (:class:`RoundTripDetector`), and return it.
+
+        ``program`` is what the CNC is configured to run (the cycle checks the trace covers
+        its travel); nothing is sent. Fails typed: no SYNC or TPDO (``timeout``), the master
+        stopped mid-way (``timeout``), no round trip within the detector's time-out
+        (``no_round_trip``), too long or cut short, lost samples past ``max_lost_samples``.
+        """
+        if self._cycle is not None:
+            raise DriverMisuseError(f"a cycle is already under way on the driver for {self.describe()}: one cycle "
+                                    "at a time per driver")
+        cycle = self._cycle = AcquisitionCycle(program=program, axis=axis, t_wall0=time.monotonic())
+        try:
+            await self.connect()
+            cycle.ever_connected = True
+            found = await self._listen(RoundTripDetector(self.detector))
+            return self._trace(found, program, axis, cycle)
+        finally:
+            await self.close()
+            self._cycle, self.last_cycle = None, cycle
+
+    async def _listen(self, detector: RoundTripDetector) -> DetectedRoundTrip:
+        self._order = None
+        last_sample = time.monotonic()
+        while True:
+            block = await self._drain()
+            if len(block):
+                last_sample = time.monotonic()
+                found = detector.feed(block.time_s, block.motor_rev, block.table_mm)
+                if found is not None:
+                    return found
+            elif time.monotonic() - last_sample > self.stall_timeout_s:
+                li = self.wire.listener
+                heard = "no SYNC either" if li is None or li.syncs_heard == 0 or self._sync_silent() else \
+                    "SYNC still comes"
+                phase = detector.phase
+                msg = (f"{self.describe()}: no sample for {self.stall_timeout_s:g} s ({heard}) while "
+                       f"{'a round trip was under way' if phase == 'moving' else 'waiting for a round trip'}: "
+                       "the master stopped SYNC, the drive left OPERATIONAL, or the bus is down")
+                if phase == "moving":
+                    raise IncompleteRoundTrip(msg)
+                raise ControllerTimeoutError(msg)
+            await asyncio.sleep(self.poll_interval_s)
+
+    def _sync_silent(self) -> bool:
+        li = self.wire.listener
+        with li.lock:
+            n = li.syncs_heard
+        time.sleep(0.05)
+        with li.lock:
+            return li.syncs_heard == n
+
+    def _trace(self, found: DetectedRoundTrip, program: RoundTripProgram, axis, cycle) -> AcquiredTrace:
+        rate = float(self.wire.sync_rate_hz)
+        counter = np.rint(found.t_s * rate).astype(np.int64)
+        lost = int(counter[-1] - counter[0] + 1 - counter.size)
+        if lost > self.max_lost_samples:
+            first_missing = int(counter[:-1][np.diff(counter) > 1][0] + 1)
+            raise LostSamplesError(
+                f"{lost} of the round trip's {counter[-1] - counter[0] + 1} SYNCs have no sample (TPDO outside "
+                f"the window, or frames this host missed; max_lost_samples={self.max_lost_samples})",
+                lost_samples=lost, first_missing=first_missing)
+        seen = RoundTripProgram(found.start_mm, found.reversal_mm, max(found.feed_mm_min, 1e-3),
+                                acceleration_mm_s2=program.acceleration_mm_s2, dwell_s=max(found.dwell_s, 0.0))
+        monitor = EncoderMonitor(seen, axis.transmission_mm_per_rev, rate, jump_margin_mm=self.jump_margin_mm,
+                                 stuck_travel_mm=self.stuck_travel_mm)
+        monitor.check(counter, found.motor_rev, found.table_mm, skew_s=0.0)
+        monitor.finish(skew_s=0.0)
+        return AcquiredTrace(
+            protocol=self.protocol, mode=self.mode, time_s=(counter - counter[0]) / rate, counter=counter,
+            motor_rev=found.motor_rev, table_mm=found.table_mm, temperature_c=float("nan"), latched=True,
+            skew_uncertainty_um=0.0, lost_samples=lost, servo_rate_hz=rate, program=seen,
+            wall_time_s=time.monotonic() - cycle.t_wall0,
+            notes=(f"listen-only: round trip found by {found.found_by}, {found.start_mm:.3f} -> "
+                   f"{found.reversal_mm:.3f} mm at {found.feed_mm_min:.0f} mm/min; mebm sent no frame",))

@@ -36,7 +36,8 @@ from core.errors import InputError, require_positive
 def csp_trajectory_mm(x0_mm: float, program: RoundTripProgram, rate_hz: float, *, rest_before_s: float = 0.3,
                       rest_after_s: float = 0.3) -> np.ndarray:
     """Commanded table-side position (mm) at each SYNC: rest at ``x0_mm``, a move to the round
-    trip's start (if away from it), the round trip (the twin's own NC program), rest."""
+    trip's start (if away from it) and a rest there, the round trip (the twin's own NC
+    program), rest: as a CNC part program positions, dwells, then runs the round trip."""
     dt = 1.0 / rate_hz
     parts = [np.full(int(round(rest_before_s * rate_hz)), x0_mm)]
     if abs(program.start_mm - x0_mm) > 1e-6:
@@ -44,6 +45,7 @@ def csp_trajectory_mm(x0_mm: float, program: RoundTripProgram, rate_hz: float, *
                    program.acceleration_mm_s2)
         n = int(math.ceil(mv.duration_s / dt)) + 1
         parts.append(np.array([mv.at(i * dt) for i in range(1, n + 1)]))
+        parts.append(np.full(int(round(rest_before_s * rate_hz)), program.start_mm))
     parts.append(trapezoid_round_trip(program, rate_hz)[1])
     parts.append(np.full(int(round(rest_after_s * rate_hz)), program.start_mm))
     return np.concatenate(parts)
