@@ -122,6 +122,8 @@ class Capture(threading.Thread):
     def __init__(self, ifname: str):
         super().__init__(daemon=True)
         self.sock = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(0x0003))
+        # room for every frame of the run even if this thread is starved (2 cores, 8 sessions)
+        self.sock.setsockopt(socket.SOL_SOCKET, 33, 32 << 20)  # SO_RCVBUFFORCE (root)
         self.sock.bind((ifname, 0))
         self.frames: list[tuple[float, str, int]] = []
         self.igmp: list[str] = []
