@@ -6,7 +6,9 @@
 - ``listen-only``: beside a CNC master; mebm sends no frame. Needs the PDO mapping:
   ``eds=PATH`` (an EDS or DCF), or ``tpdo_cob_id``, ``motor_offset_bytes``,
   ``table_offset_bytes`` (``motor_type``/``table_type`` i32 by default), ``counts_per_rev``,
-  ``table_nm_per_count`` (the node's TPDO1 of mebm's objects when none is given).
+  ``table_nm_per_count`` (the node's TPDO1 of mebm's objects when none is given); how the
+  round trip is found (``start_timeout_s``, ``max_duration_s``, ``min_stroke_mm``,
+  ``rest_band_mm``, ``rest_s``, ``return_tolerance_mm``: :class:`DetectorSettings`).
 - ``active-cia402``: mebm is the NMT master and SYNC producer and commands the drive
   through CiA 402 Profile Position (a drive on a bench). ``table_nm_per_count`` unless
   the drive has 0x2005.
@@ -28,6 +30,8 @@ SIMULATOR_INTERFACES = ("virtual", "udp_multicast")
 _COMMON = {"node", "mode", "rate_hz", "window_ms", "time_scale"}
 _MAPPING = {"eds", "tpdo_cob_id", "sync_cob_id", "motor_offset_bytes", "table_offset_bytes", "motor_type",
             "table_type", "counts_per_rev", "table_nm_per_count"}
+_DETECTOR = {"start_timeout_s", "max_duration_s", "min_stroke_mm", "rest_band_mm", "rest_s", "return_tolerance_mm"}
+_MAPPING |= _DETECTOR | {"max_lost_samples"}  # listen-only keys: the mapping, and how the passive round trip is found
 _TABLE_KEYS = {"interface", "channel", "bus"} | _COMMON | _MAPPING
 
 
@@ -91,9 +95,14 @@ def _driver(url: str, where: str, **kwargs):
     if mode == "listen-only":
         from acquisition.canopen_listen import CanopenListenDriver
 
+        from acquisition.round_trip_detector import DetectorSettings
+
+        detector = DetectorSettings(**{k: _num(k, q[k], float) for k in sorted(_DETECTOR & set(q))})
+        if "max_lost_samples" in q:
+            kwargs["max_lost_samples"] = _num("max_lost_samples", q["max_lost_samples"], int)
         return CanopenListenDriver(channel, node, mapping=listen_mapping(q, node, where), interface=interface,
                                    sync_rate_hz=rate, time_scale=time_scale, window_s=window_s,
-                                   bus_kwargs=bus_kwargs, **kwargs)
+                                   bus_kwargs=bus_kwargs, detector=detector, **kwargs)
     stray = sorted(set(q) & (_MAPPING - {"table_nm_per_count"}))
     if stray:
         raise InputError(f"{', '.join(stray)} only apply to mode=listen-only (mode is {mode})")

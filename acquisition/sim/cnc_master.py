@@ -57,7 +57,7 @@ class CncMaster:
     def __init__(self, node_id: int, *, interface: str, channel: str, bus_kwargs: dict | None = None,
                  sync_rate_hz: float = 500.0, time_scale: float = 1.0, window_s: float | None = None,
                  heartbeat_ms: int = 100, transmission_mm_per_rev: float = 6.857, sync_counter: bool = True,
-                 sdo_timeout_s: float = 1.0):
+                 sdo_timeout_s: float = 1.0, boot_timeout_s: float = 30.0):
         if not 1 <= int(node_id) <= 127:
             raise InputError(f"node (={node_id}) must be a CANopen node id 1..127")
         self.node_id = int(node_id)
@@ -71,6 +71,7 @@ class CncMaster:
         self.k_a = require_positive("transmission_mm_per_rev", transmission_mm_per_rev)
         self.sync_counter = bool(sync_counter)
         self.sdo_timeout_s = sdo_timeout_s
+        self.boot_timeout_s = boot_timeout_s
         self.syncs_sent = 0
         self.rpdos_sent = 0
         self.late_syncs = 0  # SYNCs that went out more than half a period late (host stalls)
@@ -86,6 +87,7 @@ class CncMaster:
             node.sdo.RESPONSE_TIMEOUT = self.sdo_timeout_s
             net.nmt.state = "PRE-OPERATIONAL"  # broadcast: every node, as a master does at start
             sdo = node.sdo
+            self._wait_for_node(sdo)
             sdo[co.COMM_CYCLE_PERIOD].raw = int(round(self.period_s * 1e6))
             sdo[co.SYNC_WINDOW].raw = max(1, int(self.window_s * 1e6))
             sdo[co.PRODUCER_HEARTBEAT].raw = self.heartbeat_ms
@@ -111,6 +113,17 @@ class CncMaster:
         finally:
             net.disconnect()
 
+    def _wait_for_node(self, sdo) -> None:
+        """Ask the device type until the drive answers (it may still be booting), for ``boot_timeout_s``."""
+        end = time.monotonic() + self.boot_timeout_s
+        while True:
+            try:
+                sdo[co.DEVICE_TYPE].raw
+                return
+            except canopen.SdoCommunicationError:
+                if time.monotonic() > end:
+                    raise
+
     def _cycle(self, bus: can.BusABC, counts: np.ndarray) -> None:
         rpdo_id, period = co.rpdo1_cob_id(self.node_id), self.wall_period_s
         min_gap = max(self.window_s, 0.9 * period)
@@ -127,7 +140,10 @@ class CncMaster:
                 delay = next_t - time.perf_counter()
                 if delay <= 0:
                     break
-                time.sleep(delay - 0.001 if delay > 0.002 else 0)
+                # no busy wait: the drive's machine time advances one period per SYNC whatever
+                # the wall clock, so a SYNC a little late costs nothing but a spinning master
+                # would take a core from everyone else
+                time.sleep(delay if delay < 0.0015 else delay - 0.0005)
             sent = time.perf_counter()
             if sent - next_t > 0.5 * period:
                 self.late_syncs += 1
@@ -146,6 +162,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--node", type=int, default=5)
     p.add_argument("--rate-hz", type=float, default=500.0)
     p.add_argument("--time-scale", type=float, default=1.0)
+    p.add_argument("--window-ms", type=float, default=None, help="synchronous window written to 0x1007 "
+                   "(default half the SYNC period)")
     p.add_argument("--start-mm", type=float, required=True)
     p.add_argument("--end-mm", type=float, required=True)
     p.add_argument("--feed-mm-min", type=float, required=True)
@@ -157,6 +175,7 @@ def main(argv: list[str] | None = None) -> int:
     bus_kwargs = {"port": a.bus_port} if a.bus_port else {}
     master = CncMaster(a.node, interface=a.interface, channel=a.channel, bus_kwargs=bus_kwargs,
                        sync_rate_hz=a.rate_hz, time_scale=a.time_scale,
+                       window_s=a.window_ms / 1000.0 if a.window_ms else None,
                        transmission_mm_per_rev=a.transmission_mm_per_rev)
     program = RoundTripProgram(a.start_mm, a.end_mm, a.feed_mm_min, acceleration_mm_s2=a.acceleration_mm_s2,
                                dwell_s=a.dwell_s)
