@@ -22,25 +22,21 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
+from dataclasses import replace
 
 import can
 import numpy as np
 
-from acquisition.acquisition_cycle import AcquisitionCycle
 from acquisition.canopen_mapping import ListenMapping
 from acquisition.driver import ControllerDriver
-from acquisition.encoder_monitor import EncoderMonitor
 from acquisition.errors import (
     ControllerConnectionError,
     ControllerTimeoutError,
     DriverMisuseError,
-    IncompleteRoundTrip,
     LostSamplesError,
 )
-from acquisition.round_trip_detector import DetectedRoundTrip, DetectorSettings, RoundTripDetector
-from acquisition.types import AcquiredTrace, RoundTripProgram
 from acquisition.sync_matcher import SYNC_COUNTER_MAX, SyncMatcher
-from acquisition.types import SampleBlock
+from acquisition.types import AcquiredTrace, AxisState, ControllerStatus, SampleBlock
 from core.errors import InputError
 
 try:
@@ -278,21 +274,24 @@ class CanopenListenDriver(ControllerDriver):
     """
 
     protocol = "canopen"
-    mode = "sync"  # SYNC-latched, numbered by SYNC: a gap is a lost sample (validate_trace checks it)
+    mode = "sync"  # SYNC-latched, numbered by SYNC: a gap is a lost sample
+    supports_passive = True
+    has_running_flag = False  # CiA 402 has no "program running" object: the positions tell
     REORDER_HORIZON = 32
 
     def __init__(self, channel: str, node_id: int, *, mapping: ListenMapping, interface: str = "socketcan",
                  sync_rate_hz: float | None = None, time_scale: float = 1.0, window_s: float | None = None,
-                 bus_kwargs: dict | None = None, bus_factory: Callable[[], can.BusABC] | None = None,
-                 detector: DetectorSettings | None = None, **kwargs):
+                 bus_kwargs: dict | None = None, bus_factory: Callable[[], can.BusABC] | None = None, **kwargs):
         kwargs.setdefault("timeout_s", 5.0)  # the first SYNC and TPDO may take a while on a busy master
+        if kwargs.setdefault("trigger", "passive") != "passive":
+            raise InputError(f"trigger (={kwargs['trigger']!r}): listen-only is passive (mebm sends nothing, so it "
+                             "cannot start a round trip); for an active mode use mode=active-cia402 or active-mebm")
         # a bus mebm does not drive loses a frame now and then (a TPDO the drive sent outside
         # the window, a datagram this host missed): by default up to 1 % of the round trip's
         # SYNCs may go without a sample, each counted, none filled in
         self.max_lost_fraction = 0.01 if kwargs.get("max_lost_samples") is None else 0.0
         kwargs.pop("max_lost_samples", None) if kwargs.get("max_lost_samples") is None else None
         super().__init__(**kwargs)
-        self.detector = detector or DetectorSettings()
         if not 1 <= int(node_id) <= 127:
             raise InputError(f"node (={node_id}) must be a CANopen node id 1..127")
         self.node_id = int(node_id)
@@ -313,6 +312,7 @@ class CanopenListenDriver(ControllerDriver):
         return li.stats() if li is not None and self.wire.bus is not None else dict(self.wire.last_stats)
 
     def _connect_blocking(self) -> None:
+        self._order = None  # a new link numbers SYNCs afresh
         self.wire.open()
         self.wire.wait_for_traffic(self.timeout_s)
         self.servo_rate_hz = float(self.wire.sync_rate_hz)
@@ -337,8 +337,9 @@ class CanopenListenDriver(ControllerDriver):
         raise DriverMisuseError(f"{self.describe()} is listen-only: mebm cannot {what} (it sends no frame); the CNC "
                                 "starts the round trip and mebm records it passively")
 
-    async def _read_status(self):
-        self._refuse("read the axis state")
+    async def _read_status(self) -> ControllerStatus:
+        """What can be known without asking: nothing of the state or temperature (no frame is sent)."""
+        return ControllerStatus(AxisState.IDLE, 0, float("nan"), self.servo_rate_hz)
 
     async def _start(self, program):
         self._refuse("start a round trip")
@@ -366,84 +367,27 @@ class CanopenListenDriver(ControllerDriver):
             raise ControllerConnectionError(f"not connected to {self.describe()}")
         return self._take()
 
-    # -- passive acquisition: the CNC runs the round trip, mebm cuts it from the stream ----------------
-    async def acquire_async(self, program: RoundTripProgram, axis) -> AcquiredTrace:
-        """Listen until one round trip has been seen (:class:`RoundTripDetector`), and return it.
+    # -- passive acquisition (the base's): the CNC runs the round trip, the detector cuts it ----------
+    async def _passive_drain(self) -> SampleBlock:
+        if self.wire.bus is None:
+            raise ControllerConnectionError(f"not connected to {self.describe()}")
+        return self._take()
 
-        ``program`` is what the CNC is configured to run (the cycle checks the trace covers
-        its travel); nothing is sent. Fails typed: no SYNC or TPDO (``timeout``), the master
-        stopped mid-way (``timeout``), no round trip within the detector's time-out
-        (``no_round_trip``), too long or cut short, lost samples past ``max_lost_samples``.
-        """
-        if self._cycle is not None:
-            raise DriverMisuseError(f"a cycle is already under way on the driver for {self.describe()}: one cycle "
-                                    "at a time per driver")
-        cycle = self._cycle = AcquisitionCycle(program=program, axis=axis, t_wall0=time.monotonic())
-        try:
-            await self.connect()
-            cycle.ever_connected = True
-            found = await self._listen(RoundTripDetector(self.detector))
-            return self._trace(found, program, axis, cycle)
-        finally:
-            await self.close()
-            self._cycle, self.last_cycle = None, cycle
-
-    async def _listen(self, detector: RoundTripDetector) -> DetectedRoundTrip:
-        self._order = None
-        last_sample = time.monotonic()
-        while True:
-            block = await self._drain()
-            if len(block):
-                last_sample = time.monotonic()
-                found = detector.feed(block.time_s, block.motor_rev, block.table_mm)
-                if found is not None:
-                    return found
-            elif time.monotonic() - last_sample > self.stall_timeout_s:
-                li = self.wire.listener
-                heard = "no SYNC either" if li is None or li.syncs_heard == 0 or self._sync_silent() else \
-                    "SYNC still comes"
-                phase = detector.phase
-                msg = (f"{self.describe()}: no sample for {self.stall_timeout_s:g} s ({heard}) while "
-                       f"{'a round trip was under way' if phase == 'moving' else 'waiting for a round trip'}: "
-                       "the master stopped SYNC, the drive left OPERATIONAL, or the bus is down")
-                if phase == "moving":
-                    raise IncompleteRoundTrip(msg)
-                raise ControllerTimeoutError(msg)
-            await asyncio.sleep(self.poll_interval_s)
-
-    def _sync_silent(self) -> bool:
-        li = self.wire.listener
-        with li.lock:
-            n = li.syncs_heard
-        time.sleep(0.05)
-        with li.lock:
-            return li.syncs_heard == n
-
-    def _trace(self, found: DetectedRoundTrip, program: RoundTripProgram, axis, cycle) -> AcquiredTrace:
-        rate = float(self.wire.sync_rate_hz)
+    def _passive_trace(self, cycle, found, rate, skew_s, t_first_block, last_progress) -> AcquiredTrace:
+        """The base's trace, with the SYNCs of the round trip that have no sample counted as lost:
+        every SYNC is a sample here (no polled rest), so any gap in the cut is a loss."""
         counter = np.rint(found.t_s * rate).astype(np.int64)
         span = int(counter[-1] - counter[0] + 1)
         lost = span - int(counter.size)
-        if lost > max(self.max_lost_samples, int(self.max_lost_fraction * span)):
+        allowed = max(self.max_lost_samples, int(self.max_lost_fraction * span))
+        if lost > allowed:
             first_missing = int(counter[:-1][np.diff(counter) > 1][0] + 1)
             raise LostSamplesError(
-                f"{lost} of the round trip's {span} SYNCs have no sample, at most "
-                f"{max(self.max_lost_samples, int(self.max_lost_fraction * span))} allowed (max_lost_samples); on "
-                f"the bus so far: {_stats_text(self.listen_stats)}",
+                f"{lost} of the round trip's {span} SYNCs have no sample, at most {allowed} allowed "
+                f"(max_lost_samples); on the bus so far: {_stats_text(self.listen_stats)}",
                 lost_samples=lost, first_missing=first_missing)
-        seen = RoundTripProgram(found.start_mm, found.reversal_mm, max(found.feed_mm_min, 1e-3),
-                                acceleration_mm_s2=program.acceleration_mm_s2, dwell_s=max(found.dwell_s, 0.0))
-        monitor = EncoderMonitor(seen, axis.transmission_mm_per_rev, rate, jump_margin_mm=self.jump_margin_mm,
-                                 stuck_travel_mm=self.stuck_travel_mm)
-        monitor.check(counter, found.motor_rev, found.table_mm, skew_s=0.0)
-        monitor.finish(skew_s=0.0)
-        return AcquiredTrace(
-            protocol=self.protocol, mode=self.mode, time_s=(counter - counter[0]) / rate, counter=counter,
-            motor_rev=found.motor_rev, table_mm=found.table_mm, temperature_c=float("nan"), latched=True,
-            skew_uncertainty_um=0.0, lost_samples=lost, servo_rate_hz=rate, program=seen,
-            wall_time_s=time.monotonic() - cycle.t_wall0,
-            notes=(f"listen-only: round trip found by {found.found_by}, {found.start_mm:.3f} -> "
-                   f"{found.reversal_mm:.3f} mm at {found.feed_mm_min:.0f} mm/min; mebm sent no frame",))
+        trace = super()._passive_trace(cycle, found, rate, skew_s, t_first_block, last_progress)
+        return replace(trace, lost_samples=lost, notes=(*trace.notes, "listen-only: mebm sent no frame"))
 
 
 def _stats_text(st: dict[str, int]) -> str:

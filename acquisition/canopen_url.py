@@ -6,16 +6,18 @@
 - ``listen-only``: beside a CNC master; mebm sends no frame. Needs the PDO mapping:
   ``eds=PATH`` (an EDS or DCF), or ``tpdo_cob_id``, ``motor_offset_bytes``,
   ``table_offset_bytes`` (``motor_type``/``table_type`` i32 by default), ``counts_per_rev``,
-  ``table_nm_per_count`` (the node's TPDO1 of mebm's objects when none is given); how the
-  round trip is found (``start_timeout_s``, ``max_duration_s``, ``min_stroke_mm``,
-  ``rest_band_mm``, ``rest_s``, ``return_tolerance_mm``: :class:`DetectorSettings`).
+  ``table_nm_per_count`` (the node's TPDO1 of mebm's objects when none is given),
+  ``max_lost_samples``. The round trip is found passively (``trigger=passive`` and the
+  detection keys of :mod:`acquisition.url`).
 - ``active-cia402``: mebm is the NMT master and SYNC producer and commands the drive
   through CiA 402 Profile Position (a drive on a bench). ``table_nm_per_count`` unless
   the drive has 0x2005.
 - ``active-mebm``: as above through mebm's objects 0x2000-0x2006 (the simulated drive's).
 
-Default: ``listen-only`` on a real bus; ``active-mebm`` on ``virtual`` and
-``udp_multicast``, which only reach simulated drives.
+``mode`` and ``trigger`` (:mod:`acquisition.url`) agree: ``listen-only`` is the passive
+mode, the two others are active. Without ``mode``, the trigger decides: passive (the
+default for any bus but the in-process ``virtual`` one) is ``listen-only``, active is
+``active-mebm``; a ``mode`` that contradicts an explicit ``trigger`` is refused.
 """
 
 from __future__ import annotations
@@ -26,17 +28,21 @@ from urllib.parse import parse_qs, quote, urlsplit
 from core.errors import InputError
 
 MODES = ("listen-only", "active-cia402", "active-mebm")
-SIMULATOR_INTERFACES = ("virtual", "udp_multicast")
 _COMMON = {"node", "mode", "rate_hz", "window_ms", "time_scale"}
 _MAPPING = {"eds", "tpdo_cob_id", "sync_cob_id", "motor_offset_bytes", "table_offset_bytes", "motor_type",
-            "table_type", "counts_per_rev", "table_nm_per_count"}
-_DETECTOR = {"start_timeout_s", "max_duration_s", "min_stroke_mm", "rest_band_mm", "rest_s", "return_tolerance_mm"}
-_MAPPING |= _DETECTOR | {"max_lost_samples"}  # listen-only keys: the mapping, and how the passive round trip is found
+            "table_type", "counts_per_rev", "table_nm_per_count", "max_lost_samples"}  # listen-only keys
 _TABLE_KEYS = {"interface", "channel", "bus"} | _COMMON | _MAPPING
 
 
-def default_mode(interface: str) -> str:
-    return "active-mebm" if interface in SIMULATOR_INTERFACES else "listen-only"
+def _trigger_keys() -> set[str]:
+    from acquisition.url import TRIGGER_KEYS
+
+    return set(TRIGGER_KEYS)
+
+
+def mode_for(trigger: str) -> str:
+    """The CANopen mode a trigger means when the URL names none."""
+    return "listen-only" if trigger == "passive" else "active-mebm"
 
 
 def _num(field: str, raw, cast):
@@ -79,15 +85,29 @@ def _driver(url: str, where: str, **kwargs):
     if "node" not in q:
         raise InputError(f"controller URL {url!r} needs ?node=N (the drive's CANopen node id)")
     interface = parts.netloc
-    mode = q.get("mode", default_mode(interface))
-    if mode not in MODES:
+    from acquisition.url import _trigger_kwargs
+
+    explicit_trigger = kwargs.get("trigger", q.get("trigger"))
+    mode = q.get("mode")
+    if mode is not None and mode not in MODES:
         raise InputError(f"mode (={mode!r}) must be one of {', '.join(MODES)}")
+    tq = dict(q)
+    if mode is not None:
+        wanted = "passive" if mode == "listen-only" else "active"
+        if explicit_trigger is not None and explicit_trigger != wanted:
+            raise InputError(f"mode (={mode}) is {wanted}: it contradicts trigger={explicit_trigger} (listen-only "
+                             "is the passive mode, active-cia402 and active-mebm are active)")
+        tq["trigger"] = wanted
+    elif explicit_trigger is not None:
+        tq["trigger"] = explicit_trigger
+    kwargs = {**kwargs, **_trigger_kwargs(url, tq)}  # trigger, running_flag, passive settings
+    mode = mode or mode_for(kwargs["trigger"])
     node = _num(f"node", q["node"], int)
     if not 1 <= node <= 127:
         raise InputError(f"node (={node}) must be a CANopen node id 1..127")
     bus_kwargs = {}
     for key, val in q.items():  # anything else is a python-can bus option (bitrate, port, ...)
-        if key not in _COMMON | _MAPPING:
+        if key not in _COMMON | _MAPPING | _trigger_keys():
             bus_kwargs[key] = int(val) if val.lstrip("-").isdigit() else val
     rate = _num(f"rate_hz", q["rate_hz"], float) if "rate_hz" in q else None
     window_s = _num(f"window_ms", q["window_ms"], float) / 1000.0 if "window_ms" in q else None
@@ -95,14 +115,11 @@ def _driver(url: str, where: str, **kwargs):
     if mode == "listen-only":
         from acquisition.canopen_listen import CanopenListenDriver
 
-        from acquisition.round_trip_detector import DetectorSettings
-
-        detector = DetectorSettings(**{k: _num(k, q[k], float) for k in sorted(_DETECTOR & set(q))})
         if "max_lost_samples" in q:
             kwargs["max_lost_samples"] = _num("max_lost_samples", q["max_lost_samples"], int)
         return CanopenListenDriver(channel, node, mapping=listen_mapping(q, node, where), interface=interface,
                                    sync_rate_hz=rate, time_scale=time_scale, window_s=window_s,
-                                   bus_kwargs=bus_kwargs, detector=detector, **kwargs)
+                                   bus_kwargs=bus_kwargs, **kwargs)
     stray = sorted(set(q) & (_MAPPING - {"table_nm_per_count"}))
     if stray:
         raise InputError(f"{', '.join(stray)} only apply to mode=listen-only (mode is {mode})")
@@ -169,8 +186,8 @@ def url_from_table(table: Mapping, controller: str | None, where: str) -> str:
             raise InputError(f"{where}.{key} is needed (or controller = \"canopen://INTERFACE/CHANNEL\")")
     if "node" not in table and "node" not in base_q:
         raise InputError(f"{where}.node is needed (the drive's CANopen node id)")
-    mode = table.get("mode", base_q.get("mode", default_mode(interface)))
-    if mode not in MODES:
+    mode = table.get("mode", base_q.get("mode"))
+    if mode is not None and mode not in MODES:
         raise InputError(f"{where}.mode (={mode!r}) must be one of {', '.join(MODES)}")
     q = dict(base_q)
     for key in sorted(set(table) - {"interface", "channel", "bus"}):

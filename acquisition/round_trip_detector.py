@@ -107,6 +107,7 @@ class DetectedRoundTrip:
     feed_mm_min: float
     dwell_s: float
     found_by: str
+    running: np.ndarray | None = None  # the flag fed with the samples (all False if none was)
 
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
@@ -194,9 +195,9 @@ class RoundTripDetector:
         x = np.asarray(table_mm, dtype=float).ravel()
         if not (t.shape == m.shape == x.shape):
             raise InputError(f"t_s, motor_rev and table_mm must have one length (got {t.size}, {m.size}, {x.size})")
-        if self.use_flag:
-            if running is None:
-                raise InputError("this detector follows the running flag: pass running= with every block")
+        if self.use_flag and running is None:
+            raise InputError("this detector follows the running flag: pass running= with every block")
+        if running is not None:
             f = np.asarray(running, dtype=bool).ravel()
             if f.shape != t.shape:
                 raise InputError(f"running must have the length of t_s (got {f.size}, {t.size})")
@@ -347,14 +348,14 @@ class RoundTripDetector:
         return None
 
     def _cut_positions(self, s: _Start, end_i: int) -> DetectedRoundTrip:
-        t, m, x, _ = self._arrays()
+        t, m, x, f = self._arrays()
         base = self._chunks[0][0]
         t_leave = s.leave_t
         lo = max(s.rest_i, base + int(np.searchsorted(t, t_leave - self.settings.pre_roll, side="left")))
         a, b = lo - base, end_i - base + 1
-        t, m, x = t[a:b], m[a:b], x[a:b]
+        t, m, x, f = t[a:b], m[a:b], x[a:b], f[a:b]
         start, rev, end = s.leave_i - lo, s.ext_i - lo, self._run_i - lo
-        return self._result(t, m, x, start, rev, end, s.ref, "positions")
+        return self._result(t, m, x, start, rev, end, s.ref, "positions", f)
 
     # -- running flag ------------------------------------------------------------------------
     def _scan_flag(self, i0: int, t: np.ndarray, x: np.ndarray, f: np.ndarray) -> DetectedRoundTrip | None:
@@ -404,13 +405,13 @@ class RoundTripDetector:
 
     def _cut_flag(self) -> DetectedRoundTrip:
         cfg = self.settings
-        t, m, x, _ = self._arrays()
+        t, m, x, f = self._arrays()
         base = self._chunks[0][0]
         r, fl = self._rise_i - base, self._fall_i - base
         # the round trip proper is r .. fl-1 (the samples with the flag set), plus the margins
         lo = int(np.searchsorted(t, self._rise_t - cfg.flag_margin_s, side="left")) if cfg.flag_margin_s > 0 else r
         hi = int(np.searchsorted(t, self._fall_t + cfg.flag_margin_s, side="right")) if cfg.flag_margin_s > 0 else fl
-        t, m, x = t[lo:hi], m[lo:hi], x[lo:hi]
+        t, m, x, f = t[lo:hi], m[lo:hi], x[lo:hi], f[lo:hi]
         start, end = r - lo, fl - 1 - lo
         ref = float(x[start])
         d = x[start : end + 1] - ref
@@ -426,7 +427,7 @@ class RoundTripDetector:
                 f"the round trip started at {ref:.3f} mm, reversed at {float(x[rev]):.3f} mm and the flag fell "
                 f"with the table at {float(x[end]):.3f} mm, {back:.3f} mm from its start (return_tolerance_mm "
                 f"{cfg.return_tolerance_mm:g}): the round trip was cut short")
-        return self._result(t, m, x, start, rev, end, ref, "flag")
+        return self._result(t, m, x, start, rev, end, ref, "flag", f)
 
     # -- shared ------------------------------------------------------------------------------
     def _note(self, problem: Exception) -> None:
@@ -465,12 +466,12 @@ class RoundTripDetector:
         while len(self._chunks) > 1 and float(self._chunks[0][1][-1]) < keep_t:
             self._chunks.pop(0)
 
-    def _result(self, t, m, x, start, rev, end, ref, found_by) -> DetectedRoundTrip:
+    def _result(self, t, m, x, start, rev, end, ref, found_by, running) -> DetectedRoundTrip:
         return DetectedRoundTrip(
             t_s=t, motor_rev=m, table_mm=x, start_index=int(start), reversal_index=int(rev), end_index=int(end),
             start_mm=float(ref), reversal_mm=float(x[rev]), end_mm=float(x[end]),
             feed_mm_min=_cruise_feed_mm_min(t[start : end + 1], x[start : end + 1]),
-            dwell_s=_dwell_s(t, x, rev, self.settings.rest_band_mm), found_by=found_by)
+            dwell_s=_dwell_s(t, x, rev, self.settings.rest_band_mm), found_by=found_by, running=running)
 
 
 def _cruise_feed_mm_min(t: np.ndarray, x: np.ndarray) -> float:

@@ -1,6 +1,15 @@
-"""Controller URLs: ``modbus://HOST[:PORT][?mode=trace|latched|separate&device_id=N]`` and
-``canopen://INTERFACE/CHANNEL?node=N[&mode=listen-only|active-cia402|active-mebm&rate_hz=R&window_ms=W&...]``
-(:mod:`acquisition.canopen_url`; any other query key, e.g. ``bitrate`` or ``port``, is passed to the python-can bus).
+"""Controller URLs: ``modbus://HOST[:PORT][?mode=trace|latched|separate&device_id=N]``,
+``sim://HOST[:PORT][?...]`` (mebm's own simulated Modbus controller, ``mebm sim-controller
+modbus``) and ``canopen://INTERFACE/CHANNEL?node=N[&mode=listen-only|active-cia402|active-mebm&...]``
+(:mod:`acquisition.canopen_url`; any other query key, e.g. ``bitrate`` or ``port``, is passed
+to the python-can bus).
+
+Every scheme also takes who starts the round trip, ``trigger=active|passive`` (docs/controllers.md,
+"Passive and active round trips"), and for passive mode ``running_flag=0|1`` and the detection
+settings (``start_timeout_s``, ``max_duration_s``, ``rest_band_mm``, ``rest_s``, ``min_stroke_mm``,
+``return_tolerance_mm``, ``pre_roll_s``, ``flag_margin_s``). Without ``trigger`` a simulator
+(``sim://``, or CANopen on python-can's in-process ``virtual`` bus) is active and any other
+controller passive: mebm moves an axis only where it was told to, or where nothing can move.
 """
 
 from __future__ import annotations
@@ -9,12 +18,55 @@ from urllib.parse import parse_qs, urlsplit
 
 from core.errors import InputError
 
+PASSIVE_KEYS = ("start_timeout_s", "max_duration_s", "rest_band_mm", "rest_s", "min_stroke_mm",
+                "return_tolerance_mm", "pre_roll_s", "flag_margin_s")
+TRIGGER_KEYS = ("trigger", "running_flag", *PASSIVE_KEYS)
+
+
+def is_simulator_url(url: str) -> bool:
+    """A controller that can only be a simulation: ``sim://``, or CANopen on the in-process bus."""
+    parts = urlsplit(url)
+    return parts.scheme == "sim" or (parts.scheme == "canopen" and parts.netloc == "virtual")
+
+
+def default_trigger(url: str) -> str:
+    """``active`` for a simulator, ``passive`` for any other controller."""
+    return "active" if is_simulator_url(url) else "passive"
+
+
+def _trigger_kwargs(url: str, q: dict[str, str]) -> dict:
+    """The driver's ``trigger``/``running_flag``/``passive`` arguments from the URL's query."""
+    trigger = q.pop("trigger", None) or default_trigger(url)
+    if trigger not in ("active", "passive"):
+        raise InputError(f"controller URL {url!r}: trigger (={trigger!r}) must be active or passive")
+    out: dict = {"trigger": trigger}
+    if "running_flag" in q:
+        flag = q.pop("running_flag").lower()
+        if flag not in ("0", "1", "true", "false", "yes", "no", "on", "off"):
+            raise InputError(f"controller URL {url!r}: running_flag (={flag!r}) must be 0 or 1")
+        out["running_flag"] = flag in ("1", "true", "yes", "on")
+    passive = {}
+    for key in PASSIVE_KEYS:
+        if key in q:
+            raw = q.pop(key)
+            try:
+                passive[key] = float(raw)
+            except ValueError:
+                raise InputError(f"controller URL {url!r}: {key} (={raw!r}) must be a number") from None
+    if passive:
+        if trigger != "passive":
+            raise InputError(f"controller URL {url!r}: {sorted(passive)} apply to trigger=passive only")
+        out["passive"] = passive
+    return out
+
 
 def driver_from_url(url: str, **kwargs):
     """A :class:`~acquisition.driver.ControllerDriver` for ``url``; ``kwargs`` go to the driver
     (``timeout_s``, ``retries``, ...)."""
     parts = urlsplit(url)
     q = {k: v[-1] for k, v in parse_qs(parts.query).items()}
+    if parts.scheme in ("modbus", "sim"):  # canopen: its mode and the trigger, together (canopen_url)
+        kwargs = {**_trigger_kwargs(url, q), **kwargs}
 
     def num(key, cast, default):
         if key not in q:
@@ -24,11 +76,11 @@ def driver_from_url(url: str, **kwargs):
         except ValueError:
             raise InputError(f"controller URL {url!r}: {key} (={q[key]!r}) must be a number") from None
 
-    if parts.scheme == "modbus":
+    if parts.scheme in ("modbus", "sim"):
         from acquisition.modbus import ModbusDriver
 
         if not parts.hostname:
-            raise InputError(f"controller URL {url!r} needs a host: modbus://HOST:PORT")
+            raise InputError(f"controller URL {url!r} needs a host: {parts.scheme}://HOST:PORT")
         try:
             port = parts.port or 502
         except ValueError:
@@ -39,4 +91,4 @@ def driver_from_url(url: str, **kwargs):
         from acquisition.canopen_url import driver_from_canopen_url
 
         return driver_from_canopen_url(url, **kwargs)
-    raise InputError(f"controller URL {url!r}: scheme must be modbus:// or canopen://")
+    raise InputError(f"controller URL {url!r}: scheme must be modbus://, sim:// or canopen://")

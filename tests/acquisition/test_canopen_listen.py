@@ -19,8 +19,8 @@ from acquisition.canopen_cia402 import CanopenCia402Driver
 from acquisition.canopen_listen import CanopenListenDriver, ListenOnlyBusError, SyncListener, _ListenOnlyBus
 from acquisition.canopen_mapping import ListenMapping, PdoField, default_mapping, mapping_from_eds
 from acquisition.canopen_url import driver_from_canopen_url
+from acquisition.url import driver_from_url
 from acquisition.cycle import run_cycle
-from acquisition.round_trip_detector import DetectorSettings
 from acquisition.sim import eds as sim_eds
 from acquisition.sim.canopen_drive import SimCanopenDrive
 from acquisition.sim.cnc_master import CncMaster
@@ -126,7 +126,11 @@ def test_a_bad_mapping_names_its_field(kw, field):
 # -- URL and configuration ---------------------------------------------------------------------------
 def test_the_url_chooses_the_mode_and_listen_only_is_the_default_on_a_real_bus():
     assert isinstance(driver_from_canopen_url("canopen://socketcan/can0?node=5"), CanopenListenDriver)
-    assert type(driver_from_canopen_url("canopen://virtual/sim?node=5")) is CanopenDriver
+    assert isinstance(driver_from_canopen_url("canopen://udp_multicast/239.0.0.1?node=5"), CanopenListenDriver)
+    assert type(driver_from_canopen_url("canopen://virtual/sim?node=5")) is CanopenDriver  # a simulator: active
+    assert type(driver_from_canopen_url("canopen://socketcan/can0?node=5&trigger=active")) is CanopenDriver
+    d = driver_from_url("canopen://socketcan/can0?node=5&trigger=passive&start_timeout_s=30")
+    assert isinstance(d, CanopenListenDriver) and d.trigger == "passive" and d.passive == {"start_timeout_s": 30.0}
     assert type(driver_from_canopen_url("canopen://socketcan/can0?node=5&mode=active-mebm")) is CanopenDriver
     d = driver_from_canopen_url("canopen://socketcan/can0?node=5&mode=active-cia402&table_nm_per_count=5")
     assert isinstance(d, CanopenCia402Driver) and d.table_nm_per_count == 5
@@ -139,6 +143,9 @@ def test_the_url_chooses_the_mode_and_listen_only_is_the_default_on_a_real_bus()
 
 @pytest.mark.parametrize("query,field", [
     ("mode=listen", "mode"),
+    ("mode=listen-only&trigger=active", "contradicts trigger=active"),
+    ("mode=active-cia402&trigger=passive", "contradicts trigger=passive"),
+    ("mode=active-mebm&start_timeout_s=5", "trigger=passive only"),
     ("mode=active-mebm&eds=x.eds", "eds"),
     ("eds=/no/such.eds", "eds"),
     ("tpdo_cob_id=abc", "tpdo_cob_id"),
@@ -222,13 +229,15 @@ def test_the_listen_only_bus_refuses_to_send():
         bus.shutdown()
 
 
-def test_listen_only_cannot_start_read_or_acknowledge():
-    d = driver_from_canopen_url("canopen://socketcan/can0?node=5")
+def test_listen_only_cannot_start_or_acknowledge_and_its_status_asks_nothing():
     import asyncio
 
-    for coro in (d._read_status(), d._start(PROGRAM), d._acknowledge()):
+    d = driver_from_canopen_url("canopen://socketcan/can0?node=5")
+    for make in (lambda: d._start(PROGRAM), d._acknowledge):
         with pytest.raises(Exception, match="listen-only: mebm cannot"):
-            asyncio.run(coro)
+            asyncio.run(make())
+    st = asyncio.run(d._read_status())  # no bus is even open: nothing could have been sent
+    assert d.wire.bus is None and np.isnan(st.temperature_c)
 
 
 # -- passive round trips beside a CNC master (in-process) ----------------------------------------------
@@ -244,11 +253,10 @@ def _bench(**drive_kw):
         drive.stop()
 
 
-def _listener(channel, **detector):
-    d = driver_from_canopen_url(f"canopen://virtual/{channel}?node=5&mode=listen-only&eds={EDS}&rate_hz=500"
-                                "&time_scale=2", timeout_s=5.0, max_lost_samples=50)
-    d.detector = DetectorSettings(**{"start_timeout_s": 30.0, "max_duration_s": 30.0, **detector})
-    return d
+def _listener(channel, start_timeout_s=30.0):
+    return driver_from_url(f"canopen://virtual/{channel}?node=5&mode=listen-only&eds={EDS}&rate_hz=500"
+                           f"&time_scale=2&start_timeout_s={start_timeout_s}&max_duration_s=30", timeout_s=5.0,
+                           max_lost_samples=50)
 
 
 def _master_in_thread(channel, program, **kw):
