@@ -185,8 +185,9 @@ class ControllerDriver(ABC):
 
     async def _passive_drain(self) -> SampleBlock:
         """Passive mode: samples since the last call (possibly none), without commanding
-        anything; ``running`` set per sample when the wire reads a running flag. Wires that
-        support passive mode (``supports_passive``) override it."""
+        anything; ``running`` set per sample when the wire reads a running flag, and
+        ``run_start`` when a block begins with the first sample of the program's run.
+        Wires that support passive mode (``supports_passive``) override it."""
         raise DriverMisuseError(f"{type(self).__name__} has no passive sample path")
 
     # -- exchanges, each under the one retry policy -------------------------------------------
@@ -456,7 +457,7 @@ class ControllerDriver(ABC):
                 last_progress = time.monotonic()
                 skew_s = max(skew_s, block.skew_s)
                 t = block.time_s if block.time_s is not None else c / rate
-                found = detector.feed(t, block.motor_rev, block.table_mm, block.running)
+                found = detector.feed(t, block.motor_rev, block.table_mm, block.running, run_start=block.run_start)
                 if found is not None:
                     break
             elif time.monotonic() - last_progress > self.stall_timeout_s:
@@ -524,7 +525,8 @@ def observed_program(found: DetectedRoundTrip, *, fallback: RoundTripProgram) ->
 def _take(block: SampleBlock, keep: np.ndarray) -> SampleBlock:
     return replace(block, counter=block.counter[keep], motor_rev=block.motor_rev[keep],
                    table_mm=block.table_mm[keep], time_s=None if block.time_s is None else block.time_s[keep],
-                   running=None if block.running is None else block.running[keep])
+                   running=None if block.running is None else block.running[keep],
+                   run_start=block.run_start and bool(keep[0]))
 
 
 def _join(blocks):

@@ -61,6 +61,7 @@ class _Listening:
 
     ring: _RingCursor | None = None
     last_counter: int | None = None
+    run_start: bool = False  # the ring is read from the program's first record
 
 
 class ModbusDriver(ControllerDriver):
@@ -164,7 +165,9 @@ class ModbusDriver(ControllerDriver):
         """A status read mid-cycle: anything but RUNNING/DONE ends the cycle with its reason."""
         if s.state is None:
             raise ProtocolError(f"{self.describe()}: unknown axis state {s.state_raw}")
-        if s.state not in (AxisState.RUNNING, AxisState.DONE):
+        # passive: the CNC may acknowledge its program the moment it ends (DONE -> IDLE)
+        ended = (AxisState.DONE, AxisState.IDLE) if self.trigger == "passive" else (AxisState.DONE,)
+        if s.state != AxisState.RUNNING and s.state not in ended:
             raise_device_fault(ControllerStatus(s.state, s.fault_code), self.describe(), self.link_trouble)
 
     async def _read_status(self) -> ControllerStatus:
@@ -256,7 +259,7 @@ class ModbusDriver(ControllerDriver):
             # records from the ring instead of losing them
             s = await self._status()
             self._check_running(s)
-            finished = s.state == AxisState.DONE and next_w >= s.trace_count
+            finished = s.state != AxisState.RUNNING and next_w >= s.trace_count
         cur.next_w = next_w
         if not regs_all:
             return SampleBlock.empty(finished)
@@ -310,13 +313,18 @@ class ModbusDriver(ControllerDriver):
         if lis is None:
             lis = self.cycle.wire = _Listening()
         if lis.ring is not None:
+            first = lis.ring.first_counter
             block = await self._drain_trace()
             if block.finished:
                 lis.ring = None  # the program ended and its trace is read: back to polling
+            run_start = False
             if len(block):
                 lis.last_counter = int(block.counter[-1])
-            return SampleBlock(block.counter, block.motor_rev, block.table_mm, caught_up=block.caught_up and
-                               lis.ring is None, running=np.ones(len(block), dtype=bool))
+                run_start, lis.run_start = lis.run_start and int(block.counter[0]) == first, False
+            # caught up with a running trace: wait a poll interval; its end: poll again at once
+            return SampleBlock(block.counter, block.motor_rev, block.table_mm,
+                               caught_up=block.caught_up and lis.ring is not None,
+                               running=np.ones(len(block), dtype=bool), run_start=run_start)
         t0 = time.monotonic()
         if self.mode == "separate":
             motor_regs = await self._read(self.map.separate_first, "reading the motor position")
@@ -335,6 +343,10 @@ class ModbusDriver(ControllerDriver):
             next_w = 0 if lis.last_counter is None else max(0, lis.last_counter + 1 - first)
             lis.ring = _RingCursor(first_counter=first, next_w=next_w,
                                    next_counter=first + next_w if next_w else None)
+            # listening began while the program ran, but the ring still holds its first record
+            # (with a block's margin): the run is read whole, from its start
+            lis.run_start = (lis.last_counter is None and next_w == 0
+                             and s.trace_count + self.map.records_per_read <= self.ring_records)
             return SampleBlock(np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0), caught_up=False)
         ref = lis.last_counter if lis.last_counter is not None else s.counter
         counter, motor, table = self.map.latched_sample(s, self.scale, ref)

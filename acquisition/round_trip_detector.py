@@ -186,8 +186,12 @@ class RoundTripDetector:
         return any(s.leave_i is not None for s in self._starts)
 
     # -- feeding -----------------------------------------------------------------------------
-    def feed(self, t_s, motor_rev, table_mm, running=None) -> DetectedRoundTrip | None:
-        """Take the next samples (1-D arrays of one length, ``t_s`` increasing)."""
+    def feed(self, t_s, motor_rev, table_mm, running=None, *, run_start: bool = False) -> DetectedRoundTrip | None:
+        """Take the next samples (1-D arrays of one length, ``t_s`` increasing).
+
+        ``run_start``: the first of these samples is the first of the controller's program
+        run (the wire read it from the start of the controller's own trace), so a flag
+        already set when listening began is taken from there, not waited out."""
         if self.done:
             raise InputError("this detector has already returned its round trip: make a new one for the next")
         t = np.asarray(t_s, dtype=float).ravel()
@@ -217,6 +221,8 @@ class RoundTripDetector:
         if math.isnan(self._t0):
             self._t0 = float(t[0])
         self._t_last = float(t[-1])
+        if self.use_flag and run_start and not self._flag_seen_low and bool(f[0]):
+            self._flag_seen_low = True  # the run is whole from its first sample
         found = self._scan_flag(i0, t, x, f) if self.use_flag else self._scan_positions(i0, t, x)
         if found is not None:
             self.done = True

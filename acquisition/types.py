@@ -101,6 +101,7 @@ class SampleBlock:
     skew_s: float = 0.0
     caught_up: bool = True  # False: more samples are already waiting, drain again at once
     running: np.ndarray | None = None  # passive mode: the controller's "program running" flag per sample
+    run_start: bool = False  # passive mode: the first sample is the first of the controller's program run
 
     @staticmethod
     def empty(finished: bool = False) -> "SampleBlock":

@@ -1,7 +1,10 @@
 """A stand-in for the CNC, run as its own process: after a delay it starts a round trip on a
 ``mebm-modbus/1`` controller with a plain pymodbus client, as a CNC or PLC program would.
 
-    python -m tests.acquisition.cnc_process PORT DELAY_S START_MM END_MM FEED_MM_MIN ACCEL_MM_S2 DWELL_S
+    python -m tests.acquisition.cnc_process PORT DELAY_S START_MM END_MM FEED_MM_MIN ACCEL_MM_S2 DWELL_S [--ack]
+
+``--ack``: once the program is DONE, acknowledge it at once (back to IDLE), as a CNC that
+clears its program's end state would.
 
 It imports nothing of mebm: the registers are written as docs/register-map.md describes
 them (one function-16 request, parameters then command, from register 40).
@@ -15,6 +18,8 @@ import time
 from pymodbus.client import ModbusTcpClient
 
 COMMAND_START = 1
+COMMAND_ACKNOWLEDGE = 3
+STATE_RUNNING, STATE_DONE = 1, 2
 
 
 def words_i32(v: int) -> list[int]:
@@ -37,6 +42,14 @@ def main(argv: list[str]) -> int:
         if rr.isError():
             print(f"cnc: start refused: {rr}", file=sys.stderr)
             return 3
+        if "--ack" in argv[7:]:
+            deadline = time.monotonic() + 60.0
+            while client.read_holding_registers(1, count=1, device_id=1).registers[0] != STATE_DONE:
+                if time.monotonic() > deadline:
+                    print("cnc: the program did not end within 60 s", file=sys.stderr)
+                    return 4
+                time.sleep(0.002)
+            client.write_registers(40, [COMMAND_ACKNOWLEDGE], device_id=1)
     finally:
         client.close()
     print("cnc: round trip started", flush=True)

@@ -28,9 +28,10 @@ PROGRAM = RoundTripProgram(-2.0, 22.0, 1000.0, acceleration_mm_s2=500.0, dwell_s
 USEFUL = AXIS.travel_mm
 
 
-def start_cnc(port: int, delay_s: float, program: RoundTripProgram = PROGRAM) -> subprocess.Popen:
+def start_cnc(port: int, delay_s: float, program: RoundTripProgram = PROGRAM, *, ack: bool = False) -> subprocess.Popen:
     args = [str(port), f"{delay_s:.3f}", *(repr(float(v)) for v in (
         program.start_mm, program.end_mm, program.feed_mm_min, program.acceleration_mm_s2, program.dwell_s))]
+    args += ["--ack"] if ack else []
     return subprocess.Popen([sys.executable, "-m", "tests.acquisition.cnc_process", *args], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
@@ -86,6 +87,23 @@ def test_a_round_trip_started_by_another_process_is_measured_as_an_active_one_is
         assert passive.to_dict()["acquisition"]["trigger"] == "passive"
 
 
+def test_a_cnc_that_acknowledges_the_end_at_once_is_measured_all_the_same():
+    """DONE -> IDLE while mebm is still reading the trace: the end of the program, not a fault."""
+    with modbus_peer(time_scale=3.0) as peer:
+        writes = count_writes(peer.server)
+        driver = peer.driver(trigger="passive", passive={"start_timeout_s": 120.0})
+        cnc = start_cnc(peer.server.port, 0.5, ack=True)
+        try:
+            res = run_cycle(driver, AXIS, PROGRAM, useful_travel_mm=USEFUL)
+        finally:
+            _, err = cnc.communicate(timeout=60)
+        assert cnc.returncode == 0, err
+        assert res.ok, res.reason
+        assert res.result.backlash_mean_um == pytest.approx(120.0, abs=1.0)
+        assert [a for a, _ in writes] == [mm.COMMAND, mm.COMMAND]  # the CNC's start and acknowledge
+        assert [v[0] for _, v in writes] == [1, 3]
+
+
 def test_positions_only_on_polled_samples_without_a_trace_buffer():
     """What a controller without a trace buffer or a running flag gives: polled latched
     samples. The round trip is still found, from the positions alone, and measured."""
@@ -118,19 +136,37 @@ def test_no_round_trip_within_the_time_out_is_a_typed_failure_and_nothing_is_wri
         assert writes == [] and peer.axis.cycles_started == 0
 
 
-def test_a_program_already_running_when_listening_begins_is_not_taken_halfway():
-    """With the running flag: a program under way at connect is waited out, the next one measured."""
+def test_a_program_running_when_listening_begins_is_read_whole_from_the_trace_buffer():
+    """The CNC started just before mebm listened; the controller's trace still holds the
+    program's first record, so the run is taken whole, from its start."""
     with modbus_peer(time_scale=3.0) as peer:
-        peer.axis.start(PROGRAM)  # the CNC started one before mebm listened
-        server = peer.server
+        writes = count_writes(peer.server)
+        peer.axis.start(PROGRAM)  # the CNC started it a moment before mebm connected
+        driver = peer.driver(trigger="passive", passive={"start_timeout_s": 60.0})
+        res = run_cycle(driver, AXIS, PROGRAM, useful_travel_mm=USEFUL)
+        assert res.ok, res.reason
+        assert res.trace.counter[0] == peer.axis.trace_first  # from the program's first sample
+        assert res.result.backlash_mean_um == pytest.approx(120.0, abs=1.0)
+        assert writes == [] and peer.axis.cycles_started == 1
+
+
+def test_a_program_running_when_listening_begins_without_its_start_is_waited_out():
+    """Polled samples only (no trace buffer): a program under way at connect cannot be had
+    whole, so it is waited out (the running flag must first be seen clear) and the next
+    one, started by the CNC process, is measured."""
+    slow = RoundTripProgram(-2.0, 22.0, 300.0, acceleration_mm_s2=500.0, dwell_s=0.5)
+    with modbus_peer(time_scale=1.0, mode="latched") as peer:
+        peer.axis.start(slow)  # under way before mebm listens
         driver = peer.driver(trigger="passive", passive={"start_timeout_s": 120.0})
-        cnc = start_cnc(server.port, 3.0)  # after the first one has ended
+        t_end = slow.duration_s + 1.0
+        cnc = start_cnc(peer.server.port, t_end, slow)  # the next one, after the first has ended
         try:
-            res = run_cycle(driver, AXIS, PROGRAM, useful_travel_mm=USEFUL)
+            res = run_cycle(driver, AXIS, slow, useful_travel_mm=USEFUL)
         finally:
-            cnc.communicate(timeout=60)
+            cnc.communicate(timeout=120)
         assert res.ok, res.reason
         assert peer.axis.cycles_started == 2
+        assert res.trace.counter[0] >= peer.axis.trace_first - 1  # within the second program's run
 
 
 # -- the default: passive unless the controller is a simulator ------------------------------

@@ -252,3 +252,17 @@ def test_waiting_at_rest_for_long_keeps_only_the_pre_roll():
         t = k * 1.0 + np.arange(1000) / RATE_HZ
         det.feed(t, np.zeros(1000), np.zeros(1000))
     assert sum(c[1].size for c in det._chunks) <= 2000
+
+
+def test_a_flag_set_from_the_first_sample_is_taken_when_the_wire_says_the_run_starts_there():
+    """The wire read the controller's trace from the program's first record: not halfway."""
+    rng = np.random.default_rng(16)
+    t, m, x, running, _ = flagged(rng, 0.0, 6.9, points_mm=[0.0, 60.0, 0.0], speeds_mm_s=[20, 20],
+                                  rests_s=[0.5, 0.2, 0.5])
+    det = RoundTripDetector(CFG, use_flag=True)
+    assert det.feed(t[:100], m[:100], x[:100], running[:100], run_start=True) is None
+    r = feed_in_blocks(det, t[100:], m[100:], x[100:], range(0, t.size, 300), running[100:])
+    assert r is not None and r.t_s[r.start_index] == t[0]
+    # without the wire's word, the same stream is a run already under way: waited out
+    det = RoundTripDetector(CFG, use_flag=True)
+    assert feed_in_blocks(det, t, m, x, range(0, t.size, 300), running) is None
