@@ -32,6 +32,7 @@ from acquisition.driver import ControllerDriver
 from acquisition.errors import (
     ControllerConnectionError,
     ControllerTimeoutError,
+    DeviceFaultError,
     DriverMisuseError,
     LostSamplesError,
 )
@@ -76,8 +77,11 @@ class SyncListener:
 
     LEARN_SYNCS = 16
 
-    def __init__(self, mapping: ListenMapping, *, wall_period_s: float | None = None, window_s: float | None = None):
+    def __init__(self, mapping: ListenMapping, *, wall_period_s: float | None = None, window_s: float | None = None,
+                 emcy_cob_id: int | None = None):
         self.mapping = mapping
+        self.emcy_cob_id = emcy_cob_id
+        self.emcy: tuple[int, bytes] | None = None  # the first fault EMCY heard (error code, frame)
         self.wall_period_s = wall_period_s
         self.window_s = window_s
         self.lock = threading.Lock()
@@ -104,6 +108,10 @@ class SyncListener:
                 self._sync(bytes(msg.data), t)
             elif cob == self.mapping.tpdo_cob_id:
                 self._tpdo(bytes(msg.data), t)
+            elif cob == self.emcy_cob_id and len(msg.data) >= 2 and self.emcy is None:
+                code = int.from_bytes(bytes(msg.data[:2]), "little")
+                if code:  # 0x0000: error reset / no error
+                    self.emcy = (code, bytes(msg.data))
 
     def _sync(self, data: bytes, t: float) -> None:
         self.syncs_heard += 1
@@ -169,8 +177,10 @@ class CanopenListenWire:
 
     def __init__(self, channel: str, mapping: ListenMapping, *, interface: str = "socketcan",
                  sync_rate_hz: float | None = None, time_scale: float = 1.0, window_s: float | None = None,
-                 bus_kwargs: dict | None = None, bus_factory: Callable[[], can.BusABC] | None = None):
+                 bus_kwargs: dict | None = None, bus_factory: Callable[[], can.BusABC] | None = None,
+                 emcy_cob_id: int | None = None):
         self.channel, self.interface, self.mapping = channel, interface, mapping
+        self.emcy_cob_id = emcy_cob_id
         if sync_rate_hz is None and mapping.sync_period_s:
             sync_rate_hz = 1.0 / mapping.sync_period_s
         if sync_rate_hz is not None and not sync_rate_hz > 0:
@@ -198,7 +208,8 @@ class CanopenListenWire:
     def open(self) -> None:
         self.close()
         wall = 1.0 / (self.sync_rate_hz * self.time_scale) if self.sync_rate_hz else None
-        self.listener = SyncListener(self.mapping, wall_period_s=wall, window_s=self.window_s)
+        self.listener = SyncListener(self.mapping, wall_period_s=wall, window_s=self.window_s,
+                                     emcy_cob_id=self.emcy_cob_id)
         try:
             self.bus = _ListenOnlyBus(self.bus_factory())
             self.notifier = can.Notifier(self.bus._bus, [self.listener], timeout=0.1)
@@ -297,7 +308,7 @@ class CanopenListenDriver(ControllerDriver):
         self.node_id = int(node_id)
         self.wire = CanopenListenWire(channel, mapping, interface=interface, sync_rate_hz=sync_rate_hz,
                                       time_scale=time_scale, window_s=window_s, bus_kwargs=bus_kwargs,
-                                      bus_factory=bus_factory)
+                                      bus_factory=bus_factory, emcy_cob_id=0x80 + self.node_id)
         self._order = None
         self.sends_refused = 0
 
@@ -371,6 +382,10 @@ class CanopenListenDriver(ControllerDriver):
     async def _passive_drain(self) -> SampleBlock:
         if self.wire.bus is None:
             raise ControllerConnectionError(f"not connected to {self.describe()}")
+        emcy = self.wire.listener.emcy
+        if emcy is not None:  # heard, not asked: the drive reported a fault while mebm listened
+            raise DeviceFaultError(f"drive node {self.node_id} sent EMCY {emcy[1].hex(' ')} while mebm listened: "
+                                   "the round trip is not measured", code=emcy[0])
         return self._take()
 
     def _passive_trace(self, cycle, found, rate, skew_s, t_first_block, last_progress) -> AcquiredTrace:

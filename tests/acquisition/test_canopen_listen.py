@@ -297,6 +297,19 @@ def test_no_round_trip_within_the_time_out_is_a_typed_failure_and_no_measurement
     assert r.result is None and r.trace is None
 
 
+def test_an_emcy_the_drive_sends_while_mebm_listens_fails_the_cycle_with_its_code():
+    with _bench() as (channel, drive):
+        d = _listener(channel)
+        th, _ = _master_in_thread(channel, PROGRAM)
+        timer = threading.Timer(1.0, drive.node.emcy.send, (0x7305, 0x01))  # incremental sensor 1 fault
+        timer.start()
+        r = run_cycle(d, AXIS, PROGRAM)
+        th.join(30)
+        timer.cancel()
+    assert not r.ok and r.reason_code == "device_fault" and "0x7305" in r.reason, r.reason
+    assert r.result is None
+
+
 def test_listen_only_with_no_master_on_the_bus_says_so():
     with _bench() as (channel, _drive):
         d = _listener(channel)
