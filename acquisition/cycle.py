@@ -82,7 +82,7 @@ class CycleResult:
                 "protocol": t.protocol, "mode": t.mode, "latched": t.latched, "samples": len(t),
                 "lost_samples": t.lost_samples, "sample_rate_hz": t.servo_rate_hz,
                 "skew_uncertainty_um": t.skew_uncertainty_um, "temperature_c": t.temperature_c,
-                "samples_per_s": t.samples_per_s,
+                "samples_per_s": t.samples_per_s, "trigger": t.trigger,
             }
         if self.ok:
             out["uncertainty_um"] = self.uncertainty_um
@@ -111,7 +111,7 @@ class CycleResult:
             "controller": self.controller, "acquisition_mode": t.mode, "latched": t.latched,
             "skew_uncertainty_um": t.skew_uncertainty_um, "lost_samples": t.lost_samples,
             "sample_rate_hz": t.servo_rate_hz, "counter_first": int(t.counter[0]), "counter_last": int(t.counter[-1]),
-            "travel_program_mm": [self.program.start_mm, self.program.end_mm],
+            "travel_program_mm": [self.program.start_mm, self.program.end_mm], "trigger": t.trigger,
         }
         spec = RunSpec(file=file, kind="round_trip", axes=(self.axis,), feed_mm_min=self.program.feed_mm_min,
                        temperature_c=t.temperature_c if math.isfinite(t.temperature_c) else 20.0,
@@ -141,7 +141,9 @@ def validate_trace(trace: AcquiredTrace, program: RoundTripProgram, axis: AxisSp
         raise IncompleteTraceError(f"sample counter not increasing at sample {int(np.argmax(dc <= 0)) + 1}")
     # the driver may report more than the gaps show (samples lost before the first one that
     # arrived), never fewer
-    if trace.mode in ("trace", "sync") and int((dc - 1).sum()) > trace.lost_samples:
+    # (a passive trace's rest before and after the round trip is polled, so decimated by design:
+    # its driver counts the gaps of the controller's own trace only)
+    if trace.mode in ("trace", "sync") and trace.trigger == "active" and int((dc - 1).sum()) > trace.lost_samples:
         raise IncompleteTraceError(
             f"counter has {int((dc - 1).sum())} missing values but the acquisition reported {trace.lost_samples}"
         )
@@ -171,6 +173,7 @@ def _failed(driver, axis, program, exc, t0, wall0, trace=None) -> CycleResult:
 
 
 def _evaluate(driver, axis, program, trace, tasks, useful_travel_mm, settings, t0, wall0) -> CycleResult:
+    program = trace.program  # passive mode: the round trip as observed (active: the one commanded)
     try:
         validate_trace(trace, program, axis, useful_travel_mm)
         result = analyze_round_trip(trace.time_s, trace.motor_rev, trace.table_mm, axis,

@@ -14,6 +14,13 @@ reports the end. The pieces it composes, each in its own module:
 On any failure after the start an abort is sent, so the axis is left stopped. Subclasses
 implement the ``_connect``/``_close``/``_read_status``/``_start``/``_abort``/``_acknowledge``/
 ``_drain`` coroutines and translate their library's exceptions into :mod:`acquisition.errors`.
+
+**Passive round trips** (``trigger="passive"``): the CNC runs the round-trip program and
+mebm only records. The base connects, polls samples through the wire's
+``_passive_drain`` (the one coroutine a wire adds for passive mode: samples since the
+last call, with the controller's "program running" flag when it has one) and feeds them
+to :class:`acquisition.round_trip_detector.RoundTripDetector`; it never writes a start,
+an abort or an acknowledge. The program of the returned trace is what was observed.
 """
 
 from __future__ import annotations
@@ -22,6 +29,7 @@ import asyncio
 import math
 import time
 from abc import ABC, abstractmethod
+from dataclasses import replace
 
 import numpy as np
 
@@ -35,9 +43,11 @@ from acquisition.errors import (
     DeviceBusyError,
     DeviceFaultError,
     DriverMisuseError,
+    LostSamplesError,
     ProtocolError,
 )
 from acquisition.retry import RetryPolicy
+from acquisition.round_trip_detector import DetectedRoundTrip, DetectorSettings, RoundTripDetector
 from acquisition.trace_assembler import TraceAssembler
 from acquisition.types import AcquiredTrace, AxisState, ControllerStatus, RoundTripProgram, SampleBlock
 from core.dataset import AxisSpec
@@ -70,6 +80,10 @@ class ControllerDriver(ABC):
     #: The wire bounds every request by ``timeout_s`` itself (pymodbus does), so the base
     #: need not wrap each call in an asyncio timeout (a measurable cost per block).
     wire_timeouts = False
+    #: The wire implements ``_passive_drain`` (passive round trips).
+    supports_passive = False
+    #: The wire's passive samples carry the controller's "program running" flag.
+    has_running_flag = False
 
     def __init__(
         self,
@@ -82,6 +96,9 @@ class ControllerDriver(ABC):
         stuck_travel_mm: float = 1.0,
         stall_timeout_s: float | None = None,
         retry: RetryPolicy | None = None,
+        trigger: str = "active",
+        passive: dict | None = None,
+        running_flag: bool | None = None,
     ):
         self.timeout_s = require_positive("timeout_s", timeout_s)
         if retries < 0:
@@ -97,6 +114,21 @@ class ControllerDriver(ABC):
         self._connected = False
         self.connect_attempts = 0  # connection set-ups tried by this driver (tests count them)
         self.servo_rate_hz = float("nan")
+        if trigger not in TRIGGERS:
+            raise InputError(f"trigger (={trigger!r}) must be one of {TRIGGERS}")
+        if trigger == "passive" and not self.supports_passive:
+            raise InputError(f"trigger = 'passive': {self.protocol} driver {type(self).__name__} cannot detect a "
+                             "round trip it did not start (no passive sample path); use trigger = 'active'")
+        if running_flag and not self.has_running_flag:
+            raise InputError(f"running_flag: {type(self).__name__} reads no 'program running' flag from the "
+                             "controller; detect the round trip from the positions (running_flag off)")
+        self.trigger = trigger
+        self.running_flag = self.has_running_flag if running_flag is None else bool(running_flag)
+        self.passive = dict(passive or {})
+        unknown = sorted(set(self.passive) - set(DetectorSettings.__dataclass_fields__))
+        if unknown:
+            raise InputError(f"passive: unknown option(s) {unknown} (allowed: "
+                             f"{sorted(DetectorSettings.__dataclass_fields__)})")
         self._cycle: AcquisitionCycle | None = None  # the cycle under way
         self.last_cycle: AcquisitionCycle | None = None  # the cycle that ended last (for inspection)
 
@@ -150,6 +182,13 @@ class ControllerDriver(ABC):
     @abstractmethod
     async def _drain(self) -> SampleBlock:
         """Samples latched since the last drain (possibly none) and whether the program has ended."""
+
+    async def _passive_drain(self) -> SampleBlock:
+        """Passive mode: samples since the last call (possibly none), without commanding
+        anything; ``running`` set per sample when the wire reads a running flag, and
+        ``run_start`` when a block begins with the first sample of the program's run.
+        Wires that support passive mode (``supports_passive``) override it."""
+        raise DriverMisuseError(f"{type(self).__name__} has no passive sample path")
 
     # -- exchanges, each under the one retry policy -------------------------------------------
     async def connect(self) -> None:
@@ -260,6 +299,12 @@ class ControllerDriver(ABC):
                 f"a cycle is already under way on the driver for {self.describe()}: one cycle at a time per driver"
             )
         cycle = self._cycle = AcquisitionCycle(program=program, axis=axis, t_wall0=time.monotonic())
+        if self.trigger == "passive":
+            try:
+                return await self._listen(cycle)
+            finally:
+                await self.close()
+                self._cycle, self.last_cycle = None, cycle
         try:
             status = await self._call("reading the axis state", self._read_status)
             if status.state == AxisState.RUNNING:
@@ -366,6 +411,96 @@ class ControllerDriver(ABC):
             drain_time_s=(last_progress - t_first_block) if t_first_block is not None else float("nan"),
         )
 
+    # -- passive round trips -----------------------------------------------------------------
+    def detector_settings(self, axis: AxisSpec) -> DetectorSettings:
+        """The detection settings for ``axis``: the configured ones over defaults that fit its
+        travel (the stroke must cover 90 % of the useful travel; back within 1 mm, or 10 % of
+        the travel on a short axis)."""
+        lo, hi = axis.travel_mm
+        span = abs(hi - lo)
+        tol = min(1.0, 0.1 * span)
+        base = DetectorSettings(min_stroke_mm=0.9 * span, return_tolerance_mm=tol,
+                                rest_band_mm=min(DetectorSettings.rest_band_mm, tol))
+        try:
+            return replace(base, **self.passive)
+        except TypeError as exc:
+            raise InputError(f"passive settings: {exc}") from None
+
+    async def _listen(self, cycle: AcquisitionCycle) -> AcquiredTrace:
+        """Passive mode: record samples until the detector has one whole round trip."""
+        settings = self.detector_settings(cycle.axis)
+        detector = RoundTripDetector(settings, use_flag=self.running_flag)
+        status = await self._call("reading the axis state", self._read_status)
+        cycle.temperature0_c = status.temperature_c
+        rate = self.servo_rate_hz
+        # the detector's time-outs run on the samples' clock; this bounds the wall clock too
+        deadline = time.monotonic() + settings.start_timeout_s + settings.max_duration_s + 3 * self.timeout_s + 5.0
+        last_counter: int | None = None
+        skew_s = 0.0
+        last_progress = time.monotonic()
+        t_first_block = None
+        while True:
+            now = time.monotonic()
+            if now > deadline:
+                detector.finish()  # raises what the samples so far mean
+            block = await self._call("reading samples", self._passive_drain)
+            c = np.asarray(block.counter, dtype=np.int64)
+            if c.size and last_counter is not None:
+                keep = c > last_counter  # a sample read twice (ring and latched) counts once
+                if not keep.all():
+                    block = _take(block, keep)
+                    c = c[keep]
+            if c.size:
+                if t_first_block is None:
+                    t_first_block = now
+                last_counter = int(c[-1])
+                last_progress = time.monotonic()
+                skew_s = max(skew_s, block.skew_s)
+                t = block.time_s if block.time_s is not None else c / rate
+                found = detector.feed(t, block.motor_rev, block.table_mm, block.running, run_start=block.run_start)
+                if found is not None:
+                    break
+            elif time.monotonic() - last_progress > self.stall_timeout_s:
+                raise ControllerTimeoutError(
+                    f"{self.describe()} delivered no new sample for {self.stall_timeout_s:g} s while mebm "
+                    f"listened for a round trip ({detector.phase})")
+            if block.caught_up:
+                await asyncio.sleep(self.poll_interval_s)
+        return self._passive_trace(cycle, found, rate, skew_s, t_first_block, last_progress)
+
+    def _passive_trace(self, cycle: AcquisitionCycle, found: DetectedRoundTrip, rate: float, skew_s: float,
+                       t_first_block: float | None, last_progress: float) -> AcquiredTrace:
+        axis = cycle.axis
+        counter = np.rint(found.t_s * rate).astype(np.int64) if math.isfinite(rate) and rate > 0 \
+            else np.arange(len(found), dtype=np.int64)
+        # lost samples: counter gaps between consecutive samples of the controller's own
+        # trace (flag set), where every servo cycle should be there; the polled rest
+        # around it is decimated by design
+        lost = 0
+        if self.continuous and found.running is not None and len(found) > 1:
+            both = found.running[1:] & found.running[:-1]
+            lost = int((np.diff(counter)[both] - 1).clip(min=0).sum())
+        if lost > self.max_lost_samples:
+            raise LostSamplesError(f"{lost} samples missing from the controller's trace of the round trip "
+                                   f"(allowed {self.max_lost_samples})", lost_samples=lost)
+        program = observed_program(found, fallback=cycle.program)
+        monitor = EncoderMonitor(program, axis.transmission_mm_per_rev, rate,
+                                 jump_margin_mm=self.jump_margin_mm, stuck_travel_mm=self.stuck_travel_mm)
+        monitor.check(counter, found.motor_rev, found.table_mm, skew_s=skew_s)
+        monitor.finish(skew_s=skew_s)
+        temps = [x for x in (cycle.temperature0_c,) if math.isfinite(x)]
+        return AcquiredTrace(
+            protocol=self.protocol, mode=self.mode, time_s=found.t_s - found.t_s[0], counter=counter,
+            motor_rev=found.motor_rev, table_mm=found.table_mm,
+            temperature_c=float(np.mean(temps)) if temps else float("nan"), latched=self.latched,
+            skew_uncertainty_um=skew_s * program.speed_mm_s * 1e3, lost_samples=lost, servo_rate_hz=rate,
+            program=program, wall_time_s=time.monotonic() - cycle.t_wall0,
+            drain_time_s=(last_progress - t_first_block) if t_first_block is not None else float("nan"),
+            notes=(f"passive: found by the {found.found_by}, stroke {found.stroke_mm:.3f} mm at "
+                   f"{found.feed_mm_min:.0f} mm/min",),
+            trigger="passive",
+        )
+
     def acquire(self, program: RoundTripProgram, axis: AxisSpec) -> AcquiredTrace:
         """Blocking form of :meth:`acquire_async` for threads (runs its own event loop)."""
         try:
@@ -373,6 +508,25 @@ class ControllerDriver(ABC):
         except RuntimeError:
             return asyncio.run(self.acquire_async(program, axis))
         raise DriverMisuseError("acquire() called inside a running event loop: await acquire_async() instead")
+
+
+#: Who starts the round trip: mebm ("active") or the CNC, mebm only recording ("passive").
+TRIGGERS = ("active", "passive")
+
+
+def observed_program(found: DetectedRoundTrip, *, fallback: RoundTripProgram) -> RoundTripProgram:
+    """The round trip as it was run (passive mode): observed start, reversal, feed and dwell;
+    the acceleration is the configured one (it is not observed)."""
+    feed = found.feed_mm_min if math.isfinite(found.feed_mm_min) and found.feed_mm_min > 0 else fallback.feed_mm_min
+    return RoundTripProgram(found.start_mm, found.reversal_mm, feed, acceleration_mm_s2=fallback.acceleration_mm_s2,
+                            dwell_s=max(found.dwell_s, 0.0))
+
+
+def _take(block: SampleBlock, keep: np.ndarray) -> SampleBlock:
+    return replace(block, counter=block.counter[keep], motor_rev=block.motor_rev[keep],
+                   table_mm=block.table_mm[keep], time_s=None if block.time_s is None else block.time_s[keep],
+                   running=None if block.running is None else block.running[keep],
+                   run_start=block.run_start and bool(keep[0]))
 
 
 def _join(blocks):

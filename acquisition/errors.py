@@ -113,3 +113,28 @@ class IncompleteTraceError(AcquisitionError):
     """The acquired trace does not cover the programmed round trip (stroke missing, travel short)."""
 
     reason_code = "incomplete_trace"
+
+
+class NoRoundTripSeen(AcquisitionError):
+    """Passive mode: the CNC ran no round trip while mebm listened (``waited_s``). Nothing
+    was measured: start the round-trip program at the CNC within the time-out."""
+
+    reason_code = "no_round_trip"
+
+    def __init__(self, message: str, *, waited_s: float):
+        self.waited_s = float(waited_s)
+        super().__init__(message)
+
+
+class RoundTripTooLong(AcquisitionError):
+    """Passive mode: a round trip took longer than the configured ``max_duration_s``
+    (a feed hold, a slower program than configured, or motion that was not the round trip)."""
+
+    reason_code = "round_trip_too_long"
+
+
+class IncompleteRoundTrip(AcquisitionError):
+    """Passive mode: a round trip started (left rest, reached the minimum stroke) but never
+    came back to rest at its start: stopped short, or the program ended elsewhere."""
+
+    reason_code = "incomplete_round_trip"

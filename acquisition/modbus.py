@@ -55,9 +55,20 @@ class _RingCursor:
     next_counter: int | None = None  # counter the next record should carry
 
 
+@dataclass
+class _Listening:
+    """Passive mode's per-cycle state: the ring of a program seen running, and the last counter."""
+
+    ring: _RingCursor | None = None
+    last_counter: int | None = None
+    run_start: bool = False  # the ring is read from the program's first record
+
+
 class ModbusDriver(ControllerDriver):
     protocol = "modbus"
     wire_timeouts = True  # pymodbus' client timeout bounds each request
+    supports_passive = True
+    has_running_flag = True  # the status block's axis state: RUNNING while a program runs
 
     def __init__(self, host: str, port: int = 502, *, device_id: int = 1, mode: str = "trace",
                  blocks_per_drain: int = 16, client_factory=None, register_map=None, serial: dict | None = None,
@@ -171,7 +182,9 @@ class ModbusDriver(ControllerDriver):
         """A status read mid-cycle: anything but RUNNING/DONE ends the cycle with its reason."""
         if s.state is None:
             raise ProtocolError(f"{self.describe()}: unknown axis state {s.state_raw}")
-        if s.state not in (AxisState.RUNNING, AxisState.DONE):
+        # passive: the CNC may acknowledge its program the moment it ends (DONE -> IDLE)
+        ended = (AxisState.DONE, AxisState.IDLE) if self.trigger == "passive" else (AxisState.DONE,)
+        if s.state != AxisState.RUNNING and s.state not in ended:
             raise_device_fault(ControllerStatus(s.state, s.fault_code), self.describe(), self.link_trouble)
 
     async def _read_status(self) -> ControllerStatus:
@@ -210,7 +223,7 @@ class ModbusDriver(ControllerDriver):
         A failed read after good blocks ends the batch: those blocks are handed over and
         the read is retried on the next drain, so nothing read is lost.
         """
-        cur: _RingCursor = self.cycle.wire
+        cur: _RingCursor = self.cycle.wire if isinstance(self.cycle.wire, _RingCursor) else self.cycle.wire.ring
         next_w = cur.next_w
         ref = cur.first_counter if cur.next_counter is None else cur.next_counter
         expected = ref
@@ -263,7 +276,7 @@ class ModbusDriver(ControllerDriver):
             # records from the ring instead of losing them
             s = await self._status()
             self._check_running(s)
-            finished = s.state == AxisState.DONE and next_w >= s.trace_count
+            finished = s.state != AxisState.RUNNING and next_w >= s.trace_count
         cur.next_w = next_w
         if not regs_all:
             return SampleBlock.empty(finished)
@@ -307,3 +320,52 @@ class ModbusDriver(ControllerDriver):
         if counter[0] < first:
             return SampleBlock.empty()
         return SampleBlock(counter, motor, table, finished=s.state == AxisState.DONE, skew_s=skew)
+
+    # -- passive ------------------------------------------------------------------------------
+    async def _passive_drain(self) -> SampleBlock:
+        """Samples without commanding anything: the latched sample of each status read while
+        no program runs; in trace mode, the controller's trace ring while one runs (every
+        servo cycle of the round trip, as in active mode). ``running``: axis state RUNNING."""
+        lis = self.cycle.wire
+        if lis is None:
+            lis = self.cycle.wire = _Listening()
+        if lis.ring is not None:
+            first = lis.ring.first_counter
+            block = await self._drain_trace()
+            if block.finished:
+                lis.ring = None  # the program ended and its trace is read: back to polling
+            run_start = False
+            if len(block):
+                lis.last_counter = int(block.counter[-1])
+                run_start, lis.run_start = lis.run_start and int(block.counter[0]) == first, False
+            # caught up with a running trace: wait a poll interval; its end: poll again at once
+            return SampleBlock(block.counter, block.motor_rev, block.table_mm,
+                               caught_up=block.caught_up and lis.ring is not None,
+                               running=np.ones(len(block), dtype=bool), run_start=run_start)
+        t0 = time.monotonic()
+        if self.mode == "separate":
+            motor_regs = await self._read(self.map.separate_first, "reading the motor position")
+            table_regs = await self._read(self.map.separate_table, "reading the table position")
+            s = self.map.join_separate(motor_regs, table_regs)
+            skew = (time.monotonic() - t0) + (1.0 / self.servo_rate_hz if self.servo_rate_hz > 0 else 0.0)
+        else:
+            s = self.map.decode_status(await self._read(self.map.status, "reading the latched sample"))
+            skew = 0.0
+        if s.state is None:
+            raise ProtocolError(f"{self.describe()}: unknown axis state {s.state_raw}")
+        running = s.state == AxisState.RUNNING
+        if running and self.mode == "trace":
+            # a program runs: read its trace from the record after the last sample delivered
+            first = s.trace_first
+            next_w = 0 if lis.last_counter is None else max(0, lis.last_counter + 1 - first)
+            lis.ring = _RingCursor(first_counter=first, next_w=next_w,
+                                   next_counter=first + next_w if next_w else None)
+            # listening began while the program ran, but the ring still holds its first record
+            # (with a block's margin): the run is read whole, from its start
+            lis.run_start = (lis.last_counter is None and next_w == 0
+                             and s.trace_count + self.map.records_per_read <= self.ring_records)
+            return SampleBlock(np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0), caught_up=False)
+        ref = lis.last_counter if lis.last_counter is not None else s.counter
+        counter, motor, table = self.map.latched_sample(s, self.scale, ref)
+        lis.last_counter = int(counter[-1])
+        return SampleBlock(counter, motor, table, skew_s=skew, running=np.array([running]))

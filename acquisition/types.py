@@ -100,6 +100,8 @@ class SampleBlock:
     time_s: np.ndarray | None = None
     skew_s: float = 0.0
     caught_up: bool = True  # False: more samples are already waiting, drain again at once
+    running: np.ndarray | None = None  # passive mode: the controller's "program running" flag per sample
+    run_start: bool = False  # passive mode: the first sample is the first of the controller's program run
 
     @staticmethod
     def empty(finished: bool = False) -> "SampleBlock":
@@ -134,6 +136,7 @@ class AcquiredTrace:
     program: RoundTripProgram
     wall_time_s: float = float("nan")
     drain_time_s: float = float("nan")  # wall time from the first to the last drained block
+    trigger: str = "active"  # "active": mebm started the round trip; "passive": the CNC did, mebm detected it
     notes: tuple[str, ...] = field(default_factory=tuple)
 
     def __len__(self) -> int:

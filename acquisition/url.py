@@ -1,7 +1,16 @@
 """Controller URLs: ``modbus://HOST[:PORT][?mode=trace|latched|separate&device_id=N&profile=FILE.toml]``,
-``modbus+rtu:///dev/ttyUSB0[?baudrate=19200&parity=N|E|O&stopbits=1|2&bytesize=8&device_id=N&profile=...]`` and
-``canopen://INTERFACE/CHANNEL?node=N[&rate_hz=R&window_ms=W&time_scale=X&<bus option>=V...]``
-(any other query key, e.g. ``bitrate`` or ``port``, is passed to the python-can bus).
+``modbus+rtu:///dev/ttyUSB0[?baudrate=19200&parity=N|E|O&stopbits=1|2&bytesize=8&device_id=N&profile=...]``,
+``sim://HOST[:PORT][?...]`` (mebm's own simulated Modbus controller, ``mebm sim-controller
+modbus``) and ``canopen://INTERFACE/CHANNEL?node=N[&mode=listen-only|active-cia402|active-mebm&...]``
+(:mod:`acquisition.canopen_url`; any other query key, e.g. ``bitrate`` or ``port``, is passed
+to the python-can bus).
+
+Every scheme also takes who starts the round trip, ``trigger=active|passive`` (docs/controllers.md,
+"Passive and active round trips"), and for passive mode ``running_flag=0|1`` and the detection
+settings (``start_timeout_s``, ``max_duration_s``, ``rest_band_mm``, ``rest_s``, ``min_stroke_mm``,
+``return_tolerance_mm``, ``pre_roll_s``, ``flag_margin_s``). Without ``trigger`` a simulator
+(``sim://``, or CANopen on python-can's in-process ``virtual`` bus) is active and any other
+controller passive: mebm moves an axis only where it was told to, or where nothing can move.
 """
 
 from __future__ import annotations
@@ -10,12 +19,55 @@ from urllib.parse import parse_qs, urlsplit
 
 from core.errors import InputError
 
+PASSIVE_KEYS = ("start_timeout_s", "max_duration_s", "rest_band_mm", "rest_s", "min_stroke_mm",
+                "return_tolerance_mm", "pre_roll_s", "flag_margin_s")
+TRIGGER_KEYS = ("trigger", "running_flag", *PASSIVE_KEYS)
+
+
+def is_simulator_url(url: str) -> bool:
+    """A controller that can only be a simulation: ``sim://``, or CANopen on the in-process bus."""
+    parts = urlsplit(url)
+    return parts.scheme == "sim" or (parts.scheme == "canopen" and parts.netloc == "virtual")
+
+
+def default_trigger(url: str) -> str:
+    """``active`` for a simulator, ``passive`` for any other controller."""
+    return "active" if is_simulator_url(url) else "passive"
+
+
+def _trigger_kwargs(url: str, q: dict[str, str]) -> dict:
+    """The driver's ``trigger``/``running_flag``/``passive`` arguments from the URL's query."""
+    trigger = q.pop("trigger", None) or default_trigger(url)
+    if trigger not in ("active", "passive"):
+        raise InputError(f"controller URL {url!r}: trigger (={trigger!r}) must be active or passive")
+    out: dict = {"trigger": trigger}
+    if "running_flag" in q:
+        flag = q.pop("running_flag").lower()
+        if flag not in ("0", "1", "true", "false", "yes", "no", "on", "off"):
+            raise InputError(f"controller URL {url!r}: running_flag (={flag!r}) must be 0 or 1")
+        out["running_flag"] = flag in ("1", "true", "yes", "on")
+    passive = {}
+    for key in PASSIVE_KEYS:
+        if key in q:
+            raw = q.pop(key)
+            try:
+                passive[key] = float(raw)
+            except ValueError:
+                raise InputError(f"controller URL {url!r}: {key} (={raw!r}) must be a number") from None
+    if passive:
+        if trigger != "passive":
+            raise InputError(f"controller URL {url!r}: {sorted(passive)} apply to trigger=passive only")
+        out["passive"] = passive
+    return out
+
 
 def driver_from_url(url: str, **kwargs):
     """A :class:`~acquisition.driver.ControllerDriver` for ``url``; ``kwargs`` go to the driver
     (``timeout_s``, ``retries``, ...)."""
     parts = urlsplit(url)
     q = {k: v[-1] for k, v in parse_qs(parts.query).items()}
+    if parts.scheme in ("modbus", "modbus+rtu", "sim"):  # canopen: its mode and the trigger, together (canopen_url)
+        kwargs = {**_trigger_kwargs(url, q), **kwargs}
 
     def num(key, cast, default):
         if key not in q:
@@ -25,20 +77,20 @@ def driver_from_url(url: str, **kwargs):
         except ValueError:
             raise InputError(f"controller URL {url!r}: {key} (={q[key]!r}) must be a number") from None
 
-    if parts.scheme in ("modbus", "modbus+rtu"):
+    if parts.scheme in ("modbus", "modbus+rtu", "sim"):
         from acquisition.modbus import ModbusDriver
         from acquisition.modbus_profile import BUILTIN, RegisterProfile, load_profile
 
         known = {"device_id", "mode", "profile", *(_SERIAL if parts.scheme == "modbus+rtu" else ())}
         unknown = sorted(set(q) - known)
         if unknown:
-            raise InputError(f"controller URL {url!r}: unknown option(s) {unknown} (allowed: {sorted(known)})")
+            raise InputError(f"controller URL {url!r}: unknown option(s) {unknown} (allowed: {sorted(known | set(TRIGGER_KEYS))})")
         device_id = num("device_id", int, 1)
         if not 0 <= device_id <= 247:
             raise InputError(f"controller URL {url!r}: device_id (={device_id}) must be 0..247")
-        if parts.scheme == "modbus":
+        if parts.scheme in ("modbus", "sim"):
             if not parts.hostname:
-                raise InputError(f"controller URL {url!r} needs a host: modbus://HOST:PORT")
+                raise InputError(f"controller URL {url!r} needs a host: {parts.scheme}://HOST:PORT")
             try:
                 host, port = parts.hostname, parts.port or 502
             except ValueError:
@@ -66,24 +118,10 @@ def driver_from_url(url: str, **kwargs):
             return ProfileModbusDriver(host, port, profile=profile, device_id=device_id, serial=serial, **kwargs)
         return ModbusDriver(host, port, device_id=device_id, mode=q.get("mode", "trace"), serial=serial, **kwargs)
     if parts.scheme == "canopen":
-        from acquisition.canopen import CanopenDriver
+        from acquisition.canopen_url import driver_from_canopen_url
 
-        channel = parts.path.lstrip("/")
-        if not parts.netloc or not channel:
-            raise InputError(f"controller URL {url!r} must be canopen://INTERFACE/CHANNEL?node=N "
-                             "(e.g. canopen://socketcan/can0?node=5, canopen://virtual/sim?node=5)")
-        if "node" not in q:
-            raise InputError(f"controller URL {url!r} needs ?node=N (the drive's CANopen node id)")
-        known = {"node", "rate_hz", "time_scale", "window_ms"}
-        bus_kwargs = {}
-        for key, val in q.items():  # anything else is a python-can bus option (bitrate, port, ...)
-            if key not in known:
-                bus_kwargs[key] = int(val) if val.lstrip("-").isdigit() else val
-        return CanopenDriver(channel, num("node", int, 0), interface=parts.netloc,
-                             sync_rate_hz=num("rate_hz", float, 250.0), time_scale=num("time_scale", float, 1.0),
-                             bus_kwargs=bus_kwargs,
-                             sync_window_s=num("window_ms", float, 0.0) / 1000.0 or None, **kwargs)
-    raise InputError(f"controller URL {url!r}: scheme must be modbus://, modbus+rtu:// or canopen://")
+        return driver_from_canopen_url(url, **kwargs)
+    raise InputError(f"controller URL {url!r}: scheme must be modbus://, modbus+rtu://, sim:// or canopen://")
 
 
 _SERIAL = ("baudrate", "parity", "stopbits", "bytesize")

@@ -97,7 +97,7 @@ def start_controllers(n: int, run_s: float) -> tuple[list[subprocess.Popen], lis
             for q in procs:
                 q.kill()
             raise SystemExit(f"soak: a simulated controller did not start: {line!r}")
-        urls.append(m.group(0))
+        urls.append(m.group(0).replace("modbus://", "sim://", 1))  # sim://: mebm starts the round trips
     return procs, urls
 
 

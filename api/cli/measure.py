@@ -25,8 +25,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("measure", help="measure an axis' backlash and lead criteria on the machine")
     p.add_argument("--controller", required=True, metavar="URL",
                    help="modbus://HOST:PORT[?mode=trace|latched|separate|profile=P.toml], "
-                        "modbus+rtu:///dev/DEVICE?baudrate=N[&parity=E&profile=P.toml] or canopen://INTERFACE/CHANNEL?node=N"
-                        "[&rate_hz=250]")
+                        "modbus+rtu:///dev/DEVICE?baudrate=N[&parity=E&profile=P.toml], sim://HOST:PORT "
+                        "(mebm sim-controller) or canopen://INTERFACE/CHANNEL?node=N[&rate_hz=250]")
+    p.add_argument("--trigger", choices=("active", "passive"), default=None,
+                   help="who starts the round trip: active (mebm commands it) or passive (the CNC runs it, mebm "
+                        "records). Default: active for a simulator (sim://, canopen://virtual/...), else passive")
+    p.add_argument("--start-timeout-s", type=float, default=None,
+                   help="passive: how long to wait for the CNC to start the round trip (default 600)")
     p.add_argument("--axis", default="y", help="axis name (default y)")
     p.add_argument("--travel-mm", nargs="+", type=float, required=True, metavar="MM",
                    help="useful travel: START END, or a LENGTH from 0")
@@ -83,7 +88,10 @@ def run(a: argparse.Namespace) -> int:
     start, end = _travel(a.travel_mm)
     axis = AxisSpec(axis_name, a.transmission_mm_per_rev, a.screw_lead_mm, a.position_gain_per_s, (start, end))
     tasks = [_task(t, i, a.position_gain_per_s) for i, t in enumerate(a.task)]
-    driver = driver_from_url(a.controller, timeout_s=a.timeout_s, retries=a.retries)
+    extra = {} if a.trigger is None else {"trigger": a.trigger}
+    if a.start_timeout_s is not None:
+        extra["passive"] = {"start_timeout_s": a.start_timeout_s}
+    driver = driver_from_url(a.controller, timeout_s=a.timeout_s, retries=a.retries, **extra)
     program = default_program(axis, a.feed_mm_min, acceleration_mm_s2=a.acceleration_mm_s2, dwell_s=a.dwell_s,
                               overtravel_mm=a.overtravel_mm)
     result = run_cycle(driver, axis, program, tasks=tasks, useful_travel_mm=(start, end))
@@ -102,7 +110,11 @@ def run(a: argparse.Namespace) -> int:
     r = doc["result"]
     acq = doc["acquisition"]
     print(f"measured axis {axis_name} on {result.controller}: {acq['samples']} samples "
-          f"({acq['mode']}, {'latched' if acq['latched'] else 'UNLATCHED'}, {acq['lost_samples']} lost)")
+          f"({acq['mode']}, {'latched' if acq['latched'] else 'UNLATCHED'}, {acq['lost_samples']} lost, "
+          f"{acq['trigger']})")
+    if acq["trigger"] == "passive":
+        p = result.program
+        print(f"  round trip run by the CNC: {p.start_mm:.3f} -> {p.end_mm:.3f} mm at {p.feed_mm_min:.0f} mm/min")
     unc = f" ± {result.result.backlash_mean_uncertainty_um:.2f} (k = 2)" if result.result.budgets else ""
     print(f"  mean backlash b̄ = {r['backlash_mean_um']:.2f} µm{unc} (min {r['backlash_min_um']:.2f}, "
           f"max {r['backlash_max_um']:.2f})")

@@ -162,7 +162,8 @@ async def _serve_modbus(a, twin, scale, faults) -> int:
     except OSError as exc:
         raise InputError(f"cannot listen on {a.host}:{a.port}: {exc.strerror or exc}") from exc
     print(f"simulated controller listening on modbus://{a.host}:{port} "
-          f"(axis {a.axis}, b = {a.backlash_um:g} µm, time scale {a.time_scale:g}{_wear_note(a)})", flush=True)
+          f"(axis {a.axis}, b = {a.backlash_um:g} µm, time scale {a.time_scale:g}{_wear_note(a)}); "
+          f"mebm measure --controller sim://{a.host}:{port} starts its round trips", flush=True)
     try:
         if a.duration_s is not None:
             await asyncio.sleep(a.duration_s)

@@ -243,7 +243,8 @@ def _task(t: Mapping, gain: float, where: str) -> MachiningTask:
 def _axis(a: Mapping, machine: str, where: str) -> AxisConfig:
     allowed = {"name", "transmission_mm_per_rev", "screw_lead_mm", "position_gain_per_s", "travel_mm",
                "controller", "measure_feed_mm_min", "measure_acceleration_mm_s2", "warning_fraction",
-               "decision_rule", "worst_case_temperature_c", "schedule_interval_s", "schedule_cron", "schedule_enabled", "tasks", "modbus_profile"}
+                "decision_rule", "worst_case_temperature_c", "schedule_interval_s", "schedule_cron", "schedule_enabled", "tasks",
+                "modbus_profile", "trigger", "passive", "canopen"}
     _unknown(a, allowed, where)
     travel = a.get("travel_mm")
     if not (isinstance(travel, list) and len(travel) == 2 and all(isinstance(x, (int, float)) for x in travel)):
@@ -265,10 +266,12 @@ def _axis(a: Mapping, machine: str, where: str) -> AxisConfig:
         raise ConfigError(f"{where}: {exc}") from exc
     tasks = tuple(_task(t, spec.position_gain_per_s, f"{where}.tasks[{i}]") for i, t in enumerate(a.get("tasks", [])))
     controller = _get(a, "controller", str, where, SIM_CONTROLLER)
-    if controller != SIM_CONTROLLER and not controller.startswith(("modbus://", "modbus+rtu://", "canopen://")):
+    if controller != SIM_CONTROLLER and not controller.startswith(("modbus://", "modbus+rtu://", "sim://", "canopen://")):
         raise ConfigError(f"{where}.controller (={controller!r}) must be 'sim', modbus://host:port, "
-                          "modbus+rtu:///dev/DEVICE or canopen://...")
+                          "modbus+rtu:///dev/DEVICE, sim://host:port or canopen://...")
     controller = _modbus_profile(a, controller, where)
+    controller = _canopen_controller(a, controller, where)
+    controller = _with_trigger(controller, a, spec, where)
     st = AxisSettings(
         spec=spec, controller_url=controller,
         measure_feed_mm_min=_get(a, "measure_feed_mm_min", float, where, 2000.0),
@@ -306,6 +309,79 @@ def _modbus_profile(a: Mapping, controller: str, where: str) -> str:
         raise ConfigError(f"{where}.modbus_profile: {exc}") from exc
     sep = "&" if "?" in controller else "?"
     return f"{controller}{sep}{urlencode({'profile': str(Path(path).resolve())})}"
+
+
+def _canopen_controller(a: Mapping, controller: str, where: str) -> str:
+    """An axis' CANopen controller, checked now: ``[machines.axes.canopen]`` (mode, node, EDS or
+    mapping; folded into the stored URL) or a ``canopen://`` URL (acquisition/canopen_url.py)."""
+    from acquisition.canopen_url import driver_from_canopen_url, url_from_table
+
+    try:
+        if "canopen" in a:
+            if not isinstance(a["canopen"], Mapping):
+                raise ConfigError(f"{where}.canopen must be a table")
+            given = a.get("controller")
+            return url_from_table(a["canopen"], given if given and given != SIM_CONTROLLER else None,
+                                  f"{where}.canopen")
+        if controller.startswith("canopen://"):
+            driver_from_canopen_url(controller, where=f"{where}.controller (={controller!r}):")
+    except ConfigError:
+        raise
+    except InputError as exc:
+        raise ConfigError(str(exc)) from exc
+    return controller
+
+
+def _with_trigger(controller: str, a: Mapping, spec: AxisSpec, where: str) -> str:
+    """The controller URL with the axis' ``trigger`` and ``passive`` settings in its query
+    (where the drivers read them, and where they are stored with the axis), checked now:
+    a driver is made for the URL (no connection) and its detection settings for the axis."""
+    from acquisition.url import PASSIVE_KEYS, default_trigger, driver_from_url
+
+    trigger = _get(a, "trigger", str, where)
+    if trigger is not None and trigger not in ("active", "passive"):
+        raise ConfigError(f"{where}.trigger (={trigger!r}) must be 'active' (mebm starts the round trip) or "
+                          "'passive' (the CNC runs it, mebm records)")
+    passive = a.get("passive")
+    if passive is not None and not isinstance(passive, Mapping):
+        raise ConfigError(f"{where}.passive must be a table of detection settings")
+    passive = dict(passive or {})
+    _unknown(passive, {*PASSIVE_KEYS, "running_flag"}, f"{where}.passive")
+    query = {}
+    for key, v in passive.items():
+        if key == "running_flag":
+            query[key] = "1" if _get(passive, key, bool, f"{where}.passive") else "0"
+        else:
+            query[key] = repr(_get(passive, key, float, f"{where}.passive"))
+    if controller == SIM_CONTROLLER:
+        if trigger == "passive" or passive:
+            raise ConfigError(f"{where}: the built-in simulator ('sim') has no CNC to start a round trip: it is "
+                              "always active (for passive mode, point controller at a controller the CNC drives)")
+        return controller
+    effective = trigger or _query_trigger(controller) or default_trigger(controller)
+    if trigger is not None and _query_trigger(controller) not in (None, trigger):
+        raise ConfigError(f"{where}: trigger = {trigger!r} contradicts the controller URL's "
+                          f"trigger={_query_trigger(controller)}")
+    if passive and effective != "passive":
+        raise ConfigError(f"{where}.passive applies to trigger = 'passive' only (this axis is {effective})")
+    if trigger is not None:
+        query = {"trigger": trigger, **query}
+    url = controller
+    if query:
+        sep = "&" if urlsplit(controller).query else "?"
+        url = controller + sep + "&".join(f"{k}={v}" for k, v in query.items())
+    try:
+        driver_from_url(url).detector_settings(spec)
+    except InputError as exc:
+        raise ConfigError(f"{where}: {exc}") from exc
+    return url
+
+
+def _query_trigger(url: str) -> str | None:
+    from urllib.parse import parse_qs
+
+    values = parse_qs(urlsplit(url).query).get("trigger")
+    return values[-1] if values else None
 
 
 def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:

@@ -330,6 +330,7 @@ class CycleExecutor:
             acceleration_mm_s2=out.acceleration_mm_s2 or axis.settings.measure_acceleration_mm_s2,
             extra={"cycle_uuid": req.uuid, "axis_id": axis.id, "measured_at": finished.isoformat(),
                    "temperature_measured": math.isfinite(temp), "cycle_status": "ok" if out.ok else "failed",
+                   **({"trigger": out.trigger} if out.trigger else {}),
                    **({} if out.ok else {"failure_reason": out.reason or ""})},
         )
         append_runs(folder, machine, [Run(spec, cols)])

@@ -44,6 +44,7 @@ class CycleOutcome:
     round_trip: RoundTripResult | None = None
     feed_mm_min: float | None = None
     acceleration_mm_s2: float | None = None
+    trigger: str | None = None  # "active" (mebm started the round trip) or "passive" (the CNC did)
 
     @staticmethod
     def failed(reason: str, temperature_c: float | None = None) -> "CycleOutcome":
@@ -99,8 +100,10 @@ class DriverRunner:
         raw = {}
         if trace is not None:
             raw = dict(time_s=trace.time_s, motor_rev=trace.motor_rev, table_mm=trace.table_mm)
-        common = dict(temperature_c=temp, feed_mm_min=program.feed_mm_min,
-                      acceleration_mm_s2=program.acceleration_mm_s2, **raw)
+        # res.program: the round trip as run (passive mode: as observed, not as configured)
+        common = dict(temperature_c=temp, feed_mm_min=res.program.feed_mm_min,
+                      acceleration_mm_s2=res.program.acceleration_mm_s2,
+                      trigger=trace.trigger if trace is not None else getattr(driver, "trigger", None), **raw)
         if not res.ok:
             return CycleOutcome(ok=False, reason=f"{res.reason_code}: {res.reason}", **common)
         return CycleOutcome(ok=True, uncertainty_um=res.uncertainty_um, round_trip=res.result, **common)

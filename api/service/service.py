@@ -90,7 +90,8 @@ class Service:
             sim = self.simulators.get(axis.id)
             if sim is None:
                 sim = self._start_simulator(axis)
-            return sim.url
+            # sim://: the simulator's own scheme, so its round trips are active (mebm starts them)
+            return sim.url.replace("modbus://", "sim://", 1)
         return axis.settings.controller_url
 
     def _start_simulator(self, axis: AxisRecord) -> DemoController:

@@ -51,9 +51,11 @@ def modbus_peer(faults=(), twin=None, *, time_scale=10.0, servo_rate_hz=500.0, m
                    faults=[parse_fault(f) if isinstance(f, str) else f for f in faults])
     sim = SimModbusController(axis)
     port = sim.start_in_thread()
+    peer = Peer("modbus", axis, lambda **kw: ModbusDriver("127.0.0.1", port, mode=kw.pop("mode", mode), **kw),
+                sim.recover)
+    peer.server = sim  # the SimModbusController (its port; tests may wrap its request handlers)
     try:
-        yield Peer("modbus", axis, lambda **kw: ModbusDriver("127.0.0.1", port, mode=kw.pop("mode", mode), **kw),
-                   sim.recover)
+        yield peer
     finally:
         sim.stop_thread()
 

@@ -48,7 +48,7 @@ def test_program_validation_names_the_value():
 def test_urls():
     d = driver_from_url("modbus://10.0.0.5:1502?mode=separate", timeout_s=0.5)
     assert isinstance(d, ModbusDriver) and d.port == 1502 and d.mode == "separate" and not d.latched
-    d = driver_from_url("canopen://socketcan/can0?node=5&rate_hz=500&bitrate=500000")
+    d = driver_from_url("canopen://socketcan/can0?node=5&rate_hz=500&bitrate=500000&trigger=active")
     assert isinstance(d, CanopenDriver) and d.interface == "socketcan" and d.channel == "can0"
     assert d.bus_kwargs == {"bitrate": 500000}
     assert d.node_id == 5 and d.sync_rate_hz == 500

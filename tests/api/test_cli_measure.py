@@ -56,7 +56,7 @@ def test_measure_a_simulated_controller_in_another_process(tmp_path, capsys):
         line = proc.stdout.readline()
         port = int(re.search(r"modbus://127\.0\.0\.1:(\d+)", line).group(1))
         out = tmp_path / "measured"
-        code = main(["measure", "--controller", f"modbus://127.0.0.1:{port}", "--axis", "y", "--travel-mm", "100",
+        code = main(["measure", "--controller", f"sim://127.0.0.1:{port}", "--axis", "y", "--travel-mm", "100",
                      "--feed-mm-min", "1000", "--out", str(out), "--json", "--timeout-s", "2"])
         measured = json.loads(capsys.readouterr().out)
         assert code == 0, measured["reason"]
