@@ -15,6 +15,7 @@ polled every few seconds, a figure viewed again; "cold" drops both before every 
 from __future__ import annotations
 
 import argparse
+import re
 import statistics
 import sys
 import tempfile
@@ -108,8 +109,10 @@ def main() -> int:
                             scheduler_enabled=False, catch_up_missed=False)
         app = create_app(settings)
         with TestClient(app) as client:
-            link = app.state.ui.links.issue(key)
-            assert client.get(f"/ui/sign-in/{link}").status_code == 200
+            link = app.state.ui.sessions.issue_link(key)
+            form = client.get(f"/ui/sign-in/{link}")  # the link's page; its button posts the link
+            csrf = re.search(r'name="csrf" value="([^"]+)"', form.text).group(1)
+            assert client.post(f"/ui/sign-in/{link}", data={"csrf": csrf}).status_code == 200
             svc = app.state.service
             ax = ids[len(ids) // 2]
             pages = [("fleet page", "/ui/"), ("fleet fragment (polled)", "/ui/fleet.frag"),

@@ -17,6 +17,7 @@ from tests.api.ui.conftest import SCREENSHOTS, wait_for
 def sign_in(page, srv, role: str) -> None:
     page.context.clear_cookies()
     page.goto(srv.link(role))
+    page.click("#link-sign-in")
     page.wait_for_url(re.compile(r"/ui/$"))
 
 
@@ -45,7 +46,11 @@ def alarm(ui_server):
 def test_one_time_link_signs_in_and_shows_the_fleet(page, ui_server, alarm):
     link = ui_server.link("read")
     page.context.clear_cookies()
+    # a link preview (a chat or mail scanner) fetches the link: that spends nothing
+    preview = page.request.get(link)
+    assert preview.status == 200 and "Sign in as ui-read" in preview.text()
     page.goto(link)
+    page.click("#link-sign-in")
     page.wait_for_url(re.compile(r"/ui/$"))
     row = page.locator(f"tr.axis-row[data-axis-id='{ui_server.axis_id}']")
     assert row.locator(".state").inner_text().strip() == "ALARM"
@@ -74,11 +79,16 @@ def test_one_time_link_signs_in_and_shows_the_fleet(page, ui_server, alarm):
 
 def test_expired_link_is_refused(page, ui_server):
     link = ui_server.link("read")
-    ui_server.clock.t += 601.0  # past the 10 minutes
     page.context.clear_cookies()
-    resp = page.goto(link)
-    assert resp.status == 403 and "expired" in page.locator("#error-message").inner_text()
-    assert not [c for c in page.context.cookies() if c["name"] == "mebm_session"]
+    page.goto(link)  # the page opened in time, its button clicked too late
+    ui_server.clock.offset_s += 601.0  # past the 10 minutes
+    try:
+        page.click("#link-sign-in")
+        assert "expired" in page.locator("#error-message").inner_text()
+        assert not [c for c in page.context.cookies() if c["name"] == "mebm_session"]
+        assert page.goto(link).status == 403
+    finally:
+        ui_server.clock.offset_s -= 601.0
 
 
 def test_axis_page_renders_its_charts(page, ui_server, alarm):
@@ -146,6 +156,11 @@ def test_a_form_post_without_csrf_token_is_refused(page, ui_server, alarm):
         """async (key) => (await fetch("/ui/sign-in", {method: "POST", body: new URLSearchParams({key})})).status""",
         ui_server.keys["admin"])
     assert status == 403
+    # nor is a sign-in link spent by a post without the sign-in page's token
+    link = ui_server.link("read")
+    status = page.evaluate(
+        """async (u) => (await fetch(u, {method: "POST", body: new URLSearchParams({csrf: "forged"})})).status""", link)
+    assert status == 403 and page.request.get(link).status == 200
 
 
 def test_gap_diagnosis_runs_in_the_background_and_arrives(page, ui_server):
