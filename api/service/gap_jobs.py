@@ -68,13 +68,26 @@ def newest_runs(folder: Path, n: int) -> Dataset:
     return Dataset(meta.machine, runs, meta.extra)
 
 
+RESIDUALS = "residuals"  # the test runs' residual curves, thinned: for the dashboard's plots, not the API's body
+
+
+def public_body(result: dict) -> dict:
+    """The API's body of a diagnosis (without the residual curves the dashboard plots)."""
+    return {k: v for k, v in result.items() if k != RESIDUALS}
+
+
 def diagnose_folder(folder: str, n: int) -> dict:
     """The job itself, in the worker process: read the runs there, diagnose, and return
-    the JSON body (the spec's gap contract, the text report and the runs used). A
+    the JSON body (the spec's gap contract, the text report and the runs used) and the
+    test runs' residual curves (``RESIDUALS``, thinned to a screen's worth of points). A
     GapError (an InputError) for data it cannot use travels back as itself."""
+    from api.service.plots import thin_residuals
+
     dataset = newest_runs(Path(folder), n)
     report = diagnose(dataset)
-    return {**report.to_dict(), "report": report.text(), "runs_used": [r.spec.file for r in dataset.runs]}
+    residuals = [thin_residuals(c) for c in [*report.curves.get("round_trip", []), *report.curves.get("contour", [])]]
+    return {**report.to_dict(), "report": report.text(), "runs_used": [r.spec.file for r in dataset.runs],
+            RESIDUALS: residuals}
 
 
 def axis_job(jobs: "GapJobs", axis_id: int, folder: Path | None, runs: int, *, start: bool = True) -> Future | None:

@@ -13,8 +13,8 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from fastapi.templating import Jinja2Templates
 
-from api.service import figures
-from api.service.gap_jobs import DiagnosisCrashed, JobAbandoned, TooManyJobs, axis_job
+from api.service import figures, plots
+from api.service.gap_jobs import RESIDUALS, DiagnosisCrashed, JobAbandoned, TooManyJobs, axis_job
 from api.ui import format as fmt
 from api.ui import views
 from api.ui.sessions import PRE_CSRF_COOKIE, ROLE_RANK, SESSION_COOKIE, Session, UiState, same_token
@@ -314,6 +314,23 @@ def gap_page(request: Request, axis_id: int, who: Who, msg: str | None = None):
 @router.get("/axes/{axis_id}/gap.frag", response_class=HTMLResponse)
 def gap_fragment(request: Request, axis_id: int, who: Who):
     return page(request, "_gap.html", who=who, **_gap_ctx(request, axis_id))
+
+
+@router.get("/axes/{axis_id}/gap/residuals/{index}.png")
+def gap_residual_plot(request: Request, axis_id: int, index: int, who: Who):
+    """Measured vs model on one test run of the axis' finished diagnosis, before and
+    after the diagnosed effect (the figure of ``mebm gap diagnose --plots``)."""
+    ctx = _gap_ctx(request, axis_id)
+    curves = ctx["report"].get(RESIDUALS, []) if ctx["gap"] == "done" else []
+    if not 0 <= index < len(curves):
+        raise NotFoundError(f"residual plot of the diagnosis of axis {axis_id}", index)
+    r = ctx["report"]
+    key = (axis_id, "gap", tuple(r.get("runs_used", ())), r.get("gap_before_um"), index)
+    png = ui_state(request).figures.get(key)
+    if png is None:
+        png = plots.gap_residual(curves[index], r["effect"])
+        ui_state(request).figures.put(key, png)
+    return Response(png, media_type="image/png", headers={"Cache-Control": "no-cache"})
 
 
 @router.post("/axes/{axis_id}/gap")

@@ -27,7 +27,7 @@ from fastapi.responses import JSONResponse
 from api.rest.auth import ReadKey
 from api.rest.deps import AxisId, ServiceDep, SessionDep
 from api.rest.errors import TooManyRequestsError
-from api.service.gap_jobs import DiagnosisCrashed, JobAbandoned, TooManyJobs, axis_job
+from api.service.gap_jobs import DiagnosisCrashed, JobAbandoned, TooManyJobs, axis_job, public_body
 from storage.db import config_repo
 
 router = APIRouter(tags=["gap"])
@@ -60,7 +60,7 @@ def gap(
     except TooManyJobs as exc:
         raise TooManyRequestsError(str(exc), RETRY_AFTER_S) from None
     try:
-        return fut.result(timeout=WAIT_S)  # re-raises the diagnosis' own error
+        return public_body(fut.result(timeout=WAIT_S))  # re-raises the diagnosis' own error
     except FutureTimeout:
         return JSONResponse(
             {"status": "computing", "detail": f"the gap diagnosis of axis {axis_id} is running; "

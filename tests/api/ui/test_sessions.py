@@ -19,6 +19,11 @@ def app_on(url: str, tmp):
     return create_app(make_settings(url, tmp, scheduler_enabled=False), runner=FakeRunner())
 
 
+def with_session(client: TestClient, token: str) -> TestClient:
+    client.cookies.set("mebm_session", token)
+    return client
+
+
 def csrf_of(html: str) -> str:
     return re.search(r'name="csrf" value="([^"]+)"', html).group(1)
 
@@ -38,19 +43,19 @@ def test_sessions_survive_a_restart_and_are_shared_by_processes(tmp_path):
         token = signed.cookies["mebm_session"]
         assert ca.post(link, data={"csrf": csrf_of(ca.get("/ui/sign-in").text)}).status_code == 403  # spent
         # the session opened on b is good on a, CSRF token included
-        fleet = ca.get("/ui/", cookies={"mebm_session": token})
+        fleet = with_session(ca, token).get("/ui/")
         assert fleet.status_code == 200 and "shop-pc · operate" in fleet.text
-        assert csrf_of(fleet.text) == csrf_of(cb.get("/ui/", cookies={"mebm_session": token}).text)
+        assert csrf_of(fleet.text) == csrf_of(cb.get("/ui/").text)
         with session_scope(a.state.service.factory) as s:
             stored = s.scalars(select(UiSession.token_sha256)).all()
         assert hashlib.sha256(token.encode()).hexdigest() in stored and token not in stored  # only the hash
     # a restart: a new process on the same database still knows the session
     c = app_on(url, tmp_path / "c")
     with TestClient(c) as cc:
-        assert "shop-pc · operate" in cc.get("/ui/", cookies={"mebm_session": token}).text
+        assert "shop-pc · operate" in with_session(cc, token).get("/ui/").text
         with session_scope(c.state.service.factory) as s:
             config_repo.revoke_key(s, key.id)  # as `mebm keys revoke` does, from outside the service
-        gone = cc.get("/ui/", cookies={"mebm_session": token}, follow_redirects=False)
+        gone = cc.get("/ui/", follow_redirects=False)
         assert gone.status_code == 303 and gone.headers["location"] == "/ui/sign-in"
         with session_scope(c.state.service.factory) as s:
             assert s.scalar(select(UiSession.revoked_at).where(UiSession.key_id == key.id)) is not None
@@ -65,8 +70,7 @@ def test_signing_out_ends_the_session_everywhere(tmp_path):
         form = ca.get("/ui/sign-in")
         signed = ca.post("/ui/sign-in", data={"key": secret, "csrf": csrf_of(form.text)})
         token = signed.cookies["mebm_session"]
-        fleet = cb.get("/ui/", cookies={"mebm_session": token})
-        out = cb.post("/ui/sign-out", data={"csrf": csrf_of(fleet.text)}, cookies={"mebm_session": token},
-                      follow_redirects=False)
+        fleet = with_session(cb, token).get("/ui/")
+        out = cb.post("/ui/sign-out", data={"csrf": csrf_of(fleet.text)}, follow_redirects=False)
         assert out.status_code == 303
-        assert ca.get("/ui/", cookies={"mebm_session": token}, follow_redirects=False).status_code == 303
+        assert ca.get("/ui/", follow_redirects=False).status_code == 303  # ca holds the cookie since sign-in
