@@ -14,8 +14,9 @@ from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from fastapi.templating import Jinja2Templates
 
 from api.service import figures, plots
-from api.service.gap_jobs import RESIDUALS, DiagnosisCrashed, JobAbandoned, TooManyJobs, axis_job
+from api.service.gap_jobs import RESIDUALS, DiagnosisCrashed, age_s, JobAbandoned, TooManyJobs, axis_job
 from api.ui import format as fmt
+from api.ui import panels as axis_panels
 from api.ui import views
 from api.ui.sessions import PRE_CSRF_COOKIE, ROLE_RANK, SESSION_COOKIE, Session, UiState, same_token
 from core.errors import MebmError
@@ -212,20 +213,21 @@ def acknowledge(request: Request, alert_id: int, who: Posted):
 
 
 # -- axis -------------------------------------------------------------------------------------
-def _axis_ctx(request: Request, axis_id: int, range_: str) -> dict:
+def _axis_ctx(request: Request, axis_id: int, range_: str, *, panels: bool = False) -> dict:
     svc = request.app.state.service
     with session_scope(svc.factory) as s:
         axis = config_repo.get_axis(s, axis_id)
         _, cycles = results_repo.list_measurements(s, axis_id, limit=12)
+        extra = axis_panels.render_context(svc, s, axis_id) if panels else []
     now = views.utcnow()
     row = views.axis_row(svc.status.get(axis_id), svc.scheduler.next_run(axis_id), now)
     return {"axis": axis, "row": row, "now": now, "cycles": cycles, "range": range_ if range_ in views.RANGES else "90d",
-            "ranges": list(views.RANGES)}
+            "ranges": list(views.RANGES), "panels": extra}
 
 
 @router.get("/axes/{axis_id}", response_class=HTMLResponse)
 def axis_page(request: Request, axis_id: int, who: Who, range: str = "90d", msg: str | None = None):  # noqa: A002
-    return page(request, "axis.html", who=who, msg=msg, **_axis_ctx(request, axis_id, range))
+    return page(request, "axis.html", who=who, msg=msg, **_axis_ctx(request, axis_id, range, panels=True))
 
 
 @router.get("/axes/{axis_id}/part/{part}.frag", response_class=HTMLResponse)
@@ -303,7 +305,7 @@ def _gap_ctx(request: Request, axis_id: int) -> dict:
         return {"axis": axis, "gap": "failed", "detail": str(exc) or "the job was dropped; start it again"}
     except MebmError as exc:
         return {"axis": axis, "gap": "failed", "detail": str(exc)}
-    return {"axis": axis, "gap": "done", "report": report}
+    return {"axis": axis, "gap": "done", "report": report, "age_s": age_s(report)}
 
 
 @router.get("/axes/{axis_id}/gap", response_class=HTMLResponse)

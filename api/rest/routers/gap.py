@@ -10,7 +10,8 @@ model kernels), longer than an MES should hold a request open. So it is a job of
 service (api/service/gap_jobs.py: computed in a worker process, bounded, abandoned
 jobs dropped): the request waits up to ``WAIT_S``; if the report is not ready it
 answers 202 with ``Retry-After``, and the next call gets the report (200), cached per
-(folder, runs, version of dataset.json). A diagnosis that fails for its input is
+(folder, runs, version of dataset.json), with ``computed_at`` and ``age_s`` (seconds since
+it was computed). A diagnosis that fails for its input is
 cached too and answered 422. More than the service's pending bound: 429 with
 ``Retry-After``. A cached answer is served after one ``stat`` of ``dataset.json``,
 without reading any run; the runs are read in the worker process.

@@ -177,6 +177,7 @@ def test_gap_diagnosis_runs_in_the_background_and_arrives(page, ui_server):
     assert page.locator("#gap-result").inner_text() == f"Diagnosis: {case.label}"
     assert page.locator("table.candidates tbody tr").count() >= 2
     assert "µm" in page.locator(".gap-state").inner_text()
+    assert re.match(r"Computed \d+ s ago", page.locator("#gap-age").inner_text())  # a cached result says its age
     # the residual plots: one per test run, measured vs model before and after the effect
     imgs = page.locator(".residuals img")
     assert imgs.count() >= 1
