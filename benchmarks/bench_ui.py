@@ -56,7 +56,7 @@ def seed(url: str, n_axes: int, days: int) -> tuple[str, list[int]]:
                          controller_url="modbus://127.0.0.1:1")
             ids.append(config_repo.create_axis(s, m.id, st).id)
         s.commit()
-        _, key = config_repo.create_key(s, "bench-read", "read")
+        _, key = config_repo.create_key(s, "bench-admin", "admin")  # admin: the configuration pages too
         axis = config_repo.get_axis(s, ids[0])
     rt0 = synthetic_round_trip(axis)
     t0 = datetime.now(timezone.utc) - timedelta(days=days)
@@ -117,7 +117,8 @@ def main() -> int:
             ax = ids[len(ids) // 2]
             pages = [("fleet page", "/ui/"), ("fleet fragment (polled)", "/ui/fleet.frag"),
                      ("axis page", f"/ui/axes/{ax}?range=1y"), ("axis verdict fragment", f"/ui/axes/{ax}/part/verdict.frag"),
-                     ("axis cycles fragment", f"/ui/axes/{ax}/part/cycles.frag"), ("gap page", f"/ui/axes/{ax}/gap")]
+                     ("axis cycles fragment", f"/ui/axes/{ax}/part/cycles.frag"), ("gap page", f"/ui/axes/{ax}/gap"),
+                     ("configuration page", "/ui/config"), ("axis configuration page", f"/ui/config/axes/{ax}")]
             figures = [(f"figure {n}", f"/ui/axes/{ax}/plots/{n}.png?range=1y") for n in
                        ("backlash_profile", "lead_deviation", "tbe_vs_backlash", "backlash_trend", "tbe_history",
                         "prognosis")]

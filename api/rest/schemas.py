@@ -6,7 +6,7 @@ import math
 from datetime import datetime
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, Field
 
 # the configuration bodies are the service's: the dashboard's forms validate with them too
 from api.service.config_input import (  # noqa: F401

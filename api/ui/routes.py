@@ -20,7 +20,7 @@ from api.ui import panels as axis_panels
 from api.ui import views
 from api.ui.sessions import PRE_CSRF_COOKIE, ROLE_RANK, SESSION_COOKIE, Session, UiState, same_token
 from core.errors import MebmError
-from storage.db import ConflictError, KeyRecord, NotFoundError, config_repo, results_repo, session_scope
+from storage.db import ConflictError, NotFoundError, config_repo, results_repo, session_scope
 
 log = logging.getLogger("mebm.ui")
 HERE = FsPath(__file__).parent
