@@ -58,6 +58,8 @@ def _errors(exc: ValidationError, rename: Mapping[str, str] | None = None, kind:
             msg = PATTERN_HINTS.get(f"{kind}.{loc}", PATTERN_HINTS.get(loc, msg))
         elif e["type"] == "float_parsing":
             msg = f"{e['input']!r} is not a number"
+        elif e["type"] == "missing" or (e["type"] == "float_type" and e.get("input") is None):
+            msg = "required"
         if not loc:  # a rule over several fields: put it by the field it names, if any
             loc = next((f for f in (rename or {}) if re.search(rf"\b{f}\b", msg)), "")
         loc = (rename or {}).get(loc, loc)
