@@ -136,6 +136,13 @@ def main() -> int:
             # the usual case: one axis was just measured (a saved cycle invalidates its status only)
             one, _ = median_ms(client, "/ui/", a.repeats, before=lambda: svc.status.invalidate(ids[0]))
             print(f"  fleet page, one axis just measured   {one:7.1f}")
+            # every request reads its session (and key) from the database: its share of the above
+            token, ts = client.cookies.get("mebm_session"), []
+            for _ in range(200):
+                t0 = time.perf_counter()
+                assert app.state.ui.sessions.get(token) is not None
+                ts.append(1000 * (time.perf_counter() - t0))
+            print(f"  session lookup (per request)        {statistics.median(ts):7.2f}")
     return 0
 
 
