@@ -74,3 +74,25 @@ def test_signing_out_ends_the_session_everywhere(tmp_path):
         out = cb.post("/ui/sign-out", data={"csrf": csrf_of(fleet.text)}, follow_redirects=False)
         assert out.status_code == 303
         assert ca.get("/ui/", follow_redirects=False).status_code == 303  # ca holds the cookie since sign-in
+
+
+def test_an_idle_session_expires(tmp_path):
+    from datetime import timedelta
+
+    from storage.db import utcnow
+
+    app = app_on(f"sqlite:///{tmp_path}/mebm.sqlite3", tmp_path)
+    with TestClient(app) as c:
+        with session_scope(app.state.service.factory) as s:
+            _, secret = config_repo.create_key(s, "tablet", "read")
+        form = c.get("/ui/sign-in")
+        assert c.post("/ui/sign-in", data={"key": secret, "csrf": csrf_of(form.text)}).status_code == 200
+        ui = app.state.ui.sessions
+        later = utcnow() + timedelta(seconds=ui.idle_s - 60)
+        ui.clock = lambda: later
+        assert c.get("/ui/", follow_redirects=False).status_code == 200  # used in time: it slides on
+        later += timedelta(seconds=ui.idle_s - 60)
+        assert c.get("/ui/", follow_redirects=False).status_code == 200
+        later += timedelta(seconds=ui.idle_s + 1)  # then left idle past the expiry
+        gone = c.get("/ui/", follow_redirects=False)
+        assert gone.status_code == 303 and gone.headers["location"] == "/ui/sign-in"
