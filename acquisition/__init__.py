@@ -7,9 +7,14 @@
   ``acquisition_cycle.AcquisitionCycle`` per cycle; ``acquisition.modbus.ModbusDriver``
   (with its register map, ``modbus_map``) and ``acquisition.canopen.CanopenDriver``
   implement only their wire. See docs/acquisition.md.
+- ``acquisition.modbus_profile``: Modbus register profiles (where a PLC keeps the positions,
+  their types, byte/word orders, scales; validated with errors naming the field) and
+  ``acquisition.modbus_polled.ProfileModbusDriver``, which polls them (one PDU when it can,
+  else separate reads with the skew reported); its ``poll()`` reads one sample now.
 - ``acquisition.cycle.run_cycle`` / ``run_cycle_async``: one measurement cycle ->
   ``CycleResult`` (ok/failed with a reason, trace, criteria, decision, uncertainty).
-- ``acquisition.url.driver_from_url``: ``modbus://HOST:PORT`` / ``canopen://INTERFACE/CHANNEL?node=N``.
+- ``acquisition.url.driver_from_url``: ``modbus://HOST:PORT[?profile=P.toml]``,
+  ``modbus+rtu:///dev/DEVICE?baudrate=N`` / ``canopen://INTERFACE/CHANNEL?node=N``.
 - ``acquisition.sim``: simulated controllers backed by the digital twin, with fault injection.
 - ``acquisition.errors``: the acquisition subtree of ``core.errors.MebmError``.
 

@@ -16,7 +16,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from pymodbus.client import AsyncModbusTcpClient
+from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
 from acquisition import modbus_map as mm
@@ -60,7 +60,10 @@ class ModbusDriver(ControllerDriver):
     wire_timeouts = True  # pymodbus' client timeout bounds each request
 
     def __init__(self, host: str, port: int = 502, *, device_id: int = 1, mode: str = "trace",
-                 blocks_per_drain: int = 16, client_factory=None, register_map=None, **kwargs):
+                 blocks_per_drain: int = 16, client_factory=None, register_map=None, serial: dict | None = None,
+                 **kwargs):
+        """``serial``: Modbus RTU on the serial device ``host`` with these line settings
+        (baudrate, parity, stopbits, bytesize) instead of Modbus TCP to ``host:port``."""
         super().__init__(**kwargs)
         if mode not in MODES:
             raise InputError(f"mode (={mode!r}) must be one of {MODES}")
@@ -72,15 +75,23 @@ class ModbusDriver(ControllerDriver):
         self.continuous = mode == "trace"
         self.latched = mode != "separate"
         self.map = register_map or mm.MEBM_MODBUS_1
-        self._client_factory = client_factory or (
-            lambda: AsyncModbusTcpClient(host, port=self.port, timeout=self.timeout_s, retries=0, reconnect_delay=0)
-        )
+        self.serial = dict(serial) if serial is not None else None
+        if self.serial is not None:
+            self._client_factory = client_factory or (
+                lambda: AsyncModbusSerialClient(host, timeout=self.timeout_s, retries=0, reconnect_delay=0,
+                                                **self.serial))
+        else:
+            self._client_factory = client_factory or (
+                lambda: AsyncModbusTcpClient(host, port=self.port, timeout=self.timeout_s, retries=0,
+                                             reconnect_delay=0))
         self._client = None
         # what the connection read from the controller's configuration
         self.scale = None
         self.ring_records = 0
 
     def describe(self) -> str:
+        if self.serial is not None:
+            return f"modbus+rtu://{self.host}"
         return f"modbus://{self.host}:{self.port}"
 
     # -- requests ----------------------------------------------------------------------------
@@ -114,6 +125,19 @@ class ModbusDriver(ControllerDriver):
 
     # -- wire ---------------------------------------------------------------------------------
     async def _connect(self) -> None:
+        await self._open()
+        cfg = self.map.decode_header(await self._read(self.map.header, "reading the register map header"))
+        if cfg.version != self.map.version:
+            raise ProtocolError(
+                f"{self.describe()} speaks register map version {cfg.version}, mebm speaks "
+                f"version {self.map.version} (docs/register-map.md)"
+            )
+        if not self.map.layout_ok(cfg):
+            raise ProtocolError(f"{self.describe()}: unexpected trace buffer layout {cfg}")
+        self.scale, self.servo_rate_hz, self.ring_records = cfg.scale, cfg.servo_rate_hz, cfg.ring_records
+
+    async def _open(self) -> None:
+        """Open the TCP connection or the serial line (no request yet)."""
         await self._close()
         self._client = self._client_factory()
         try:
@@ -126,18 +150,11 @@ class ModbusDriver(ControllerDriver):
         if not ok:
             self._client = None
             raise ControllerConnectionError(
-                f"cannot connect to {self.describe()}: connection refused or host unreachable "
-                "(is the controller on and its Modbus TCP server enabled?)"
+                f"cannot connect to {self.describe()}: " + (
+                    "cannot open the serial device (does it exist, and may mebm use it?)" if self.serial is not None
+                    else "connection refused or host unreachable (is the controller on and its Modbus TCP server "
+                         "enabled?)")
             ) from cause
-        cfg = self.map.decode_header(await self._read(self.map.header, "reading the register map header"))
-        if cfg.version != self.map.version:
-            raise ProtocolError(
-                f"{self.describe()} speaks register map version {cfg.version}, mebm speaks "
-                f"version {self.map.version} (docs/register-map.md)"
-            )
-        if not self.map.layout_ok(cfg):
-            raise ProtocolError(f"{self.describe()}: unexpected trace buffer layout {cfg}")
-        self.scale, self.servo_rate_hz, self.ring_records = cfg.scale, cfg.servo_rate_hz, cfg.ring_records
 
     async def _close(self) -> None:
         if self._client is not None:

@@ -24,7 +24,8 @@ class CycleFailed(MebmError):
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("measure", help="measure an axis' backlash and lead criteria on the machine")
     p.add_argument("--controller", required=True, metavar="URL",
-                   help="modbus://HOST:PORT[?mode=trace|latched|separate] or canopen://INTERFACE/CHANNEL?node=N"
+                   help="modbus://HOST:PORT[?mode=trace|latched|separate|profile=P.toml], "
+                        "modbus+rtu:///dev/DEVICE?baudrate=N[&parity=E&profile=P.toml] or canopen://INTERFACE/CHANNEL?node=N"
                         "[&rate_hz=250]")
     p.add_argument("--axis", default="y", help="axis name (default y)")
     p.add_argument("--travel-mm", nargs="+", type=float, required=True, metavar="MM",

@@ -115,12 +115,20 @@ def banner(settings, report, url: str, opcua=None, sign_in_url: str | None = Non
     return "\n".join(lines)
 
 
+SWITCH_INTERVAL_S = 0.001
+
+
 def _serve(a: argparse.Namespace) -> int:
     import uvicorn
 
     from api.rest import create_app
     from api.service.service import Service
 
+    # The service's threads (cycles, the in-process simulator, the event publishers) are
+    # CPU-bound Python at times; a request thread waits for the interpreter lock up to the
+    # switch interval at every hand-off. 1 ms instead of CPython's 5 ms: in a hand-off test
+    # beside two CPU-bound threads (load 13), median 33.8 -> 6.2 ms, p99 248 -> 46 ms.
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
     settings = load_settings(a.config)
     if a.host:
         settings = replace(settings, host=a.host)

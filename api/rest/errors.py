@@ -2,7 +2,7 @@
 
 422 bad input (the message names the field), 404 unknown id, 409 conflict,
 401/403 keys, 413 body too large, 429 rate limits and a manual measurement already
-waiting (with ``Retry-After``), 503 database down. Anything else is logged and answered 500 without
+waiting (with ``Retry-After``), 503 database down or a figure not drawn in time. Anything else is logged and answered 500 without
 internals.
 """
 
@@ -15,6 +15,7 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
+from api.service.plot_process import RenderUnavailable
 from core.errors import InputError, MebmError
 from storage.db import ConflictError, DatabaseUnavailableError, NotFoundError, StorageError, WaitingCycleError
 
@@ -92,6 +93,11 @@ def install(app: FastAPI) -> None:
     @app.exception_handler(DatabaseUnavailableError)
     async def _db_down(_req, exc):
         return _body(503, f"database unavailable, retry later: {exc}")
+
+    @app.exception_handler(RenderUnavailable)
+    async def _render(_req, exc):
+        log.error("figure not drawn: %s", exc)
+        return _body(503, f"the figure could not be drawn now, retry later: {exc}")
 
     @app.exception_handler(InputError)
     async def _input(_req, exc):

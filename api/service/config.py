@@ -16,7 +16,7 @@ import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from urllib.parse import urlsplit
+from urllib.parse import urlencode, urlsplit
 
 from core.dataset import AxisSpec
 from core.errors import InputError
@@ -221,7 +221,7 @@ def _task(t: Mapping, gain: float, where: str) -> MachiningTask:
 def _axis(a: Mapping, machine: str, where: str) -> AxisConfig:
     allowed = {"name", "transmission_mm_per_rev", "screw_lead_mm", "position_gain_per_s", "travel_mm",
                "controller", "measure_feed_mm_min", "measure_acceleration_mm_s2", "warning_fraction",
-               "decision_rule", "worst_case_temperature_c", "schedule_interval_s", "schedule_cron", "schedule_enabled", "tasks"}
+               "decision_rule", "worst_case_temperature_c", "schedule_interval_s", "schedule_cron", "schedule_enabled", "tasks", "modbus_profile"}
     _unknown(a, allowed, where)
     travel = a.get("travel_mm")
     if not (isinstance(travel, list) and len(travel) == 2 and all(isinstance(x, (int, float)) for x in travel)):
@@ -243,8 +243,10 @@ def _axis(a: Mapping, machine: str, where: str) -> AxisConfig:
         raise ConfigError(f"{where}: {exc}") from exc
     tasks = tuple(_task(t, spec.position_gain_per_s, f"{where}.tasks[{i}]") for i, t in enumerate(a.get("tasks", [])))
     controller = _get(a, "controller", str, where, SIM_CONTROLLER)
-    if controller != SIM_CONTROLLER and not controller.startswith(("modbus://", "canopen://")):
-        raise ConfigError(f"{where}.controller (={controller!r}) must be 'sim', modbus://host:port or canopen://...")
+    if controller != SIM_CONTROLLER and not controller.startswith(("modbus://", "modbus+rtu://", "canopen://")):
+        raise ConfigError(f"{where}.controller (={controller!r}) must be 'sim', modbus://host:port, "
+                          "modbus+rtu:///dev/DEVICE or canopen://...")
+    controller = _modbus_profile(a, controller, where)
     st = AxisSettings(
         spec=spec, controller_url=controller,
         measure_feed_mm_min=_get(a, "measure_feed_mm_min", float, where, 2000.0),
@@ -262,6 +264,26 @@ def _axis(a: Mapping, machine: str, where: str) -> AxisConfig:
     if not 0 < st.warning_fraction <= 1:
         raise ConfigError(f"{where}.warning_fraction (={st.warning_fraction}) must be in (0, 1]")
     return AxisConfig(machine, st)
+
+
+def _modbus_profile(a: Mapping, controller: str, where: str) -> str:
+    """``modbus_profile``: the register profile file of a Modbus controller (docs/controllers.md),
+    validated now and carried in the controller URL (``profile=``) to the driver."""
+    from acquisition.modbus_profile import BUILTIN, load_profile
+
+    path = _get(a, "modbus_profile", str, where)
+    if path is None or path == BUILTIN:
+        return controller
+    if not controller.startswith(("modbus://", "modbus+rtu://")):
+        raise ConfigError(f"{where}.modbus_profile needs a modbus:// or modbus+rtu:// controller (={controller!r})")
+    if "profile=" in urlsplit(controller).query:
+        raise ConfigError(f"{where}: the profile is given twice (modbus_profile and the controller URL's profile=)")
+    try:
+        load_profile(path)
+    except InputError as exc:
+        raise ConfigError(f"{where}.modbus_profile: {exc}") from exc
+    sep = "&" if "?" in controller else "?"
+    return f"{controller}{sep}{urlencode({'profile': str(Path(path).resolve())})}"
 
 
 def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:

@@ -95,7 +95,7 @@ class AxisIn(In):
     screw_lead_mm: float = Field(ge=0.001, le=10000)
     position_gain_per_s: float = Field(ge=0.01, le=10000)
     travel_mm: tuple[float, float]
-    controller_url: str = Field(min_length=3, max_length=300, pattern=r"^(sim|modbus://.+|canopen://.+)$")
+    controller_url: str = Field(min_length=3, max_length=300, pattern=r"^(sim|modbus://.+|modbus\+rtu://.+|canopen://.+)$")
     measure_feed_mm_min: float = Field(2000.0, ge=0.1, le=100000)
     measure_acceleration_mm_s2: float = Field(500.0, ge=0.1, le=100000)
     warning_fraction: float = Field(0.9, ge=0.01, le=1)

@@ -7,6 +7,7 @@ One function for every reader: the REST plot endpoint and the dashboard both cal
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from datetime import datetime, timezone
 
 import numpy as np
@@ -18,6 +19,10 @@ from core.errors import MebmError
 from storage.db import NotFoundError, config_repo, results_repo
 
 NAMES = (*plots.NAMES, "prognosis")
+
+
+def _here(fn: Callable[..., bytes], *args, **kwargs) -> bytes:
+    return fn(*args, **kwargs)
 
 
 def backlash_limit_um(tasks) -> float | None:
@@ -33,10 +38,13 @@ def backlash_limit_um(tasks) -> float | None:
 
 
 def render(s, axis_id: int, name: str, *, measurement_id: int | None = None, direction: str = "positive",
-           since: datetime | None = None, status=None) -> bytes:
+           since: datetime | None = None, status=None, draw: Callable[..., bytes] | None = None) -> bytes:
     """The PNG of figure ``name`` (one of :data:`NAMES`) for ``axis_id``; an explanatory
     empty figure when there is nothing to draw yet. ``status`` (the axis' AxisStatus,
-    from the service's status cache) is needed for the prognosis."""
+    from the service's status cache) is needed for the prognosis. The database is read
+    here; the drawing goes through ``draw(fn, *args, **kwargs)`` (the service's
+    :class:`~api.service.plot_process.PlotProcess`; default: on this thread)."""
+    draw = draw or _here
     axis = config_repo.get_axis(s, axis_id)
     title = f"{axis.machine_name} axis {axis.name}"
     limit = backlash_limit_um(axis.tasks)
@@ -48,20 +56,20 @@ def render(s, axis_id: int, name: str, *, measurement_id: int | None = None, dir
         else:
             r = results_repo.latest_result(s, axis_id, curves=True)
         if r is None or r.round_trip.backlash.position_mm.size == 0:
-            return plots.empty(title, "no good measurement yet")
+            return draw(plots.empty, title, "no good measurement yet")
         rt = r.round_trip
         when = f"{r.measured_at:%Y-%m-%d %H:%M} UTC" + (
             f", {r.temperature_c:.1f} °C" if r.temperature_c is not None else "")
         if name == "backlash_profile":
-            return plots.backlash_profile(
-                rt.backlash.position_mm, rt.backlash.backlash_um, rt.strokes["positive"].travel_deviation_um,
+            return draw(
+                plots.backlash_profile, rt.backlash.position_mm, rt.backlash.backlash_um, rt.strokes["positive"].travel_deviation_um,
                 rt.strokes["negative"].travel_deviation_um, mean_um=rt.backlash.mean_um, limit_um=limit,
                 title=f"{title}, {when}")
-        return plots.lead_deviation(rt.strokes[direction], screw_lead_mm=axis.spec.screw_lead_mm,
-                                    title=f"{title}, {when}")
+        return draw(plots.lead_deviation, rt.strokes[direction], screw_lead_mm=axis.spec.screw_lead_mm,
+                    title=f"{title}, {when}")
     if name == "tbe_vs_backlash":
         if not axis.tasks:
-            return plots.empty(title, "no machining task configured")
+            return draw(plots.empty, title, "no machining task configured")
         latest = results_repo.latest_result(s, axis_id)
         lims = []
         for t in axis.tasks:
@@ -71,40 +79,41 @@ def render(s, axis_id: int, name: str, *, measurement_id: int | None = None, dir
                 v = math.inf
             lims.append(v if math.isfinite(v) else None)
         rt = latest.round_trip if latest else None
-        return plots.tbe_vs_backlash(axis.tasks, lims,
-                                     backlash_um=rt.backlash.mean_um if rt else None,
-                                     backlash_uncertainty_um=rt.backlash_mean_uncertainty_um
-                                     if rt is not None and rt.budgets else 0.0,
-                                     rule=axis.settings.decision_rule, title=title)
+        return draw(plots.tbe_vs_backlash, axis.tasks, lims,
+                    backlash_um=rt.backlash.mean_um if rt else None,
+                    backlash_uncertainty_um=rt.backlash_mean_uncertainty_um
+                    if rt is not None and rt.budgets else 0.0,
+                    rule=axis.settings.decision_rule, title=title)
     if name == "tbe_history":
         rows = results_repo.tbe_history(s, axis_id, since=since, max_points=plots.SCREEN_POINTS)
         if not rows:
-            return plots.empty(title, "no TBE estimated yet (needs a good measurement and a machining task)")
+            return draw(plots.empty, title, "no TBE estimated yet (needs a good measurement and a machining task)")
         series: dict = {}
         for t, task, tbe, tol in rows:
             ts, vs, tols = series.setdefault(task, ([], [], []))
             ts.append(t)
             vs.append(tbe)
             tols.append(tol)
-        return plots.tbe_history(series, title=title)
+        return draw(plots.tbe_history, series, title=title)
     if name == "backlash_trend":
         tr = results_repo.trend(s, axis_id, since=since, max_points=plots.SCREEN_POINTS).series
         if not tr.measured_at:
-            return plots.empty(title, "no good measurement yet")
-        return plots.backlash_trend(list(tr.measured_at), list(tr.backlash_mean_um), list(tr.temperature_c),
-                                    limit_um=limit, title=title)
+            return draw(plots.empty, title, "no good measurement yet")
+        return draw(plots.backlash_trend, list(tr.measured_at), list(tr.backlash_mean_um),
+                    list(tr.temperature_c), limit_um=limit, title=title)
     if name == "prognosis":
         if status is None:
             raise ValueError("the prognosis figure needs the axis' status")
-        return prognosis_png(status, title)
+        return prognosis_png(status, title, draw)
     raise ValueError(f"name (={name!r}) must be one of {', '.join(NAMES)}")
 
 
-def prognosis_png(st, title: str) -> bytes:
+def prognosis_png(st, title: str, draw: Callable[..., bytes] | None = None) -> bytes:
     """Fig. 10 with the forecast of b̄ at the worst-case temperature and its band (issue 16)."""
+    draw = draw or _here
     h = st.history
     if h is None or h.rows_used == 0:
-        return plots.empty(title, "no measurement with a temperature yet" if h is not None else
+        return draw(plots.empty, title, "no measurement with a temperature yet" if h is not None else
                            f"no prognosis: {st.history_error}")
     t_s, temp, _day, b = h.series
     p = h.prognosis
@@ -129,4 +138,4 @@ def prognosis_png(st, title: str) -> bytes:
                    is not None else p.alarm_temperature_reason))
     else:
         note = f"not identifiable: {p.fit.reason}"
-    return prognosis_plot(when, [float(x) for x in b], temps, note=note, title=title, **kw)
+    return draw(prognosis_plot, when, [float(x) for x in b], temps, note=note, title=title, **kw)

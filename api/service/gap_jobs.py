@@ -24,8 +24,6 @@ The REST router and the dashboard both use one :class:`GapJobs` of the service.
 from __future__ import annotations
 
 import logging
-import multiprocessing
-import os
 import threading
 import time
 from collections import OrderedDict
@@ -35,6 +33,7 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from api.service.worker_process import spawn_pool
 from core.dataset import Dataset, Run
 from core.errors import MebmError
 from core.gap import diagnose
@@ -128,28 +127,6 @@ def axis_job(jobs: "GapJobs", axis_id: int, folder: Path | None, runs: int, *, s
 WORKER_NICE = 10  # the diagnosis yields the CPU to the service's cycles and requests
 
 
-PARENT_POLL_S = 2.0
-
-
-def _worker_init(parent_pid: int) -> None:
-    """In the worker process: run below the service (a background analysis must not
-    slow a measurement cycle or a status request on a 2-core shop-floor PC), and end with
-    the service. A pool worker whose parent was killed (SIGKILL, a crash) waits forever
-    on its call queue, whose pipe it holds open itself: seen as orphaned idle processes
-    after killed services. A watchdog thread ends it once its parent is gone."""
-    try:
-        os.nice(WORKER_NICE)
-    except OSError:  # not permitted here: run at the service's priority
-        log.warning("the gap diagnosis process could not lower its priority")
-
-    def watch() -> None:
-        while os.getppid() == parent_pid:
-            time.sleep(PARENT_POLL_S)
-        os._exit(0)
-
-    threading.Thread(target=watch, name="mebm-gap-parent-watch", daemon=True).start()
-
-
 @dataclass
 class _Job:
     future: Future
@@ -233,9 +210,7 @@ class GapJobs:
 
     def _process(self) -> ProcessPoolExecutor:
         if self._pool is None:
-            # spawn, not fork: the service has threads (a fork would copy held locks)
-            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
-                                             initializer=_worker_init, initargs=(os.getpid(),))
+            self._pool = spawn_pool(what="gap diagnosis", nice=WORKER_NICE)
         return self._pool
 
     def close(self) -> None:

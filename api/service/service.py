@@ -21,6 +21,7 @@ from sqlalchemy import text
 from api.service.config import SIM_CONTROLLER, Settings
 from api.service.cycles import CycleExecutor
 from api.service.gap_jobs import GapJobs
+from api.service.plot_process import PlotProcess
 from api.service.demo import DemoController
 from api.service.health import HealthProbe
 from api.service.runner import CycleRunner, DriverRunner
@@ -79,6 +80,7 @@ class Service:
         self.events = EventHub()  # "measurement stored", "cycle failed", "alert changed" -> every interface
         self.render_status = None  # axis_id -> the status body (bytes); set by the REST app
         self.gap_jobs = GapJobs()  # gap diagnoses: bounded jobs, computed in a worker process
+        self.plots = PlotProcess.shared()  # figure renders, in a worker process (not on the API's interpreter)
 
     # -- wiring ----------------------------------------------------------------------------------
     def resolve_url(self, axis: AxisRecord) -> str:
@@ -181,7 +183,7 @@ class Service:
         if self.scheduler is not None:
             self.scheduler.stop()
         self.events.close()
-        self.gap_jobs.close()
+        self.gap_jobs.close()  # (self.plots is the interpreter's, shared: it ends with it)
         for sim in self.simulators.values():
             sim.stop()
         self.simulators.clear()

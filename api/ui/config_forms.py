@@ -45,7 +45,7 @@ def _put(d: dict, key: str, raw: str) -> None:
 PATTERN_HINTS = {  # a regular expression is no message for a person
     "name": "letters, digits, spaces and . _ - only, starting with a letter or digit",
     "axis.name": "lower-case letters, digits and _ only, starting with a letter (x, y, z, b2)",
-    "controller_url": "sim, modbus://host:port or canopen://interface/node",
+    "controller_url": "sim, modbus://host:port, modbus+rtu://serial-device or canopen://interface/node",
 }
 
 

@@ -249,7 +249,8 @@ def axis_plot(request: Request, axis_id: int, name: str, who: Who, range: str = 
     png = ui_state(request).figures.get(key)
     if png is None:
         with session_scope(svc.factory) as s:
-            png = figures.render(s, axis_id, name, direction=direction, since=views.since_of(range, now), status=st)
+            png = figures.render(s, axis_id, name, direction=direction, since=views.since_of(range, now), status=st,
+                                 draw=svc.plots.draw)
         ui_state(request).figures.put(key, png)
     return Response(png, media_type="image/png", headers={"Cache-Control": "no-cache"})
 
@@ -330,7 +331,7 @@ def gap_residual_plot(request: Request, axis_id: int, index: int, who: Who):
     key = (axis_id, "gap", tuple(r.get("runs_used", ())), r.get("gap_before_um"), index)
     png = ui_state(request).figures.get(key)
     if png is None:
-        png = plots.gap_residual(curves[index], r["effect"])
+        png = request.app.state.service.plots.draw(plots.gap_residual, curves[index], r["effect"])  # off this interpreter
         ui_state(request).figures.put(key, png)
     return Response(png, media_type="image/png", headers={"Cache-Control": "no-cache"})
 

@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from functools import lru_cache
 from enum import Enum
 
 from core.errors import InputError, ModelDomainError, require_finite, require_positive
@@ -88,19 +89,9 @@ class MachiningTask:
         return tbe_line_um(backlash_um, self.angle_deg, self.feed_mm_min, self.gain_per_s)
 
     def backlash_limit_um(self) -> float:
-        """Largest permissible backlash in µm; ``inf`` when the task never reaches its tolerance."""
-        try:
-            return backlash_limit_um(
-                self.tolerance_um,
-                feed_mm_min=self.feed_mm_min,
-                gain_per_s=self.gain_per_s,
-                radius_mm=self.radius_mm if self.profile == "circle" else None,
-                angle_deg=self.angle_deg if self.profile == "line" else None,
-            )
-        except ModelDomainError as exc:
-            if "met by any backlash" in str(exc):
-                return math.inf
-            raise
+        """Largest permissible backlash in µm; ``inf`` when the task never reaches its tolerance.
+        Memoised per task (a task is frozen): the prognosis' bisection asks for it ~40 times."""
+        return _limit_um(self)
 
     def tbe_uncertainty_um(self, backlash_um: float, backlash_uncertainty_um: float) -> float:
         """Expanded uncertainty of the TBE from that of the backlash: |dTBE/db| U_b
@@ -129,29 +120,48 @@ class MachiningTask:
     def backlash_limit_uncertainty_um(self) -> float:
         """Expanded (k = 2) uncertainty of the backlash limit from ``gain_rel_uncertainty``
         (rectangular half-width), by the limits at K (1 ± δ); 0 for an infinite limit."""
-        from dataclasses import replace
-
-        limit = self.backlash_limit_um()
-        if not math.isfinite(limit) or self.gain_rel_uncertainty == 0:
-            return 0.0
-        out = []
-        for sign in (1.0, -1.0):
-            try:
-                out.append(replace(self, gain_per_s=self.gain_per_s * (1 + sign * self.gain_rel_uncertainty))
-                           .backlash_limit_um())
-            except ModelDomainError:
-                continue
-        finite = [x for x in out if math.isfinite(x)]
-        if not finite:
-            return 0.0
-        half_width = max(abs(x - limit) for x in finite)
-        return 2.0 * half_width / math.sqrt(3.0)
+        return _limit_uncertainty_um(self)
 
     def steady_lag_um(self) -> float:
         """For circles: how far the backlash-free loop already runs inside the circle (µm)."""
         if self.profile != "circle":
             return 0.0
         return circle_steady_lag_um(self.radius_mm, self.feed_mm_min, self.gain_per_s)
+
+
+@lru_cache(maxsize=1024)
+def _limit_um(task: MachiningTask) -> float:
+    try:
+        return backlash_limit_um(
+            task.tolerance_um,
+            feed_mm_min=task.feed_mm_min,
+            gain_per_s=task.gain_per_s,
+            radius_mm=task.radius_mm if task.profile == "circle" else None,
+            angle_deg=task.angle_deg if task.profile == "line" else None,
+        )
+    except ModelDomainError as exc:
+        if "met by any backlash" in str(exc):
+            return math.inf
+        raise
+
+
+@lru_cache(maxsize=1024)
+def _limit_uncertainty_um(task: MachiningTask) -> float:
+    limit = task.backlash_limit_um()
+    if not math.isfinite(limit) or task.gain_rel_uncertainty == 0:
+        return 0.0
+    out = []
+    for sign in (1.0, -1.0):
+        try:
+            out.append(replace(task, gain_per_s=task.gain_per_s * (1 + sign * task.gain_rel_uncertainty))
+                       .backlash_limit_um())
+        except ModelDomainError:
+            continue
+    finite = [x for x in out if math.isfinite(x)]
+    if not finite:
+        return 0.0
+    half_width = max(abs(x - limit) for x in finite)
+    return 2.0 * half_width / math.sqrt(3.0)
 
 
 @dataclass(frozen=True)

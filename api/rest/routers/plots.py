@@ -36,6 +36,7 @@ def plot(
     since: Since = None,
 ):
     png = figures.render(s, axis_id, name.value, measurement_id=measurement_id, direction=direction,
-                         since=utc(since), status=svc.status.get(axis_id) if name is PlotName.prognosis else None)
+                         since=utc(since), status=svc.status.get(axis_id) if name is PlotName.prognosis else None,
+                         draw=svc.plots.draw)
     return Response(content=png, media_type="image/png", headers={"Cache-Control": "no-cache"})
 

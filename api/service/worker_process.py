@@ -1,0 +1,47 @@
+"""Worker processes of the service: a ``spawn``-started pool that ends with the service.
+
+Used for the CPU work a request would otherwise do on the service's own interpreter (gap
+diagnoses, figure renders): pure Python, numpy and matplotlib hold the interpreter lock
+while they run, and every status poll then waits for it. In a separate process they only
+share the CPU.
+
+``spawn``, not ``fork``: the service has threads, and a fork would copy locks they hold.
+A pool worker whose parent was killed (SIGKILL, a crash) waits forever on its call queue,
+whose pipe it holds open itself (seen as orphaned idle processes after killed services),
+so a watchdog thread ends it once its parent is gone.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import os
+import threading
+import time
+from concurrent.futures import ProcessPoolExecutor
+
+log = logging.getLogger(__name__)
+
+PARENT_POLL_S = 2.0
+
+
+def _worker_init(parent_pid: int, nice: int, what: str) -> None:
+    if nice:
+        try:
+            os.nice(nice)
+        except OSError:  # not permitted here: run at the service's priority
+            log.warning("the %s process could not lower its priority", what)
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(PARENT_POLL_S)
+        os._exit(0)
+
+    threading.Thread(target=watch, name=f"mebm-{what}-parent-watch", daemon=True).start()
+
+
+def spawn_pool(*, what: str, nice: int = 0, workers: int = 1) -> ProcessPoolExecutor:
+    """A pool of ``workers`` spawned processes at ``nice`` above the service, each ending
+    when the service ends; ``what`` names them in log lines."""
+    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=_worker_init, initargs=(os.getpid(), nice, what))
