@@ -259,3 +259,50 @@ def backlash_trend(t: list[datetime], backlash_um: list[float], temperature_c: l
     ax.set_title(f"mean backlash and temperature — {title}")
     fig.autofmt_xdate()
     return _png(fig)
+
+
+def _rms(x) -> float:
+    x = np.asarray(x, dtype=float)
+    return float(np.sqrt(np.mean(x**2))) if x.size else float("nan")
+
+
+def gap_residual(curve: dict, effect: str) -> bytes:
+    """One test run of a gap diagnosis: measured minus the nominal model, and measured
+    minus the model with the diagnosed ``effect`` ("none": the nominal model again);
+    along the nut travel for a round trip (``u_mm``), against the angle or the distance
+    along the path for a contour (``angle_deg``). The RMS of each is in its legend."""
+    label = effect if effect != "none" else "nominal (no effect named)"
+    fig, (ax,) = _figure(9, 3.6)
+    nominal, corrected = np.asarray(curve["nominal_um"], float), np.asarray(curve["corrected_um"], float)
+    if "u_mm" in curve:
+        x = np.asarray(curve["u_mm"], float)
+        ax.plot(x, nominal, lw=0.5, label=f"measured - nominal (RMS {_rms(nominal):.2f} µm)")
+        ax.plot(x, corrected, lw=0.5, label=f"measured - {label} (RMS {_rms(corrected):.2f} µm)")
+        ax.set_xlabel("nut travel k_a x_m (mm)")
+        ax.set_ylabel("table given motor: residual (µm)")
+        ax.set_title(f"{curve['file']} (axis {curve.get('axis')}, test run)")
+    else:
+        x = np.asarray(curve["angle_deg"], float)
+        ax.plot(x, nominal, ".", ms=1, label=f"measured - nominal (RMS {_rms(nominal):.2f} µm)")
+        ax.plot(x, corrected, ".", ms=1, label=f"measured - {label} (RMS {_rms(corrected):.2f} µm)")
+        ax.set_xlabel("angle (deg)" if curve["kind"] == "circle" else "distance along the line (mm)")
+        ax.set_ylabel("contour error residual (µm)")
+        if curve["kind"] == "circle":
+            for q in (0, 90, 180, 270, 360):
+                ax.axvline(q, color="0.8", lw=0.5)
+        ax.set_title(f"{curve['file']} ({curve['kind']}, test run)")
+    ax.legend(loc="best", fontsize=8, markerscale=8)
+    return _png(fig)
+
+
+def thin_residuals(curve: dict, max_points: int = SCREEN_POINTS) -> dict:
+    """``curve`` (numpy arrays) as JSON-able lists of at most ``max_points`` points: the
+    minimum and maximum of both residuals per bucket (a 1000-pixel chart loses nothing)."""
+    nominal, corrected = np.asarray(curve["nominal_um"], float), np.asarray(curve["corrected_um"], float)
+    idx = np.union1d(minmax_indices(nominal, max_points // 2), minmax_indices(corrected, max_points // 2))
+    out = {k: v for k, v in curve.items() if k not in ("u_mm", "angle_deg", "nominal_um", "corrected_um")}
+    for k in ("u_mm", "angle_deg", "nominal_um", "corrected_um"):
+        if k in curve and curve[k] is not None:
+            out[k] = np.asarray(curve[k], float)[idx].tolist()
+    out["rms_nominal_um"], out["rms_corrected_um"] = _rms(nominal), _rms(corrected)  # of every point
+    return out

@@ -363,3 +363,20 @@ class Repair(Base):
                                                               nullable=True)
     compensation_file: Mapped[str | None] = mapped_column(String(300), nullable=True)
     before_result_id: Mapped[int | None] = mapped_column(ForeignKey("results.id", ondelete="SET NULL"), nullable=True)
+
+
+class UiSession(Base):
+    """A dashboard session or a one-time sign-in link (``kind``), stored as the SHA-256
+    of its random token: sessions survive a restart and are shared by every ``serve``
+    process on the database. Ended when its key is revoked (``revoked_at``)."""
+
+    __tablename__ = "ui_sessions"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    kind: Mapped[str] = mapped_column(String(10))  # "session" or "link"
+    token_sha256: Mapped[str] = mapped_column(String(64), unique=True)
+    key_id: Mapped[int] = mapped_column(ForeignKey("api_keys.id", ondelete="CASCADE"), index=True)
+    created_at: Mapped[datetime] = mapped_column(UtcDateTime)
+    last_seen_at: Mapped[datetime] = mapped_column(UtcDateTime)
+    expires_at: Mapped[datetime] = mapped_column(UtcDateTime, index=True)
+    revoked_at: Mapped[datetime | None] = mapped_column(UtcDateTime, nullable=True)
