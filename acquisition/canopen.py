@@ -198,9 +198,7 @@ class CanopenDriver(ControllerDriver):
         dev = self._sdo("reading the device type", lambda: sdo[co.DEVICE_TYPE].raw)
         if dev & 0xFFFF != co.DEVICE_TYPE_CIA402 & 0xFFFF:
             raise ProtocolError(f"node {self.node_id} is not a CiA 402 drive (device type 0x{dev:08X})")
-        ver = self._sdo("reading the mebm objects version", lambda: sdo[co.OBJECTS_VERSION_IDX].raw)
-        if ver != co.OBJECTS_VERSION:
-            raise ProtocolError(f"node {self.node_id} has mebm objects version {ver}, mebm speaks {co.OBJECTS_VERSION}")
+        self._check_objects(sdo)
         mapping = self._sdo("reading the TPDO1 mapping", lambda: tuple(sdo[co.TPDO1_MAP][s].raw for s in (0, 1, 2)))
         ttype = self._sdo("reading the TPDO1 transmission type", lambda: sdo[co.TPDO1_COMM][2].raw)
         if mapping != (2, *co.TPDO1_MAPPING) or ttype != 1:
@@ -210,7 +208,7 @@ class CanopenDriver(ControllerDriver):
             )
         inc = self._sdo("reading the encoder resolution", lambda: (sdo[co.ENCODER_RESOLUTION][1].raw,
                                                                    sdo[co.ENCODER_RESOLUTION][2].raw))
-        nm = self._sdo("reading the table resolution", lambda: sdo[co.TABLE_NM_PER_COUNT].raw)
+        nm = self._table_nm_per_count(sdo)
         self.scale = EncoderScale(counts_per_rev=inc[0] / max(inc[1], 1), table_nm_per_count=float(nm))
         period_us = int(round(1e6 / self.sync_rate_hz))
         self._sdo("setting the SYNC period (0x1006)", lambda: setattr(sdo[co.COMM_CYCLE_PERIOD], "raw", period_us))
@@ -226,6 +224,15 @@ class CanopenDriver(ControllerDriver):
         node.nmt.state = "OPERATIONAL"
         self._sync = _SyncProducer(net.bus, 1.0 / (self.sync_rate_hz * self.time_scale), self._k, self.sync_window_s)
         self._sync.start()
+
+    def _check_objects(self, sdo) -> None:
+        """The drive offers what this mode commands (here: mebm's objects 0x2000-0x2006)."""
+        ver = self._sdo("reading the mebm objects version", lambda: sdo[co.OBJECTS_VERSION_IDX].raw)
+        if ver != co.OBJECTS_VERSION:
+            raise ProtocolError(f"node {self.node_id} has mebm objects version {ver}, mebm speaks {co.OBJECTS_VERSION}")
+
+    def _table_nm_per_count(self, sdo) -> float:
+        return float(self._sdo("reading the table resolution", lambda: sdo[co.TABLE_NM_PER_COUNT].raw))
 
     def _close_blocking(self) -> None:
         sync, self._sync = self._sync, None

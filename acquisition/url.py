@@ -1,8 +1,9 @@
 """Controller URLs: ``modbus://HOST[:PORT][?mode=trace|latched|separate&device_id=N&profile=FILE.toml]``,
 ``modbus+rtu:///dev/ttyUSB0[?baudrate=19200&parity=N|E|O&stopbits=1|2&bytesize=8&device_id=N&profile=...]``,
 ``sim://HOST[:PORT][?...]`` (mebm's own simulated Modbus controller, ``mebm sim-controller
-modbus``) and ``canopen://INTERFACE/CHANNEL?node=N[&rate_hz=R&window_ms=W&time_scale=X&<bus
-option>=V...]`` (any other query key, e.g. ``bitrate`` or ``port``, is passed to the python-can bus).
+modbus``) and ``canopen://INTERFACE/CHANNEL?node=N[&mode=listen-only|active-cia402|active-mebm&...]``
+(:mod:`acquisition.canopen_url`; any other query key, e.g. ``bitrate`` or ``port``, is passed
+to the python-can bus).
 
 Every scheme also takes who starts the round trip, ``trigger=active|passive`` (docs/controllers.md,
 "Passive and active round trips"), and for passive mode ``running_flag=0|1`` and the detection
@@ -65,7 +66,7 @@ def driver_from_url(url: str, **kwargs):
     (``timeout_s``, ``retries``, ...)."""
     parts = urlsplit(url)
     q = {k: v[-1] for k, v in parse_qs(parts.query).items()}
-    if parts.scheme in ("modbus", "modbus+rtu", "sim", "canopen"):
+    if parts.scheme in ("modbus", "modbus+rtu", "sim"):  # canopen: its mode and the trigger, together (canopen_url)
         kwargs = {**_trigger_kwargs(url, q), **kwargs}
 
     def num(key, cast, default):
@@ -83,7 +84,7 @@ def driver_from_url(url: str, **kwargs):
         known = {"device_id", "mode", "profile", *(_SERIAL if parts.scheme == "modbus+rtu" else ())}
         unknown = sorted(set(q) - known)
         if unknown:
-            raise InputError(f"controller URL {url!r}: unknown option(s) {unknown} (allowed: {sorted(known)})")
+            raise InputError(f"controller URL {url!r}: unknown option(s) {unknown} (allowed: {sorted(known | set(TRIGGER_KEYS))})")
         device_id = num("device_id", int, 1)
         if not 0 <= device_id <= 247:
             raise InputError(f"controller URL {url!r}: device_id (={device_id}) must be 0..247")
@@ -117,23 +118,9 @@ def driver_from_url(url: str, **kwargs):
             return ProfileModbusDriver(host, port, profile=profile, device_id=device_id, serial=serial, **kwargs)
         return ModbusDriver(host, port, device_id=device_id, mode=q.get("mode", "trace"), serial=serial, **kwargs)
     if parts.scheme == "canopen":
-        from acquisition.canopen import CanopenDriver
+        from acquisition.canopen_url import driver_from_canopen_url
 
-        channel = parts.path.lstrip("/")
-        if not parts.netloc or not channel:
-            raise InputError(f"controller URL {url!r} must be canopen://INTERFACE/CHANNEL?node=N "
-                             "(e.g. canopen://socketcan/can0?node=5, canopen://virtual/sim?node=5)")
-        if "node" not in q:
-            raise InputError(f"controller URL {url!r} needs ?node=N (the drive's CANopen node id)")
-        known = {"node", "rate_hz", "time_scale", "window_ms"}
-        bus_kwargs = {}
-        for key, val in q.items():  # anything else is a python-can bus option (bitrate, port, ...)
-            if key not in known:
-                bus_kwargs[key] = int(val) if val.lstrip("-").isdigit() else val
-        return CanopenDriver(channel, num("node", int, 0), interface=parts.netloc,
-                             sync_rate_hz=num("rate_hz", float, 250.0), time_scale=num("time_scale", float, 1.0),
-                             bus_kwargs=bus_kwargs,
-                             sync_window_s=num("window_ms", float, 0.0) / 1000.0 or None, **kwargs)
+        return driver_from_canopen_url(url, **kwargs)
     raise InputError(f"controller URL {url!r}: scheme must be modbus://, modbus+rtu://, sim:// or canopen://")
 
 

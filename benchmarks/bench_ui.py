@@ -15,6 +15,7 @@ polled every few seconds, a figure viewed again; "cold" drops both before every 
 from __future__ import annotations
 
 import argparse
+import re
 import statistics
 import sys
 import tempfile
@@ -55,7 +56,7 @@ def seed(url: str, n_axes: int, days: int) -> tuple[str, list[int]]:
                          controller_url="modbus://127.0.0.1:1")
             ids.append(config_repo.create_axis(s, m.id, st).id)
         s.commit()
-        _, key = config_repo.create_key(s, "bench-read", "read")
+        _, key = config_repo.create_key(s, "bench-admin", "admin")  # admin: the configuration pages too
         axis = config_repo.get_axis(s, ids[0])
     rt0 = synthetic_round_trip(axis)
     t0 = datetime.now(timezone.utc) - timedelta(days=days)
@@ -108,13 +109,16 @@ def main() -> int:
                             scheduler_enabled=False, catch_up_missed=False)
         app = create_app(settings)
         with TestClient(app) as client:
-            link = app.state.ui.links.issue(key)
-            assert client.get(f"/ui/sign-in/{link}").status_code == 200
+            link = app.state.ui.sessions.issue_link(key)
+            form = client.get(f"/ui/sign-in/{link}")  # the link's page; its button posts the link
+            csrf = re.search(r'name="csrf" value="([^"]+)"', form.text).group(1)
+            assert client.post(f"/ui/sign-in/{link}", data={"csrf": csrf}).status_code == 200
             svc = app.state.service
             ax = ids[len(ids) // 2]
             pages = [("fleet page", "/ui/"), ("fleet fragment (polled)", "/ui/fleet.frag"),
                      ("axis page", f"/ui/axes/{ax}?range=1y"), ("axis verdict fragment", f"/ui/axes/{ax}/part/verdict.frag"),
-                     ("axis cycles fragment", f"/ui/axes/{ax}/part/cycles.frag"), ("gap page", f"/ui/axes/{ax}/gap")]
+                     ("axis cycles fragment", f"/ui/axes/{ax}/part/cycles.frag"), ("gap page", f"/ui/axes/{ax}/gap"),
+                     ("configuration page", "/ui/config"), ("axis configuration page", f"/ui/config/axes/{ax}")]
             figures = [(f"figure {n}", f"/ui/axes/{ax}/plots/{n}.png?range=1y") for n in
                        ("backlash_profile", "lead_deviation", "tbe_vs_backlash", "backlash_trend", "tbe_history",
                         "prognosis")]
@@ -132,6 +136,13 @@ def main() -> int:
             # the usual case: one axis was just measured (a saved cycle invalidates its status only)
             one, _ = median_ms(client, "/ui/", a.repeats, before=lambda: svc.status.invalidate(ids[0]))
             print(f"  fleet page, one axis just measured   {one:7.1f}")
+            # every request reads its session (and key) from the database: its share of the above
+            token, ts = client.cookies.get("mebm_session"), []
+            for _ in range(200):
+                t0 = time.perf_counter()
+                assert app.state.ui.sessions.get(token) is not None
+                ts.append(1000 * (time.perf_counter() - t0))
+            print(f"  session lookup (per request)        {statistics.median(ts):7.2f}")
     return 0
 
 

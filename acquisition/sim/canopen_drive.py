@@ -31,6 +31,8 @@ from canopen.sdo import SdoAbortedError
 from acquisition import canopen_od as co
 from acquisition.scale import EncoderScale
 from acquisition.sim.axis import SimAxis
+from acquisition.sim import wear as sim_wear
+from acquisition.sim.cia402 import Cia402Motion
 from acquisition.sim.twin import Twin
 from acquisition.types import AxisState, Command, RoundTripProgram
 from core.errors import InputError
@@ -67,6 +69,7 @@ class SimCanopenDrive:
         self.axis.on_fault = self._on_axis_fault
         self.od = co.object_dictionary(self.node_id, counts_per_rev=self.scale.counts_per_rev,
                                        table_nm_per_count=int(round(self.scale.table_nm_per_count)))
+        sim_wear.add_canopen_objects(self.od)  # the simulator's wear and repair objects
         self.node = canopen.LocalNode(self.node_id, self.od)
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
@@ -91,6 +94,7 @@ class SimCanopenDrive:
         self.late_discards = 0
         self.answered: collections.deque = collections.deque(maxlen=100_000)  # SYNC counter bytes answered
         self._timers: list[threading.Timer] = []
+        self._init_cia402(twin)
 
     # -- lifecycle -----------------------------------------------------------------------------
     def start(self) -> "SimCanopenDrive":
@@ -105,6 +109,7 @@ class SimCanopenDrive:
         self.network.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
         self.network.subscribe(self.node.sdo.rx_cobid, self._on_sdo_request)
         self.network.subscribe(co.SYNC_COB_ID, self._on_sync)
+        self.network.subscribe(co.rpdo1_cob_id(self.node_id), self._on_rpdo)
         self.network.send_message(0x700 + self.node_id, [0])  # boot-up
         self.node.nmt.state = "PRE-OPERATIONAL"
         return self
@@ -198,6 +203,7 @@ class SimCanopenDrive:
         self._last_sync = time.monotonic()
         self.machine_time_s += self._period_s
         self.axis.update()
+        cia402_position = self._cia402_step()
         drop = self._due("drop")
         if drop is not None:
             self._go_silent(drop.for_s)
@@ -212,7 +218,7 @@ class SimCanopenDrive:
             f = self._due(kind)
             if f is not None:
                 setattr(self, f"_{'dup' if kind == 'duplicate' else kind}_left", int(f.value("n")))
-        motor_rev, table_mm = self.axis.position_at()
+        motor_rev, table_mm = cia402_position or self.axis.position_at()
         m = int(self.scale.motor_counts(motor_rev))
         t = int(self.scale.table_counts(table_mm))
         t_sync = timestamp or time.time()
@@ -249,6 +255,14 @@ class SimCanopenDrive:
 
     def _on_read(self, index, subindex, od):
         ax = self.axis
+        if self.cia402.engaged and index in (co.POSITION_ACTUAL, co.ADDITIONAL_POSITION):
+            m_rev, t_mm = self.cia402.follower.position()
+            return int(self.scale.motor_counts(m_rev) if index == co.POSITION_ACTUAL else self.scale.table_counts(t_mm))
+        if index in (co.STATUSWORD, co.MODES_DISPLAY):
+            return self.cia402.statusword() if index == co.STATUSWORD else self.cia402.mode
+        wear = sim_wear.canopen_read(ax.twin, index)
+        if wear is not None:
+            return wear
         if index == co.POSITION_ACTUAL:
             return int(self.scale.motor_counts(ax.position_at()[0]))
         if index == co.ADDITIONAL_POSITION and subindex == 1:
@@ -270,7 +284,12 @@ class SimCanopenDrive:
                                 acceleration_mm_s2=float(v[3]), dwell_s=v[4] / 1000.0)
 
     def _on_write(self, index, subindex, od, data):
-        if index == co.COMM_CYCLE_PERIOD:
+        repaired = sim_wear.canopen_repair_write(self.axis.twin, index, data)  # the simulator's repair
+        if repaired is False:
+            raise SdoAbortedError(ABORT_VALUE_RANGE)
+        if index in _CIA402_WRITABLE:
+            self._cia402_write(index, od.decode_raw(bytes(data)))
+        elif index == co.COMM_CYCLE_PERIOD:
             us = struct.unpack("<L", bytes(data))[0]
             if us == 0:
                 raise SdoAbortedError(ABORT_VALUE_RANGE)
@@ -286,6 +305,7 @@ class SimCanopenDrive:
         elif index == co.COMMAND:
             cmd = struct.unpack("<H", bytes(data))[0]
             if cmd == Command.START:
+                self.cia402.release()
                 try:
                     program = self._program()
                 except InputError:
@@ -298,3 +318,34 @@ class SimCanopenDrive:
                 self.axis.abort()
             elif cmd == Command.ACKNOWLEDGE:
                 self.axis.acknowledge()
+
+    # -- CiA 402 position control (acquisition/sim/cia402.py) ------------------------------------------
+    def _init_cia402(self, twin: Twin) -> None:
+        self.cia402 = Cia402Motion(twin, self.scale)
+        self._cia402_lock = threading.Lock()
+
+    def _hold(self) -> tuple[float, float]:
+        return self.axis.position_at()
+
+    def _cia402_write(self, index: int, value: int) -> None:
+        with self._cia402_lock:
+            self.cia402.write(index, value, self._hold())
+
+    def _on_rpdo(self, can_id, data, timestamp) -> None:
+        """RPDO1 (controlword, target position) from a CNC master, applied on the next SYNC."""
+        if self._silent() or self.node.nmt.state != "OPERATIONAL" or len(data) < co.RPDO_STRUCT.size:
+            return
+        cw, target = co.decode_rpdo1(bytes(data))
+        with self._cia402_lock:
+            self.cia402.rpdo(cw, target, self._hold())
+
+    def _cia402_step(self) -> tuple[float, float] | None:
+        """Positions latched at this SYNC when CiA 402 moves the axis, else None."""
+        with self._cia402_lock:
+            if not self.cia402.engaged:
+                return None
+            return self.cia402.step(self._period_s)
+
+
+_CIA402_WRITABLE = frozenset({co.CONTROLWORD, co.MODES_OF_OPERATION, co.TARGET_POSITION, co.PROFILE_VELOCITY,
+                              co.PROFILE_ACCELERATION, co.PROFILE_DECELERATION, co.POSITION_WINDOW})

@@ -21,6 +21,7 @@ from pymodbus.server import ModbusTcpServer
 
 from acquisition import modbus_map as mm
 from acquisition.sim.axis import SimAxis
+from acquisition.sim import wear as sim_wear
 from acquisition.types import AxisState, Command
 from core.errors import InputError
 
@@ -198,7 +199,12 @@ class SimModbusController:
         )
         words[mm.CONFIG_BASE : mm.CONFIG_BASE + mm.CONFIG_WORDS] = self._config
         words[mm.COMMAND : mm.COMMAND + mm.CONTROL_WORDS] = self._control
+        self._wear_words(words)
         return words
+
+    def _wear_words(self, words: np.ndarray) -> None:
+        """The simulator's wear block (acquisition.sim.wear): repairs and the wear now."""
+        words[sim_wear.REPAIR_REG : sim_wear.REPAIR_REG + sim_wear.WEAR_WORDS] = sim_wear.modbus_wear_words(self.axis.twin)
 
     async def read(self, func_code: int, address: int, count: int):
         self.requests += 1
@@ -230,6 +236,9 @@ class SimModbusController:
 
     async def write(self, func_code: int, address: int, values):
         self.requests += 1
+        repaired = sim_wear.modbus_repair_write(self.axis.twin, address, values)  # the simulator's repair
+        if repaired is not None:
+            return None if repaired else ExcCodes.ILLEGAL_VALUE
         lo, hi = mm.COMMAND, mm.COMMAND + mm.CONTROL_WORDS
         if address < lo or address + len(values) > hi:
             return ExcCodes.ILLEGAL_ADDRESS

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 
@@ -62,53 +61,17 @@ def run_diagnose(a: argparse.Namespace) -> int:
 
 def write_plots(report, folder: Path) -> list[Path]:
     """PNGs of the test residuals: nominal vs corrected by the diagnosed effect
-    (along the travel for round trips, versus angle for circles)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    (along the travel for round trips, versus angle for circles); the dashboard's gap
+    page draws the same figure (api.service.plots.gap_residual)."""
+    from api.service.plots import gap_residual
 
     folder.mkdir(parents=True, exist_ok=True)
     out = []
-    label = report.effect if report.effect != "none" else "nominal (no effect named)"
-    for c in report.curves.get("round_trip", []):
-        fig, ax = plt.subplots(figsize=(9, 3.6))
-        ax.plot(c["u_mm"], c["nominal_um"], lw=0.5, label=f"measured - nominal (RMS {_rms(c['nominal_um']):.2f} µm)")
-        ax.plot(c["u_mm"], c["corrected_um"], lw=0.5, label=f"measured - {label} (RMS {_rms(c['corrected_um']):.2f} µm)")
-        ax.set_xlabel("nut travel k_a x_m (mm)")
-        ax.set_ylabel("table given motor: residual (µm)")
-        ax.set_title(f"{c['file']} (axis {c['axis']}, test run)")
-        ax.legend(loc="best", fontsize=8)
-        fig.tight_layout()
+    for c in [*report.curves.get("round_trip", []), *report.curves.get("contour", [])]:
         path = folder / f"gap_{Path(c['file']).stem}.png"
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        out.append(path)
-    for c in report.curves.get("contour", []):
-        fig, ax = plt.subplots(figsize=(9, 3.6))
-        x = c["angle_deg"]
-        ax.plot(x, c["nominal_um"], ".", ms=1, label=f"measured - nominal (RMS {_rms(c['nominal_um']):.2f} µm)")
-        ax.plot(x, c["corrected_um"], ".", ms=1, label=f"measured - {label} (RMS {_rms(c['corrected_um']):.2f} µm)")
-        ax.set_xlabel("angle (deg)" if c["kind"] == "circle" else "distance along the line (mm)")
-        ax.set_ylabel("contour error residual (µm)")
-        if c["kind"] == "circle":
-            for q in (0, 90, 180, 270, 360):
-                ax.axvline(q, color="0.8", lw=0.5)
-        ax.set_title(f"{c['file']} ({c['kind']}, test run)")
-        ax.legend(loc="best", fontsize=8, markerscale=8)
-        fig.tight_layout()
-        path = folder / f"gap_{Path(c['file']).stem}.png"
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
+        path.write_bytes(gap_residual(c, report.effect))
         out.append(path)
     return out
-
-
-def _rms(x) -> float:
-    import numpy as np
-
-    x = np.asarray(x)
-    return float(np.sqrt(np.mean(x**2))) if x.size else math.nan
 
 
 def run_benchmark_cmd(a: argparse.Namespace) -> int:

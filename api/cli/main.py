@@ -36,6 +36,8 @@ COMMANDS: tuple[CommandGroup, ...] = (
     CommandGroup("serve", "api.cli.serve",
                  "run the service: REST API, scheduled measurements, simulated demo controller"),
     CommandGroup("keys", "api.cli.keys", "create, list and revoke API keys"),
+    CommandGroup("maintenance", "api.cli.maintenance",
+                 "work orders, repairs and the maintenance summary of a running service"),
     CommandGroup("gap", "api.cli.gap", "where and why the nominal model misses a machine (sim-to-real gap)"),
     CommandGroup("import", "api.cli.import_trace", "a controller's scope trace (CSV) into a mebm dataset run"),
     CommandGroup("export-comp", "api.cli.export_comp",

@@ -157,7 +157,7 @@ def _serve(a: argparse.Namespace) -> int:
         app = create_app(settings, service=service, opcua=opcua)
         read_key = demo_read_key(settings, report) if settings.demo_keys else None
         # the link carries a one-time token, never the key; the dashboard keeps the token in memory
-        link = f"{url}/ui/sign-in/{app.state.ui.links.issue(read_key)}" if read_key else None
+        link = f"{url}/ui/sign-in/{app.state.ui.sessions.issue_link(read_key)}" if read_key else None
         print(banner(settings, report, url, opcua, sign_in_url=link), flush=True)
         config = uvicorn.Config(app, log_level=settings.log_level, access_log=False, timeout_graceful_shutdown=10)
         server = uvicorn.Server(config)

@@ -35,6 +35,11 @@ def _add_axis_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--table-nm-per-count", type=int, default=10, help="linear encoder resolution (nm)")
     g.add_argument("--seed", type=int, default=0, help="seed of the twin's encoder noise")
     g.add_argument("--duration-s", type=float, default=None, help="stop after this many seconds (default: run until Ctrl-C)")
+    g.add_argument("--wear-um-per-day", type=float, default=0.0,
+                   help="the backlash grows this much per utility day (default 0: no wear); "
+                        "`mebm sim-controller repair` restores it")
+    g.add_argument("--utility-days-per-s", type=float, default=1.0 / 86400.0,
+                   help="utility days per second of the simulator's clock (default: real time; 1: a day a second)")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -63,6 +68,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "miss the synchronous window (0x1007) is discarded, as CiA 301 says")
     _add_axis_options(c)
     c.set_defaults(func=run)
+    r = sp.add_parser("repair", help="repair a running simulated Modbus controller: its wear back to zero")
+    r.add_argument("controller", help="the simulator's address, modbus://HOST:PORT")
+    r.set_defaults(func=repair)
 
 
 def build_twin(a: argparse.Namespace):
@@ -80,7 +88,50 @@ def build_twin(a: argparse.Namespace):
                       backlash_um=a.backlash_um, effects=Effects(**effects))
     twin = CoreSimTwin(model, temperature_c=a.temperature_c, rng=np.random.default_rng(a.seed))
     twin.warm_up()
-    return twin
+    return _with_wear(twin, a)
+
+
+def _with_wear(twin, a: argparse.Namespace):
+    """The twin with wear (acquisition.sim.wear) when ``--wear-um-per-day`` is given."""
+    if not a.wear_um_per_day:
+        return twin
+    from acquisition.sim.wear import Wear, WearingTwin
+
+    return WearingTwin(twin, Wear(a.wear_um_per_day, a.utility_days_per_s))
+
+
+def _wear_note(a: argparse.Namespace) -> str:
+    if not a.wear_um_per_day:
+        return ""
+    return (f", wearing {a.wear_um_per_day:g} µm per utility day, {a.utility_days_per_s * 86400:g} utility days "
+            f"per day; `mebm sim-controller repair` restores it")
+
+
+def repair(a: argparse.Namespace) -> int:
+    """Write the simulator's repair register (acquisition.sim.wear) and print the wear it read before."""
+    from urllib.parse import urlsplit
+
+    from pymodbus.client import ModbusTcpClient
+
+    from acquisition.sim.wear import REPAIR_MAGIC, REPAIR_REG, WEAR_WORDS
+
+    u = urlsplit(a.controller)
+    if u.scheme != "modbus" or not u.hostname:
+        raise InputError(f"controller (={a.controller!r}) must be modbus://HOST:PORT")
+    client = ModbusTcpClient(u.hostname, port=u.port or 502, timeout=3)
+    if not client.connect():
+        raise InputError(f"no simulated controller answers at {a.controller}")
+    try:
+        before = client.read_holding_registers(REPAIR_REG, count=WEAR_WORDS)
+        w = client.write_register(REPAIR_REG, REPAIR_MAGIC)
+        if before.isError() or w.isError():
+            raise InputError(f"{a.controller} refused the repair (no wear simulated there?): {w}")
+        regs = before.registers
+        print(f"repaired {a.controller}: wear {((regs[2] << 16) | regs[3]) / 100:.2f} µm removed "
+              f"(repair {regs[1] + 1})", flush=True)
+    finally:
+        client.close()
+    return 0
 
 
 def run(a: argparse.Namespace) -> int:
@@ -111,7 +162,7 @@ async def _serve_modbus(a, twin, scale, faults) -> int:
     except OSError as exc:
         raise InputError(f"cannot listen on {a.host}:{a.port}: {exc.strerror or exc}") from exc
     print(f"simulated controller listening on modbus://{a.host}:{port} "
-          f"(axis {a.axis}, b = {a.backlash_um:g} µm, time scale {a.time_scale:g}); "
+          f"(axis {a.axis}, b = {a.backlash_um:g} µm, time scale {a.time_scale:g}{_wear_note(a)}); "
           f"mebm measure --controller sim://{a.host}:{port} starts its round trips", flush=True)
     try:
         if a.duration_s is not None:
@@ -141,7 +192,7 @@ def _serve_canopen(a, twin, scale, faults) -> int:
     except Exception as exc:  # noqa: BLE001 - python-can raises many kinds on a bad interface
         raise InputError(f"cannot open CAN interface {a.interface!r} channel {a.channel!r}: {exc}") from exc
     print(f"simulated drive on canopen://{a.interface}/{a.channel}?node={a.node} "
-          f"(axis {a.axis}, b = {a.backlash_um:g} µm)", flush=True)
+          f"(axis {a.axis}, b = {a.backlash_um:g} µm{_wear_note(a)})", flush=True)
     try:
         deadline = time.monotonic() + (a.duration_s if a.duration_s is not None else float("inf"))
         while time.monotonic() < deadline:

@@ -5,6 +5,8 @@ Topics, per machine ``M`` and axis ``A`` (names with ``/ + #`` or blanks get ``_
 - ``<prefix>/M/A/status``: the status body exactly as ``GET /axes/{id}/status`` serves
   it, **retained**, QoS 1, on each stored measurement and each failed cycle;
 - ``<prefix>/M/A/alerts``: each alert change (raised, cleared) as JSON, QoS 1;
+- ``<prefix>/M/A/maintenance``: each work-order step (opened, acknowledged, repaired,
+  verified, back to open, cancelled) as JSON, QoS 1, through the same outbox as alerts;
 - ``<prefix>/M/online``: ``online`` (retained) when the machine's connection is up,
   ``offline`` by the broker's will when it drops.
 
@@ -31,7 +33,7 @@ from urllib.parse import unquote, urlsplit
 import paho.mqtt.client as paho
 
 from api.service.config import MqttSettings
-from api.service.events import Event
+from api.service.events import Event, order_document
 
 log = logging.getLogger("mebm.mqtt")
 QOS = 1
@@ -178,6 +180,9 @@ class MqttPublisher:
         elif ev.kind == "alert_changed":
             body = json.dumps(alert_document(ev), separators=(",", ":")).encode()
             self.link(ev.machine).publish_alert(f"{base}/alerts", body)
+        elif ev.kind == "work_order_changed":
+            body = json.dumps(order_document(ev), separators=(",", ":")).encode()
+            self.link(ev.machine).publish_alert(f"{base}/maintenance", body)
 
     def connected(self, machine: str) -> bool:
         link = self._links.get(machine)

@@ -104,7 +104,7 @@ class MTConnectAgent:
 
     # -- events --------------------------------------------------------------------------------------
     def handle(self, ev: Event) -> None:
-        if ev.kind not in ("measurement_stored", "cycle_failed", "alert_changed", "axis_changed"):
+        if ev.kind not in ("measurement_stored", "cycle_failed", "alert_changed", "axis_changed", "work_order_changed"):
             return
         if not self._seeded:
             self.seed()  # reads this event's cycle too (events follow the commit)

@@ -13,6 +13,7 @@ these DataItems (lengths in MILLIMETER: MTConnect has no micrometre unit, 183.4 
 | ``a<N>_temp`` | SAMPLE | TEMPERATURE (CELSIUS) | ``temperature_c`` |
 | ``a<N>_cycle_time`` | EVENT | x:LAST_CYCLE_TIME | ``last_cycle_at`` |
 | ``a<N>_cycle_status`` | EVENT | x:LAST_CYCLE_STATUS | ``last_cycle_status`` |
+| ``a<N>_work_order`` | EVENT | x:MAINTENANCE_ORDER | the active work order, ``STATE:ID:KIND`` or ``NONE`` |
 | ``a<N>_backlash_cond`` | CONDITION | DISPLACEMENT | ``state`` / ``message`` |
 
 The condition is Normal (OK), Warning (WARNING), Fault (ALARM) or Unavailable (UNKNOWN);
@@ -122,6 +123,8 @@ def component_for(st: AxisStatus) -> Component:
                  description="when the last measurement cycle ended"),
         DataItem(f"{a}_cycle_status", "EVENT", "x:LAST_CYCLE_STATUS", "x:LastCycleStatus", name="last_cycle_status",
                  description="ok, failed, interrupted, queued or running"),
+        DataItem(f"{a}_work_order", "EVENT", "x:MAINTENANCE_ORDER", "x:MaintenanceOrder", name="work_order",
+                 description="the active work order as STATE:ID:KIND, or NONE (issue 20)"),
         DataItem(f"{a}_backlash_cond", "CONDITION", "DISPLACEMENT", "", name="maintenance",
                  description="the maintenance state: Normal (OK), Warning, Fault (ALARM), Unavailable (UNKNOWN)"),
     ]
@@ -167,6 +170,11 @@ def values_for(st: AxisStatus, comp: Component, now: datetime) -> list[Value]:
             continue
         elif suffix == "cycle_status":
             out.append(Value(di, cycle_at or now, st.last_cycle_status))
+            continue
+        elif suffix == "work_order":
+            o = st.work_order
+            out.append(Value(di, _utc(o.transitions[-1].at) if o is not None and o.transitions else now,
+                             f"{o.state.upper()}:{o.id}:{o.kind}" if o is not None else "NONE"))
             continue
         elif suffix == "backlash_cond":
             level = CONDITION_LEVEL[state]

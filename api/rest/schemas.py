@@ -6,7 +6,20 @@ import math
 from datetime import datetime
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, Field
+
+# the configuration bodies are the service's: the dashboard's forms validate with them too
+from api.service.config_input import (  # noqa: F401
+    MAX_PROGRAM_MIN,
+    MAX_TRAVEL_MM,
+    AxisIn,
+    In,
+    MachineIn,
+    ScheduleIn,
+    TaskIn,
+    TasksIn,
+    link_local_problem,
+)
 
 Finite = dict(allow_inf_nan=False)
 
@@ -16,14 +29,7 @@ def fin(x: float | None) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
 
 
-class In(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-
-
 # -- machines and axes ---------------------------------------------------------------------------
-class MachineIn(In):
-    name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9][A-Za-z0-9 ._-]*$")
-    description: str = Field("", max_length=2000)
 
 
 class MachineOut(BaseModel):
@@ -31,30 +37,6 @@ class MachineOut(BaseModel):
     name: str
     description: str
     axis_ids: list[int]
-
-
-class TaskIn(In):
-    """A machining task. ``circle`` needs ``radius_mm``; ``line`` needs ``angle_deg``
-    (to the reversely engaged axis, -90..90)."""
-
-    name: str = Field(min_length=1, max_length=100, pattern=r"\S", description="not blank")
-    profile: Literal["circle", "line"]
-    feed_mm_min: float = Field(ge=0.1, le=100000)
-    tolerance_um: float = Field(ge=0.01, le=10000)
-    radius_mm: float | None = Field(None, ge=0.01, le=100000)
-    angle_deg: float | None = Field(None, gt=-90, lt=90)
-
-    @model_validator(mode="after")
-    def _shape(self):
-        if self.profile == "circle" and self.radius_mm is None:
-            raise ValueError("radius_mm is required for a circle task")
-        if self.profile == "line" and self.angle_deg is None:
-            raise ValueError("angle_deg is required for a line task")
-        return self
-
-
-class TasksIn(In):
-    tasks: list[TaskIn] = Field(min_length=1, max_length=50)
 
 
 class TaskOut(BaseModel):
@@ -68,78 +50,11 @@ class TaskOut(BaseModel):
     backlash_limit_um: float | None = Field(description="largest permissible mean backlash; null: no limit")
 
 
-class ScheduleIn(In):
-    """Every ``interval_s`` seconds or on a 5-field cron expression (UTC); not both.
-    Neither (or ``enabled: false``): manual cycles only."""
-
-    interval_s: float | None = Field(None, ge=1, le=1e8)
-    cron: str | None = Field(None, min_length=9, max_length=120)
-    enabled: bool = True
-
-    @model_validator(mode="after")
-    def _one(self):
-        if self.interval_s is not None and self.cron is not None:
-            raise ValueError("give interval_s or cron, not both")
-        return self
-
-
 class ScheduleOut(BaseModel):
     interval_s: float | None
     cron: str | None
     enabled: bool
     next_run_at: datetime | None
-
-
-MAX_TRAVEL_MM = 100_000.0  # 100 m: beyond the largest gantry
-MAX_PROGRAM_MIN = 60.0  # one measurement round trip: an hour at most
-
-
-def link_local_problem(url: str) -> str | None:
-    """Why a controller URL points at a link-local address (169.254.0.0/16, fe80::/10:
-    where cloud metadata services live), or None. Only literal addresses are checked."""
-    import ipaddress
-    from urllib.parse import urlsplit
-
-    try:
-        host = urlsplit(url).hostname or ""
-        addr = ipaddress.ip_address(host)
-    except ValueError:
-        return None
-    if addr.is_link_local:
-        return (f"controller_url (={url!r}) points at the link-local address {addr}; set "
-                "limits.allow_link_local_controllers = true if the controller really is there")
-    return None
-
-
-class AxisIn(In):
-    name: str = Field(min_length=1, max_length=20, pattern=r"^[a-z][a-z0-9_]*$")
-    transmission_mm_per_rev: float = Field(ge=0.001, le=10000)
-    screw_lead_mm: float = Field(ge=0.001, le=10000)
-    position_gain_per_s: float = Field(ge=0.01, le=10000)
-    travel_mm: tuple[float, float]
-    controller_url: str = Field(min_length=3, max_length=300,
-                                pattern=r"^(sim|modbus://.+|modbus\+rtu://.+|sim://.+|canopen://.+)$")
-    measure_feed_mm_min: float = Field(2000.0, ge=0.1, le=100000)
-    measure_acceleration_mm_s2: float = Field(500.0, ge=0.1, le=100000)
-    warning_fraction: float = Field(0.9, ge=0.01, le=1)
-    decision_rule: Literal["simple", "guarded"] = Field(
-        "guarded", description="ISO 14253-1: 'guarded' needs TBE ± U clear of a threshold to call it")
-    worst_case_temperature_c: float = Field(
-        30.0, ge=-50, le=100, description="the shop temperature the prognosis' date is computed for")
-    schedule: ScheduleIn = Field(default_factory=ScheduleIn)
-    tasks: list[TaskIn] = Field(default_factory=list, max_length=50)
-
-    @model_validator(mode="after")
-    def _travel(self):
-        a, b = self.travel_mm
-        if not (abs(a) <= MAX_TRAVEL_MM and abs(b) <= MAX_TRAVEL_MM and b - a >= 10):
-            raise ValueError(f"travel_mm (={[a, b]}) must be [start, end] with end - start >= 10 mm and "
-                             f"|start|, |end| <= {MAX_TRAVEL_MM:g} mm")
-        round_trip_min = 2 * (b - a) / self.measure_feed_mm_min
-        if round_trip_min > MAX_PROGRAM_MIN:
-            raise ValueError(f"measure_feed_mm_min (={self.measure_feed_mm_min:g}) over travel_mm (={[a, b]}) makes a "
-                             f"measurement program of {round_trip_min:.0f} min; at most {MAX_PROGRAM_MIN:g} min")
-        return self
 
 
 class AxisOut(BaseModel):

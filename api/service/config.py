@@ -46,6 +46,20 @@ class SimulatorSettings:
     temperature_amplitude_c: float = 6.0
     temperature_period_s: float = 900.0
     cyclic_error_um: float = 4.0
+    # wear (issue 20): b̄ grows by wear_um_per_day per utility day, the simulated clock
+    # making utility_days_per_s of them each second; a recorded repair restores it
+    wear_um_per_day: float = 0.0
+    utility_days_per_s: float = 1.0 / 86400.0
+
+
+@dataclass(frozen=True)
+class MaintenanceSettings:
+    """``[maintenance]``: work orders, the verification of repairs, the managers' summary."""
+
+    enabled: bool = True
+    horizon_days: float = 30.0  # WARNING opens a condition-based order when the prognosis dates the limit within this
+    verify_at: str = "now"  # when a repair's verification cycle runs: "now", or "HH:MM" (UTC, the next such time)
+    fixed_interval_days: float = 90.0  # the fixed maintenance plan the summary compares against
 
 
 @dataclass(frozen=True)
@@ -147,6 +161,7 @@ class Settings:
     webhooks: WebhookSettings = field(default_factory=WebhookSettings)
     opcua: OpcuaSettings = field(default_factory=OpcuaSettings)
     mtconnect: MtconnectSettings = field(default_factory=MtconnectSettings)
+    maintenance: MaintenanceSettings = field(default_factory=MaintenanceSettings)
 
     @property
     def db_url(self) -> str:
@@ -173,15 +188,22 @@ def demo_axis() -> AxisConfig:
     ))
 
 
+# `make run`'s demo chain wears (issue 20): b̄ starts OK near 192 µm (190 µm at 20 °C, the shop 21 ± 2 °C), grows
+# 4 µm per utility day with a utility day every 15 s, so the axis is WARNING after about a minute and ALARM
+# (about 239 µm) after about three; `mebm maintenance repair` restores it (docs/maintenance.md)
+DEMO_SIMULATOR = SimulatorSettings(backlash_um_at_20c=190.0, temperature_amplitude_c=2.0, wear_um_per_day=4.0,
+                                   utility_days_per_s=1.0 / 15.0)
+
+
 def default_settings() -> Settings:
     return Settings(machines=((DEMO_MACHINE, "demo: the seed paper's Y axis on a simulated controller"),),
                     axes=(demo_axis(),), mqtt=MqttSettings(url=DEFAULT_MQTT_URL),
-                    opcua=OpcuaSettings(enabled=True))
+                    opcua=OpcuaSettings(enabled=True), simulator=DEMO_SIMULATOR)
 
 
 # -- parsing -----------------------------------------------------------------------------------
 _TOP = {"server", "storage", "auth", "scheduler", "simulator", "machines", "logging", "limits", "retention", "mqtt",
-        "webhooks", "opcua", "mtconnect"}
+        "webhooks", "opcua", "mtconnect", "maintenance"}
 
 
 def _get(table: Mapping, key: str, kind, where: str, default=None):
@@ -221,8 +243,8 @@ def _task(t: Mapping, gain: float, where: str) -> MachiningTask:
 def _axis(a: Mapping, machine: str, where: str) -> AxisConfig:
     allowed = {"name", "transmission_mm_per_rev", "screw_lead_mm", "position_gain_per_s", "travel_mm",
                "controller", "measure_feed_mm_min", "measure_acceleration_mm_s2", "warning_fraction",
-               "decision_rule", "worst_case_temperature_c", "schedule_interval_s", "schedule_cron", "schedule_enabled", "tasks",
-               "modbus_profile", "trigger", "passive"}
+                "decision_rule", "worst_case_temperature_c", "schedule_interval_s", "schedule_cron", "schedule_enabled", "tasks",
+                "modbus_profile", "trigger", "passive", "canopen"}
     _unknown(a, allowed, where)
     travel = a.get("travel_mm")
     if not (isinstance(travel, list) and len(travel) == 2 and all(isinstance(x, (int, float)) for x in travel)):
@@ -248,6 +270,7 @@ def _axis(a: Mapping, machine: str, where: str) -> AxisConfig:
         raise ConfigError(f"{where}.controller (={controller!r}) must be 'sim', modbus://host:port, "
                           "modbus+rtu:///dev/DEVICE, sim://host:port or canopen://...")
     controller = _modbus_profile(a, controller, where)
+    controller = _canopen_controller(a, controller, where)
     controller = _with_trigger(controller, a, spec, where)
     st = AxisSettings(
         spec=spec, controller_url=controller,
@@ -266,6 +289,47 @@ def _axis(a: Mapping, machine: str, where: str) -> AxisConfig:
     if not 0 < st.warning_fraction <= 1:
         raise ConfigError(f"{where}.warning_fraction (={st.warning_fraction}) must be in (0, 1]")
     return AxisConfig(machine, st)
+
+
+def _modbus_profile(a: Mapping, controller: str, where: str) -> str:
+    """``modbus_profile``: the register profile file of a Modbus controller (docs/controllers.md),
+    validated now and carried in the controller URL (``profile=``) to the driver."""
+    from acquisition.modbus_profile import BUILTIN, load_profile
+
+    path = _get(a, "modbus_profile", str, where)
+    if path is None or path == BUILTIN:
+        return controller
+    if not controller.startswith(("modbus://", "modbus+rtu://")):
+        raise ConfigError(f"{where}.modbus_profile needs a modbus:// or modbus+rtu:// controller (={controller!r})")
+    if "profile=" in urlsplit(controller).query:
+        raise ConfigError(f"{where}: the profile is given twice (modbus_profile and the controller URL's profile=)")
+    try:
+        load_profile(path)
+    except InputError as exc:
+        raise ConfigError(f"{where}.modbus_profile: {exc}") from exc
+    sep = "&" if "?" in controller else "?"
+    return f"{controller}{sep}{urlencode({'profile': str(Path(path).resolve())})}"
+
+
+def _canopen_controller(a: Mapping, controller: str, where: str) -> str:
+    """An axis' CANopen controller, checked now: ``[machines.axes.canopen]`` (mode, node, EDS or
+    mapping; folded into the stored URL) or a ``canopen://`` URL (acquisition/canopen_url.py)."""
+    from acquisition.canopen_url import driver_from_canopen_url, url_from_table
+
+    try:
+        if "canopen" in a:
+            if not isinstance(a["canopen"], Mapping):
+                raise ConfigError(f"{where}.canopen must be a table")
+            given = a.get("controller")
+            return url_from_table(a["canopen"], given if given and given != SIM_CONTROLLER else None,
+                                  f"{where}.canopen")
+        if controller.startswith("canopen://"):
+            driver_from_canopen_url(controller, where=f"{where}.controller (={controller!r}):")
+    except ConfigError:
+        raise
+    except InputError as exc:
+        raise ConfigError(str(exc)) from exc
+    return controller
 
 
 def _with_trigger(controller: str, a: Mapping, spec: AxisSpec, where: str) -> str:
@@ -320,26 +384,6 @@ def _query_trigger(url: str) -> str | None:
     return values[-1] if values else None
 
 
-def _modbus_profile(a: Mapping, controller: str, where: str) -> str:
-    """``modbus_profile``: the register profile file of a Modbus controller (docs/controllers.md),
-    validated now and carried in the controller URL (``profile=``) to the driver."""
-    from acquisition.modbus_profile import BUILTIN, load_profile
-
-    path = _get(a, "modbus_profile", str, where)
-    if path is None or path == BUILTIN:
-        return controller
-    if not controller.startswith(("modbus://", "modbus+rtu://")):
-        raise ConfigError(f"{where}.modbus_profile needs a modbus:// or modbus+rtu:// controller (={controller!r})")
-    if "profile=" in urlsplit(controller).query:
-        raise ConfigError(f"{where}: the profile is given twice (modbus_profile and the controller URL's profile=)")
-    try:
-        load_profile(path)
-    except InputError as exc:
-        raise ConfigError(f"{where}.modbus_profile: {exc}") from exc
-    sep = "&" if "?" in controller else "?"
-    return f"{controller}{sep}{urlencode({'profile': str(Path(path).resolve())})}"
-
-
 def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
     """Settings from a parsed TOML document; options absent keep the defaults."""
     base = base or Settings()
@@ -370,8 +414,12 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
     port = _get(server, "port", int, "server", base.port)
     if not 0 <= port <= 65535:
         raise ConfigError(f"server.port (={port}) must be 0..65535 (0: a free port)")
-    simulator = replace(base.simulator, **{k: _get(sim, k, float, "simulator") for k in sim})
-    for k in ("time_scale", "servo_rate_hz", "temperature_period_s"):
+    # the demo's wearing chain belongs to the demo machine: a file with machines of its own starts from the plain simulator
+    sim_base = SimulatorSettings() if "machines" in doc and base.simulator == DEMO_SIMULATOR else base.simulator
+    simulator = replace(sim_base, **{k: _get(sim, k, float, "simulator") for k in sim})
+    if simulator.wear_um_per_day < 0:
+        raise ConfigError(f"simulator.wear_um_per_day (={simulator.wear_um_per_day}) must be >= 0")
+    for k in ("time_scale", "servo_rate_hz", "temperature_period_s", "utility_days_per_s"):
         if not getattr(simulator, k) > 0:
             raise ConfigError(f"simulator.{k} (={getattr(simulator, k)}) must be > 0")
     machines, axes = base.machines, base.axes
@@ -408,7 +456,32 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
         mqtt=_mqtt(doc.get("mqtt"), base.mqtt), webhooks=_webhooks(doc.get("webhooks"), base.webhooks),
         opcua=_opcua(doc.get("opcua"), base.opcua),
         mtconnect=_mtconnect(doc.get("mtconnect"), base.mtconnect),
+        maintenance=_maintenance(doc.get("maintenance"), base.maintenance),
     )
+
+
+def _maintenance(table: Mapping | None, base: MaintenanceSettings) -> MaintenanceSettings:
+    if table is None:
+        return base
+    _unknown(table, {"enabled", "horizon_days", "verify_at", "fixed_interval_days"}, "maintenance")
+    out = MaintenanceSettings(
+        enabled=_get(table, "enabled", bool, "maintenance", base.enabled),
+        horizon_days=_get(table, "horizon_days", float, "maintenance", base.horizon_days),
+        verify_at=_get(table, "verify_at", str, "maintenance", base.verify_at),
+        fixed_interval_days=_get(table, "fixed_interval_days", float, "maintenance", base.fixed_interval_days))
+    check_maintenance(out)
+    return out
+
+
+def check_maintenance(m: MaintenanceSettings) -> None:
+    if not m.horizon_days >= 0:
+        raise ConfigError(f"maintenance.horizon_days (={m.horizon_days}) must be >= 0")
+    if not m.fixed_interval_days > 0:
+        raise ConfigError(f"maintenance.fixed_interval_days (={m.fixed_interval_days}) must be > 0")
+    if m.verify_at != "now":
+        hh, sep, mm = m.verify_at.partition(":")
+        if not (sep and hh.isdigit() and mm.isdigit() and int(hh) < 24 and int(mm) < 60):
+            raise ConfigError(f"maintenance.verify_at (={m.verify_at!r}) must be \"now\" or \"HH:MM\" (UTC)")
 
 
 def _mqtt(table: Mapping | None, base: MqttSettings) -> MqttSettings:

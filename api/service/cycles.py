@@ -50,6 +50,7 @@ from storage.db import (
     StorageError,
     as_utc,
     config_repo,
+    maintenance_repo,
     results_repo,
     session_scope,
     utcnow,
@@ -240,7 +241,8 @@ class CycleExecutor:
         try:
             with session_scope(self.factory) as s:
                 sums = results_repo.backlash_history(s, axis.id)
-                t, b = results_repo.recent_at_temperature(s, axis.id, temperature_c, before=finished)
+                t, b = results_repo.recent_at_temperature(  # the repeatability of the chain as it is since its last repair
+                    s, axis.id, temperature_c, before=finished, since=maintenance_repo.last_repair_at(s, axis.id))
         except StorageError as exc:
             log.info("axis %s: no history for the budget (%s)", axis.id, exc)
             return rt

@@ -4,9 +4,12 @@ A simulated Modbus TCP controller (``acquisition.sim``) on a free loopback port,
 whose axis is the project's digital twin (``core.sim``): the paper's Y axis with a
 cyclic lead error at the screw lead, a lead that grows with temperature, encoder
 resolution and noise, and a backlash that follows a simulated shop temperature:
-b(T) = b_20 + beta (T - 20 °C), T swinging sinusoidally. With the defaults b̄
-crosses the paper's 236 µm limit a couple of minutes after start (an alert) and
-falls back below it some minutes later (the alert clears).
+b(T) = b_20 + beta (T - 20 °C), T swinging sinusoidally, plus the wear of the chain
+(``simulator.wear_um_per_day`` per utility day, acquisition.sim.wear). With `make run`'s
+settings (config.DEMO_SIMULATOR) b̄ starts OK, is WARNING after about a minute and
+crosses the paper's 236 µm limit after about three (an alert and a corrective work
+order); a repair recorded on the axis (``mebm maintenance repair``) is simulated through
+the controller's repair register and the verification measurement proves it.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import numpy as np
 from acquisition.sim.axis import SimAxis
 from acquisition.sim.modbus_server import SimModbusController
 from acquisition.sim.twin import CoreSimTwin, TwinTrace
+from acquisition.sim.wear import REPAIR_MAGIC, REPAIR_REG, Wear
 from acquisition.types import RoundTripProgram
 from api.service.config import SimulatorSettings
 from core.dataset import AxisSpec
@@ -42,6 +46,7 @@ class DriftingTwin:
         self.clock = clock
         self.t0 = clock()
         self.backlash_offset_um = 0.0
+        self.wear = Wear(sim.wear_um_per_day, sim.utility_days_per_s, clock=clock)  # issue 20: use wears the chain
         self._lock = threading.Lock()
         effects = Effects(
             thermal=Thermal(lead_error_um_per_m=DEMO_LEAD_ERROR_UM_PER_M,
@@ -59,7 +64,8 @@ class DriftingTwin:
 
     def backlash_um(self, temperature_c: float | None = None) -> float:
         t = self.temperature_c if temperature_c is None else temperature_c
-        return max(self.sim.backlash_um_at_20c + self.sim.backlash_um_per_k * (t - 20.0) + self.backlash_offset_um, 0.0)
+        return max(self.sim.backlash_um_at_20c + self.sim.backlash_um_per_k * (t - 20.0) + self.backlash_offset_um
+                   + self.wear.extra_um(), 0.0)
 
     def warm_up(self) -> None:
         """Compile the twin's kernels before the first START arrives."""
@@ -94,3 +100,18 @@ class DemoController:
 
     def stop(self) -> None:
         self.server.stop_thread()
+
+    def repair(self) -> None:
+        """The technician's work, simulated: write the simulator's repair register over
+        Modbus (acquisition.sim.wear), which restores the wear to zero."""
+        from pymodbus.client import ModbusTcpClient
+
+        client = ModbusTcpClient(self.server.host, port=self.port, timeout=3)
+        try:
+            if not client.connect():
+                raise ConnectionError(f"simulated controller {self.url} does not answer")
+            reply = client.write_register(REPAIR_REG, REPAIR_MAGIC)
+            if reply.isError():
+                raise ConnectionError(f"simulated controller {self.url} refused the repair: {reply}")
+        finally:
+            client.close()

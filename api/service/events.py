@@ -1,7 +1,7 @@
 """The service's one internal event source, fanned out to every interface (issue 17).
 
 The cycle executor calls the service when a cycle is saved; the service turns that into
-:class:`Event` objects (``measurement_stored``, ``cycle_failed``, ``alert_changed``) and
+:class:`Event` objects (``measurement_stored``, ``cycle_failed``, ``alert_changed``, ``work_order_changed``) and
 :meth:`EventHub.publish` hands each to every subscriber's own bounded queue, without
 waiting: a slow or dead consumer never delays a cycle or another consumer. Each
 subscriber runs its handler on its own thread; a full queue drops its oldest event and
@@ -18,11 +18,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import datetime
 
-from storage.db import AlertRecord, CycleRecord, utcnow
+from storage.db import AlertRecord, CycleRecord, WorkOrderRecord, utcnow
 
 log = logging.getLogger("mebm.events")
 
-KINDS = ("measurement_stored", "cycle_failed", "alert_changed", "axis_changed")  # axis_changed: created or reconfigured
+# axis_changed: created or reconfigured; work_order_changed: a maintenance order opened or moved (issue 20)
+KINDS = ("measurement_stored", "cycle_failed", "alert_changed", "axis_changed", "work_order_changed")
 
 
 @dataclass(frozen=True)
@@ -34,6 +35,7 @@ class Event:
     at: datetime
     cycle: CycleRecord | None = None
     alert: AlertRecord | None = None
+    order: WorkOrderRecord | None = None  # work_order_changed: the order after the step (transitions[-1] is it)
 
 
 class Subscription:
@@ -134,3 +136,18 @@ def events_of_saved_cycle(axis_id: int, machine: str, axis: str, cycle: CycleRec
         out.append(Event("cycle_failed", axis_id, machine, axis, now, cycle=cycle))
     out += [Event("alert_changed", axis_id, machine, axis, now, cycle=cycle, alert=a) for a in alerts]
     return out
+
+
+def order_document(ev: Event) -> dict:
+    """A work-order step (issue 20) as the MQTT and webhook outputs carry it."""
+    o = ev.order
+    last = o.transitions[-1] if o.transitions else None
+    return {
+        "machine": ev.machine, "axis": ev.axis, "axis_id": ev.axis_id, "order_id": o.id, "kind": o.kind,
+        "state": o.state, "from": last.from_state if last else None, "at": last.at.isoformat() if last else None,
+        "by": last.by if last else None, "note": last.note if last else "", "binding_task": o.binding_task,
+        "tolerance_um": o.tolerance_um, "backlash_um": o.backlash_um, "tbe_um": o.tbe_um,
+        "restore_below_um": o.restore_below_um, "due_at": o.due_at.isoformat() if o.due_at else None,
+        "recommendation": o.recommendation,
+        "verification": {k: o.verification.get(k) for k in ("passed", "against", "message")} if o.verification else None,
+    }  # fmt: skip

@@ -16,7 +16,7 @@ from api.service import plots
 from api.service.plot_prognosis import prognosis as prognosis_plot
 from core.prognosis import forecast_band
 from core.errors import MebmError
-from storage.db import NotFoundError, config_repo, results_repo
+from storage.db import NotFoundError, config_repo, maintenance_repo, results_repo
 
 NAMES = (*plots.NAMES, "prognosis")
 
@@ -94,18 +94,23 @@ def render(s, axis_id: int, name: str, *, measurement_id: int | None = None, dir
             ts.append(t)
             vs.append(tbe)
             tols.append(tol)
-        return draw(plots.tbe_history, series, title=title)
+        return draw(plots.tbe_history, series, title=title, repairs=_repairs(s, axis_id, since))
     if name == "backlash_trend":
         tr = results_repo.trend(s, axis_id, since=since, max_points=plots.SCREEN_POINTS).series
         if not tr.measured_at:
             return draw(plots.empty, title, "no good measurement yet")
         return draw(plots.backlash_trend, list(tr.measured_at), list(tr.backlash_mean_um),
-                    list(tr.temperature_c), limit_um=limit, title=title)
+                    list(tr.temperature_c), limit_um=limit, title=title, repairs=_repairs(s, axis_id, since))
     if name == "prognosis":
         if status is None:
             raise ValueError("the prognosis figure needs the axis' status")
         return prognosis_png(status, title, draw)
     raise ValueError(f"name (={name!r}) must be one of {', '.join(NAMES)}")
+
+
+def _repairs(s, axis_id: int, since: datetime | None) -> list[tuple[datetime, str]]:
+    """(when, kind) of the axis' repairs in the plotted range, for the marks."""
+    return [(r.performed_at, r.kind) for r in maintenance_repo.list_repairs(s, axis_id, since=since)]
 
 
 def prognosis_png(st, title: str, draw: Callable[..., bytes] | None = None) -> bytes:

@@ -67,13 +67,43 @@ def newest_runs(folder: Path, n: int) -> Dataset:
     return Dataset(meta.machine, runs, meta.extra)
 
 
+RESIDUALS = "residuals"  # the test runs' residual curves, thinned: for the dashboard's plots, not the API's body
+
+
+def public_body(result: dict) -> dict:
+    """The API's body of a diagnosis (without the residual curves the dashboard plots),
+    with ``age_s``: how long ago it was computed (a cached answer is served as it is)."""
+    out = {k: v for k, v in result.items() if k != RESIDUALS}
+    age = age_s(result)
+    if age is not None:
+        out["age_s"] = round(age, 1)
+    return out
+
+
+def age_s(result: dict) -> float | None:
+    """Seconds since the diagnosis ``result`` was computed (None: not recorded)."""
+    at = result.get("computed_at")
+    if not isinstance(at, str):
+        return None
+    from datetime import datetime, timezone
+
+    return max((datetime.now(timezone.utc) - datetime.fromisoformat(at)).total_seconds(), 0.0)
+
+
 def diagnose_folder(folder: str, n: int) -> dict:
     """The job itself, in the worker process: read the runs there, diagnose, and return
-    the JSON body (the spec's gap contract, the text report and the runs used). A
+    the JSON body (the spec's gap contract, the text report and the runs used) and the
+    test runs' residual curves (``RESIDUALS``, thinned to a screen's worth of points). A
     GapError (an InputError) for data it cannot use travels back as itself."""
+    from api.service.plots import thin_residuals
+
     dataset = newest_runs(Path(folder), n)
     report = diagnose(dataset)
-    return {**report.to_dict(), "report": report.text(), "runs_used": [r.spec.file for r in dataset.runs]}
+    residuals = [thin_residuals(c) for c in [*report.curves.get("round_trip", []), *report.curves.get("contour", [])]]
+    from datetime import datetime, timezone
+
+    return {**report.to_dict(), "report": report.text(), "runs_used": [r.spec.file for r in dataset.runs],
+            "computed_at": datetime.now(timezone.utc).isoformat(timespec="seconds"), RESIDUALS: residuals}
 
 
 def axis_job(jobs: "GapJobs", axis_id: int, folder: Path | None, runs: int, *, start: bool = True) -> Future | None:

@@ -193,8 +193,18 @@ def _thin(values, *others, max_points: int = SCREEN_POINTS):
     return tuple([seq[i] for i in idx] for seq in (values, *others))
 
 
-def tbe_history(series: dict[str, tuple[list[datetime], list[float], list[float]]], *, title: str) -> bytes:
-    """Fig. 15: the estimated TBE of each task over time against its threshold."""
+def mark_repairs(ax, repairs: Sequence[tuple[datetime, str]]) -> None:
+    """Each repair (issue 20) as a vertical line labelled with its kind: the history on
+    either side belongs to a different chain."""
+    for i, (when, kind) in enumerate(repairs):
+        ax.axvline(when, color="#2ca02c", ls=":", lw=1.6, label="repair" if i == 0 else None)
+        ax.annotate(kind.replace("_", " "), xy=(when, 1.0), xycoords=("data", "axes fraction"), xytext=(3, -3),
+                    textcoords="offset points", rotation=90, va="top", ha="left", fontsize=7, color="#2ca02c")
+
+
+def tbe_history(series: dict[str, tuple[list[datetime], list[float], list[float]]], *, title: str,
+                repairs: Sequence[tuple[datetime, str]] = ()) -> bytes:
+    """Fig. 15: the estimated TBE of each task over time against its threshold (repairs marked)."""
     thinned = {}
     for name, (t, tbe, tol) in series.items():
         tbe_d, t_d, tol_d = _thin(tbe, t, tol)
@@ -210,6 +220,7 @@ def tbe_history(series: dict[str, tuple[list[datetime], list[float], list[float]
         ax.plot([x for x, o in zip(t, over) if o], tbe_a[over], "o", color="#d62728", ms=6, mec="black",
                 label=f"above tolerance ({int(over.sum())})" if over.any() else None)
         ax.step(t, tol_a, where="post", color=c, ls="-.", lw=1.4, label=f"threshold {name} ({tol_a[-1]:g} µm)")
+    mark_repairs(ax, repairs)
     ax.set_xlabel("measured at (UTC)")
     ax.set_ylabel("estimated TBE ε_b (µm)")
     ax.set_title(f"TBE caused by the backlash — {title}")
@@ -233,13 +244,14 @@ def with_temperature_axis(ax, t, temperature_c, fmt: str, **style) -> tuple[list
 
 
 def backlash_trend(t: list[datetime], backlash_um: list[float], temperature_c: list[float | None], *,
-                   limit_um: float | None, title: str) -> bytes:
-    """Fig. 10: mean backlash b̄ and ambient temperature over time."""
+                   limit_um: float | None, title: str, repairs: Sequence[tuple[datetime, str]] = ()) -> bytes:
+    """Fig. 10: mean backlash b̄ and ambient temperature over time, repairs marked."""
     backlash_um, t, temperature_c = _thin(backlash_um, t, temperature_c)
     fig, (ax,) = _figure(10, 5)
     ax.plot(t, backlash_um, "o-", color="black", ms=4, lw=1.2, label="mean backlash b̄")
     if limit_um is not None:
         ax.axhline(limit_um, color="#d62728", ls="-.", lw=1.4, label=f"backlash limit {limit_um:.1f} µm")
+    mark_repairs(ax, repairs)
     ax.set_xlabel("measured at (UTC)")
     ax.set_ylabel("mean backlash width b̄ (µm)")
     lines, labels = with_temperature_axis(ax, t, temperature_c, "s--", ms=3, lw=1.0)
@@ -247,3 +259,50 @@ def backlash_trend(t: list[datetime], backlash_um: list[float], temperature_c: l
     ax.set_title(f"mean backlash and temperature — {title}")
     fig.autofmt_xdate()
     return _png(fig)
+
+
+def _rms(x) -> float:
+    x = np.asarray(x, dtype=float)
+    return float(np.sqrt(np.mean(x**2))) if x.size else float("nan")
+
+
+def gap_residual(curve: dict, effect: str) -> bytes:
+    """One test run of a gap diagnosis: measured minus the nominal model, and measured
+    minus the model with the diagnosed ``effect`` ("none": the nominal model again);
+    along the nut travel for a round trip (``u_mm``), against the angle or the distance
+    along the path for a contour (``angle_deg``). The RMS of each is in its legend."""
+    label = effect if effect != "none" else "nominal (no effect named)"
+    fig, (ax,) = _figure(9, 3.6)
+    nominal, corrected = np.asarray(curve["nominal_um"], float), np.asarray(curve["corrected_um"], float)
+    if "u_mm" in curve:
+        x = np.asarray(curve["u_mm"], float)
+        ax.plot(x, nominal, lw=0.5, label=f"measured - nominal (RMS {_rms(nominal):.2f} µm)")
+        ax.plot(x, corrected, lw=0.5, label=f"measured - {label} (RMS {_rms(corrected):.2f} µm)")
+        ax.set_xlabel("nut travel k_a x_m (mm)")
+        ax.set_ylabel("table given motor: residual (µm)")
+        ax.set_title(f"{curve['file']} (axis {curve.get('axis')}, test run)")
+    else:
+        x = np.asarray(curve["angle_deg"], float)
+        ax.plot(x, nominal, ".", ms=1, label=f"measured - nominal (RMS {_rms(nominal):.2f} µm)")
+        ax.plot(x, corrected, ".", ms=1, label=f"measured - {label} (RMS {_rms(corrected):.2f} µm)")
+        ax.set_xlabel("angle (deg)" if curve["kind"] == "circle" else "distance along the line (mm)")
+        ax.set_ylabel("contour error residual (µm)")
+        if curve["kind"] == "circle":
+            for q in (0, 90, 180, 270, 360):
+                ax.axvline(q, color="0.8", lw=0.5)
+        ax.set_title(f"{curve['file']} ({curve['kind']}, test run)")
+    ax.legend(loc="best", fontsize=8, markerscale=8)
+    return _png(fig)
+
+
+def thin_residuals(curve: dict, max_points: int = SCREEN_POINTS) -> dict:
+    """``curve`` (numpy arrays) as JSON-able lists of at most ``max_points`` points: the
+    minimum and maximum of both residuals per bucket (a 1000-pixel chart loses nothing)."""
+    nominal, corrected = np.asarray(curve["nominal_um"], float), np.asarray(curve["corrected_um"], float)
+    idx = np.union1d(minmax_indices(nominal, max_points // 2), minmax_indices(corrected, max_points // 2))
+    out = {k: v for k, v in curve.items() if k not in ("u_mm", "angle_deg", "nominal_um", "corrected_um")}
+    for k in ("u_mm", "angle_deg", "nominal_um", "corrected_um"):
+        if k in curve and curve[k] is not None:
+            out[k] = np.asarray(curve[k], float)[idx].tolist()
+    out["rms_nominal_um"], out["rms_corrected_um"] = _rms(nominal), _rms(corrected)  # of every point
+    return out

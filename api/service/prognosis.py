@@ -19,7 +19,7 @@ import numpy as np
 
 from core.criteria.lost_motion import ClearanceEstimate, clearance_from_feeds
 from core.prognosis import Prognosis, days_per_second, fit_thermal_wear, prognosis
-from storage.db import AxisRecord, ResultRecord, results_repo, utcnow
+from storage.db import AxisRecord, ResultRecord, maintenance_repo, results_repo, utcnow
 
 MAX_ROWS = 3000
 
@@ -33,11 +33,12 @@ class HistoryAnswers:
     computed_at: datetime
     # the history the plot draws: (measured_at_s, temperature_c, utility_day, backlash_mean_um)
     series: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+    fitted_since: datetime | None = None  # the last repair: the fit uses only what came after (issue 20)
 
 
-def _key(axis: AxisRecord, latest: ResultRecord | None, history_n: int) -> tuple:
+def _key(axis: AxisRecord, latest: ResultRecord | None, history_n: int, since: datetime | None = None) -> tuple:
     st = axis.settings
-    return (latest.id if latest else None, history_n, st.tasks, st.decision_rule, st.warning_fraction,
+    return (latest.id if latest else None, history_n, since, st.tasks, st.decision_rule, st.warning_fraction,
             st.worst_case_temperature_c,
             latest.round_trip.backlash_mean_uncertainty_um if latest and latest.round_trip.budgets else 0.0)
 
@@ -65,11 +66,12 @@ def history_answers(s, axis: AxisRecord, latest: ResultRecord | None, history_n:
     """The prognosis and the history's clearance estimate of ``axis``, memoised in
     ``memo`` on the newest result and ``history_n`` (how many results with a temperature
     the rollups count: a deletion by the retention policy or an import changes it)."""
-    key = _key(axis, latest, history_n)
+    since = maintenance_repo.last_repair_at(s, axis.id)  # a repair resets b̄ and the wear term
+    key = _key(axis, latest, history_n, since)
     hit = memo.get(axis.id, key) if memo is not None else None
     if hit is not None:
         return hit
-    rows = results_repo.history_rows(s, axis.id, max_rows=MAX_ROWS)
+    rows = results_repo.history_rows(s, axis.id, max_rows=MAX_ROWS, since=since)
     t_s, temp, day, b = rows["measured_at_s"], rows["temperature_c"], rows["utility_day"], rows["backlash_mean_um"]
     fit = fit_thermal_wear(temp, day, b)
     now = utcnow()
@@ -81,7 +83,7 @@ def history_answers(s, axis: AxisRecord, latest: ResultRecord | None, history_n:
                   backlash_uncertainty_um=u_b, warning_fraction=axis.settings.warning_fraction,
                   rule=axis.settings.decision_rule)
     clear = clearance_from_feeds(rows["feed_mm_min"], b, source="history", temperature_c=temp)
-    out = HistoryAnswers(p, clear, int(t_s.size), int(rows["total"]), now, (t_s, temp, day, b))
+    out = HistoryAnswers(p, clear, int(t_s.size), int(rows["total"]), now, (t_s, temp, day, b), since)
     if memo is not None:
         memo.put(axis.id, key, out)
     return out
@@ -96,6 +98,7 @@ def to_dict(h: HistoryAnswers) -> dict:
     return {
         **h.prognosis.to_dict(iso=iso),
         "rows_used": h.rows_used, "rows_total": h.rows_total,
+        "fitted_since_repair": None if h.fitted_since is None else h.fitted_since.isoformat().replace("+00:00", "Z"),
         "computed_at": h.computed_at.isoformat().replace("+00:00", "Z"),
         "clearance_history": h.clearance.to_dict(),
     }

@@ -27,6 +27,7 @@ from api.service.health import HealthProbe
 from api.service.runner import CycleRunner, DriverRunner
 from api.service.scheduler import CycleScheduler
 from api.service.events import Event, EventHub, events_of_saved_cycle
+from api.service.maintenance import MaintenanceLoop
 from api.service.status import StatusCache
 from core.errors import MebmError
 from storage.retention import apply_retention
@@ -81,6 +82,7 @@ class Service:
         self.render_status = None  # axis_id -> the status body (bytes); set by the REST app
         self.gap_jobs = GapJobs()  # gap diagnoses: bounded jobs, computed in a worker process
         self.plots = PlotProcess.shared()  # figure renders, in a worker process (not on the API's interpreter)
+        self.maintenance = MaintenanceLoop(self, settings.maintenance)  # work orders, repairs, verification
 
     # -- wiring ----------------------------------------------------------------------------------
     def resolve_url(self, axis: AxisRecord) -> str:
@@ -106,6 +108,7 @@ class Service:
         machine, name = (axis.machine_name, axis.name) if axis is not None else ("?", "?")
         for ev in events_of_saved_cycle(axis_id, machine, name, cycle, alerts):
             self.events.publish(ev)
+        self.maintenance.after_cycle(axis_id, cycle, alerts)  # opens or verifies a work order (issue 20)
 
     def status_document(self, axis_id: int) -> bytes | None:
         """The status body as REST serves it (``render_status``, set by the REST app), for
@@ -169,6 +172,7 @@ class Service:
             self.scheduler.clock.add_job(self._retry_spool, "interval", seconds=st.spool_retry_s, id="spool",
                                          coalesce=True, max_instances=1)
             self.scheduler.start()
+            self.maintenance.resume()  # repaired orders whose verification the stop cancelled
             for axis in axes:
                 if axis in fresh_sim_axes:
                     self.scheduler.request(axis.id, "catch_up")  # the demo shows a measurement at once

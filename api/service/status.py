@@ -17,7 +17,7 @@ from api.service.prognosis import HistoryAnswers, HistoryMemo, history_answers
 from core.errors import MebmError
 from core.history import TemperatureModel
 from core.tbe import AxisDecision, decide
-from storage.db import AxisRecord, ResultRecord, config_repo, results_repo, session_scope
+from storage.db import AxisRecord, ResultRecord, WorkOrderRecord, config_repo, maintenance_repo, results_repo, session_scope
 
 
 @dataclass(frozen=True)
@@ -35,6 +35,7 @@ class AxisStatus:
     last_raw_run_lost: str | None = None  # why the last finished cycle's raw run was lost
     history: HistoryAnswers | None = None  # prognosis and history clearance (api.service.prognosis)
     history_error: str | None = None
+    work_order: WorkOrderRecord | None = None  # the axis' active maintenance order (issue 20)
 
 
 def compute_status(s, axis_id: int, history_memo: HistoryMemo | None = None) -> AxisStatus:
@@ -76,7 +77,7 @@ def compute_status(s, axis_id: int, history_memo: HistoryMemo | None = None) -> 
         last_failure_reason=last_final.failure_reason if last_final is not None else None,
         decision_error=decision_error,
         last_raw_run_lost=last_final.raw_run_lost if last_final is not None else None,
-        history=history, history_error=history_error,
+        history=history, history_error=history_error, work_order=maintenance_repo.active_order(s, axis_id),
     )
 
 

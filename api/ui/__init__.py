@@ -12,6 +12,7 @@ from fastapi import FastAPI, Request
 from fastapi.responses import RedirectResponse
 from fastapi.staticfiles import StaticFiles
 
+from api.ui.config_routes import router as config_router
 from api.ui.routes import HERE, SignInRequired, UiForbidden, page, router
 from api.ui.sessions import UiState
 from storage.db import NotFoundError
@@ -21,9 +22,11 @@ __all__ = ["install", "UiState"]
 
 def install(app: FastAPI, state: UiState | None = None) -> UiState:
     """Mount the dashboard on ``app`` (``/ui/``, ``/`` redirecting to it); returns its state
-    (``state.links.issue(key)`` makes a one-time sign-in link)."""
+    (``state.sessions.issue_link(key)`` makes a one-time sign-in link)."""
     app.state.ui = state or UiState()
+    app.state.ui.sessions.service = app.state.service  # sessions live in the service's database
     app.include_router(router)
+    app.include_router(config_router)
     app.mount("/ui/static", StaticFiles(directory=str(HERE / "static")), name="ui-static")
 
     @app.get("/", include_in_schema=False)

@@ -5,24 +5,25 @@ from __future__ import annotations
 import logging
 import time
 from concurrent.futures import CancelledError
-from pathlib import Path
+from pathlib import Path as FsPath
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, Depends, Form, Query, Request
+from fastapi import APIRouter, Depends, Form, Path, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from fastapi.templating import Jinja2Templates
 
-from api.service import figures
-from api.service.gap_jobs import DiagnosisCrashed, JobAbandoned, TooManyJobs, axis_job
+from api.service import figures, plots
+from api.service.gap_jobs import RESIDUALS, DiagnosisCrashed, age_s, JobAbandoned, TooManyJobs, axis_job
 from api.ui import format as fmt
+from api.ui import panels as axis_panels
 from api.ui import views
 from api.ui.sessions import PRE_CSRF_COOKIE, ROLE_RANK, SESSION_COOKIE, Session, UiState, same_token
 from core.errors import MebmError
-from storage.db import ConflictError, KeyRecord, NotFoundError, config_repo, results_repo, session_scope
+from storage.db import ConflictError, NotFoundError, config_repo, results_repo, session_scope
 
 log = logging.getLogger("mebm.ui")
-HERE = Path(__file__).parent
+HERE = FsPath(__file__).parent
 templates = Jinja2Templates(directory=str(HERE / "templates"))
 templates.env.filters.update(um=fmt.um, age=fmt.age, when=fmt.when, pct=fmt.pct)
 templates.env.globals.update(due=fmt.due)
@@ -49,8 +50,8 @@ def ui_state(request: Request) -> UiState:
 class Viewer:
     """The signed-in user: the key record (roles as in the API) and the session."""
 
-    def __init__(self, key: KeyRecord, session: Session, sid: str):
-        self.key, self.session, self.sid = key, session, sid
+    def __init__(self, session: Session):
+        self.session, self.key, self.sid = session, session.key, session.token
 
     @property
     def csrf(self) -> str:
@@ -65,17 +66,11 @@ class Viewer:
 
 
 async def viewer(request: Request) -> Viewer:
-    ui = ui_state(request)
-    sid = request.cookies.get(SESSION_COOKIE)
-    sess = ui.sessions.get(sid)
+    # the session and its key in one query: a revoked key or an expired session is no session
+    sess = await run_in_threadpool(ui_state(request).sessions.get, request.cookies.get(SESSION_COOKIE))
     if sess is None:
         raise SignInRequired()
-    state = request.app.state
-    rec = await run_in_threadpool(state.key_cache.lookup, state.service.factory, sess.secret)
-    if rec is None:  # revoked since: the session ends
-        ui.sessions.close(sid)
-        raise SignInRequired()
-    return Viewer(rec, sess, sid)
+    return Viewer(sess)
 
 
 async def csrf_checked(request: Request, who: Annotated[Viewer, Depends(viewer)]) -> Viewer:
@@ -104,59 +99,83 @@ def set_session_cookie(resp: Response, sid: str, request: Request) -> None:
                     secure=request.url.scheme == "https")
 
 
-def _open_session(request: Request, secret: str) -> Response:
-    sid, _ = ui_state(request).sessions.open(secret)
+def _signed_in(request: Request, sess: Session) -> Response:
     # a page that moves on by itself (a same-site navigation, so the Strict cookie is sent),
     # rather than a redirect at the end of a possibly cross-site navigation from a terminal
     resp = page(request, "signed_in.html")
-    set_session_cookie(resp, sid, request)
+    set_session_cookie(resp, sess.token, request)
     resp.delete_cookie(PRE_CSRF_COOKIE, path="/ui")
     return resp
 
 
-# -- sign-in / sign-out -----------------------------------------------------------------------
-@router.get("/sign-in", response_class=HTMLResponse)
-def sign_in_form(request: Request, msg: str | None = None):
+def _pre_csrf_page(request: Request, name: str, status_code: int = 200, **ctx) -> HTMLResponse:
+    """A page with a form posted before there is a session: a double-submit CSRF token
+    (an HttpOnly, Strict cookie and the same value in a hidden field)."""
     import secrets
 
     token = secrets.token_urlsafe(24)
-    resp = page(request, "sign_in.html", csrf=token, msg=msg, who=None)
+    resp = page(request, name, status_code, csrf=token, who=None, **ctx)
     resp.set_cookie(PRE_CSRF_COOKIE, token, httponly=True, samesite="strict", path="/ui",
                     secure=request.url.scheme == "https")
     return resp
 
 
+def _pre_csrf_ok(request: Request, sent: str) -> bool:
+    return same_token(sent, request.cookies.get(PRE_CSRF_COOKIE))
+
+
+def _refused_pre_csrf(request: Request) -> HTMLResponse:
+    return page(request, "error.html", 403, who=None, title="Refused",
+                message="the sign-in form's CSRF token is missing or wrong: reload the sign-in page")
+
+
+LINK_REFUSED = ("this sign-in link has already been used, has expired (links last 10 minutes) or its key was "
+                "revoked. Sign in with a key instead.")
+
+
+# -- sign-in / sign-out -----------------------------------------------------------------------
+@router.get("/sign-in", response_class=HTMLResponse)
+def sign_in_form(request: Request, msg: str | None = None):
+    return _pre_csrf_page(request, "sign_in.html", msg=msg)
+
+
 @router.post("/sign-in", response_class=HTMLResponse)
 async def sign_in(request: Request, key: Annotated[str, Form(max_length=200)] = "",
                   csrf: Annotated[str, Form(max_length=200)] = ""):
-    if not same_token(csrf, request.cookies.get(PRE_CSRF_COOKIE)):
-        return page(request, "error.html", 403, who=None, title="Refused",
-                    message="the sign-in form's CSRF token is missing or wrong: reload the sign-in page")
+    if not _pre_csrf_ok(request, csrf):
+        return _refused_pre_csrf(request)
     state = request.app.state
-    wait_s = state.auth_throttle.blocked(request.client.host if request.client else "unknown")
+    client = request.client.host if request.client else "unknown"
+    wait_s = state.auth_throttle.blocked(client)
     if wait_s > 0:
         return page(request, "error.html", 429, who=None, title="Too many attempts",
                     message=f"too many failed sign-ins from this address; try again in {wait_s:.0f} s")
     rec = await run_in_threadpool(state.key_cache.lookup, state.service.factory, key.strip()) if key.strip() else None
     if rec is None:
-        state.auth_throttle.take(request.client.host if request.client else "unknown")
-        log.warning("failed dashboard sign-in from %s", request.client.host if request.client else "unknown")
+        state.auth_throttle.take(client)
+        log.warning("failed dashboard sign-in from %s", client)
         return back("/ui/sign-in", "unknown or revoked key")
-    return _open_session(request, key.strip())
+    return _signed_in(request, await run_in_threadpool(ui_state(request).sessions.open, rec))
 
 
 @router.get("/sign-in/{token}", response_class=HTMLResponse)
-async def sign_in_link(request: Request, token: str):
-    secret = ui_state(request).links.redeem(token)
-    state = request.app.state
-    rec = None
-    if secret is not None:
-        rec = await run_in_threadpool(state.key_cache.lookup, state.service.factory, secret)
+async def sign_in_link_page(request: Request, token: Annotated[str, Path(max_length=100)]):
+    """Opening a link spends nothing (link previews fetch it): a button posts it."""
+    rec = await run_in_threadpool(ui_state(request).sessions.peek_link, token)
     if rec is None:
-        return page(request, "error.html", 403, who=None, title="Sign-in link refused",
-                    message="this sign-in link has already been used, has expired (links last 10 minutes) "
-                            "or its key was revoked. Sign in with a key instead.")
-    return _open_session(request, secret)
+        return page(request, "error.html", 403, who=None, title="Sign-in link refused", message=LINK_REFUSED)
+    return _pre_csrf_page(request, "sign_in_link.html", link_key=rec)
+
+
+@router.post("/sign-in/{token}", response_class=HTMLResponse)
+async def sign_in_link(request: Request, token: Annotated[str, Path(max_length=100)],
+                       csrf: Annotated[str, Form(max_length=200)] = ""):
+    if not _pre_csrf_ok(request, csrf):
+        return _refused_pre_csrf(request)  # the link is not spent
+    sess = await run_in_threadpool(ui_state(request).sessions.redeem_link, token)
+    if sess is None:
+        return page(request, "error.html", 403, who=None, title="Sign-in link refused", message=LINK_REFUSED)
+    return _signed_in(request, sess)
 
 
 @router.post("/sign-out")
@@ -194,20 +213,21 @@ def acknowledge(request: Request, alert_id: int, who: Posted):
 
 
 # -- axis -------------------------------------------------------------------------------------
-def _axis_ctx(request: Request, axis_id: int, range_: str) -> dict:
+def _axis_ctx(request: Request, axis_id: int, range_: str, *, panels: bool = False) -> dict:
     svc = request.app.state.service
     with session_scope(svc.factory) as s:
         axis = config_repo.get_axis(s, axis_id)
         _, cycles = results_repo.list_measurements(s, axis_id, limit=12)
+        extra = axis_panels.render_context(svc, s, axis_id) if panels else []
     now = views.utcnow()
     row = views.axis_row(svc.status.get(axis_id), svc.scheduler.next_run(axis_id), now)
     return {"axis": axis, "row": row, "now": now, "cycles": cycles, "range": range_ if range_ in views.RANGES else "90d",
-            "ranges": list(views.RANGES)}
+            "ranges": list(views.RANGES), "panels": extra}
 
 
 @router.get("/axes/{axis_id}", response_class=HTMLResponse)
 def axis_page(request: Request, axis_id: int, who: Who, range: str = "90d", msg: str | None = None):  # noqa: A002
-    return page(request, "axis.html", who=who, msg=msg, **_axis_ctx(request, axis_id, range))
+    return page(request, "axis.html", who=who, msg=msg, **_axis_ctx(request, axis_id, range, panels=True))
 
 
 @router.get("/axes/{axis_id}/part/{part}.frag", response_class=HTMLResponse)
@@ -286,7 +306,7 @@ def _gap_ctx(request: Request, axis_id: int) -> dict:
         return {"axis": axis, "gap": "failed", "detail": str(exc) or "the job was dropped; start it again"}
     except MebmError as exc:
         return {"axis": axis, "gap": "failed", "detail": str(exc)}
-    return {"axis": axis, "gap": "done", "report": report}
+    return {"axis": axis, "gap": "done", "report": report, "age_s": age_s(report)}
 
 
 @router.get("/axes/{axis_id}/gap", response_class=HTMLResponse)
@@ -297,6 +317,23 @@ def gap_page(request: Request, axis_id: int, who: Who, msg: str | None = None):
 @router.get("/axes/{axis_id}/gap.frag", response_class=HTMLResponse)
 def gap_fragment(request: Request, axis_id: int, who: Who):
     return page(request, "_gap.html", who=who, **_gap_ctx(request, axis_id))
+
+
+@router.get("/axes/{axis_id}/gap/residuals/{index}.png")
+def gap_residual_plot(request: Request, axis_id: int, index: int, who: Who):
+    """Measured vs model on one test run of the axis' finished diagnosis, before and
+    after the diagnosed effect (the figure of ``mebm gap diagnose --plots``)."""
+    ctx = _gap_ctx(request, axis_id)
+    curves = ctx["report"].get(RESIDUALS, []) if ctx["gap"] == "done" else []
+    if not 0 <= index < len(curves):
+        raise NotFoundError(f"residual plot of the diagnosis of axis {axis_id}", index)
+    r = ctx["report"]
+    key = (axis_id, "gap", tuple(r.get("runs_used", ())), r.get("gap_before_um"), index)
+    png = ui_state(request).figures.get(key)
+    if png is None:
+        png = request.app.state.service.plots.draw(plots.gap_residual, curves[index], r["effect"])  # off this interpreter
+        ui_state(request).figures.put(key, png)
+    return Response(png, media_type="image/png", headers={"Cache-Control": "no-cache"})
 
 
 @router.post("/axes/{axis_id}/gap")
@@ -361,5 +398,5 @@ def revoke_key(request: Request, key_id: int, who: Posted):
     svc = request.app.state.service
     with session_scope(svc.factory) as s:
         rec = config_repo.revoke_key(s, key_id)
-    request.app.state.key_cache.clear()  # its sessions end at their next request
+    request.app.state.key_cache.clear()  # the API refuses it at once; its dashboard sessions ended with it
     return back("/ui/keys", f"key {rec.name!r} revoked")

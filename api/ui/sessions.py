@@ -1,102 +1,97 @@
-"""Dashboard sign-in: one-time sign-in links, server-side sessions, CSRF tokens.
+"""Dashboard sign-in: one-time sign-in links, sessions, CSRF tokens.
 
-A session is a random id in an HttpOnly, SameSite=Strict cookie; the server keeps the
-key it was opened with (so a revoked key ends its sessions at the next request: the key
-is checked on every request, through the API's key cache) and the session's CSRF token,
-which every form that changes something must send back. Sessions live in the memory of
-the one service process: a restart signs everybody out.
+A session is a random token in an HttpOnly, SameSite=Strict cookie; the database keeps
+its SHA-256, its key and its expiry (storage/db/ui_sessions_repo.py), so a restart signs
+nobody out and several ``serve`` processes on one database share the sessions. The
+key's role and revocation are read with the session on every request: a revoked key
+ends its sessions at once. The CSRF token every changing form sends back is derived
+from the session token (an HMAC), so it needs no storage and is unknown to anyone who
+cannot read the cookie.
 
-A sign-in link carries a random token, never the key: it opens a session once, within
-``ttl_s`` of being issued (``make run`` prints one for the demo read key).
+A sign-in link carries another random token, never the key: it is good once, within
+``link_ttl_s`` of being issued (``make run`` prints one for the demo read key). Opening
+it (GET) only shows a button; the POST of that button spends it, so a link preview
+(a chat or mail scanner fetching the URL) does not use it up.
 """
 
 from __future__ import annotations
 
+import hashlib
 import hmac
-import secrets
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from datetime import datetime
+
+from storage.db import KeyRecord, config_repo, session_scope, ui_sessions_repo, utcnow
 
 SESSION_COOKIE = "mebm_session"
-PRE_CSRF_COOKIE = "mebm_signin_csrf"  # double-submit token of the sign-in form (no session yet)
+PRE_CSRF_COOKIE = "mebm_signin_csrf"  # double-submit token of the sign-in forms (no session yet)
 ROLE_RANK = {"read": 0, "operate": 1, "admin": 2}  # as the API's keys (api/rest/auth.py)
 
 
-@dataclass
+def csrf_of(token: str) -> str:
+    return hmac.new(token.encode("utf-8"), b"mebm-ui-csrf", hashlib.sha256).hexdigest()[:40]
+
+
+@dataclass(frozen=True)
 class Session:
-    secret: str  # the API key the session was opened with (never sent back to the browser)
-    csrf: str
-    created_s: float
-    last_seen_s: float
+    token: str  # the cookie's value (only its hash is stored)
+    key: KeyRecord
+    expires_at: datetime
+
+    @property
+    def csrf(self) -> str:
+        return csrf_of(self.token)
 
 
 @dataclass
-class SignInLinks:
-    """One-time sign-in tokens: token -> (key, expiry)."""
+class UiSessions:
+    """Sessions and sign-in links in the database of ``service`` (set by ``api.ui.install``)."""
 
-    ttl_s: float = 600.0
-    clock: Callable[[], float] = time.monotonic
-    _tokens: dict[str, tuple[str, float]] = field(default_factory=dict)
-    _lock: threading.Lock = field(default_factory=threading.Lock)
-
-    def issue(self, secret: str) -> str:
-        token = secrets.token_urlsafe(24)
-        with self._lock:
-            now = self.clock()
-            for t in [t for t, (_, exp) in self._tokens.items() if exp <= now]:
-                del self._tokens[t]
-            self._tokens[token] = (secret, now + self.ttl_s)
-        return token
-
-    def redeem(self, token: str) -> str | None:
-        """The key of ``token`` if it is unused and unexpired; the token is spent either way."""
-        with self._lock:
-            hit = self._tokens.pop(token, None)
-        if hit is None or self.clock() >= hit[1]:
-            return None
-        return hit[0]
-
-
-@dataclass
-class Sessions:
-    """Server-side sessions: id -> Session, dropped after ``idle_s`` without a request."""
-
+    service: object = None
+    link_ttl_s: float = 600.0
     idle_s: float = 8 * 3600.0
-    max_sessions: int = 10000
-    clock: Callable[[], float] = time.monotonic
-    _d: dict[str, Session] = field(default_factory=dict)
-    _lock: threading.Lock = field(default_factory=threading.Lock)
+    clock: Callable[[], datetime] = utcnow
 
-    def open(self, secret: str) -> tuple[str, Session]:
-        sid = secrets.token_urlsafe(32)
-        now = self.clock()
-        sess = Session(secret=secret, csrf=secrets.token_urlsafe(24), created_s=now, last_seen_s=now)
-        with self._lock:
-            if len(self._d) >= self.max_sessions:
-                oldest = min(self._d, key=lambda k: self._d[k].last_seen_s)
-                del self._d[oldest]
-            self._d[sid] = sess
-        return sid, sess
+    @property
+    def factory(self):
+        return self.service.factory  # opened when the service starts
 
-    def get(self, sid: str | None) -> Session | None:
-        if not sid:
+    def issue_link(self, secret: str) -> str:
+        """A one-time sign-in token for the key whose secret is ``secret``."""
+        with session_scope(self.factory) as s:
+            rec = config_repo.authenticate(s, secret)
+            if rec is None:
+                from core.errors import InputError
+
+                raise InputError("no live key with this secret: no sign-in link for it")
+            return ui_sessions_repo.issue_link(s, rec.id, self.clock(), self.link_ttl_s)
+
+    def peek_link(self, token: str) -> KeyRecord | None:
+        with session_scope(self.factory) as s:
+            return ui_sessions_repo.peek_link(s, token, self.clock())
+
+    def redeem_link(self, token: str) -> Session | None:
+        with session_scope(self.factory) as s:
+            hit = ui_sessions_repo.redeem_link(s, token, self.clock(), self.idle_s)
+        return None if hit is None else self.get(hit[0])
+
+    def open(self, key: KeyRecord) -> Session:
+        with session_scope(self.factory) as s:
+            token = ui_sessions_repo.open_session(s, key.id, self.clock(), self.idle_s)
+        return Session(token, key, self.clock())
+
+    def get(self, token: str | None) -> Session | None:
+        if not token:
             return None
-        now = self.clock()
-        with self._lock:
-            sess = self._d.get(sid)
-            if sess is None:
-                return None
-            if now - sess.last_seen_s > self.idle_s:
-                del self._d[sid]
-                return None
-            sess.last_seen_s = now
-            return sess
+        with session_scope(self.factory) as s:
+            rec = ui_sessions_repo.get_session(s, token, self.clock(), self.idle_s)
+        return None if rec is None else Session(token, rec.key, rec.expires_at)
 
-    def close(self, sid: str | None) -> None:
-        with self._lock:
-            self._d.pop(sid or "", None)
+    def close(self, token: str | None) -> None:
+        with session_scope(self.factory) as s:
+            ui_sessions_repo.close_session(s, token)
 
 
 def same_token(sent: str | None, expected: str | None) -> bool:
@@ -132,7 +127,6 @@ class FigureCache:
 class UiState:
     """What the dashboard keeps in ``app.state.ui``."""
 
-    links: SignInLinks = field(default_factory=SignInLinks)
-    sessions: Sessions = field(default_factory=Sessions)
+    sessions: UiSessions = field(default_factory=UiSessions)
     figures: FigureCache = field(default_factory=FigureCache)
     gap_started: dict[int, float] = field(default_factory=dict)  # axis id -> when the page started its job (epoch s)

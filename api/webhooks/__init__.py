@@ -1,7 +1,7 @@
 """Webhooks: alert changes POSTed to configured URLs, signed per Standard Webhooks
 (https://www.standardwebhooks.com, issue 17), for MES systems that only take HTTP.
 
-Each delivery is a JSON body ``{"type": "alert.raised" | "alert.cleared", "timestamp",
+Each delivery is a JSON body ``{"type": "alert.raised" | "alert.cleared" | "work_order.<state>", "timestamp",
 "data": {...}}`` with the headers ``webhook-id`` (``msg_<uuid>``, the same on every
 retry), ``webhook-timestamp`` (Unix seconds) and ``webhook-signature``
 (``v1,<base64 HMAC-SHA256>`` of ``"{id}.{timestamp}.{body}"`` with the secret's key: the
@@ -31,7 +31,7 @@ from dataclasses import asdict, dataclass
 from datetime import datetime, timezone
 
 from api.service.config import WebhookSettings
-from api.service.events import Event
+from api.service.events import Event, order_document
 
 log = logging.getLogger("mebm.webhooks")
 
@@ -67,6 +67,9 @@ class WebhookSender:
         self.subscription = service.events.subscribe("webhooks", self.handle)
 
     def handle(self, ev: Event) -> None:
+        if ev.kind == "work_order_changed":
+            self._order(ev)
+            return
         if ev.kind != "alert_changed":
             return
         a = ev.alert
@@ -77,6 +80,16 @@ class WebhookSender:
                      "active": a.active, "task_name": a.task_name, "tbe_um": a.tbe_um, "tolerance_um": a.tolerance_um,
                      "backlash_um": a.backlash_um, "backlash_limit_um": a.backlash_limit_um, "message": a.message},
         }  # fmt: skip
+        body = json.dumps(doc, separators=(",", ":")).encode()
+        msg_id = f"msg_{uuid.uuid4().hex}"
+        for url in self.settings.urls:
+            self._deliver(url, msg_id, doc["type"], ev.axis_id, body)
+
+    def _order(self, ev: Event) -> None:
+        """A work-order step (issue 20): ``work_order.<state>``, e.g. ``work_order.verified``."""
+        doc = {"type": f"work_order.{ev.order.state}",
+               "timestamp": ev.at.astimezone(timezone.utc).isoformat().replace("+00:00", "Z"),
+               "data": order_document(ev)}
         body = json.dumps(doc, separators=(",", ":")).encode()
         msg_id = f"msg_{uuid.uuid4().hex}"
         for url in self.settings.urls:

@@ -14,6 +14,7 @@ from sqlalchemy.orm import Session, selectinload
 from core.dataset import AxisSpec
 from core.errors import InputError
 from core.tbe import DECISION_RULES, MachiningTask
+from storage.db import ui_sessions_repo
 from storage.db.errors import ConflictError, NotFoundError
 from storage.db.models import ApiKey, Axis, Machine, MachiningTaskRow
 from storage.db.records import ROLES, AxisRecord, AxisSettings, KeyRecord, MachineRecord, Schedule, as_utc, utcnow
@@ -226,6 +227,7 @@ def revoke_key(s: Session, key_id: int, when: datetime | None = None) -> KeyReco
     if k.revoked_at is None:
         k.revoked_at = when or utcnow()
     s.flush()
+    ui_sessions_repo.revoke_for_key(s, key_id, k.revoked_at)  # its dashboard sessions end with it
     return _key(k)
 
 

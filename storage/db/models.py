@@ -285,3 +285,98 @@ class ApiKey(Base):
     key_sha256: Mapped[str] = mapped_column(String(64), unique=True)
     created_at: Mapped[datetime] = mapped_column(UtcDateTime)
     revoked_at: Mapped[datetime | None] = mapped_column(UtcDateTime, nullable=True)
+
+
+# -- maintenance (issue 20) -------------------------------------------------------------------
+ONE_ACTIVE_ORDER = "state IN ('open', 'acknowledged', 'repaired')"
+
+
+class WorkOrder(Base):
+    """A maintenance order on one axis (core.maintenance's state machine). At most one
+    active (open, acknowledged or repaired) order per axis: a partial unique index, so two
+    ALARMs stored at once, by two threads or two processes, still open one."""
+
+    __tablename__ = "work_orders"
+    __table_args__ = (
+        Index("uq_work_orders_one_active", "axis_id", unique=True,
+              sqlite_where=text(ONE_ACTIVE_ORDER), postgresql_where=text(ONE_ACTIVE_ORDER)),
+        Index("ix_work_orders_axis_opened", "axis_id", "opened_at"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    axis_id: Mapped[int] = mapped_column(ForeignKey("axes.id", ondelete="CASCADE"))
+    kind: Mapped[str] = mapped_column(String(20))  # corrective | condition_based (EN 13306)
+    state: Mapped[str] = mapped_column(String(20))
+    opened_at: Mapped[datetime] = mapped_column(UtcDateTime)
+    opened_by_result_id: Mapped[int | None] = mapped_column(ForeignKey("results.id", ondelete="SET NULL"), nullable=True)
+    alert_id: Mapped[int | None] = mapped_column(ForeignKey("alerts.id", ondelete="SET NULL"), nullable=True)
+    binding_task: Mapped[str | None] = mapped_column(String(100), nullable=True)
+    tolerance_um: Mapped[float | None] = mapped_column(Float, nullable=True)
+    backlash_um: Mapped[float | None] = mapped_column(Float, nullable=True)
+    backlash_uncertainty_um: Mapped[float | None] = mapped_column(Float, nullable=True)
+    tbe_um: Mapped[float | None] = mapped_column(Float, nullable=True)
+    tbe_uncertainty_um: Mapped[float | None] = mapped_column(Float, nullable=True)
+    backlash_limit_um: Mapped[float | None] = mapped_column(Float, nullable=True)
+    restore_below_um: Mapped[float | None] = mapped_column(Float, nullable=True)
+    due_at: Mapped[datetime | None] = mapped_column(UtcDateTime, nullable=True)  # the prognosis' date, if any
+    recommendation: Mapped[str] = mapped_column(Text)
+    verification_cycle_id: Mapped[int | None] = mapped_column(ForeignKey("cycles.id", ondelete="SET NULL"),
+                                                              nullable=True)
+    verification: Mapped[str | None] = mapped_column(Text, nullable=True)  # JSON: the last core.maintenance.Verification
+    closed_at: Mapped[datetime | None] = mapped_column(UtcDateTime, nullable=True)
+
+    transitions: Mapped[list[WorkOrderTransition]] = relationship(
+        order_by="WorkOrderTransition.id", cascade="all, delete-orphan")
+
+
+class WorkOrderTransition(Base):
+    """Every step of an order: when, by which key (or ``mebm`` for the service), why."""
+
+    __tablename__ = "work_order_transitions"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    order_id: Mapped[int] = mapped_column(ForeignKey("work_orders.id", ondelete="CASCADE"), index=True)
+    at: Mapped[datetime] = mapped_column(UtcDateTime)
+    from_state: Mapped[str | None] = mapped_column(String(20), nullable=True)
+    to_state: Mapped[str] = mapped_column(String(20))
+    by: Mapped[str] = mapped_column(String(100))
+    note: Mapped[str] = mapped_column(Text, default="")
+    figures: Mapped[str | None] = mapped_column(Text, nullable=True)  # JSON (a failed verification's figures)
+
+
+class Repair(Base):
+    """What was done to an axis, by whom and when; optionally on an order, and for a
+    ``compensation_loaded`` repair the measurement whose table was loaded."""
+
+    __tablename__ = "repairs"
+    __table_args__ = (Index("ix_repairs_axis_performed", "axis_id", "performed_at"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    axis_id: Mapped[int] = mapped_column(ForeignKey("axes.id", ondelete="CASCADE"))
+    order_id: Mapped[int | None] = mapped_column(ForeignKey("work_orders.id", ondelete="SET NULL"), nullable=True)
+    kind: Mapped[str] = mapped_column(String(30))
+    note: Mapped[str] = mapped_column(Text, default="")
+    performed_at: Mapped[datetime] = mapped_column(UtcDateTime)
+    recorded_at: Mapped[datetime] = mapped_column(UtcDateTime)
+    recorded_by: Mapped[str] = mapped_column(String(100))
+    compensation_cycle_id: Mapped[int | None] = mapped_column(ForeignKey("cycles.id", ondelete="SET NULL"),
+                                                              nullable=True)
+    compensation_file: Mapped[str | None] = mapped_column(String(300), nullable=True)
+    before_result_id: Mapped[int | None] = mapped_column(ForeignKey("results.id", ondelete="SET NULL"), nullable=True)
+
+
+class UiSession(Base):
+    """A dashboard session or a one-time sign-in link (``kind``), stored as the SHA-256
+    of its random token: sessions survive a restart and are shared by every ``serve``
+    process on the database. Ended when its key is revoked (``revoked_at``)."""
+
+    __tablename__ = "ui_sessions"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    kind: Mapped[str] = mapped_column(String(10))  # "session" or "link"
+    token_sha256: Mapped[str] = mapped_column(String(64), unique=True)
+    key_id: Mapped[int] = mapped_column(ForeignKey("api_keys.id", ondelete="CASCADE"), index=True)
+    created_at: Mapped[datetime] = mapped_column(UtcDateTime)
+    last_seen_at: Mapped[datetime] = mapped_column(UtcDateTime)
+    expires_at: Mapped[datetime] = mapped_column(UtcDateTime, index=True)
+    revoked_at: Mapped[datetime | None] = mapped_column(UtcDateTime, nullable=True)

@@ -16,7 +16,7 @@ from core.errors import InputError
 from core.tbe import AxisDecision, MachiningTask
 
 CYCLE_STATES = ("queued", "running", "ok", "failed", "interrupted", "cancelled")
-TRIGGERS = ("schedule", "manual", "catch_up", "recovered")
+TRIGGERS = ("schedule", "manual", "catch_up", "recovered", "verification")  # verification: after a repair (issue 20)
 ROLES = ("read", "operate", "admin")
 
 
@@ -233,3 +233,82 @@ class TrendView:
     series: TrendSeries
     points_total: int
     stats: dict
+
+
+@dataclass(frozen=True)
+class TransitionRecord:
+    id: int
+    at: datetime
+    from_state: str | None
+    to_state: str
+    by: str
+    note: str
+    figures: dict | None
+
+
+@dataclass(frozen=True)
+class RepairRecord:
+    id: int
+    axis_id: int
+    order_id: int | None
+    kind: str
+    note: str
+    performed_at: datetime
+    recorded_at: datetime
+    recorded_by: str
+    compensation_measurement_id: int | None  # the cycle whose table was loaded (compensation_loaded)
+    compensation_file: str | None
+    before_measurement_id: int | None  # the last ok measurement before the repair
+
+
+@dataclass(frozen=True)
+class WorkOrderRecord:
+    """A maintenance order (core.maintenance) with its transitions and repairs."""
+
+    id: int
+    axis_id: int
+    kind: str
+    state: str
+    opened_at: datetime
+    opened_by_measurement_id: int | None
+    alert_id: int | None
+    binding_task: str | None
+    tolerance_um: float | None
+    backlash_um: float | None
+    backlash_uncertainty_um: float | None
+    tbe_um: float | None
+    tbe_uncertainty_um: float | None
+    backlash_limit_um: float | None
+    restore_below_um: float | None
+    due_at: datetime | None
+    recommendation: str
+    verification_measurement_id: int | None
+    verification: dict | None
+    closed_at: datetime | None
+    transitions: tuple[TransitionRecord, ...] = ()
+    repairs: tuple[RepairRecord, ...] = ()
+
+    @property
+    def active(self) -> bool:
+        return self.state in ("open", "acknowledged", "repaired")
+
+
+@dataclass(frozen=True)
+class OrderRequest:
+    """What the service asks storage to open: the recommendation's figures."""
+
+    axis_id: int
+    kind: str
+    opened_at: datetime
+    recommendation: str
+    result_id: int | None = None
+    alert_id: int | None = None
+    binding_task: str | None = None
+    tolerance_um: float | None = None
+    backlash_um: float | None = None
+    backlash_uncertainty_um: float | None = None
+    tbe_um: float | None = None
+    tbe_uncertainty_um: float | None = None
+    backlash_limit_um: float | None = None
+    restore_below_um: float | None = None
+    due_at: datetime | None = None

@@ -411,24 +411,32 @@ def backlash_history(s: Session, axis_id: int) -> MomentSums:
 
 
 def recent_at_temperature(s: Session, axis_id: int, temperature_c: float, *, window_k: float = 1.0,
-                          limit: int = 20, before: datetime | None = None) -> tuple[np.ndarray, np.ndarray]:
+                          limit: int = 20, before: datetime | None = None,
+                          since: datetime | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(temperature_c, backlash_mean_um) of the newest ``limit`` ok measurements within
-    ±``window_k`` of ``temperature_c`` (and before ``before``): for the repeatability."""
+    ±``window_k`` of ``temperature_c`` (and before ``before``, after ``since``: the last
+    repair, which changed b̄): for the repeatability."""
     q = (select(Result.temperature_c, Result.backlash_mean_um)
          .where(Result.axis_id == axis_id, Result.temperature_c.between(temperature_c - window_k,
                                                                          temperature_c + window_k)))
     if before is not None:
         q = q.where(Result.measured_at < before)
+    if since is not None:
+        q = q.where(Result.measured_at > since)
     rows = s.execute(q.order_by(Result.measured_at.desc(), Result.id.desc()).limit(limit)).all()
     return (np.array([r[0] for r in rows], dtype=float), np.array([r[1] for r in rows], dtype=float))
 
 
-def history_rows(s: Session, axis_id: int, *, max_rows: int = 3000) -> dict[str, np.ndarray]:
+def history_rows(s: Session, axis_id: int, *, max_rows: int = 3000,
+                 since: datetime | None = None) -> dict[str, np.ndarray]:
     """Arrays of the ok measurements with a temperature, oldest first, for a robust fit
     (the prognosis): measured_at_s (epoch), temperature_c, utility_day, backlash_mean_um,
     feed_mm_min. At most ``max_rows``: past that, every k-th row (a regular thinning keeps
-    the spread of temperatures and days the fit needs), always with the newest."""
+    the spread of temperatures and days the fit needs), always with the newest. With
+    ``since`` (the axis' last repair), only the measurements after it."""
     where = (Result.axis_id == axis_id, Result.temperature_c.is_not(None))
+    if since is not None:
+        where = (*where, Result.measured_at > since)
     n = int(s.scalar(select(func.count()).select_from(Result).where(*where)) or 0)
     cols = (Result.measured_at, Result.temperature_c, Result.utility_day, Result.backlash_mean_um,
             Result.peak_speed_mm_min)

@@ -191,7 +191,9 @@ def test_the_trigger_defaults_to_passive_except_for_a_simulator():
     ("modbus://h?start_timeout_s=soon", "start_timeout_s"),
     ("modbus://h?trigger=active&start_timeout_s=5", "trigger=passive only"),
     ("modbus://h?running_flag=2", "running_flag"),
-    ("canopen://socketcan/can0?node=5", "passive"),  # no passive path on CANopen in this version
+    # CANopen's passive path is listen-only: an active mode cannot be passive
+    ("canopen://socketcan/can0?node=5&mode=active-mebm&trigger=passive", "contradicts trigger=passive"),
+    ("canopen://socketcan/can0?node=5&running_flag=1", "running_flag"),  # CiA 402 has no running flag
 ])
 def test_bad_trigger_settings_in_the_url_name_what_is_wrong(url, what):
     with pytest.raises(InputError, match=what):

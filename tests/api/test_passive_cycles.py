@@ -130,7 +130,7 @@ def test_the_configuration_puts_trigger_and_detection_settings_in_the_controller
     ('passive = { rest_s = -1.0 }', "modbus://h:502", "rest_s"),
     ('passive = { min_stroke_mm = 1.0 }', "modbus://h:502", "min_stroke_mm"),
     ('trigger = "active"', "modbus://h:502?trigger=passive", "contradicts"),
-    ("", "canopen://socketcan/can0?node=5", "passive"),
+    ('trigger = "passive"', "canopen://socketcan/can0?node=5&mode=active-cia402", "contradicts"),
 ])
 def test_bad_trigger_configuration_is_refused_when_it_loads(extra, controller, what):
     import tomllib

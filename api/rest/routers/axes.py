@@ -13,11 +13,10 @@ from api.rest import convert, schemas as sc
 from api.rest.auth import AdminKey, OperateKey, ReadKey
 from api.rest.deps import AxisId, ServiceDep, SessionDep
 from api.rest.errors import TooManyRequestsError
-from api.rest.routers.machines import tasks_from
 from api.rest.status_body import cached_status, status_json
 from api.service.prognosis import to_dict as prognosis_body
-from api.service.scheduler import make_trigger
-from storage.db import CycleRecord, Schedule, config_repo, results_repo
+from api.service.config_input import machining_tasks, schedule_of
+from storage.db import CycleRecord, config_repo, results_repo
 
 router = APIRouter(tags=["axes"])
 
@@ -68,7 +67,7 @@ def axis_prognosis(axis_id: AxisId, svc: ServiceDep, _k: ReadKey):
 @router.put("/axes/{axis_id}/tasks", response_model=sc.AxisOut, summary="Replace the machining tasks (admin)")
 def put_tasks(axis_id: AxisId, body: sc.TasksIn, s: SessionDep, svc: ServiceDep, _k: AdminKey):
     axis = config_repo.get_axis(s, axis_id)
-    a = config_repo.set_tasks(s, axis_id, tasks_from(body.tasks, axis.spec.position_gain_per_s))
+    a = config_repo.set_tasks(s, axis_id, machining_tasks(body.tasks, axis.spec.position_gain_per_s))
     s.commit()
     svc.axis_changed(a)
     return convert.axis(a, svc.scheduler.next_run(axis_id))
@@ -76,10 +75,7 @@ def put_tasks(axis_id: AxisId, body: sc.TasksIn, s: SessionDep, svc: ServiceDep,
 
 @router.put("/axes/{axis_id}/schedule", response_model=sc.AxisOut, summary="Set the measurement schedule (admin)")
 def put_schedule(axis_id: AxisId, body: sc.ScheduleIn, s: SessionDep, svc: ServiceDep, _k: AdminKey):
-    sch = Schedule(body.interval_s, body.cron, body.enabled)
-    if sch.cron is not None:
-        make_trigger(sch)
-    a = config_repo.set_schedule(s, axis_id, sch)
+    a = config_repo.set_schedule(s, axis_id, schedule_of(body))
     s.commit()
     svc.axis_changed(a)
     return convert.axis(a, svc.scheduler.next_run(axis_id))

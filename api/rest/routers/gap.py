@@ -10,7 +10,8 @@ model kernels), longer than an MES should hold a request open. So it is a job of
 service (api/service/gap_jobs.py: computed in a worker process, bounded, abandoned
 jobs dropped): the request waits up to ``WAIT_S``; if the report is not ready it
 answers 202 with ``Retry-After``, and the next call gets the report (200), cached per
-(folder, runs, version of dataset.json). A diagnosis that fails for its input is
+(folder, runs, version of dataset.json), with ``computed_at`` and ``age_s`` (seconds since
+it was computed). A diagnosis that fails for its input is
 cached too and answered 422. More than the service's pending bound: 429 with
 ``Retry-After``. A cached answer is served after one ``stat`` of ``dataset.json``,
 without reading any run; the runs are read in the worker process.
@@ -27,7 +28,7 @@ from fastapi.responses import JSONResponse
 from api.rest.auth import ReadKey
 from api.rest.deps import AxisId, ServiceDep, SessionDep
 from api.rest.errors import TooManyRequestsError
-from api.service.gap_jobs import DiagnosisCrashed, JobAbandoned, TooManyJobs, axis_job
+from api.service.gap_jobs import DiagnosisCrashed, JobAbandoned, TooManyJobs, axis_job, public_body
 from storage.db import config_repo
 
 router = APIRouter(tags=["gap"])
@@ -60,7 +61,7 @@ def gap(
     except TooManyJobs as exc:
         raise TooManyRequestsError(str(exc), RETRY_AFTER_S) from None
     try:
-        return fut.result(timeout=WAIT_S)  # re-raises the diagnosis' own error
+        return public_body(fut.result(timeout=WAIT_S))  # re-raises the diagnosis' own error
     except FutureTimeout:
         return JSONResponse(
             {"status": "computing", "detail": f"the gap diagnosis of axis {axis_id} is running; "

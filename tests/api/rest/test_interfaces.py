@@ -197,11 +197,15 @@ def test_a_webhook_receiver_verifies_the_signature_of_each_alert_change_after_a_
             _measure(svc, axis_id)  # raises the alert
             runner.backlash_um = 150.0
             _measure(svc, axis_id)  # clears it
-            _until(lambda: len(Receiver.received) >= 3, "three webhook requests")
+            _until(lambda: len(Receiver.received) >= 4, "four webhook requests")
             log = client.get("/api/v1/webhooks/deliveries", headers=hdr(admin)).json()
     finally:
         server.shutdown()
-    (id1, ok1, doc1), (id1b, ok1b, _), (id2, ok2, doc2) = Receiver.received
+    # the ALARM also opened a work order (issue 20): its step is delivered the same way
+    (order,) = [r for r in Receiver.received if r[2]["type"].startswith("work_order.")]
+    assert order[1] and order[2]["type"] == "work_order.open" and order[2]["data"]["kind"] == "corrective"
+    log = [d for d in log if d["event_type"].startswith("alert.")]
+    (id1, ok1, doc1), (id1b, ok1b, _), (id2, ok2, doc2) = [r for r in Receiver.received if r[2]["type"].startswith("alert.")]
     assert ok1 and ok1b and ok2  # every signature verifies
     assert id1 == id1b != id2  # the retry keeps its webhook-id
     assert doc1["type"] == "alert.raised" and doc2["type"] == "alert.cleared"

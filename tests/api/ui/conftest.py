@@ -41,11 +41,17 @@ def wait_for(pred, timeout_s: float = 60.0, every_s: float = 0.05):
 
 
 class FakeClock:
-    def __init__(self):
-        self.t = 1000.0
+    """The dashboard's clock for sign-in links and sessions: now, plus ``offset_s``."""
 
-    def __call__(self) -> float:
-        return self.t
+    def __init__(self):
+        self.offset_s = 0.0
+
+    def __call__(self):
+        from datetime import timedelta
+
+        from storage.db import utcnow
+
+        return utcnow() + timedelta(seconds=self.offset_s)
 
 
 class UiServer:
@@ -69,7 +75,7 @@ class UiServer:
         assert wait_for(lambda: self.server.started, 60.0), "the server did not start"
         self.svc = self.app.state.service
         self.clock = FakeClock()
-        self.app.state.ui.links.clock = self.clock
+        self.app.state.ui.sessions.clock = self.clock
         self.keys = {}
         with session_scope(self.svc.factory) as s:
             for role in ("read", "operate", "admin"):
@@ -96,7 +102,7 @@ class UiServer:
         return a.id
 
     def link(self, role: str = "read") -> str:
-        return f"{self.url}/ui/sign-in/{self.app.state.ui.links.issue(self.keys[role])}"
+        return f"{self.url}/ui/sign-in/{self.app.state.ui.sessions.issue_link(self.keys[role])}"
 
     def close(self) -> None:
         self.server.should_exit = True

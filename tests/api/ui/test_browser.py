@@ -17,6 +17,7 @@ from tests.api.ui.conftest import SCREENSHOTS, wait_for
 def sign_in(page, srv, role: str) -> None:
     page.context.clear_cookies()
     page.goto(srv.link(role))
+    page.click("#link-sign-in")
     page.wait_for_url(re.compile(r"/ui/$"))
 
 
@@ -45,7 +46,11 @@ def alarm(ui_server):
 def test_one_time_link_signs_in_and_shows_the_fleet(page, ui_server, alarm):
     link = ui_server.link("read")
     page.context.clear_cookies()
+    # a link preview (a chat or mail scanner) fetches the link: that spends nothing
+    preview = page.request.get(link)
+    assert preview.status == 200 and "Sign in as ui-read" in preview.text()
     page.goto(link)
+    page.click("#link-sign-in")
     page.wait_for_url(re.compile(r"/ui/$"))
     row = page.locator(f"tr.axis-row[data-axis-id='{ui_server.axis_id}']")
     assert row.locator(".state").inner_text().strip() == "ALARM"
@@ -74,11 +79,16 @@ def test_one_time_link_signs_in_and_shows_the_fleet(page, ui_server, alarm):
 
 def test_expired_link_is_refused(page, ui_server):
     link = ui_server.link("read")
-    ui_server.clock.t += 601.0  # past the 10 minutes
     page.context.clear_cookies()
-    resp = page.goto(link)
-    assert resp.status == 403 and "expired" in page.locator("#error-message").inner_text()
-    assert not [c for c in page.context.cookies() if c["name"] == "mebm_session"]
+    page.goto(link)  # the page opened in time, its button clicked too late
+    ui_server.clock.offset_s += 601.0  # past the 10 minutes
+    try:
+        page.click("#link-sign-in")
+        assert "expired" in page.locator("#error-message").inner_text()
+        assert not [c for c in page.context.cookies() if c["name"] == "mebm_session"]
+        assert page.goto(link).status == 403
+    finally:
+        ui_server.clock.offset_s -= 601.0
 
 
 def test_axis_page_renders_its_charts(page, ui_server, alarm):
@@ -146,6 +156,11 @@ def test_a_form_post_without_csrf_token_is_refused(page, ui_server, alarm):
         """async (key) => (await fetch("/ui/sign-in", {method: "POST", body: new URLSearchParams({key})})).status""",
         ui_server.keys["admin"])
     assert status == 403
+    # nor is a sign-in link spent by a post without the sign-in page's token
+    link = ui_server.link("read")
+    status = page.evaluate(
+        """async (u) => (await fetch(u, {method: "POST", body: new URLSearchParams({csrf: "forged"})})).status""", link)
+    assert status == 403 and page.request.get(link).status == 200
 
 
 def test_gap_diagnosis_runs_in_the_background_and_arrives(page, ui_server):
@@ -162,6 +177,18 @@ def test_gap_diagnosis_runs_in_the_background_and_arrives(page, ui_server):
     assert page.locator("#gap-result").inner_text() == f"Diagnosis: {case.label}"
     assert page.locator("table.candidates tbody tr").count() >= 2
     assert "µm" in page.locator(".gap-state").inner_text()
+    assert re.match(r"Computed \d+ s ago", page.locator("#gap-age").inner_text())  # a cached result says its age
+    # the residual plots: one per test run, measured vs model before and after the effect
+    imgs = page.locator(".residuals img")
+    assert imgs.count() >= 1
+    for i in range(imgs.count()):
+        img = imgs.nth(i)
+        img.scroll_into_view_if_needed()
+        wait_for(lambda: img.evaluate("e => e.complete"), 60.0)
+        assert img.evaluate("e => e.naturalWidth") > 100, img.get_attribute("src")
+    assert "→" in page.locator(".residuals figcaption").first.inner_text()
+    page.evaluate("window.scrollTo(0, 0)")
+    page.screenshot(path=str(SCREENSHOTS / "gap.png"), full_page=True)
 
 
 def test_admin_creates_a_key_that_signs_in_by_form_then_revokes_it(page, ui_server):
@@ -200,3 +227,55 @@ def test_unknown_axis_is_a_404_page_and_the_api_keeps_its_json(page, ui_server):
     assert resp.status == 404 and "no axis with id 9999" in page.locator("#error-message").inner_text()
     api = page.request.get(f"{ui_server.url}/api/v1/axes/9999", headers={"X-API-Key": ui_server.keys["read"]})
     assert api.status == 404 and api.json()["detail"] == "no axis with id 9999"
+
+
+def test_admin_configures_a_machine_an_axis_its_tasks_and_schedule(page, ui_server):
+    sign_in(page, ui_server, "operate")  # configuration is the admin's, as in the REST API
+    assert page.goto(f"{ui_server.url}/ui/config").status == 403
+    sign_in(page, ui_server, "admin")
+    page.click("nav >> text=Configuration")
+    page.fill("#machine-name", "lathe #2")  # refused: the message stands next to the field
+    page.click("#machine-form button[type=submit]")
+    assert "letters, digits" in page.locator("#machine-name-error").inner_text()
+    assert page.locator("#machine-name").get_attribute("aria-invalid") == "true"
+    page.fill("#machine-name", "lathe-2")
+    page.click("#machine-form button[type=submit]")
+    assert "machine 'lathe-2' added" in page.locator(".flash").inner_text()
+
+    page.click("text=Add an axis to lathe-2")
+    for name, value in {"name": "z", "transmission_mm_per_rev": "10", "screw_lead_mm": "10",
+                        "position_gain_per_s": "16", "travel_start_mm": "0", "travel_end_mm": "5",
+                        "controller_url": "modbus://127.0.0.1:1"}.items():
+        page.fill(f"#f-{name}", value)
+    page.click("#axis-form button[type=submit]")
+    assert "end - start >= 10 mm" in page.locator("#f-travel_end_mm-error").inner_text()  # the REST API's rule
+    page.fill("#f-travel_end_mm", "600")
+    page.click("#axis-form button[type=submit]")
+    page.wait_for_url(re.compile(r"/ui/config/axes/\d+\?msg="))
+    axis_id = int(re.search(r"/axes/(\d+)", page.url).group(1))
+
+    page.fill("input[name=name_0]", "bore R50")
+    page.fill("input[name=feed_mm_min_0]", "300")
+    page.fill("input[name=tolerance_um_0]", "20")  # no radius for a circle: refused on its row
+    page.click("#tasks-form button[type=submit]")
+    assert "radius_mm is required for a circle task" in page.locator("#task-0-error").inner_text()
+    page.fill("input[name=radius_mm_0]", "50")
+    page.click("#tasks-form button[type=submit]")
+    assert "1 machining task(s) saved" in page.locator(".flash").inner_text()
+    assert page.locator("input[name=name_0]").input_value() == "bore R50"
+
+    page.fill("#schedule-form #f-cron", "0 6 * * 1-5")  # with the interval still set: not both
+    page.click("#schedule-form button[type=submit]")
+    assert "not both" in page.locator("#f-cron-error").inner_text()
+    page.fill("#schedule-form #f-interval_s", "")
+    page.click("#schedule-form button[type=submit]")
+    assert "schedule saved" in page.locator(".flash").inner_text()
+    with session_scope(ui_server.svc.factory) as s:
+        a = config_repo.get_axis(s, axis_id)
+    assert a.machine_name == "lathe-2" and a.spec.travel_mm == (0.0, 600.0)
+    assert [(t.name, t.radius_mm, t.tolerance_um) for t in a.tasks] == [("bore R50", 50.0, 20.0)]
+    assert a.settings.schedule.cron == "0 6 * * 1-5" and a.settings.schedule.interval_s is None
+    assert ui_server.svc.scheduler.next_run(axis_id) is not None  # the scheduler follows at once
+    page.goto(f"{ui_server.url}/ui/config")
+    assert "bore R50 (20 µm)" in page.locator(f"tr.config-axis[data-axis-id='{axis_id}']").inner_text()
+    page.screenshot(path=str(SCREENSHOTS / "config.png"), full_page=True)

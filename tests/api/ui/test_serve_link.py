@@ -34,7 +34,11 @@ def test_banner_link_signs_in_once(tmp_path):
         assert read_key not in link  # a token, never the key
         base = link.split("/ui/")[0]
         assert wait_for(lambda: httpx.get(f"{base}/healthz").status_code == 200, 60.0, 0.2)
-        first = httpx.get(link)
+        with httpx.Client() as browser:
+            opened = browser.get(link)  # the page with the button (a GET spends nothing)
+            assert opened.status_code == 200, opened.text
+            csrf = re.search(r'name="csrf" value="([^"]+)"', opened.text).group(1)
+            first = browser.post(link, data={"csrf": csrf})
         assert first.status_code == 200, first.text
         cookie = first.headers["set-cookie"]
         assert cookie.startswith("mebm_session=") and "HttpOnly" in cookie and "SameSite=strict" in cookie

@@ -1,0 +1,162 @@
+"""What an admin may configure (machines, axes, machining tasks, schedules), validated
+once for every writer: the REST API's request bodies (``api.rest.schemas`` re-exports
+these models) and the dashboard's forms (``api.ui``) both validate with these models and
+build the stored settings with the functions below, so a value refused by one is refused
+by the other with the same message. The TOML file (``api.service.config``) is read at
+start-up with its own option names.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from core.dataset import AxisSpec
+from core.errors import InputError, MebmError
+from core.tbe import MachiningTask
+from storage.db import AxisSettings, Schedule
+
+
+class In(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class MachineIn(In):
+    name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9][A-Za-z0-9 ._-]*$")
+    description: str = Field("", max_length=2000)
+
+
+class TaskIn(In):
+    """A machining task. ``circle`` needs ``radius_mm``; ``line`` needs ``angle_deg``
+    (to the reversely engaged axis, -90..90)."""
+
+    name: str = Field(min_length=1, max_length=100, pattern=r"\S", description="not blank")
+    profile: Literal["circle", "line"]
+    feed_mm_min: float = Field(ge=0.1, le=100000)
+    tolerance_um: float = Field(ge=0.01, le=10000)
+    radius_mm: float | None = Field(None, ge=0.01, le=100000)
+    angle_deg: float | None = Field(None, gt=-90, lt=90)
+
+    @model_validator(mode="after")
+    def _shape(self):
+        if self.profile == "circle" and self.radius_mm is None:
+            raise ValueError("radius_mm is required for a circle task")
+        if self.profile == "line" and self.angle_deg is None:
+            raise ValueError("angle_deg is required for a line task")
+        return self
+
+
+class TasksIn(In):
+    tasks: list[TaskIn] = Field(min_length=1, max_length=50)
+
+
+
+class ScheduleIn(In):
+    """Every ``interval_s`` seconds or on a 5-field cron expression (UTC); not both.
+    Neither (or ``enabled: false``): manual cycles only."""
+
+    interval_s: float | None = Field(None, ge=1, le=1e8)
+    cron: str | None = Field(None, min_length=9, max_length=120)
+    enabled: bool = True
+
+    @model_validator(mode="after")
+    def _one(self):
+        if self.interval_s is not None and self.cron is not None:
+            raise ValueError("give interval_s or cron, not both")
+        return self
+
+
+
+MAX_TRAVEL_MM = 100_000.0  # 100 m: beyond the largest gantry
+MAX_PROGRAM_MIN = 60.0  # one measurement round trip: an hour at most
+
+
+def link_local_problem(url: str) -> str | None:
+    """Why a controller URL points at a link-local address (169.254.0.0/16, fe80::/10:
+    where cloud metadata services live), or None. Only literal addresses are checked."""
+    import ipaddress
+    from urllib.parse import urlsplit
+
+    try:
+        host = urlsplit(url).hostname or ""
+        addr = ipaddress.ip_address(host)
+    except ValueError:
+        return None
+    if addr.is_link_local:
+        return (f"controller_url (={url!r}) points at the link-local address {addr}; set "
+                "limits.allow_link_local_controllers = true if the controller really is there")
+    return None
+
+
+class AxisIn(In):
+    name: str = Field(min_length=1, max_length=20, pattern=r"^[a-z][a-z0-9_]*$")
+    transmission_mm_per_rev: float = Field(ge=0.001, le=10000)
+    screw_lead_mm: float = Field(ge=0.001, le=10000)
+    position_gain_per_s: float = Field(ge=0.01, le=10000)
+    travel_mm: tuple[float, float]
+    controller_url: str = Field(min_length=3, max_length=300, pattern=r"^(sim|modbus://.+|modbus\+rtu://.+|sim://.+|canopen://.+)$")
+    measure_feed_mm_min: float = Field(2000.0, ge=0.1, le=100000)
+    measure_acceleration_mm_s2: float = Field(500.0, ge=0.1, le=100000)
+    warning_fraction: float = Field(0.9, ge=0.01, le=1)
+    decision_rule: Literal["simple", "guarded"] = Field(
+        "guarded", description="ISO 14253-1: 'guarded' needs TBE ± U clear of a threshold to call it")
+    worst_case_temperature_c: float = Field(
+        30.0, ge=-50, le=100, description="the shop temperature the prognosis' date is computed for")
+    schedule: ScheduleIn = Field(default_factory=ScheduleIn)
+    tasks: list[TaskIn] = Field(default_factory=list, max_length=50)
+
+    @model_validator(mode="after")
+    def _travel(self):
+        a, b = self.travel_mm
+        if not (abs(a) <= MAX_TRAVEL_MM and abs(b) <= MAX_TRAVEL_MM and b - a >= 10):
+            raise ValueError(f"travel_mm (={[a, b]}) must be [start, end] with end - start >= 10 mm and "
+                             f"|start|, |end| <= {MAX_TRAVEL_MM:g} mm")
+        round_trip_min = 2 * (b - a) / self.measure_feed_mm_min
+        if round_trip_min > MAX_PROGRAM_MIN:
+            raise ValueError(f"measure_feed_mm_min (={self.measure_feed_mm_min:g}) over travel_mm (={[a, b]}) makes a "
+                             f"measurement program of {round_trip_min:.0f} min; at most {MAX_PROGRAM_MIN:g} min")
+        return self
+
+
+def machining_tasks(body: list[TaskIn], gain_per_s: float) -> tuple[MachiningTask, ...]:
+    """The tasks of an axis with position gain ``gain_per_s``; a tolerance the model cannot
+    map to a backlash limit is refused now, not at the next cycle (``tasks[i]: ...``)."""
+    tasks = []
+    for i, t in enumerate(body):
+        try:
+            task = MachiningTask(name=t.name, profile=t.profile, feed_mm_min=t.feed_mm_min, gain_per_s=gain_per_s,
+                                 tolerance_um=t.tolerance_um, radius_mm=t.radius_mm, angle_deg=t.angle_deg)
+            task.backlash_limit_um()
+        except MebmError as exc:
+            raise type(exc)(f"tasks[{i}]: {exc}") from exc
+        tasks.append(task)
+    return tuple(tasks)
+
+
+def schedule_of(body: ScheduleIn) -> Schedule:
+    """The schedule; a cron expression the scheduler cannot read is refused here."""
+    sch = Schedule(body.interval_s, body.cron, body.enabled)
+    if sch.cron is not None:
+        from api.service.scheduler import make_trigger
+
+        make_trigger(sch)
+    return sch
+
+
+def axis_settings(body: AxisIn, *, allow_link_local: bool) -> AxisSettings:
+    """The stored settings of a new axis (``allow_link_local``: limits.allow_link_local_controllers)."""
+    problem = link_local_problem(body.controller_url)
+    if problem and not allow_link_local:
+        raise InputError(problem)
+    try:
+        spec = AxisSpec(body.name, body.transmission_mm_per_rev, body.screw_lead_mm, body.position_gain_per_s,
+                        tuple(body.travel_mm))
+    except MebmError as exc:
+        raise type(exc)(str(exc)) from exc
+    return AxisSettings(
+        spec=spec, controller_url=body.controller_url, measure_feed_mm_min=body.measure_feed_mm_min,
+        measure_acceleration_mm_s2=body.measure_acceleration_mm_s2, warning_fraction=body.warning_fraction,
+        decision_rule=body.decision_rule, worst_case_temperature_c=body.worst_case_temperature_c,
+        schedule=schedule_of(body.schedule), tasks=machining_tasks(body.tasks, body.position_gain_per_s),
+    )
