@@ -141,6 +141,7 @@ class FleetScheduler(CycleScheduler):
         self.takeovers = 0
         self._axes: dict[int, AxisRecord] = {}
         self._pushed: set[str] = set()
+        self._catch_up: set[int] = set()
         self._plan_lock = threading.RLock()
         self._halt = threading.Event()
         self._loop: threading.Thread | None = None
@@ -252,6 +253,8 @@ class FleetScheduler(CycleScheduler):
                 self.closed += closed[c.axis_id]
                 if due is not None:
                     self.next_due[c.axis_id] = due
+                    if due < now:  # fell due while no worker held the axis: its cycle is a catch-up
+                        self._catch_up.add(c.axis_id)
                 taken = c.previous_owner is not None and c.previous_owner != self.id
                 if taken:
                     self.takeovers += 1
@@ -282,6 +285,7 @@ class FleetScheduler(CycleScheduler):
             for a in axis_ids:
                 self.held.discard(a)
                 self.next_due.pop(a, None)
+                self._catch_up.discard(a)
 
     def _queue_due(self) -> None:
         held = sorted(self.held)
@@ -304,14 +308,16 @@ class FleetScheduler(CycleScheduler):
                 continue
             if self._worker(axis_id).busy_with(("schedule", "catch_up")) is not None:
                 continue  # the previous scheduled cycle still runs: this one starts after it, late
-            req = CycleRequest(uuid=str(uuidlib.uuid4()), axis_id=axis_id, trigger="schedule", requested_at=utcnow())
+            trigger = "catch_up" if axis_id in self._catch_up else "schedule"
+            req = CycleRequest(uuid=str(uuidlib.uuid4()), axis_id=axis_id, trigger=trigger, requested_at=utcnow())
             try:
                 with session_scope(self.factory) as s:
-                    leases.queue_scheduled(s, axis_id, req.uuid, "schedule", due, self.id)
+                    leases.queue_scheduled(s, axis_id, req.uuid, trigger, due, self.id)
             except StorageError as exc:
                 log.warning("worker %r: scheduled cycle of axis %s not queued (%s)", self.name, axis_id, exc)
                 continue
             self._push(req)
+            self._catch_up.discard(axis_id)
             nxt = latest_due(self._axes[axis_id], due, now) if axis_id in self._axes else None
             with self._plan_lock:
                 if axis_id in self.held and nxt is not None:
@@ -342,16 +348,18 @@ class FleetScheduler(CycleScheduler):
 
     # -- the scheduler's interface (Service, REST) ----------------------------------------------
     def request(self, axis_id: int, trigger: str, requested_by: str | None = None) -> CycleRecord | CycleRequest | None:
-        """A manual trigger: stored as queued (refused atomically if one waits already); the
-        worker that holds the axis runs it, this one at once if it is the owner."""
-        req = CycleRequest(uuid=str(uuidlib.uuid4()), axis_id=axis_id, trigger=trigger, requested_at=utcnow(),
-                           requested_by=requested_by)
-        with session_scope(self.factory) as s:
-            record = results_repo.queue_cycle(s, axis_id, req.uuid, trigger, requested_by=requested_by,
-                                              requested_at=req.requested_at)
+        """Queue a cycle. On the axis' owner, as a single worker does (runs here). Elsewhere
+        a manual trigger is only stored as queued (refused atomically if one waits already)
+        and the owner runs it; a scheduled one is not this worker's to queue (None)."""
         if self.active and axis_id in self.held:
-            self._push(req)
-        return record
+            rec = super().request(axis_id, trigger, requested_by)
+            if rec is not None:
+                self._pushed.add(rec.uuid)
+            return rec
+        if trigger != "manual":
+            return None
+        with session_scope(self.factory) as s:
+            return results_repo.queue_cycle(s, axis_id, str(uuidlib.uuid4()), trigger, requested_by=requested_by)
 
     def schedule(self, axis: AxisRecord) -> None:
         """The axis changed (schedule, tasks): replan it if this worker holds it."""
