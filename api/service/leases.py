@@ -384,3 +384,28 @@ class FleetScheduler(CycleScheduler):
 
     def next_run(self, axis_id: int) -> datetime | None:
         return self.next_due.get(axis_id)
+
+
+def workers_overview(service) -> list[dict]:
+    """The workers for ``GET /workers``: from the database on PostgreSQL; on SQLite the
+    one process that runs the scheduler (this one, or none if it serves the API only)."""
+    sched = service.scheduler
+    if isinstance(sched, FleetScheduler):
+        with session_scope(service.factory) as s:
+            infos = leases.list_workers(s)
+            axes = {a.id: a for a in config_repo.list_axes(s)}
+        return [dict(id=w.id, name=w.name, host=w.host, pid=w.pid, live=w.live, pinned=None if w.axes is None
+                     else list(w.axes), lease_s=w.lease_s, started_at=w.started_at, heartbeat_at=w.heartbeat_at,
+                     stopped_at=w.stopped_at, takeovers=w.takeovers, this_process=w.id == sched.id,
+                     axes=[dict(id=a, machine=axes[a].machine_name, name=axes[a].name) for a in w.held if a in axes])
+                for w in infos]
+    if not service.settings.scheduler_enabled:
+        return []
+    with session_scope(service.factory) as s:
+        axes = config_repo.list_axes(s)
+    now = utcnow()
+    started = datetime.fromtimestamp(service.started_at, timezone.utc)
+    return [dict(id="sqlite", name=f"{socket.gethostname()}-{os.getpid()}", host=socket.gethostname(),
+                 pid=os.getpid(), live=True, pinned=None, lease_s=0.0, started_at=started, heartbeat_at=now,
+                 stopped_at=None, takeovers=0, this_process=True,
+                 axes=[dict(id=a.id, machine=a.machine_name, name=a.name) for a in axes])]

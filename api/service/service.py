@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import threading
 import time
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
@@ -83,13 +84,15 @@ class Service:
         self.gap_jobs = GapJobs()  # gap diagnoses: bounded jobs, computed in a worker process
         self.fleet = False  # PostgreSQL: this process is one worker (or API replica) of a fleet
         self._sqlite_lock: leases.SqliteWorkerLock | None = None
+        self._sim_lock = threading.Lock()
 
     # -- wiring ----------------------------------------------------------------------------------
     def resolve_url(self, axis: AxisRecord) -> str:
         if axis.settings.controller_url == SIM_CONTROLLER:
-            sim = self.simulators.get(axis.id)
-            if sim is None:
-                sim = self._start_simulator(axis)
+            with self._sim_lock:  # a fleet worker starts them on first use, from the axes' threads
+                sim = self.simulators.get(axis.id)
+                if sim is None:
+                    sim = self._start_simulator(axis)
             return sim.url
         return axis.settings.controller_url
 
@@ -185,6 +188,10 @@ class Service:
             self.scheduler.clock.add_job(self._retry_spool, "interval", seconds=st.spool_retry_s, id="spool",
                                          coalesce=True, max_instances=1)
             self.scheduler.start()
+            if self.fleet:  # the simulated controllers of the axes this worker claimed, listening before the banner
+                for axis in axes:
+                    if axis.id in self.scheduler.held and axis.settings.controller_url == SIM_CONTROLLER:
+                        self.resolve_url(axis)
             for axis in axes:
                 if axis in fresh_sim_axes:
                     self.scheduler.request(axis.id, "catch_up")  # the demo shows a measurement at once

@@ -6,7 +6,7 @@ functions take a session and core types and return core types or the frozen
 records of :mod:`storage.db.records`.
 """
 
-from storage.db import config_repo, results_repo
+from storage.db import config_repo, leases, results_repo
 from storage.db.engine import (
     integrity_problems,
     is_sqlite,
@@ -45,6 +45,6 @@ __all__ = [
     "AlertRecord", "AxisRecord", "AxisSettings", "ConflictError", "CycleRecord", "DatabaseUnavailableError",
     "FinishedCycle", "KeyRecord", "MachineRecord", "NotFoundError", "ResultRecord", "Schedule", "StorageError",
     "TbeRecord", "TrendSeries", "TrendView", "as_utc", "config_repo", "current_revision", "head_revision", "integrity_problems",
-    "is_sqlite", "make_engine", "make_session_factory", "ping", "results_repo", "session_scope", "sqlite_url",
+    "is_sqlite", "leases", "make_engine", "make_session_factory", "ping", "results_repo", "session_scope", "sqlite_url",
     "upgrade", "utcnow", "WaitingCycleError",
 ]
