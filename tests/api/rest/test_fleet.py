@@ -67,6 +67,8 @@ class SharedRunner(FakeRunner):
             self.peak[axis.id] = max(self.peak[axis.id], self.now[axis.id])
             self.runs[axis.id] += 1
         try:
+            if self.gate is not None:
+                self.gate.wait(60.0)
             time.sleep(self.hold_s)  # a cycle takes a while: time for another worker to try the same axis
             return CycleOutcome.failed("test runner: no controller", temperature_c=20.0)
         finally:
@@ -194,14 +196,18 @@ def test_manual_trigger_through_either_worker_runs_once(pg, tmp_path):
         ids = sorted(one.executor._axes)
         assert poll(lambda: len(one.scheduler.held | two.scheduler.held) == 3, timeout_s=30)
         sent = {}
+        status = lambda uuid: next(c for c in cycles(factory) if c.uuid == uuid).status  # noqa: E731
         for axis_id in ids:
-            for svc in (one, two):  # through both workers, the owner and the other one
-                rec = svc.trigger(axis_id, svc.scheduler.name)
-                sent[rec.uuid] = axis_id
+            runner.gate = threading.Event()  # the first cycle holds the axis until the gate opens
+            first = one.trigger(axis_id, "via one")
+            assert poll(lambda: status(first.uuid) == "running", timeout_s=60)
+            second = two.trigger(axis_id, "via two")  # waits behind it, in the database
+            for svc in (one, two):
                 with pytest.raises(WaitingCycleError):  # fleet-wide: at most one waits
-                    (two if svc is one else one).trigger(axis_id, "again")
-                assert poll(lambda: next(c for c in cycles(factory) if c.uuid == rec.uuid).status == "failed",
-                            timeout_s=60)
+                    svc.trigger(axis_id, "again")
+            runner.gate.set()
+            assert poll(lambda: status(second.uuid) == "failed", timeout_s=60)
+            sent.update({first.uuid: axis_id, second.uuid: axis_id})
         rows = [c for c in cycles(factory) if c.trigger == "manual"]
         assert sorted(c.uuid for c in rows) == sorted(sent)  # no other manual cycle appeared
         assert all(c.status == "failed" and c.started_at is not None for c in rows)
