@@ -146,6 +146,7 @@ class FleetScheduler(CycleScheduler):
         self._halt = threading.Event()
         self._loop: threading.Thread | None = None
         self._last_renewed = time.monotonic()
+        self._db_offset = timedelta(0)  # database clock minus this host's
         self._registered = False
         if active:
             executor.claim = self._claim
@@ -189,11 +190,34 @@ class FleetScheduler(CycleScheduler):
             self._registered = False
 
     def _run(self) -> None:
-        while not self._halt.wait(self.period_s):
+        """A tick every period; in between, woken at the next due time so a cycle starts
+        on time, not up to a period late."""
+        next_tick = time.monotonic() + self.period_s
+        while True:
+            wait = next_tick - time.monotonic()
+            due_in = self._seconds_to_due()
+            if due_in is not None:
+                wait = min(wait, max(due_in, 0.02))
+            if self._halt.wait(max(wait, 0.0)):
+                return
             try:
-                self.tick()
+                if time.monotonic() >= next_tick:
+                    next_tick = time.monotonic() + self.period_s
+                    self.tick()
+                else:
+                    self._queue_due()
             except Exception:  # noqa: BLE001 - the loop must go on; the next tick retries
                 log.exception("worker %r: fleet tick failed", self.name)
+
+    def _seconds_to_due(self) -> float | None:
+        """Seconds (local clock, corrected by the database's) to the earliest due cycle of an
+        axis that is not busy; None if none is planned."""
+        with self._plan_lock:
+            dues = [d for a, d in self.next_due.items()
+                    if a not in self.workers or self.workers[a].busy_with(("schedule", "catch_up")) is None]
+        if not dues:
+            return None
+        return (min(dues) - (utcnow() + self._db_offset)).total_seconds()
 
     # -- one tick ------------------------------------------------------------------------------
     def tick(self) -> None:
@@ -295,6 +319,7 @@ class FleetScheduler(CycleScheduler):
             with session_scope(self.factory) as s:
                 queued = leases.queued_cycles(s, held)
                 now = leases.db_now(s)
+            self._db_offset = now - utcnow()
         except StorageError as exc:
             log.warning("worker %r: queued cycles not read (%s)", self.name, exc)
             return

@@ -137,10 +137,21 @@ def heartbeat(s: Session, worker_id: str, lease_s: float) -> set[int]:
     return {r[0] for r in rows}
 
 
-def stop_worker(s: Session, worker_id: str) -> None:
-    """A clean stop: the worker's leases are free at once, its row says it stopped."""
+def stop_worker(s: Session, worker_id: str) -> int:
+    """A clean stop: the worker's leases are free at once, its row says it stopped, and the
+    cycles it leaves are closed (running: ``interrupted``; queued by its schedule:
+    ``cancelled``; a queued manual one stays for the next owner). Returns the cycles closed."""
     release(s, worker_id)
+    n = s.execute(text(
+        "UPDATE cycles SET status = 'interrupted', finished_at = now(), "
+        "failure_reason = 'the worker stopped during the cycle' WHERE worker = :me AND status = 'running'"),
+        {"me": worker_id}).rowcount
+    n += s.execute(text(
+        "UPDATE cycles SET status = 'cancelled', finished_at = now(), "
+        "failure_reason = 'the worker stopped before the cycle started' "
+        "WHERE worker = :me AND status = 'queued' AND \"trigger\" <> 'manual'"), {"me": worker_id}).rowcount
     s.execute(text("UPDATE workers SET stopped_at = now() WHERE id = :me"), {"me": worker_id})
+    return n
 
 
 def live_workers(s: Session) -> list[tuple[str, tuple[str, ...] | None]]:

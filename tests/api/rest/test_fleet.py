@@ -255,6 +255,7 @@ SIM_AXIS = """
 """
 
 
+@pytest.mark.slow
 def test_sigkilled_worker_is_taken_over_and_its_cycle_interrupted(pg, tmp_path):
     url, factory = pg
     config = tmp_path / "fleet.toml"
@@ -308,6 +309,7 @@ def test_sigkilled_worker_is_taken_over_and_its_cycle_interrupted(pg, tmp_path):
             b.terminate()
 
 
+@pytest.mark.slow
 def test_second_worker_on_sqlite_refuses(tmp_path):
     settings = Settings(data_dir=tmp_path, demo_keys=False, machines=(("m", ""),),
                         axes=(AxisConfig("m", f.settings(schedule=Schedule(interval_s=3600.0))),))
