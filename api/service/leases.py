@@ -28,6 +28,7 @@ import fnmatch
 import logging
 import math
 import os
+import queue
 import socket
 import threading
 import time
@@ -36,7 +37,7 @@ from datetime import datetime, timedelta, timezone
 
 from api.service.config import SIM_CONTROLLER, WorkerSettings
 from api.service.cycles import CycleExecutor, CycleRequest
-from api.service.scheduler import CycleScheduler, make_trigger
+from api.service.scheduler import _STOP, CycleScheduler, make_trigger
 from storage.db import AxisRecord, CycleRecord, StorageError, config_repo, results_repo, session_scope, utcnow
 from storage.db import leases
 
@@ -175,11 +176,29 @@ class FleetScheduler(CycleScheduler):
             self._loop.start()
 
     def stop(self, wait_s: float = 5.0) -> None:
+        """Stop planning, drop what waits in the axes' queues (stored as queued: the manual
+        ones stay for the next owner), give the running cycles ``wait_s`` in all, then
+        free the leases and close what is left (``stop_worker``)."""
         self._halt.set()
         if self._loop is not None:
             self._loop.join(wait_s + self.period_s)
             self._loop = None
-        super().stop(wait_s)
+        if self._started:
+            self.clock.shutdown(wait=False)
+            self._started = False
+        for w in self.workers.values():
+            while True:
+                try:
+                    w.queue.get_nowait()
+                except queue.Empty:
+                    break
+                w.queue.task_done()
+            with w.lock:
+                w.waiting.clear()
+            w.queue.put(_STOP)
+        deadline = time.monotonic() + wait_s
+        for w in self.workers.values():
+            w.join(max(0.0, deadline - time.monotonic()))
         if self._registered:
             try:
                 with session_scope(self.factory) as s:
