@@ -364,3 +364,46 @@ def test_worker_settings_are_checked(tmp_path):
         cfg.write_text(f"[worker]\n{bad}\n")
         with pytest.raises(ConfigError, match=word):
             load_settings(cfg, env={})
+
+
+def test_api_replica_follows_what_other_processes_store(pg, tmp_path):
+    """``serve --no-scheduler`` beside a worker: a measurement the worker stores shows in
+    the replica's status once its cache is older than ``status_max_age_s``, an alert at
+    once, and a key revoked through the worker stops working on the replica once the
+    replica's key cache is older than its time to live."""
+    from fastapi.testclient import TestClient
+
+    from api.rest import create_app
+    from storage.db import config_repo
+
+    url, factory = pg
+    axes = [("m", "x")]
+    runner = FakeRunner(backlash_um=200.0)
+    worker_app = create_app(fleet_settings(url, tmp_path / "w", axes, interval_s=None,
+                                           worker=replace(LEASE, name="worker")), runner=runner)
+    replica_app = create_app(replace(fleet_settings(url, tmp_path / "r", axes, interval_s=None),
+                                     scheduler_enabled=False, status_max_age_s=0.5), runner=runner)
+    with TestClient(worker_app) as w, TestClient(replica_app) as r:
+        with session_scope(factory) as s:
+            _, admin = config_repo.create_key(s, "admin", "admin")
+            _, reader = config_repo.create_key(s, "reader", "read")
+            axis_id = config_repo.list_axes(s)[0].id
+        replica_app.state.key_cache.ttl_s = 0.5
+        hdr = {"X-API-Key": admin}
+        assert r.get("/api/v1/workers", headers=hdr).json()[0]["name"] == "worker"  # a replica is no worker
+        assert r.get(f"/api/v1/axes/{axis_id}/status", headers=hdr).json()["measurement_id"] is None
+        # a manual trigger through the replica: stored, run by the worker that holds the axis
+        assert r.post(f"/api/v1/axes/{axis_id}/measurements", headers=hdr).status_code == 202
+        assert poll(lambda: r.get(f"/api/v1/axes/{axis_id}/status", headers=hdr).json()["measurement_id"],
+                    timeout_s=60)
+        assert runner.calls == 1
+        runner.backlash_um = 400.0  # past the task's limit: the worker raises an alert
+        assert w.post(f"/api/v1/axes/{axis_id}/measurements", headers=hdr).status_code == 202
+        assert poll(lambda: r.get("/api/v1/alerts?state=active", headers=hdr).json()["total"] == 1, timeout_s=60)
+        assert poll(lambda: r.get(f"/api/v1/axes/{axis_id}/status", headers=hdr).json()["state"] == "ALARM",
+                    timeout_s=60)
+        assert r.get("/api/v1/machines", headers={"X-API-Key": reader}).status_code == 200  # cached on the replica
+        key_id = next(k["id"] for k in w.get("/api/v1/keys", headers=hdr).json() if k["name"] == "reader")
+        assert w.delete(f"/api/v1/keys/{key_id}", headers=hdr).status_code == 200
+        assert poll(lambda: r.get("/api/v1/machines", headers={"X-API-Key": reader}).status_code == 401,
+                    timeout_s=30)
