@@ -79,6 +79,8 @@ def banner(settings, report, url: str, opcua=None, sign_in_url: str | None = Non
              + (f"  (one-time sign-in link for the demo read key, valid 10 min: {sign_in_url})" if sign_in_url
                 else "  (sign in with an access key)"),
              f"database: {report.database}"]
+    if getattr(report, "worker", None):
+        lines.append(report.worker)
     if report.replayed:
         lines.append(f"stored {report.replayed} cycle(s) kept on disk during a database outage")
     if report.interrupted:

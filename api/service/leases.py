@@ -268,7 +268,9 @@ class FleetScheduler(CycleScheduler):
         target = fair_share(self.id, workers, list(axes.values()))
         self._claim_axes([a.id for a in mine if a.id not in self.held], target)
         if len(self.held) > target and len(workers) > 1:
-            self._release_idle(len(self.held) - target)
+            others = [p for w, p in workers if w != self.id]
+            movable = {a for a in self.held if a in axes and any(matches(p, axes[a]) for p in others)}
+            self._release_idle(len(self.held) - target, movable)
         self._queue_due()
 
     def _claim_axes(self, free: list[int], target: int) -> None:
@@ -307,8 +309,9 @@ class FleetScheduler(CycleScheduler):
                         f", {closed[c.axis_id]} cycle(s) it left closed" if closed[c.axis_id] else "",
                         due.isoformat(timespec="seconds") if due else "never (schedule off)")
 
-    def _release_idle(self, n: int) -> None:
-        idle = [a for a in self.held
+    def _release_idle(self, n: int, movable: set[int]) -> None:
+        """Hand back up to ``n`` idle axes that another live worker may run."""
+        idle = [a for a in self.held & movable
                 if a not in self.workers or self.workers[a].busy_with(("schedule", "catch_up", "manual")) is None]
         idle.sort(key=lambda a: self.next_due.get(a, datetime.max.replace(tzinfo=timezone.utc)), reverse=True)
         give = idle[:n]

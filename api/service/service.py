@@ -63,6 +63,7 @@ class StartReport:
     demo_keys: dict
     simulators: dict  # axis id -> controller url
     bootstrap_admin: str | None
+    worker: str | None = None  # fleet (PostgreSQL): this worker's name, axes and lease, for the banner
 
 
 class Service:
@@ -202,8 +203,19 @@ class Service:
         self.report = StartReport(
             database=_redact(st.db_url), replayed=replayed, interrupted=interrupted, created_axes=tuple(created),
             demo_keys=demo_keys, simulators={a: s.url for a, s in self.simulators.items()}, bootstrap_admin=admin,
+            worker=self._worker_line(),
         )
         return self.report
+
+    def _worker_line(self) -> str | None:
+        sched = self.scheduler
+        if not isinstance(sched, FleetScheduler):
+            return None
+        if not sched.active:
+            return "fleet: API only (--no-scheduler); manual triggers are run by the worker that holds the axis"
+        pinned = ", ".join(sched.settings.axes) if sched.settings.axes else "any axis"
+        return (f"fleet worker {sched.name!r}: holds {len(sched.held)} axis lease(s) now, may run {pinned}, "
+                f"lease {sched.lease_s:g} s (GET /api/v1/workers)")
 
     def stop(self) -> None:
         if self.scheduler is not None:

@@ -191,12 +191,13 @@ def ensure_lease_rows(s: Session) -> None:
 def claim(s: Session, worker_id: str, axis_ids: list[int], limit: int, lease_s: float,
           free_for_s: float = 0.0) -> list[Claimed]:
     """Take up to ``limit`` of ``axis_ids`` whose lease is free or expired (for at least
-    ``free_for_s``), skipping rows another worker is claiming right now."""
+    ``free_for_s``; a free row's ``expires_at`` is when it was freed), skipping rows
+    another worker is claiming right now."""
     if limit <= 0 or not axis_ids:
         return []
     rows = s.execute(text(
         "WITH cand AS (SELECT axis_id, owner FROM axis_leases "
-        "  WHERE axis_id = ANY(:ids) AND (owner IS NULL OR expires_at <= now() - make_interval(secs => :free)) "
+        "  WHERE axis_id = ANY(:ids) AND expires_at <= now() - make_interval(secs => :free) "
         "  ORDER BY expires_at, axis_id LIMIT :n FOR UPDATE SKIP LOCKED) "
         "UPDATE axis_leases l SET owner = :me, previous_owner = cand.owner, acquired_at = now(), "
         "  expires_at = now() + make_interval(secs => :lease) "
