@@ -384,7 +384,7 @@ class FleetScheduler(CycleScheduler):
         self._pushed.discard(req.uuid)
         try:
             with session_scope(self.factory) as s:
-                ok = leases.claim_cycle(s, req.uuid, self.id, started)
+                ok = leases.claim_cycle(s, req.uuid, self.id, started, self.lease_s)
         except StorageError as exc:
             log.warning("cycle %s not started: the database does not answer (%s)", req.uuid, exc)
             return False

@@ -249,14 +249,19 @@ def queue_scheduled(s: Session, axis_id: int, uuid: str, trigger: str, due_at: d
     return rec
 
 
-def claim_cycle(s: Session, uuid: str, worker_id: str, started_at: datetime) -> bool:
+def claim_cycle(s: Session, uuid: str, worker_id: str, started_at: datetime, lease_s: float) -> bool:
     """``queued`` -> ``running`` for this worker, only if it holds an unexpired lease on
-    the cycle's axis. False: another worker started it, it was cancelled, or the lease is gone."""
+    the cycle's axis, which the same statement renews: the lease then outlives the start
+    by a full ``lease_s``, so a cycle shorter than that ends before any other worker may
+    take the axis, whatever happens to this worker's network. False: another worker
+    started it, it was cancelled, or the lease is gone."""
     return s.execute(text(
+        "WITH l AS (UPDATE axis_leases SET expires_at = now() + make_interval(secs => :lease) "
+        "  WHERE axis_id = (SELECT axis_id FROM cycles WHERE uuid = :u AND status = 'queued') "
+        "  AND owner = :me AND expires_at > now() RETURNING axis_id) "
         "UPDATE cycles SET status = 'running', started_at = :t, worker = :me "
-        "WHERE uuid = :u AND status = 'queued' AND EXISTS (SELECT 1 FROM axis_leases l "
-        "  WHERE l.axis_id = cycles.axis_id AND l.owner = :me AND l.expires_at > now())"
-    ), {"u": uuid, "me": worker_id, "t": started_at}).rowcount == 1
+        "WHERE uuid = :u AND status = 'queued' AND axis_id IN (SELECT axis_id FROM l)"
+    ), {"u": uuid, "me": worker_id, "t": started_at, "lease": lease_s}).rowcount == 1
 
 
 def queued_cycles(s: Session, axis_ids: list[int]) -> list[QueuedCycle]:

@@ -407,3 +407,98 @@ def test_api_replica_follows_what_other_processes_store(pg, tmp_path):
         assert w.delete(f"/api/v1/keys/{key_id}", headers=hdr).status_code == 200
         assert poll(lambda: r.get("/api/v1/machines", headers={"X-API-Key": reader}).status_code == 401,
                     timeout_s=30)
+
+
+class CuttableProxy:
+    """A TCP proxy to PostgreSQL whose link can be cut: while cut, bytes are held (as a
+    network does while TCP retransmits), new connections wait; healing lets them through."""
+
+    def __init__(self, target=("127.0.0.1", 5432)):
+        import socket
+
+        self.target = target
+        self.open = threading.Event()
+        self.open.set()
+        self.sock = socket.create_server(("127.0.0.1", 0))
+        self.port = self.sock.getsockname()[1]
+        self._closed = False
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self):
+        import socket
+
+        while not self._closed:
+            try:
+                client, _ = self.sock.accept()
+            except OSError:
+                return
+            try:
+                upstream = socket.create_connection(self.target)
+            except OSError:
+                client.close()
+                continue
+            for a, b in ((client, upstream), (upstream, client)):
+                threading.Thread(target=self._pump, args=(a, b), daemon=True).start()
+
+    def _pump(self, src, dst):
+        try:
+            while True:
+                data = src.recv(65536)
+                if not data:
+                    break
+                self.open.wait()
+                dst.sendall(data)
+        except OSError:
+            pass
+        finally:
+            for s in (src, dst):
+                try:
+                    s.close()
+                except OSError:
+                    pass
+
+    def close(self):
+        self._closed = True
+        self.open.set()
+        self.sock.close()
+
+
+def test_worker_cut_from_the_database_loses_its_axes_and_nothing_overlaps(pg, tmp_path):
+    url, factory = pg
+    proxy = CuttableProxy()
+    host, rest = url.split("@", 1)
+    via_proxy = f"{host}@127.0.0.1:{proxy.port}/{rest.split('/', 1)[1]}"
+    axes = [("m", "a0"), ("m", "a1"), ("m", "a2"), ("m", "a3")]
+    runner = SharedRunner(hold_s=0.3)
+    cut = start(fleet_settings(via_proxy, tmp_path / "cut", axes, worker=replace(LEASE, name="cut")), runner)
+    other = None
+    try:
+        ids = set(cut.executor._axes)
+        assert poll(lambda: cut.scheduler.held == ids, timeout_s=30)  # alone: it holds every axis
+        other = start(fleet_settings(url, tmp_path / "other", axes, worker=replace(LEASE, name="other")), runner)
+        assert poll(lambda: any(c.status == "running" and c.worker == cut.scheduler.id for c in cycles(factory)),
+                    timeout_s=60, interval_s=0.01)
+        proxy.open.clear()  # the network between "cut" and the database goes down
+        assert poll(lambda: other.scheduler.held == ids, timeout_s=60)  # lease_s + tick_s, here 3.5 s
+        with session_scope(factory) as s:
+            workers = {w.name: w for w in leases.list_workers(s)}
+        assert not workers["cut"].live and workers["other"].takeovers >= 1
+        assert poll(lambda: {c.axis_id for c in cycles(factory) if c.worker == other.scheduler.id
+                             and c.status == "failed"} == ids, timeout_s=60)
+        proxy.open.set()  # healed: "cut" finds its leases gone and drops the axes
+        assert poll(lambda: workers_live(factory) == {"cut", "other"}, timeout_s=60)
+        assert not cut.scheduler.held & other.scheduler.held
+        with session_scope(factory) as s:
+            assert leases.overlapping_cycles(s) == []
+        assert max(runner.peak.values()) == 1
+    finally:
+        proxy.open.set()
+        if other is not None:
+            other.stop()
+        cut.stop()
+        proxy.close()
+
+
+def workers_live(factory) -> set[str]:
+    with session_scope(factory) as s:
+        return {w.name for w in leases.list_workers(s) if w.live}
