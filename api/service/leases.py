@@ -109,9 +109,14 @@ def _latest(axis: AxisRecord, last: datetime, now: datetime) -> datetime | None:
     return nxt
 
 
-def _alive(pid: int) -> bool:
+_IN_THIS_PROCESS: set[str] = set()  # ids of the workers running in this process (tests run two)
+
+
+def _alive(worker_id: str, pid: int) -> bool:
+    """Whether the worker's process still runs on this host. Our own pid in the row of a
+    worker not of this process is a predecessor's (a restarted container's pid 1)."""
     if pid == os.getpid():
-        return True
+        return worker_id in _IN_THIS_PROCESS
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -157,12 +162,13 @@ class FleetScheduler(CycleScheduler):
         """Insert this worker's row (refused if a live worker has its name)."""
         with session_scope(self.factory) as s:
             for other, pid in leases.local_workers(s, self.host, self.id):
-                if not _alive(pid):  # a worker of this host killed earlier: no need to wait for its leases
+                if not _alive(other, pid):  # a worker of this host killed earlier: no need to wait for its leases
                     n = leases.expire_worker(s, other)
                     if n:
                         log.warning("worker %s (pid %s on this host) is gone: its %d lease(s) end now", other, pid, n)
             leases.register_worker(s, self.id, self.name, self.host, os.getpid(), self.settings.axes, self.lease_s)
         self._registered = True
+        _IN_THIS_PROCESS.add(self.id)
         log.info("worker %r (%s) joined the fleet: axes %s, lease %.0f s", self.name, self.id,
                  ", ".join(self.settings.axes) if self.settings.axes else "any", self.lease_s)
 
@@ -207,6 +213,7 @@ class FleetScheduler(CycleScheduler):
                 log.warning("worker %r: leases not released (%s); they expire in %.0f s", self.name, exc,
                             self.lease_s)
             self._registered = False
+            _IN_THIS_PROCESS.discard(self.id)
 
     def _run(self) -> None:
         """A tick every period; in between, woken at the next due time so a cycle starts
