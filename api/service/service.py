@@ -139,7 +139,8 @@ class Service:
         _restrict(Path(st.data_dir), 0o700)  # raw runs, spool, keys: the service's own
         self._connect()
         self.fleet = not is_sqlite(self.engine)
-        if not self.fleet and st.scheduler_enabled and self.engine.url.database not in (None, "", ":memory:"):
+        if (not self.fleet and st.scheduler_enabled and self._sqlite_lock is None
+                and self.engine.url.database not in (None, "", ":memory:")):
             self._sqlite_lock = leases.SqliteWorkerLock(Path(self.engine.url.database))
             self._sqlite_lock.acquire()  # a second worker on the file is refused (WorkerConflictError)
         if is_sqlite(self.engine):
@@ -150,6 +151,8 @@ class Service:
         self.status = StatusCache(self.factory, ttl_s=st.status_max_age_s)
         self.executor = CycleExecutor(self.factory, Path(st.data_dir), self.runner, self.resolve_url,
                                       on_saved=self._on_saved)
+        if isinstance(self.scheduler, FleetScheduler):  # started again (an ASGI lifespan run twice): one worker
+            self.scheduler.stop()
         if self.fleet:  # leases in the database decide which worker runs which axis (docs/fleet.md)
             self.scheduler = FleetScheduler(self.executor, self.factory, st.worker, active=st.scheduler_enabled,
                                             catch_up=st.catch_up_missed)
