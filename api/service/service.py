@@ -119,7 +119,9 @@ class Service:
         return None if render is None else render(axis_id)
 
     def _connect(self) -> None:
-        self.engine = make_engine(self.settings.db_url)
+        st = self.settings
+        idle_s = max(st.worker.lease_s / 2, 2.0) if st.scheduler_enabled and not is_sqlite(st.db_url) else None
+        self.engine = make_engine(st.db_url, idle_in_transaction_timeout_s=idle_s)
         deadline = time.monotonic() + self.db_wait_s
         while True:
             try:

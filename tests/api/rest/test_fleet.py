@@ -474,6 +474,8 @@ def test_worker_cut_from_the_database_loses_its_axes_and_nothing_overlaps(pg, tm
     other = None
     try:
         ids = set(cut.executor._axes)
+        with cut.engine.connect() as c:  # a session cut mid-transaction ends, and frees its locks, before its lease
+            assert c.exec_driver_sql("SHOW idle_in_transaction_session_timeout").scalar_one() == "2s"
         assert poll(lambda: cut.scheduler.held == ids, timeout_s=30)  # alone: it holds every axis
         other = start(fleet_settings(url, tmp_path / "other", axes, worker=replace(LEASE, name="other")), runner)
         assert poll(lambda: any(c.status == "running" and c.worker == cut.scheduler.id for c in cycles(factory)),
