@@ -111,10 +111,13 @@ class Worker:
     def terminate(self) -> None:
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(60)
-            except subprocess.TimeoutExpired:
-                self.kill()
+        t0 = time.monotonic()
+        try:
+            self.proc.wait(60)
+        except subprocess.TimeoutExpired:
+            self.kill()
+            print(f"{self.name}: no clean stop within 60 s, killed:\n{self.output()[-1500:]}")
+        self.stop_s = time.monotonic() - t0
 
 
 def create_database(server_url: str) -> tuple[str, object]:
@@ -184,6 +187,7 @@ def main() -> int:
                     w.proc.send_signal(signal.SIGTERM)
             for w in workers:
                 w.terminate()
+            print("stop: " + ", ".join(f"{w.name} {getattr(w, 'stop_s', 0):.1f} s" for w in workers[1 if killed_at else 0:]))
             with session_scope(factory) as s:
                 rows = list(s.scalars(select(Cycle).where(Cycle.started_at.is_not(None))))
                 overlapping = leases.overlapping_cycles(s)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import signal
 import socket
 import sys
 from dataclasses import replace
@@ -155,6 +156,10 @@ def _serve(a: argparse.Namespace) -> int:
         print(banner(settings, report, url, opcua, sign_in_url=link), flush=True)
         config = uvicorn.Config(app, log_level=settings.log_level, access_log=False, timeout_graceful_shutdown=10)
         server = uvicorn.Server(config)
+        # uvicorn re-raises SIGTERM after its graceful shutdown, with the handler it found: the
+        # default one would end the process before `finally` stops the service (a fleet worker
+        # would keep its leases for lease_s and leave its cycles running); this one exits cleanly
+        signal.signal(signal.SIGTERM, _exit_on_sigterm)
         server.run(sockets=[sock])
     finally:
         if opcua is not None:
@@ -163,6 +168,10 @@ def _serve(a: argparse.Namespace) -> int:
         sock.close()
     sys.stdout.flush()
     return 0
+
+
+def _exit_on_sigterm(signum, frame) -> None:
+    raise SystemExit(0)
 
 
 def _redact_url(url: str) -> str:
