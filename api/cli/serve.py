@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import signal
 import socket
 import sys
 from dataclasses import replace
@@ -79,6 +80,8 @@ def banner(settings, report, url: str, opcua=None, sign_in_url: str | None = Non
              + (f"  (one-time sign-in link for the demo read key, valid 10 min: {sign_in_url})" if sign_in_url
                 else "  (sign in with an access key)"),
              f"database: {report.database}"]
+    if getattr(report, "worker", None):
+        lines.append(report.worker)
     if report.replayed:
         lines.append(f"stored {report.replayed} cycle(s) kept on disk during a database outage")
     if report.interrupted:
@@ -161,6 +164,10 @@ def _serve(a: argparse.Namespace) -> int:
         print(banner(settings, report, url, opcua, sign_in_url=link), flush=True)
         config = uvicorn.Config(app, log_level=settings.log_level, access_log=False, timeout_graceful_shutdown=10)
         server = uvicorn.Server(config)
+        # uvicorn re-raises SIGTERM after its graceful shutdown, with the handler it found: the
+        # default one would end the process before `finally` stops the service (a fleet worker
+        # would keep its leases for lease_s and leave its cycles running); this one exits cleanly
+        signal.signal(signal.SIGTERM, _exit_on_sigterm)
         server.run(sockets=[sock])
     finally:
         if opcua is not None:
@@ -169,6 +176,10 @@ def _serve(a: argparse.Namespace) -> int:
         sock.close()
     sys.stdout.flush()
     return 0
+
+
+def _exit_on_sigterm(signum, frame) -> None:
+    raise SystemExit(0)
 
 
 def _redact_url(url: str) -> str:

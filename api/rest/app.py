@@ -20,6 +20,7 @@ from api.rest.limits import BodyLimit, TokenBucket
 from api.rest.metrics import make_registry
 from api.rest.routers import (alerts, axes, compensation, gap, health, interfaces, keys, machines, maintenance,
                               measurements, plots)
+from api.rest.routers import workers
 from api.rest.schemas import ERROR_RESPONSES
 from api.rest.status_body import StatusFastPath, status_json
 from api.service.config import Settings
@@ -30,7 +31,7 @@ from api.ui import install as install_ui
 API_PREFIX = "/api/v1"
 # Routers under /api/v1, included explicitly: a renamed module is an ImportError, never a
 # silently missing endpoint.
-ROUTERS = (machines, axes, measurements, alerts, plots, keys, gap, compensation, interfaces, maintenance)
+ROUTERS = (machines, axes, measurements, alerts, plots, keys, gap, compensation, interfaces, maintenance, workers)
 log = logging.getLogger("mebm.api")
 
 DESCRIPTION = """

@@ -6,7 +6,12 @@ from __future__ import annotations
 from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 
-from storage.db import StorageError, results_repo, session_scope
+from datetime import timedelta
+
+import numpy as np
+
+from api.service.leases import FleetScheduler, workers_overview
+from storage.db import StorageError, leases, results_repo, session_scope, utcnow
 from storage.retention import folder_bytes
 
 
@@ -67,6 +72,41 @@ class ServiceCollector:
         ex = self.service.executor
         spooled.add_metric([], float(len(ex.pending()) + len(ex.unsaved)))
         yield spooled
+        yield from self._fleet()
+
+    def _fleet(self):
+        """Issue 13: leases held and takeovers per worker, lateness of scheduled cycles."""
+        try:
+            workers = workers_overview(self.service)
+            late_rows = []
+            if isinstance(self.service.scheduler, FleetScheduler):
+                with session_scope(self.service.factory) as s:
+                    late_rows = leases.lateness(s, utcnow() - timedelta(hours=1))
+        except StorageError:
+            return
+        held = GaugeMetricFamily("mebm_worker_leases_held", "Axes whose lease each live worker holds",
+                                 labels=["worker"])
+        taken = CounterMetricFamily("mebm_lease_takeovers", "Axes a worker took over from a worker whose lease "
+                                    "had expired", labels=["worker"])
+        live = GaugeMetricFamily("mebm_workers_live", "Workers whose heartbeat is younger than their lease")
+        for w in workers:
+            if w["live"]:
+                held.add_metric([w["name"]], float(len(w["axes"])))
+            taken.add_metric([w["name"]], float(w["takeovers"]))
+        live.add_metric([], float(sum(1 for w in workers if w["live"])))
+        yield held
+        yield taken
+        yield live
+        last = GaugeMetricFamily("mebm_cycle_lateness_seconds", "Start minus due time of the axis' last scheduled "
+                                 "cycle (last hour)", labels=["axis_id"])
+        for axis_id, late_s in sorted(dict(late_rows).items()):
+            last.add_metric([str(axis_id)], late_s)
+        yield last
+        p95 = GaugeMetricFamily("mebm_cycle_lateness_p95_seconds", "95th percentile of the lateness of the "
+                                "scheduled cycles started in the last hour (due time to start)")
+        if late_rows:
+            p95.add_metric([], float(np.percentile([v for _, v in late_rows], 95)))
+        yield p95
 
 
     def _health(self):

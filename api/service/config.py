@@ -139,6 +139,23 @@ class MtconnectSettings:
 
 
 @dataclass(frozen=True)
+class WorkerSettings:
+    """``[worker]``: this process as one worker of a fleet on a PostgreSQL database
+    (docs/fleet.md). ``axes``: the ``machine/axis`` patterns (shell-style, ``site-a-*/*``)
+    of the axes it can reach; None: any. ``lease_s``: how long an axis stays owned by a
+    worker that stopped renewing (the takeover delay after a crash or a network cut)."""
+
+    name: str | None = None  # None: <host>-<pid>
+    axes: tuple[str, ...] | None = None
+    lease_s: float = 30.0
+    tick_s: float | None = None  # heartbeat/claim period; None: min(2 s, lease_s / 6)
+
+    @property
+    def period_s(self) -> float:
+        return self.tick_s if self.tick_s is not None else min(2.0, self.lease_s / 6.0)
+
+
+@dataclass(frozen=True)
 class Settings:
     host: str = "127.0.0.1"
     port: int = 8000
@@ -162,6 +179,8 @@ class Settings:
     opcua: OpcuaSettings = field(default_factory=OpcuaSettings)
     mtconnect: MtconnectSettings = field(default_factory=MtconnectSettings)
     maintenance: MaintenanceSettings = field(default_factory=MaintenanceSettings)
+    worker: WorkerSettings = field(default_factory=WorkerSettings)
+    status_max_age_s: float = 30.0  # a status is recomputed at least this often (others' measurements)
 
     @property
     def db_url(self) -> str:
@@ -203,7 +222,7 @@ def default_settings() -> Settings:
 
 # -- parsing -----------------------------------------------------------------------------------
 _TOP = {"server", "storage", "auth", "scheduler", "simulator", "machines", "logging", "limits", "retention", "mqtt",
-        "webhooks", "opcua", "mtconnect", "maintenance"}
+        "webhooks", "opcua", "mtconnect", "maintenance", "worker"}
 
 
 def _get(table: Mapping, key: str, kind, where: str, default=None):
@@ -389,7 +408,7 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
     base = base or Settings()
     _unknown(doc, _TOP, "config")
     server = doc.get("server", {})
-    _unknown(server, {"host", "port"}, "server")
+    _unknown(server, {"host", "port", "status_max_age_s"}, "server")
     storage = doc.get("storage", {})
     _unknown(storage, {"data_dir", "database_url", "min_free_disk_mb"}, "storage")
     auth = doc.get("auth", {})
@@ -457,6 +476,9 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
         opcua=_opcua(doc.get("opcua"), base.opcua),
         mtconnect=_mtconnect(doc.get("mtconnect"), base.mtconnect),
         maintenance=_maintenance(doc.get("maintenance"), base.maintenance),
+        worker=_worker(doc.get("worker"), base.worker),
+        status_max_age_s=_positive(_get(server, "status_max_age_s", float, "server", base.status_max_age_s),
+                                   "server.status_max_age_s"),
     )
 
 
@@ -482,6 +504,35 @@ def check_maintenance(m: MaintenanceSettings) -> None:
         hh, sep, mm = m.verify_at.partition(":")
         if not (sep and hh.isdigit() and mm.isdigit() and int(hh) < 24 and int(mm) < 60):
             raise ConfigError(f"maintenance.verify_at (={m.verify_at!r}) must be \"now\" or \"HH:MM\" (UTC)")
+
+
+def _positive(v: float, where: str) -> float:
+    if not v > 0:
+        raise ConfigError(f"{where} (={v}) must be > 0")
+    return v
+
+
+def _patterns(v, where: str) -> tuple[str, ...]:
+    if isinstance(v, str):
+        v = [p.strip() for p in v.split(",") if p.strip()]
+    if not isinstance(v, list) or not v or not all(isinstance(p, str) and p.count("/") == 1 for p in v):
+        raise ConfigError(f"{where} (={v!r}) must be a non-empty list of 'machine/axis' patterns "
+                          "(shell-style: 'site-a-*/*', 'vmc-7/x')")
+    return tuple(v)
+
+
+def _worker(table: Mapping | None, base: WorkerSettings) -> WorkerSettings:
+    if table is None:
+        return base
+    _unknown(table, {"name", "axes", "lease_s", "tick_s"}, "worker")
+    axes = _patterns(table["axes"], "worker.axes") if "axes" in table else base.axes
+    lease_s = _positive(_get(table, "lease_s", float, "worker", base.lease_s), "worker.lease_s")
+    tick_s = _get(table, "tick_s", float, "worker", base.tick_s)
+    if tick_s is not None and not 0 < tick_s <= lease_s / 3:
+        raise ConfigError(f"worker.tick_s (={tick_s}) must be > 0 and at most lease_s / 3 (={lease_s / 3:g}): "
+                          "a lease must survive a missed heartbeat")
+    name = _get(table, "name", str, "worker", base.name) or None
+    return replace(base, name=name, axes=axes, lease_s=lease_s, tick_s=tick_s)
 
 
 def _mqtt(table: Mapping | None, base: MqttSettings) -> MqttSettings:
@@ -645,6 +696,16 @@ def apply_env(settings: Settings, env: Mapping[str, str] | None = None) -> Setti
         out = replace(out, opcua=replace(out.opcua, password=env["MEBM_OPCUA_PASSWORD"]))
     if out.opcua.enabled:
         check_opcua(out.opcua, "opcua")
+    if env.get("MEBM_WORKER_NAME"):
+        out = replace(out, worker=replace(out.worker, name=env["MEBM_WORKER_NAME"]))
+    if env.get("MEBM_WORKER_AXES"):
+        out = replace(out, worker=replace(out.worker, axes=_patterns(env["MEBM_WORKER_AXES"], "MEBM_WORKER_AXES")))
+    if env.get("MEBM_WORKER_LEASE_S"):
+        try:
+            lease = float(env["MEBM_WORKER_LEASE_S"])
+        except ValueError as exc:
+            raise ConfigError(f"MEBM_WORKER_LEASE_S (={env['MEBM_WORKER_LEASE_S']!r}) must be a number") from exc
+        out = replace(out, worker=replace(out.worker, lease_s=_positive(lease, "MEBM_WORKER_LEASE_S")))
     if env.get("MEBM_HOST"):
         out = replace(out, host=env["MEBM_HOST"])
     if env.get("MEBM_PORT"):

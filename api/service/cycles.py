@@ -129,6 +129,8 @@ class CycleExecutor:
         self._in_flight: set[str] = set()  # uuids being finished by execute(): replay leaves them
         self.unsaved: list[FinishedCycle] = []  # neither spooled nor stored: retried with the spool
         self._moved: dict[Path, Path] = {}  # legacy dataset folder -> its id-named successor
+        # fleet (api.service.leases): (request, start time) -> whether this worker may run it; None: it may
+        self.claim = None
 
     def migrate_folders(self, axes) -> None:
         """Rename or split the name-based dataset folders of older versions (see ``folders``)."""
@@ -163,11 +165,15 @@ class CycleExecutor:
         outage (the cycle is then spooled); returns the stored cycle or None if spooled."""
         axis = self._axis(req.axis_id)
         started = utcnow()
-        try:
-            with session_scope(self.factory) as s:
-                results_repo.mark_running(s, req.uuid, started)
-        except StorageError as exc:
-            log.warning("cycle %s: could not mark running (%s); measuring anyway", req.uuid, exc)
+        if self.claim is not None:
+            if not self.claim(req, started):  # another worker runs it, or this one lost the axis
+                return None
+        else:
+            try:
+                with session_scope(self.factory) as s:
+                    results_repo.mark_running(s, req.uuid, started)
+            except StorageError as exc:
+                log.warning("cycle %s: could not mark running (%s); measuring anyway", req.uuid, exc)
         try:
             outcome = self.runner(axis, self.resolve_url(axis))
         except Exception as exc:  # noqa: BLE001 - a broken runner must not stop the schedule

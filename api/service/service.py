@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import threading
 import time
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
@@ -24,6 +25,7 @@ from api.service.gap_jobs import GapJobs
 from api.service.plot_process import PlotProcess
 from api.service.demo import DemoController
 from api.service.health import HealthProbe
+from api.service.leases import FleetScheduler
 from api.service.runner import CycleRunner, DriverRunner
 from api.service.scheduler import CycleScheduler
 from api.service.events import Event, EventHub, events_of_saved_cycle
@@ -31,6 +33,7 @@ from api.service.maintenance import MaintenanceLoop
 from api.service.status import StatusCache
 from core.errors import MebmError
 from storage.retention import apply_retention
+from storage.db import leases
 from storage.db import (
     AxisRecord,
     DatabaseUnavailableError,
@@ -62,6 +65,7 @@ class StartReport:
     demo_keys: dict
     simulators: dict  # axis id -> controller url
     bootstrap_admin: str | None
+    worker: str | None = None  # fleet (PostgreSQL): this worker's name, axes and lease, for the banner
 
 
 class Service:
@@ -83,13 +87,17 @@ class Service:
         self.gap_jobs = GapJobs()  # gap diagnoses: bounded jobs, computed in a worker process
         self.plots = PlotProcess.shared()  # figure renders, in a worker process (not on the API's interpreter)
         self.maintenance = MaintenanceLoop(self, settings.maintenance)  # work orders, repairs, verification
+        self.fleet = False  # PostgreSQL: this process is one worker (or API replica) of a fleet
+        self._sqlite_lock: leases.SqliteWorkerLock | None = None
+        self._sim_lock = threading.Lock()
 
     # -- wiring ----------------------------------------------------------------------------------
     def resolve_url(self, axis: AxisRecord) -> str:
         if axis.settings.controller_url == SIM_CONTROLLER:
-            sim = self.simulators.get(axis.id)
-            if sim is None:
-                sim = self._start_simulator(axis)
+            with self._sim_lock:  # a fleet worker starts them on first use, from the axes' threads
+                sim = self.simulators.get(axis.id)
+                if sim is None:
+                    sim = self._start_simulator(axis)
             # sim://: the simulator's own scheme, so its round trips are active (mebm starts them)
             return sim.url.replace("modbus://", "sim://", 1)
         return axis.settings.controller_url
@@ -117,7 +125,9 @@ class Service:
         return None if render is None else render(axis_id)
 
     def _connect(self) -> None:
-        self.engine = make_engine(self.settings.db_url)
+        st = self.settings
+        idle_s = max(st.worker.lease_s / 2, 2.0) if st.scheduler_enabled and not is_sqlite(st.db_url) else None
+        self.engine = make_engine(st.db_url, idle_in_transaction_timeout_s=idle_s)
         deadline = time.monotonic() + self.db_wait_s
         while True:
             try:
@@ -136,20 +146,35 @@ class Service:
         Path(st.data_dir).mkdir(parents=True, exist_ok=True)
         _restrict(Path(st.data_dir), 0o700)  # raw runs, spool, keys: the service's own
         self._connect()
+        self.fleet = not is_sqlite(self.engine)
+        if (not self.fleet and st.scheduler_enabled and self._sqlite_lock is None
+                and self.engine.url.database not in (None, "", ":memory:")):
+            self._sqlite_lock = leases.SqliteWorkerLock(Path(self.engine.url.database))
+            self._sqlite_lock.acquire()  # a second worker on the file is refused (WorkerConflictError)
         if is_sqlite(self.engine):
             db_file = Path(self.engine.url.database or "")
             for p in (db_file, db_file.with_name(db_file.name + "-wal"), db_file.with_name(db_file.name + "-shm")):
                 if p.is_file():
                     _restrict(p, 0o600)
-        self.status = StatusCache(self.factory)
+        self.status = StatusCache(self.factory, ttl_s=st.status_max_age_s)
         self.executor = CycleExecutor(self.factory, Path(st.data_dir), self.runner, self.resolve_url,
                                       on_saved=self._on_saved)
-        self.scheduler = CycleScheduler(self.executor, self.factory)
+        if isinstance(self.scheduler, FleetScheduler):  # started again (an ASGI lifespan run twice): one worker
+            self.scheduler.stop()
+        if self.fleet:  # leases in the database decide which worker runs which axis (docs/fleet.md)
+            self.scheduler = FleetScheduler(self.executor, self.factory, st.worker, active=st.scheduler_enabled,
+                                            catch_up=st.catch_up_missed)
+            if st.scheduler_enabled:
+                self.scheduler.register()  # a live worker of the same name: refused before anything moves
+        else:
+            self.scheduler = CycleScheduler(self.executor, self.factory)
         with session_scope(self.factory) as s:
             self.executor.migrate_folders(config_repo.list_axes(s))
         replayed = self.executor.replay_spool()
-        with session_scope(self.factory) as s:
-            interrupted = results_repo.close_stale_cycles(s)
+        interrupted = 0
+        if not self.fleet:  # in a fleet, the cycles a dead worker left are closed by the worker taking its axes
+            with session_scope(self.factory) as s:
+                interrupted = results_repo.close_stale_cycles(s)
         created = self._sync_config()
         admin = self._bootstrap_admin()
         demo_keys = self._demo_keys() if st.demo_keys and st.uses_simulator else {}
@@ -157,6 +182,9 @@ class Service:
             axes = config_repo.list_axes(s)
         fresh_sim_axes = []
         for axis in axes:
+            if self.fleet:  # the fleet scheduler plans the axes this worker claims (simulators start on use)
+                self.executor.remember(axis)
+                continue
             if axis.settings.controller_url == SIM_CONTROLLER:
                 self._start_simulator(axis)
                 with session_scope(self.factory) as s:
@@ -173,20 +201,40 @@ class Service:
                                          coalesce=True, max_instances=1)
             self.scheduler.start()
             self.maintenance.resume()  # repaired orders whose verification the stop cancelled
+            if self.fleet:  # the simulated controllers of the axes this worker claimed, listening before the banner
+                for axis in axes:
+                    if axis.id in self.scheduler.held and axis.settings.controller_url == SIM_CONTROLLER:
+                        self.resolve_url(axis)
             for axis in axes:
                 if axis in fresh_sim_axes:
                     self.scheduler.request(axis.id, "catch_up")  # the demo shows a measurement at once
                 elif st.catch_up_missed:
                     self.scheduler.catch_up(axis)
+        if isinstance(self.scheduler, FleetScheduler):
+            interrupted += self.scheduler.closed  # those of a dead worker, closed when its axes were taken
         self.report = StartReport(
             database=_redact(st.db_url), replayed=replayed, interrupted=interrupted, created_axes=tuple(created),
             demo_keys=demo_keys, simulators={a: s.url for a, s in self.simulators.items()}, bootstrap_admin=admin,
+            worker=self._worker_line(),
         )
         return self.report
+
+    def _worker_line(self) -> str | None:
+        sched = self.scheduler
+        if not isinstance(sched, FleetScheduler):
+            return None
+        if not sched.active:
+            return "fleet: API only (--no-scheduler); manual triggers are run by the worker that holds the axis"
+        pinned = ", ".join(sched.settings.axes) if sched.settings.axes else "any axis"
+        return (f"fleet worker {sched.name!r}: holds {len(sched.held)} axis lease(s) now, may run {pinned}, "
+                f"lease {sched.lease_s:g} s (GET /api/v1/workers)")
 
     def stop(self) -> None:
         if self.scheduler is not None:
             self.scheduler.stop()
+        if self._sqlite_lock is not None:
+            self._sqlite_lock.release()
+            self._sqlite_lock = None
         self.events.close()
         self.gap_jobs.close()  # (self.plots is the interpreter's, shared: it ends with it)
         for sim in self.simulators.values():
@@ -250,6 +298,7 @@ class Service:
         Existing ones are left as stored (changes made through the API persist)."""
         created = []
         with session_scope(self.factory) as s:
+            leases.serialize(s)  # fleet workers starting together: one at a time
             for name, description in self.settings.machines:
                 if config_repo.find_machine(s, name) is None:
                     config_repo.create_machine(s, name, description)
@@ -267,6 +316,7 @@ class Service:
         if not secret:
             return None
         with session_scope(self.factory) as s:
+            leases.serialize(s)  # fleet workers starting together: one at a time
             known = config_repo.find_key_by_secret(s, secret)
             if known is not None and known.revoked_at is None:
                 return known.name
@@ -299,6 +349,7 @@ class Service:
             kept = {}
         created = {}
         with session_scope(self.factory) as s:
+            leases.serialize(s)  # fleet workers starting together: one at a time
             live = [k for k in config_repo.list_keys(s) if k.revoked_at is None]
             valid = {r: kept[r] for r in ("read", "operate")
                      if isinstance(kept.get(r), str) and config_repo.authenticate(s, kept[r]) is not None}

@@ -32,7 +32,7 @@ def is_sqlite(url_or_engine) -> bool:
     return str(url).startswith("sqlite")
 
 
-def make_engine(url: str, *, echo: bool = False) -> Engine:
+def make_engine(url: str, *, echo: bool = False, idle_in_transaction_timeout_s: float | None = None) -> Engine:
     """An engine for ``url``. SQLite: WAL, synchronous=FULL, foreign keys, 10 s busy timeout; the parent
     folder of the file is created. PostgreSQL: pre-ping so a restarted server is noticed."""
     if is_sqlite(url):
@@ -58,9 +58,14 @@ def make_engine(url: str, *, echo: bool = False) -> Engine:
         return engine
     if url.startswith("postgresql://"):
         url = "postgresql+psycopg://" + url[len("postgresql://"):]
+    connect_args: dict = {"connect_timeout": 5}
+    if idle_in_transaction_timeout_s is not None:
+        # a fleet worker cut from the server mid-transaction must not keep its row locks (its
+        # lease rows) until TCP gives up: the server ends such a session after this long
+        ms = int(idle_in_transaction_timeout_s * 1000)
+        connect_args["options"] = f"-c idle_in_transaction_session_timeout={ms}"
     return create_engine(
-        url, echo=echo, pool_pre_ping=True, pool_size=10, max_overflow=20,
-        connect_args={"connect_timeout": 5},
+        url, echo=echo, pool_pre_ping=True, pool_size=10, max_overflow=20, connect_args=connect_args,
     )
 
 

@@ -8,11 +8,12 @@ from alembic import command
 from alembic.config import Config
 from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
-from sqlalchemy import Engine
+from sqlalchemy import Engine, text
 from sqlalchemy import exc as sa_exc
 
 from storage.db.engine import translate
 
+MIGRATION_LOCK = 0x6D65626D0001  # PostgreSQL advisory lock key: "mebm" + 1
 MIGRATIONS = Path(__file__).resolve().parent.parent / "migrations"
 
 
@@ -29,6 +30,8 @@ def upgrade(engine: Engine, revision: str = "head") -> None:
     cfg = alembic_config()
     try:
         with engine.begin() as conn:
+            if engine.dialect.name == "postgresql":  # workers of a fleet start together: one migrates
+                conn.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": MIGRATION_LOCK})
             cfg.attributes["connection"] = conn
             command.upgrade(cfg, revision)
     except sa_exc.SQLAlchemyError as exc:

@@ -124,6 +124,9 @@ class Cycle(Base):
     uncertainty_um: Mapped[float | None] = mapped_column(Float, nullable=True)
     run_file: Mapped[str | None] = mapped_column(String(200), nullable=True)
     raw_run_lost: Mapped[str | None] = mapped_column(Text, nullable=True)  # why the raw run was not kept
+    # fleet (issue 13): the worker that ran it (workers.id) and, for a scheduled one, when it was due
+    worker: Mapped[str | None] = mapped_column(String(36), nullable=True)
+    due_at: Mapped[datetime | None] = mapped_column(UtcDateTime, nullable=True)
 
     result: Mapped[Result | None] = relationship(back_populates="cycle", uselist=False)
 
@@ -380,3 +383,34 @@ class UiSession(Base):
     last_seen_at: Mapped[datetime] = mapped_column(UtcDateTime)
     expires_at: Mapped[datetime] = mapped_column(UtcDateTime, index=True)
     revoked_at: Mapped[datetime | None] = mapped_column(UtcDateTime, nullable=True)
+
+
+class Worker(Base):
+    """A ``mebm serve`` process that runs cycles (issue 13): one row per process start.
+    Live while ``heartbeat_at`` is younger than its lease time."""
+
+    __tablename__ = "workers"
+
+    id: Mapped[str] = mapped_column(String(36), primary_key=True)  # a uuid per process start
+    name: Mapped[str] = mapped_column(String(100), index=True)
+    host: Mapped[str] = mapped_column(String(200))
+    pid: Mapped[int] = mapped_column(Integer)
+    axes: Mapped[str | None] = mapped_column(Text, nullable=True)  # JSON list of machine/axis patterns; NULL: any
+    lease_s: Mapped[float] = mapped_column(Float)
+    started_at: Mapped[datetime] = mapped_column(UtcDateTime)
+    heartbeat_at: Mapped[datetime] = mapped_column(UtcDateTime)
+    stopped_at: Mapped[datetime | None] = mapped_column(UtcDateTime, nullable=True)
+    takeovers: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+
+
+class AxisLease(Base):
+    """Who runs an axis' cycles: one row per axis, owned by one worker until ``expires_at``
+    (database time), renewed by the owner's heartbeat. ``owner`` NULL: free."""
+
+    __tablename__ = "axis_leases"
+
+    axis_id: Mapped[int] = mapped_column(ForeignKey("axes.id", ondelete="CASCADE"), primary_key=True)
+    owner: Mapped[str | None] = mapped_column(String(36), nullable=True, index=True)
+    previous_owner: Mapped[str | None] = mapped_column(String(36), nullable=True)
+    acquired_at: Mapped[datetime | None] = mapped_column(UtcDateTime, nullable=True)
+    expires_at: Mapped[datetime] = mapped_column(UtcDateTime)

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from api.cli.main import build_parser
-from api.service.config import parse_settings
+from api.service.config import apply_env, parse_settings
 
 yaml = pytest.importorskip("yaml")
 ROOT = Path(__file__).resolve().parents[3]
@@ -22,7 +22,7 @@ def compose():
 
 
 def test_every_service_has_an_image_or_a_build_context(compose):
-    assert set(compose["services"]) == {"db", "simulator", "mebm"}
+    assert set(compose["services"]) == {"db", "simulator", "mebm", "mebm-2"}
     for name, svc in compose["services"].items():
         if "build" in svc:
             ctx = ROOT / svc["build"]["context"]
@@ -34,7 +34,7 @@ def test_every_service_has_an_image_or_a_build_context(compose):
 
 def test_commands_are_real_mebm_commands(compose):
     parser = build_parser()
-    for name in ("simulator", "mebm"):
+    for name in ("simulator", "mebm", "mebm-2"):
         cmd = compose["services"][name]["command"]
         assert cmd[0] == "mebm"
         args = parser.parse_args(cmd[1:])  # raises SystemExit on an unknown command or option
@@ -60,6 +60,17 @@ def test_service_config_parses_and_points_at_the_simulator_container(compose):
     env = compose["services"]["mebm"]["environment"]
     assert env["MEBM_DATABASE_URL"].startswith("postgresql://") and "@db:5432/" in env["MEBM_DATABASE_URL"]
     assert compose["services"]["mebm"]["depends_on"]["db"]["condition"] == "service_healthy"
+
+
+def test_two_workers_share_the_database_under_their_own_names(compose):
+    """docs/fleet.md: a fleet of two workers on the one PostgreSQL database."""
+    one, two = (compose["services"][n] for n in ("mebm", "mebm-2"))
+    assert one["environment"]["MEBM_DATABASE_URL"] == two["environment"]["MEBM_DATABASE_URL"]
+    assert one["environment"]["MEBM_WORKER_NAME"] != two["environment"]["MEBM_WORKER_NAME"]
+    assert one["volumes"] != two["volumes"]  # each worker its own data folder (raw runs, spool)
+    assert two["depends_on"]["db"]["condition"] == "service_healthy"
+    env = {k: str(v) for k, v in two["environment"].items()}
+    assert apply_env(parse_settings({}), env).worker.lease_s == 30.0
 
 
 def test_every_service_has_a_health_check_of_its_own(compose):
