@@ -100,6 +100,19 @@ def panel_context(svc, s, axis_id: int) -> dict:
 panels.register_axis_panel(panels.AxisPanel(TEMPLATE, panel_context))
 
 
+@router.get("/axes/{axis_id}/maintenance/verification.frag", response_class=HTMLResponse)
+def verification_fragment(request: Request, axis_id: int, order: int, who: Who):
+    """The repaired order's verification line, polled until its measurement is done."""
+    svc = request.app.state.service
+    with session_scope(svc.factory) as s:
+        o = maintenance_repo.get_order(s, order)
+        if o.axis_id != axis_id:
+            raise NotFoundError(f"work order of axis {axis_id}", order)
+        vc = _verification_cycle(s, o)
+    return page(request, "_maintenance_verification.html", who=who, o=o, vc=vc, order_id=o.id, axis_id=axis_id,
+                verify_at=svc.maintenance.settings.verify_at)
+
+
 # -- the forms ------------------------------------------------------------------------------
 def _to_axis(axis_id: int, msg: str) -> RedirectResponse:
     return RedirectResponse(f"/ui/axes/{axis_id}?msg={quote(msg)}#maintenance", status_code=303)

@@ -147,6 +147,10 @@ def test_a_repair_recorded_on_the_form_is_the_apis_and_is_verified(env):
     assert 'id="verification-verdict" class="ok-text"><strong>Verified</strong>' in html
     assert html.count('<tr class="task-after">') == len(o.verification["tasks_after"])
     assert 'data-key="backlash_mean_um"' in html
+    # the polled verification line says the order moved on (and stops the polling)
+    frag = c.get(f"/ui/axes/{axis_id}/maintenance/verification.frag?order={order.id}").text
+    assert '<strong id="order-now">verified</strong>' in frag and "data-poll-stop" in frag
+    assert c.get(f"/ui/axes/{axis_id + 1}/maintenance/verification.frag?order={order.id}").status_code == 404
 
     # the fleet page lists the axis, and its CSV is the API's, byte for byte
     page = c.get("/ui/maintenance").text
