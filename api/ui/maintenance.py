@@ -14,7 +14,9 @@ from __future__ import annotations
 
 from urllib.parse import quote
 
-from fastapi import APIRouter, Request
+from typing import Annotated
+
+from fastapi import APIRouter, Path, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from pydantic import ValidationError
@@ -28,6 +30,7 @@ from core.maintenance import REPAIR_KINDS, TransitionError
 from storage.db import NotFoundError, config_repo, maintenance_repo, results_repo, session_scope
 
 router = APIRouter(prefix="/ui", include_in_schema=False)
+Id = Annotated[int, Path(ge=1, le=2**31 - 1)]  # a database id: anything else is a 422, not an overflow
 TEMPLATE = "_axis_maintenance.html"
 REPAIR_FIELDS = ("kind", "note", "performed_at", "compensation_measurement_id", "compensation_file")
 KIND_WORDS = {"corrective": "corrective", "condition_based": "condition-based"}  # EN 13306
@@ -101,7 +104,8 @@ panels.register_axis_panel(panels.AxisPanel(TEMPLATE, panel_context))
 
 
 @router.get("/axes/{axis_id}/maintenance/verification.frag", response_class=HTMLResponse)
-def verification_fragment(request: Request, axis_id: int, order: int, who: Who):
+def verification_fragment(request: Request, axis_id: Id, who: Who,
+                          order: Annotated[int, Query(ge=1, le=2**31 - 1)]):
     """The repaired order's verification line, polled until its measurement is done."""
     svc = request.app.state.service
     with session_scope(svc.factory) as s:
@@ -131,7 +135,7 @@ def _text(form, name: str) -> str:
 
 
 @router.post("/axes/{axis_id}/repairs", response_class=HTMLResponse)
-async def record_repair(request: Request, axis_id: int, who: Posted):
+async def record_repair(request: Request, axis_id: Id, who: Posted):
     who.require("operate")
     form = await request.form()
     sent = {f: _text(form, f) for f in REPAIR_FIELDS}
@@ -191,13 +195,13 @@ async def _step(request: Request, who: Viewer, order_id: int, action: str, note:
 
 
 @router.post("/maintenance/orders/{order_id}/ack", response_class=HTMLResponse)
-async def acknowledge(request: Request, order_id: int, who: Posted):
+async def acknowledge(request: Request, order_id: Id, who: Posted):
     who.require("operate")
     return await _step(request, who, order_id, "acknowledge", _text(await request.form(), "note"))
 
 
 @router.post("/maintenance/orders/{order_id}/cancel", response_class=HTMLResponse)
-async def cancel(request: Request, order_id: int, who: Posted):
+async def cancel(request: Request, order_id: Id, who: Posted):
     who.require("operate")
     return await _step(request, who, order_id, "cancel", _text(await request.form(), "note"))
 

@@ -114,6 +114,7 @@ def test_steps_the_state_forbids_and_a_cancel_without_reason_are_refused_in_the_
     assert r.status_code == 409
     assert "is 'acknowledged': it cannot be acknowledged" in unescape(r.text) and 'id="ack-form"' not in r.text
     assert c.post("/ui/maintenance/orders/9999/ack", data={"csrf": csrf}).status_code == 404
+    assert c.post(f"/ui/maintenance/orders/{10**30}/ack", data={"csrf": csrf}).status_code == 422
     r = c.post(f"/ui/maintenance/orders/{order.id}/cancel", data={"csrf": csrf, "note": "x" * 4001},
                follow_redirects=False)
     assert r.status_code == 422 and "at most 4000" in r.text
