@@ -13,6 +13,7 @@ from fastapi.responses import RedirectResponse
 from fastapi.staticfiles import StaticFiles
 
 from api.ui.config_routes import router as config_router
+from api.ui.maintenance import router as maintenance_router
 from api.ui.routes import HERE, SignInRequired, UiForbidden, page, router
 from api.ui.sessions import UiState
 from storage.db import NotFoundError
@@ -27,6 +28,7 @@ def install(app: FastAPI, state: UiState | None = None) -> UiState:
     app.state.ui.sessions.service = app.state.service  # sessions live in the service's database
     app.include_router(router)
     app.include_router(config_router)
+    app.include_router(maintenance_router)  # and the axis page's work-order panel
     app.mount("/ui/static", StaticFiles(directory=str(HERE / "static")), name="ui-static")
 
     @app.get("/", include_in_schema=False)

@@ -8,28 +8,21 @@ state forbids is a 409 naming the state and what it allows.
 
 from __future__ import annotations
 
-import csv
-import io
-from datetime import datetime, timezone
+from datetime import datetime
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Path, Query, Response, status
 from fastapi.concurrency import run_in_threadpool
-from pydantic import AfterValidator, BaseModel, Field
+from pydantic import AfterValidator
 
 from api.rest.auth import OperateKey, ReadKey
 from api.rest.deps import AxisId, ServiceDep, SessionDep
-from core.maintenance import REPAIR_KINDS, TransitionError
+from api.service.maintenance_input import NoteIn, RepairIn, summary_csv, summary_rows, utc
+from core.maintenance import TransitionError
 from storage.db import ConflictError, RepairRecord, WorkOrderRecord, config_repo, maintenance_repo, session_scope
 
 router = APIRouter(tags=["maintenance"])
 OrderId = Annotated[int, Path(ge=1, le=2**31 - 1, description="work order id")]
-
-
-def _utc(t: datetime | None) -> datetime | None:
-    if t is None:
-        return None
-    return t.replace(tzinfo=timezone.utc) if t.tzinfo is None else t.astimezone(timezone.utc)
 
 
 def _iso(t: datetime | None) -> str | None:
@@ -58,22 +51,6 @@ def order_doc(o: WorkOrderRecord) -> dict:
                          "figures": t.figures} for t in o.transitions],
         "repairs": [repair_doc(r) for r in o.repairs],
     }
-
-
-class NoteIn(BaseModel):
-    note: str = Field("", max_length=4000, description="why (required to cancel)")
-
-
-class RepairIn(BaseModel):
-    kind: Literal[REPAIR_KINDS] = Field(description="what was done")  # type: ignore[valid-type]
-    note: str = Field("", max_length=4000, description="free text: what, which parts, readings")
-    performed_at: Annotated[datetime | None, AfterValidator(_utc)] = Field(
-        None, description="when it was done (ISO 8601; default: now)")
-    compensation_measurement_id: int | None = Field(
-        None, ge=1, le=2**31 - 1, description="compensation_loaded: the measurement whose table was loaded "
-                                              "(the X-Measurement-Id of GET /axes/{id}/compensation; default: the "
-                                              "newest before the repair)")
-    compensation_file: str | None = Field(None, max_length=300, description="the table's file name, for the record")
 
 
 @router.get("/maintenance/orders", response_model=dict[str, Any], summary="Work orders, newest first")
@@ -144,34 +121,22 @@ def list_repairs(axis_id: AxisId, s: SessionDep, _k: ReadKey):
     return {"items": [repair_doc(r) for r in maintenance_repo.list_repairs(s, axis_id)]}
 
 
-SUMMARY_COLUMNS = ("machine", "axis", "axis_id", "history_days", "repairs_called_by_error", "repairs_other",
-                   "orders_opened", "orders_verified", "orders_corrective", "orders_condition_based",
-                   "interval_mean_days", "interval_min_days", "alarm_to_verified_mean_days",
-                   "alarm_to_verified_max_days", "fixed_interval_days", "fixed_interval_repairs", "repairs_saved")
-
-
 @router.get("/maintenance/summary", response_model=dict[str, Any],
             responses={200: {"content": {"application/json": {}, "text/csv": {}}}},
             summary="Per axis and fleet: repairs the error called for, their intervals, ALARM to verified, "
                     "against a fixed maintenance interval (JSON or CSV)")
 async def summary(
     svc: ServiceDep, _k: ReadKey,
-    since: Annotated[datetime | None, AfterValidator(_utc), Query(description="from (default: each axis' first "
+    since: Annotated[datetime | None, AfterValidator(utc), Query(description="from (default: each axis' first "
                                                                               "measurement)")] = None,
-    until: Annotated[datetime | None, AfterValidator(_utc), Query(description="up to (default: now)")] = None,
+    until: Annotated[datetime | None, AfterValidator(utc), Query(description="up to (default: now)")] = None,
     fixed_interval_days: Annotated[float | None, Query(gt=0, le=36500, description="the fixed plan's period "
                                                        "(default: maintenance.fixed_interval_days)")] = None,
     format: Annotated[Literal["json", "csv"], Query()] = "json",  # noqa: A002 - the API's name
 ):
     axes, fleet = await run_in_threadpool(svc.maintenance.summary, since, until, fixed_interval_days)
-    rows = [{"machine": a.machine_name, "axis": a.name, **x.to_dict()} for a, x in axes]
+    rows = summary_rows(axes)
     if format == "csv":
-        buf = io.StringIO()
-        w = csv.DictWriter(buf, fieldnames=SUMMARY_COLUMNS, extrasaction="ignore", lineterminator="\n")
-        w.writeheader()
-        w.writerows(rows)
-        w.writerow({"machine": "(fleet)", "axis": "", "axis_id": "", **{k: v for k, v in fleet.items()
-                                                                          if k in SUMMARY_COLUMNS}})
-        return Response(buf.getvalue(), media_type="text/csv",
+        return Response(summary_csv(rows, fleet), media_type="text/csv",
                         headers={"Content-Disposition": 'attachment; filename="maintenance-summary.csv"'})
     return {"axes": rows, "fleet": fleet, "until": _iso(until), "since": _iso(since)}

@@ -26,14 +26,15 @@ class FakeRunner:
         self.temperature_c = temperature_c
         self.fail: str | None = None
         self.calls = 0
-        self.gate: threading.Event | None = None  # set to hold a cycle "running"
+        self.gate: threading.Event | None = None  # set to hold a cycle "running"...
+        self.gate_timeout_s = 10.0  # ...at most this long
         self.running = threading.Event()
 
     def __call__(self, axis, url) -> CycleOutcome:
         self.calls += 1
         self.running.set()
         if self.gate is not None:
-            self.gate.wait(10.0)
+            self.gate.wait(self.gate_timeout_s)
         self.running.clear()
         if self.fail:
             return CycleOutcome.failed(self.fail, temperature_c=self.temperature_c)

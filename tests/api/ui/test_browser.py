@@ -279,3 +279,49 @@ def test_admin_configures_a_machine_an_axis_its_tasks_and_schedule(page, ui_serv
     page.goto(f"{ui_server.url}/ui/config")
     assert "bore R50 (20 µm)" in page.locator(f"tr.config-axis[data-axis-id='{axis_id}']").inner_text()
     page.screenshot(path=str(SCREENSHOTS / "config.png"), full_page=True)
+
+
+def test_an_operate_key_records_a_repair_and_the_order_is_verified(page, ui_server, alarm):
+    """The maintenance panel (api/ui/maintenance.py): a read key sees the axis' open work
+    order and no form; an operate key records a repair, and the page shows the order
+    repaired with its verification measurement queued, then verified with its table."""
+    import threading
+
+    sign_in(page, ui_server, "read")
+    page.goto(f"{ui_server.url}/ui/axes/{ui_server.axis_id}")
+    order = page.locator("#work-order")
+    assert order.get_attribute("data-state") == "open"
+    assert "Restore the backlash below" in page.locator("#restore").inner_text()
+    assert page.locator("#maintenance form").count() == 0  # a read key sees no form
+
+    sign_in(page, ui_server, "operate")
+    page.goto(f"{ui_server.url}/ui/axes/{ui_server.axis_id}")
+    ui_server.runner.backlash_um = 20.0  # what the verification will measure: the play restored
+    ui_server.runner.gate, ui_server.runner.gate_timeout_s = threading.Event(), 300.0  # hold it "queued"/"running"
+    try:
+        page.select_option("#f-kind", "nut_replaced")
+        page.fill("#f-note", "ball nut replaced, preload 8 %")
+        page.click("#repair-submit")
+        page.wait_for_url(re.compile(r"/ui/axes/\d+\?msg="))
+        assert "recorded by ui-operate" in page.locator(".flash").inner_text()
+        assert page.locator("#work-order").get_attribute("data-state") == "repaired"
+        assert re.search(r"Verification measurement \d+: (queued|running)",
+                         page.locator("#verification-status").inner_text())
+        last = page.locator("table.timeline tr.transition").last
+        assert last.get_attribute("data-to") == "repaired" and "ui-operate" in last.inner_text()
+    finally:
+        ui_server.runner.gate.set()
+    assert ui_server.svc.scheduler.idle(120)
+    ui_server.runner.gate, ui_server.runner.gate_timeout_s = None, 10.0
+    # the verification line polls its fragment until the order has moved on
+    page.wait_for_selector("#verification-status #order-now", timeout=60000)
+    assert page.locator("#order-now").inner_text() == "verified"
+    page.click("#verification-status a")
+    page.wait_for_selector("#verification-verdict")
+    assert page.locator("#verification-verdict").inner_text().startswith("Verified")
+    assert page.locator("table.verification tr[data-key='backlash_mean_um']").count() == 1
+    assert "nut replaced" in page.locator("table.repairs").inner_text()
+    page.locator("#maintenance").screenshot(path=str(SCREENSHOTS / "maintenance.png"))
+    page.click("a:has-text('Every axis')")
+    page.wait_for_url(re.compile(r"/ui/maintenance$"))
+    assert page.locator("#summary-csv").get_attribute("href") == "/ui/maintenance/summary.csv"
