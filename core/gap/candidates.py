@@ -50,6 +50,9 @@ ASSUMED_STIFFNESS_N_PER_UM = 200.0  # to express friction lost motion as a force
 GUIDE_FRICTION_PRIOR_MM_S2 = 196.0
 GUIDE_FRICTION_PRIOR_WEIGHT = 100.0
 GUIDE_DAMPING_PER_S = 1.0  # friction on a chain: a light oil-film damping of the table (1/s)
+# kernels of a chain's dynamics: fitted and scored on round trips by envelope above 20 Hz
+# (roundtrip.residual_env_um), as a stick-slipping or hunting chain's phase is not reproducible
+ENVELOPE_KERNELS = ("friction_chain", "compliance")
 PROFILE_SMOOTHNESS_WEIGHT = 0.05  # µm of residual per µm of second difference between knots
 
 
@@ -325,7 +328,7 @@ def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
         np.r_[0.0, *[s.lower for s in stages]] if stages else np.array([0.0]),
         np.r_[2000.0, *[s.upper for s in stages]] if stages else np.array([2000.0]),
         predict, int(sum(len(s.names) for s in stages)), {s.effect: s.info for s in stages},
-        prior=prior if priors else None,
+        prior=prior if priors else None, envelope=any(s.kernel in ENVELOPE_KERNELS for s in stages),
     )  # fmt: skip
 
 
