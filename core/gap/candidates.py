@@ -50,6 +50,9 @@ ASSUMED_STIFFNESS_N_PER_UM = 200.0  # to express friction lost motion as a force
 GUIDE_FRICTION_PRIOR_MM_S2 = 196.0
 GUIDE_FRICTION_PRIOR_WEIGHT = 100.0
 GUIDE_DAMPING_PER_S = 1.0  # friction on a chain: a light oil-film damping of the table (1/s)
+# kernels of a chain's dynamics: fitted and scored on round trips by envelope above 20 Hz
+# (roundtrip.residual_env_um), as a stick-slipping or hunting chain's phase is not reproducible
+ENVELOPE_KERNELS = ("friction_chain", "compliance")
 PROFILE_SMOOTHNESS_WEIGHT = 0.05  # µm of residual per µm of second difference between knots
 
 
@@ -173,7 +176,9 @@ def friction_chain_stage() -> Stage:
     own compliance smooths at these stiffnesses. A light guide damping (an oil film,
     ``GUIDE_DAMPING_PER_S``) is fixed. The Coulomb stretch F_c/k is part of the apparent
     backlash (``backlash_um``). Not covered: friction that changes along the travel, a
-    second chain resonance, the mass itself (only ratios to it are identifiable)."""
+    second chain resonance, the mass itself (only ratios to it are identifiable), the phase
+    of a stick-slip or hunting cycle over seconds (it is fitted and scored on round trips
+    by its envelope above 20 Hz, :func:`core.gap.roundtrip.residual_env_um`)."""
     return Stage(
         "friction", ("chain_frequency_hz", "chain_damping_ratio", "coulomb_per_mass_mm_s2", "static_excess_per_mass_mm_s2",
                      "stick_band_mm_s"),
@@ -203,8 +208,12 @@ def compliance_stage() -> Stage:
     """The table as a mass on a spring-damper behind the nut, held by guide damping and
     Coulomb guide friction (per unit mass): lag proportional to acceleration, ringing
     after acceleration changes, the table floating across the backlash when braking. A
-    two-mass chain (motor and table inertias) shows the same first mode. Not covered:
-    a second resonance, stiffness that changes along the travel."""
+    two-mass chain (motor and table inertias) shows the same first mode; driven by the
+    recorded motor, the motor inertia's share is in the record. A chain that hunts with
+    the loop closed on the table is matched by its envelope above 20 Hz (fitted and scored
+    on :func:`core.gap.roundtrip.residual_env_um`), not its phase. Not covered: a second
+    resonance, stiffness that changes along the travel, a hunting cycle whose amplitude
+    depends on the loop (the recorded motor carries it, the model does not close it)."""
     return Stage(
         "compliance", ("natural_frequency_hz", "damping_ratio", "guide_damping_per_s", "guide_friction_mm_s2"),
         np.array([60.0, 0.3, 5.0, 300.0]), np.array([3.0, 0.02, 0.0, 0.0]), np.array([300.0, 2.0, 200.0, 20000.0]),
@@ -325,7 +334,7 @@ def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
         np.r_[0.0, *[s.lower for s in stages]] if stages else np.array([0.0]),
         np.r_[2000.0, *[s.upper for s in stages]] if stages else np.array([2000.0]),
         predict, int(sum(len(s.names) for s in stages)), {s.effect: s.info for s in stages},
-        prior=prior if priors else None,
+        prior=prior if priors else None, envelope=any(s.kernel in ENVELOPE_KERNELS for s in stages),
     )  # fmt: skip
 
 
