@@ -22,6 +22,7 @@ from pymodbus.server import ModbusTcpServer
 from acquisition import modbus_map as mm
 from acquisition.sim.axis import SimAxis
 from acquisition.sim import wear as sim_wear
+from acquisition.sim.loop_thread import LoopThread
 from acquisition.types import AxisState, Command
 from core.errors import InputError
 
@@ -42,7 +43,10 @@ class _Context(ModbusBaseDeviceContext):
         return await self.controller.write(func_code, address, values)
 
 
-class SimModbusController:
+class SimModbusController(LoopThread):
+    thread_name = "sim-modbus"
+    what = "simulated Modbus controller"
+
     """A simulated controller on Modbus TCP. ``port=0`` binds a free port (see :attr:`port`)."""
 
     def __init__(self, axis: SimAxis, *, host: str = "127.0.0.1", port: int = 0):
@@ -126,38 +130,6 @@ class SimModbusController:
                 await self._stop_listening(f.for_s)
 
     # -- threaded use (tests, benchmark) ---------------------------------------------------------
-    def start_in_thread(self) -> int:
-        """Run the server on its own event loop in a daemon thread; returns the port."""
-        ready = threading.Event()
-        box: dict = {}
-
-        def run():
-            loop = asyncio.new_event_loop()
-            asyncio.set_event_loop(loop)
-            try:
-                box["port"] = loop.run_until_complete(self.start())
-            except BaseException as exc:  # noqa: BLE001 - handed to the caller
-                box["error"] = exc
-                ready.set()
-                return
-            ready.set()
-            loop.run_forever()
-            loop.run_until_complete(self.stop())
-            loop.close()
-
-        self._thread = threading.Thread(target=run, name="sim-modbus", daemon=True)
-        self._thread.start()
-        if not ready.wait(10.0):
-            raise RuntimeError("simulated Modbus controller did not start within 10 s")
-        if "error" in box:
-            raise box["error"]
-        return box["port"]
-
-    def stop_thread(self) -> None:
-        if self._thread is not None and self._loop is not None:
-            self._loop.call_soon_threadsafe(self._loop.stop)
-            self._thread.join(5.0)
-            self._thread = None
 
     def recover(self) -> None:
         """End every injected fault now and listen again (tests: the fault clears on cue,

@@ -22,6 +22,7 @@ from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 
 from acquisition.modbus_profile import RegisterProfile
 from acquisition.sim.axis import SimAxis
+from acquisition.sim.loop_thread import LoopThread
 from acquisition.types import AxisState, RoundTripProgram
 from core.errors import InputError
 
@@ -63,7 +64,10 @@ class _Context(ModbusBaseDeviceContext):
         return self.sim.write(func_code, address, values)
 
 
-class SimProfileController:
+class SimProfileController(LoopThread):
+    thread_name = "sim-profile-plc"
+    what = "simulated PLC"
+
     """The simulated PLC. ``serial``: {port: device, baudrate, parity, stopbits, bytesize} for
     RTU; else TCP on ``host``:``port`` (0: a free port, see :attr:`port`)."""
 
@@ -128,36 +132,6 @@ class SimProfileController:
             await self._server.shutdown()
             self._server = None
 
-    def start_in_thread(self) -> int:
-        ready, box = threading.Event(), {}
-
-        def run():
-            loop = asyncio.new_event_loop()
-            asyncio.set_event_loop(loop)
-            try:
-                box["port"] = loop.run_until_complete(self.start())
-            except BaseException as exc:  # noqa: BLE001 - handed to the caller
-                box["error"] = exc
-                ready.set()
-                return
-            ready.set()
-            loop.run_forever()
-            loop.run_until_complete(self.stop())
-            loop.close()
-
-        self._thread = threading.Thread(target=run, name="sim-profile-plc", daemon=True)
-        self._thread.start()
-        if not ready.wait(10.0):
-            raise RuntimeError("simulated PLC did not start within 10 s")
-        if "error" in box:
-            raise box["error"]
-        return box["port"]
-
-    def stop_thread(self) -> None:
-        if self._thread is not None and self._loop is not None:
-            self._loop.call_soon_threadsafe(self._loop.stop)
-            self._thread.join(5.0)
-            self._thread = None
 
     def __enter__(self) -> "SimProfileController":
         self.start_in_thread()
