@@ -54,7 +54,7 @@ def test_service_config_parses_and_points_at_the_simulator_container(compose):
     content = compose["configs"]["mebm_config"]["content"]
     settings = parse_settings(tomllib.loads(content))
     (axis,) = settings.axes
-    assert axis.settings.controller_url == "modbus://simulator:5020"
+    assert axis.settings.controller_url == "sim://simulator:5020"
     sim_cmd = compose["services"]["simulator"]["command"]
     assert sim_cmd[sim_cmd.index("--port") + 1] == "5020"
     env = compose["services"]["mebm"]["environment"]
