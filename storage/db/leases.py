@@ -140,7 +140,7 @@ def heartbeat(s: Session, worker_id: str, lease_s: float) -> set[int]:
 def stop_worker(s: Session, worker_id: str) -> int:
     """A clean stop: the worker's leases are free at once, its row says it stopped, and the
     cycles it leaves are closed (running: ``interrupted``; queued by its schedule:
-    ``cancelled``; a queued manual one stays for the next owner). Returns the cycles closed."""
+    ``cancelled``; a queued manual one or a repair's verification stays for the next owner). Returns the cycles closed."""
     release(s, worker_id)
     n = s.execute(text(
         "UPDATE cycles SET status = 'interrupted', finished_at = now(), "
@@ -149,7 +149,7 @@ def stop_worker(s: Session, worker_id: str) -> int:
     n += s.execute(text(
         "UPDATE cycles SET status = 'cancelled', finished_at = now(), "
         "failure_reason = 'the worker stopped before the cycle started' "
-        "WHERE worker = :me AND status = 'queued' AND \"trigger\" <> 'manual'"), {"me": worker_id}).rowcount
+        "WHERE worker = :me AND status = 'queued' AND \"trigger\" NOT IN ('manual', 'verification')"), {"me": worker_id}).rowcount
     s.execute(text("UPDATE workers SET stopped_at = now() WHERE id = :me"), {"me": worker_id})
     return n
 
@@ -219,7 +219,7 @@ def release(s: Session, worker_id: str, axis_ids: list[int] | None = None) -> in
 def take_over(s: Session, worker_id: str, axis_id: int, previous_owner: str | None) -> int:
     """After claiming ``axis_id``: the cycle another worker left running is ``interrupted``,
     its queued scheduled ones ``cancelled`` (the schedule is recomputed from the history);
-    a queued manual one stays queued and is run by the new owner. Counts a takeover when
+    a queued manual one or a repair's verification stays queued and is run by the new owner. Counts a takeover when
     the lease was taken from another worker. Returns the number of cycles closed."""
     name = None
     if previous_owner is not None and previous_owner != worker_id:
@@ -234,7 +234,7 @@ def take_over(s: Session, worker_id: str, axis_id: int, previous_owner: str | No
                "the axis was taken over"}).rowcount
     n += s.execute(text(
         "UPDATE cycles SET status = 'cancelled', finished_at = now(), failure_reason = :why "
-        "WHERE axis_id = :a AND status = 'queued' AND \"trigger\" <> 'manual' AND (worker IS NULL OR worker <> :me)"
+        "WHERE axis_id = :a AND status = 'queued' AND \"trigger\" NOT IN ('manual', 'verification') AND (worker IS NULL OR worker <> :me)"
     ), {"a": axis_id, "me": worker_id,
         "why": f"{who} lost its lease on the axis before the cycle started; the new owner schedules anew"}).rowcount
     return n

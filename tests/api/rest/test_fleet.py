@@ -194,7 +194,10 @@ def test_manual_trigger_through_either_worker_runs_once(pg, tmp_path):
                 runner)
     try:
         ids = sorted(one.executor._axes)
-        assert poll(lambda: len(one.scheduler.held | two.scheduler.held) == 3, timeout_s=30)
+        # settled: every axis held and the shares balanced (2 and 1), so no lease moves while the
+        # triggers run (the first worker up claims all three and hands one over)
+        assert poll(lambda: len(one.scheduler.held | two.scheduler.held) == 3
+                    and sorted(map(len, (one.scheduler.held, two.scheduler.held))) == [1, 2], timeout_s=30)
         sent = {}
         status = lambda uuid: next(c for c in cycles(factory) if c.uuid == uuid).status  # noqa: E731
         for axis_id in ids:
@@ -504,3 +507,41 @@ def test_worker_cut_from_the_database_loses_its_axes_and_nothing_overlaps(pg, tm
 def workers_live(factory) -> set[str]:
     with session_scope(factory) as s:
         return {w.name for w in leases.list_workers(s) if w.live}
+
+
+def test_repair_verification_through_any_worker_runs_on_the_owner_and_survives_a_takeover(pg, tmp_path):
+    """Issue 20 on a fleet: a repair recorded through a worker that does not hold the axis
+    queues its verification in the database; the owner runs it. A takeover cancels the old
+    owner's scheduled cycles but keeps a waiting verification, like a manual trigger."""
+    url, factory = pg
+    axes = [("m", "x")]
+    runner = SharedRunner(hold_s=0.1)
+    one = start(fleet_settings(url, tmp_path / "one", axes, interval_s=None, worker=replace(LEASE, name="one")),
+                runner)
+    two = start(fleet_settings(url, tmp_path / "two", axes, interval_s=None, worker=replace(LEASE, name="two")),
+                runner)
+    try:
+        (axis_id,) = one.executor._axes
+        assert poll(lambda: len(one.scheduler.held | two.scheduler.held) == 1, timeout_s=30)
+        owner, other = (one, two) if axis_id in one.scheduler.held else (two, one)
+        rec = other.scheduler.request(axis_id, "verification", "repair 1")
+        assert rec is not None and rec.trigger == "verification"
+        row = lambda: next(c for c in cycles(factory) if c.uuid == rec.uuid)  # noqa: E731
+        assert poll(lambda: row().status == "failed", timeout_s=60)  # the test runner fails every cycle
+        assert row().worker == owner.scheduler.id and row().requested_by == "repair 1"
+        assert runner.runs[axis_id] == 1
+    finally:
+        one.stop()
+        two.stop()
+    with session_scope(factory) as s:  # a verification and a scheduled cycle wait; another worker takes over
+        leases.register_worker(s, "w-old", "old", "host", 1, None, 3.0)
+        leases.register_worker(s, "w-new", "new", "host", 2, None, 3.0)
+        verification = leases.queue_scheduled(s, axis_id, "u-verify", "verification", datetime.now(timezone.utc), "w-old")
+        scheduled = leases.queue_scheduled(s, axis_id, "u-sched", "schedule", datetime.now(timezone.utc), "w-old")
+        assert leases.take_over(s, "w-new", axis_id, "w-old") == 1
+    with session_scope(factory) as s:
+        state = {c.uuid: c.status for c in s.scalars(select(Cycle).where(Cycle.uuid.in_(["u-verify", "u-sched"])))}
+    assert state == {verification.uuid: "queued", scheduled.uuid: "cancelled"}
+    with session_scope(factory) as s:  # and a clean stop keeps it too
+        assert leases.stop_worker(s, "w-old") == 0
+        assert s.scalar(select(Cycle.status).where(Cycle.uuid == "u-verify")) == "queued"
