@@ -341,6 +341,10 @@ def report(tmp: Path, url: str, status_ms, answers, rss) -> int:
     print("cycle outcomes:", "; ".join(f"{st}{' (' + why + ')' if why else ''}: {n}" for st, why, n in outcomes[:8]))
     print(f"cycles not in a final state: {sum(1 for c in cycles if c[3] not in final)}; "
           f"ok cycles whose run is neither kept nor marked lost: {unmarked}; axes: {len(axes)}")
+    if len(rss) >= 30:  # bounded: the last third of the run against the first (the workers start late)
+        third = len(rss) // 3
+        print(f"rss (service and its worker processes): max of the first third {max(rss[:third]):.0f} MB, "
+              f"of the middle {max(rss[third:-third]):.0f} MB, of the last third {max(rss[-third:]):.0f} MB")
     print(f"soak: cycles {len(cycles)}, accounted {accounted}, mixed {mixed}, lost {lost} (each marked), "
           f"rss_max_mb {max(rss) if rss else float('nan'):.0f}, status_p99_ms {p99:.1f}")
     return 0 if mixed == 0 and unmarked == 0 else 1
