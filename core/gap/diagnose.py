@@ -25,7 +25,9 @@
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -464,12 +466,34 @@ def _candidate(f: Fitted, s: GapSettings) -> Candidate:
                      f.identifiable, "; ".join(f.notes), axes_used, ivals, dict(f.params))  # fmt: skip
 
 
-def diagnose(dataset: Dataset, settings: GapSettings | None = None) -> GapReport:
+def _fit_all(d: _Diagnosis, jobs: list[tuple[tuple[str, ...], Fitted | None]], workers: int) -> list[Fitted]:
+    """``d.fit_candidate`` on each (effects, base), in order. The fits are independent and
+    their time is spent in numba kernels compiled ``nogil`` and in numpy, so threads run
+    them side by side; the answer is the same as one after the other (the diagnosis' memo
+    holds pure results only, keyed by their inputs)."""
+    def fit(job: tuple[tuple[str, ...], Fitted | None]) -> Fitted:
+        # a trial step may send a candidate's parameters where the model overflows: the fit
+        # rejects such steps (non-finite residuals are replaced, a diverged fit is a failed
+        # start), so numpy's overflow warnings would only alarm the reader
+        with np.errstate(over="ignore", invalid="ignore"):
+            return d.fit_candidate(*job)
+
+    if workers <= 1 or len(jobs) <= 1:
+        return [fit(job) for job in jobs]
+    with ThreadPoolExecutor(min(workers, len(jobs)), thread_name_prefix="mebm-gap-fit") as ex:
+        return list(ex.map(fit, jobs))
+
+
+def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: int | None = None) -> GapReport:
     """Diagnose the gap between the nominal model and the dataset's test runs.
+
+    ``workers``: candidate fits run in that many threads (default: the machine's cores,
+    at most 4); the report does not depend on it.
 
     Raises :class:`GapError` for a dataset it cannot work on (fewer than two runs, no test
     runs, an axis missing from ``machine.axes``, a test axis without train runs).
     """
+    workers = min(os.cpu_count() or 1, 4) if workers is None else int(workers)
     s = settings or GapSettings()
     _check(dataset)
     d = _Diagnosis(dataset, s)
@@ -485,7 +509,7 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None) -> GapReport
             by_kind[kind] = _rms_all(parts)
     noise = noise_floor_um(d.rt_nom_plain + d.ct_nom_plain)  # white noise: from the plain sample-by-sample residuals
 
-    fits = {e: d.fit_candidate((e,)) for e in EFFECTS}
+    fits = dict(zip(EFFECTS, _fit_all(d, [((e,), None) for e in EFFECTS], workers)))
     ranked = sorted(fits.values(), key=lambda f: f.score(s.penalty_per_param))
     best = ranked[0]
     if gap_before <= s.noise_factor * noise:
@@ -511,10 +535,10 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None) -> GapReport
         # single candidates as a base with every other candidate on top; name a pair only
         # if it cuts the gap before by min_reduction and its second effect cuts its
         # base's gap by min_reduction too (each effect is needed).
-        for base in [f for f in ranked if _took_something(f, gap_before)][:2]:
-            for e2 in EFFECTS:
-                if e2 != base.effects[0] and _took_something(fits[e2], gap_before):
-                    pairs.append(d.fit_candidate((base.effects[0], e2), base=base))
+        pairs = _fit_all(d, [((base.effects[0], e2), base)
+                             for base in [f for f in ranked if _took_something(f, gap_before)][:2]
+                             for e2 in EFFECTS if e2 != base.effects[0] and _took_something(fits[e2], gap_before)],
+                         workers)  # fmt: skip
         pairs.sort(key=lambda f: f.score(s.penalty_per_param))
         ok = [f for f in pairs if f.gap_after_um <= (1 - s.min_reduction) * gap_before
               and f.gap_after_um <= (1 - s.min_reduction) * fits[f.effects[0]].gap_after_um]  # fmt: skip
@@ -528,12 +552,9 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None) -> GapReport
                            f"{second.gap_after_um:.2f} µm; {effect} alone leaves {best.gap_after_um:.2f} µm).")  # fmt: skip
     if effect != "none" and s.second_effect and not joint:
         if best.gap_after_um > s.noise_factor * noise:
-            for e2 in EFFECTS:
-                alone = fits[e2]
-                # a candidate that took no axis on its own and cut no test gap is not tried on top
-                if e2 == effect or not _took_something(alone, gap_before):
-                    continue
-                pairs.append(d.fit_candidate((effect, e2), base=best))
+            # a candidate that took no axis on its own and cut no test gap is not tried on top
+            pairs += _fit_all(d, [((effect, e2), best) for e2 in EFFECTS
+                                  if e2 != effect and _took_something(fits[e2], gap_before)], workers)
             pairs.sort(key=lambda f: f.score(s.penalty_per_param))
             if pairs and pairs[0].gap_after_um <= (1 - s.min_reduction) * best.gap_after_um:
                 second = pairs[0]

@@ -17,7 +17,7 @@ from numba import njit
 from core.sim.kernels import flank_force
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def play(u, half_width, x0):
     """Play operator: u (n,) nut position, half_width (n,) b/2 per sample, x0 start."""
     n = u.size
@@ -34,7 +34,7 @@ def play(u, half_width, x0):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def play_friction(u, half_width, lost_mm, breakaway_mm, x0):
     """Play with friction lost motion: moving in direction s the table sits at
     u - s (b/2 + L_i); at rest it sticks until |u - x| exceeds b/2 + breakaway_mm."""
@@ -70,7 +70,7 @@ def play_friction(u, half_width, lost_mm, breakaway_mm, x0):
 # Not cached: it calls core.sim.kernels.flank_force, and numba's on-disk cache is keyed
 # by this file only, so an edit there would leave a stale compiled copy here (compiling
 # costs about 0.5 s once per process).
-@njit
+@njit(nogil=True)
 def play_inertia(u, nut_v, t, half_width, w2, c_contact, c_guide, mu, nsub, x0, mu_static=0.0, v_band=0.0):
     """The table as a mass behind the nut (Compliance): per unit mass,
     x'' = w2 (n - x -+ b/2) + c_contact (n' - x')  in contact with a flank (pushing only),

@@ -26,7 +26,7 @@ TWO_PI = 2.0 * math.pi
 FRICTION_NONE, FRICTION_STRIBECK, FRICTION_LUGRE = 0, 1, 2
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _nut(u, fixed, lam, per, amp, pha):
     n = fixed + (u - fixed) * lam
     g = lam
@@ -152,7 +152,7 @@ def _rec_segment(engaged, t_seg, dt, u, x, cc, cd, q, kp, gy, gain, e, ts, ts_ta
     return j, jt
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def run_rigid(t0, h, cmd, gain, u0, x0, side0, fixed, lam, per, amp, pha, pos, hw, ts, ts_tab, out_u, out_x, out_xt):
     """Rigid massless table, ideal inner loops: the paper's model, integrated exactly.
 
@@ -252,7 +252,7 @@ def run_rigid(t0, h, cmd, gain, u0, x0, side0, fixed, lam, per, amp, pha, pos, h
     return u, x, side
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def run_dynamic(
     t0, hc, nsub, cmd, gain, u0, x0, side0, fixed, lam, per, amp, pha, pos, hw,
     lag_s, dead_s, compliant, k_n_mm, mass_kg, c_contact, c_visc,

@@ -102,7 +102,8 @@ def test_a_second_effect_is_named_when_it_remains():
             runs.append(tr.to_run(f"rt_{a}{i}.csv", split="test" if i == 3 else "train"))
     ds = _circles(axes, 90.0, rng)
     ds = Dataset(ds.machine, tuple(runs) + ds.runs)
-    rep = diagnose(ds)
+    rep = diagnose(ds, workers=3)
+    assert diagnose(ds, workers=1).to_dict() == rep.to_dict()  # the fits in threads: the same answer
     assert set(rep.effects) == {"cyclic_error", "servo_dynamics"}, rep.text()
     assert rep.effect == rep.effects[0]
     assert rep.second_effect.startswith("A second effect remains: " + rep.effects[1])
@@ -130,7 +131,9 @@ def test_two_effects_that_no_single_candidate_explains_are_named_together():
         tr = simulate({"x": m}, round_trip(lo, hi, feed, 600.0, 0.3, axis="x"), temperature_c=temp, rate_hz=250.0,
                       rng=rng)  # fmt: skip
         runs.append(tr.to_run(f"rt_{i}.csv", split="test" if i == 3 else "train"))
-    rep = diagnose(Dataset(MachineSpec("m", {"x": m.to_axis_spec((0.0, 800.0))}), tuple(runs)))
+    ds = Dataset(MachineSpec("m", {"x": m.to_axis_spec((0.0, 800.0))}), tuple(runs))
+    rep = diagnose(ds, workers=2)
+    assert diagnose(ds, workers=1).to_dict() == rep.to_dict()  # the pairs in threads: the same answer
     singles = {c.effect: c.gap_after_um for c in rep.candidates}
     assert min(v for k, v in singles.items() if k != "none") > 0.75 * rep.gap_before_um  # no single one suffices
     assert set(rep.effects) == {"backlash_profile", "thermal"}, rep.text()
