@@ -24,7 +24,7 @@ import numpy as np
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from acquisition import canopen_od as co
-from acquisition.driver import ControllerDriver, raise_device_fault
+from acquisition.driver import BlockingLinkDriver, raise_device_fault
 from acquisition.errors import (
     ControllerConnectionError,
     ControllerTimeoutError,
@@ -107,7 +107,7 @@ class _SyncProducer(threading.Thread):
             return {"sent": self.k, "matched": m.matched, "late": m.late, "duplicates": m.duplicates}
 
 
-class CanopenDriver(ControllerDriver):
+class CanopenDriver(BlockingLinkDriver):
     protocol = "canopen"
     mode = "sync"
     connect_exchanges = 15  # SDO reads/writes of the start-up; the first unanswered one ends it
@@ -277,17 +277,6 @@ class CanopenDriver(ControllerDriver):
             self._frames.append((paired[0], m, t))
 
     # -- wire -----------------------------------------------------------------------------------------
-    async def _connect(self) -> None:
-        await asyncio.to_thread(self._close_blocking)
-        try:
-            await asyncio.to_thread(self._connect_blocking)
-        except BaseException:
-            await asyncio.to_thread(self._close_blocking)
-            raise
-
-    async def _close(self) -> None:
-        await asyncio.to_thread(self._close_blocking)
-
     def _status_blocking(self) -> ControllerStatus:
         sdo = self._node.sdo
         state = self._sdo("reading the axis state", lambda: sdo[co.AXIS_STATE].raw)

@@ -17,7 +17,6 @@ is a lost sample too; nothing is interpolated.
 
 from __future__ import annotations
 
-import asyncio
 import threading
 import time
 from collections import deque
@@ -28,7 +27,7 @@ import can
 import numpy as np
 
 from acquisition.canopen_mapping import ListenMapping
-from acquisition.driver import ControllerDriver
+from acquisition.driver import BlockingLinkDriver
 from acquisition.errors import (
     ControllerConnectionError,
     ControllerTimeoutError,
@@ -277,7 +276,7 @@ class CanopenListenWire:
                            time_s=k / float(self.sync_rate_hz))
 
 
-class CanopenListenDriver(ControllerDriver):
+class CanopenListenDriver(BlockingLinkDriver):
     """Listen-only CANopen: samples the master's SYNC-latched TPDOs; starts, stops and asks nothing.
 
     The round trip is the CNC's: it is cut from the stream passively. Status, start,
@@ -332,17 +331,6 @@ class CanopenListenDriver(ControllerDriver):
         if self.wire.bus is not None:
             self.sends_refused += self.wire.bus.sends_refused
         self.wire.close()
-
-    async def _connect(self) -> None:
-        await asyncio.to_thread(self._close_blocking)
-        try:
-            await asyncio.to_thread(self._connect_blocking)
-        except BaseException:
-            await asyncio.to_thread(self._close_blocking)
-            raise
-
-    async def _close(self) -> None:
-        await asyncio.to_thread(self._close_blocking)
 
     def _refuse(self, what: str):
         raise DriverMisuseError(f"{self.describe()} is listen-only: mebm cannot {what} (it sends no frame); the CNC "

@@ -514,6 +514,30 @@ class ControllerDriver(ABC):
 TRIGGERS = ("active", "passive")
 
 
+class BlockingLinkDriver(ControllerDriver):
+    """A driver whose link is a blocking library (python-can, canopen): ``_connect`` and
+    ``_close`` run its ``_connect_blocking``/``_close_blocking`` in a thread, and a link
+    that fails half-open is closed again before the error goes up."""
+
+    @abstractmethod
+    def _connect_blocking(self) -> None: ...
+
+    @abstractmethod
+    def _close_blocking(self) -> None:
+        """Close whatever is open; never raises."""
+
+    async def _connect(self) -> None:
+        await asyncio.to_thread(self._close_blocking)
+        try:
+            await asyncio.to_thread(self._connect_blocking)
+        except BaseException:
+            await asyncio.to_thread(self._close_blocking)
+            raise
+
+    async def _close(self) -> None:
+        await asyncio.to_thread(self._close_blocking)
+
+
 def observed_program(found: DetectedRoundTrip, *, fallback: RoundTripProgram) -> RoundTripProgram:
     """The round trip as it was run (passive mode): observed start, reversal, feed and dwell;
     the acceleration is the configured one (it is not observed)."""

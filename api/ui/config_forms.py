@@ -49,7 +49,7 @@ PATTERN_HINTS = {  # a regular expression is no message for a person
 }
 
 
-def _errors(exc: ValidationError, rename: Mapping[str, str] | None = None, kind: str = "") -> dict[str, str]:
+def field_errors(exc: ValidationError, rename: Mapping[str, str] | None = None, kind: str = "") -> dict[str, str]:
     out: dict[str, str] = {}
     for e in exc.errors():
         loc = ".".join(str(p) for p in e["loc"])
@@ -74,7 +74,7 @@ def machine(form: Mapping) -> Checked:
     try:
         return Checked(MachineIn(**sent), form=sent)
     except ValidationError as exc:
-        return Checked(None, _errors(exc), sent)
+        return Checked(None, field_errors(exc), sent)
 
 
 def schedule(form: Mapping) -> Checked:
@@ -86,7 +86,7 @@ def schedule(form: Mapping) -> Checked:
     try:
         return Checked(ScheduleIn(**body), form=sent)
     except ValidationError as exc:
-        errs = _errors(exc)
+        errs = field_errors(exc)
         if "" in errs:  # "give interval_s or cron, not both"
             errs.setdefault("cron", errs.pop(""))
         return Checked(None, errs, sent)
@@ -123,7 +123,7 @@ def tasks(form: Mapping) -> tuple[Checked, list[int]]:
         return Checked(TasksIn(tasks=kept), form={"rows": rows}), where
     except ValidationError as exc:
         errs: dict[str, str] = {}
-        for k, v in _errors(exc).items():
+        for k, v in field_errors(exc).items():
             m = re.match(r"tasks\.(\d+)(?:\.(\w+))?$", k)
             if m:
                 errs.setdefault(f"tasks.{where[int(m.group(1))]}" + (f".{m.group(2)}" if m.group(2) else ""), v)
@@ -146,7 +146,7 @@ def axis(form: Mapping) -> Checked:
     try:
         return Checked(AxisIn(**body), form=sent)
     except ValidationError as exc:
-        errs = _errors(exc, rename={"travel_mm": "travel_end_mm", "travel_mm.0": "travel_start_mm",
+        errs = field_errors(exc, rename={"travel_mm": "travel_end_mm", "travel_mm.0": "travel_start_mm",
                                     "travel_mm.1": "travel_end_mm", "measure_feed_mm_min": "measure_feed_mm_min"},
                        kind="axis")
         return Checked(None, errs, sent)

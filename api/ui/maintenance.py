@@ -23,8 +23,8 @@ from pydantic import ValidationError
 
 from api.service.maintenance_input import NoteIn, RepairIn, summary_csv, summary_rows
 from api.ui import panels
-from api.ui.config_forms import _errors as field_errors
-from api.ui.routes import Posted, Viewer, Who, _axis_ctx, page
+from api.ui.config_forms import field_errors
+from api.ui.routes import Posted, Viewer, Who, axis_ctx, page
 from core.errors import InputError
 from core.maintenance import REPAIR_KINDS, TransitionError
 from storage.db import NotFoundError, config_repo, maintenance_repo, results_repo, session_scope
@@ -124,7 +124,7 @@ def _to_axis(axis_id: int, msg: str) -> RedirectResponse:
 
 def _refused(request: Request, who: Viewer, axis_id: int, status_code: int, **panel) -> HTMLResponse:
     """The axis page again, with the form as sent and its messages in the panel."""
-    ctx = _axis_ctx(request, axis_id, "90d", panels=True)
+    ctx = axis_ctx(request, axis_id, "90d", panels=True)
     ctx["panels"] = [(name, {**p, **panel} if name == TEMPLATE else p) for name, p in ctx["panels"]]
     return page(request, "axis.html", status_code, who=who, msg=None, **ctx)
 

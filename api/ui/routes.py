@@ -213,7 +213,7 @@ def acknowledge(request: Request, alert_id: int, who: Posted):
 
 
 # -- axis -------------------------------------------------------------------------------------
-def _axis_ctx(request: Request, axis_id: int, range_: str, *, panels: bool = False) -> dict:
+def axis_ctx(request: Request, axis_id: int, range_: str, *, panels: bool = False) -> dict:
     svc = request.app.state.service
     with session_scope(svc.factory) as s:
         axis = config_repo.get_axis(s, axis_id)
@@ -227,12 +227,12 @@ def _axis_ctx(request: Request, axis_id: int, range_: str, *, panels: bool = Fal
 
 @router.get("/axes/{axis_id}", response_class=HTMLResponse)
 def axis_page(request: Request, axis_id: int, who: Who, range: str = "90d", msg: str | None = None):  # noqa: A002
-    return page(request, "axis.html", who=who, msg=msg, **_axis_ctx(request, axis_id, range, panels=True))
+    return page(request, "axis.html", who=who, msg=msg, **axis_ctx(request, axis_id, range, panels=True))
 
 
 @router.get("/axes/{axis_id}/part/{part}.frag", response_class=HTMLResponse)
 def axis_fragment(request: Request, axis_id: int, part: Literal["verdict", "cycles"], who: Who):
-    return page(request, f"_axis_{part}.html", who=who, **_axis_ctx(request, axis_id, "90d"))
+    return page(request, f"_axis_{part}.html", who=who, **axis_ctx(request, axis_id, "90d"))
 
 
 @router.get("/axes/{axis_id}/plots/{name}.png")

@@ -9,7 +9,6 @@ transitions, both repairs and the measurements before and after them."""
 
 from __future__ import annotations
 
-import time
 from dataclasses import replace
 
 import pytest
@@ -20,6 +19,7 @@ from api.rest import create_app
 from api.service.config import AxisConfig, MaintenanceSettings, Settings, SimulatorSettings, demo_axis
 from core.dataset import AxisSpec
 from storage.db import Schedule, integrity_problems, maintenance_repo, results_repo, session_scope
+from tests.api.rest.test_kill_restart import poll as wait_for
 
 V1 = "/api/v1"
 pytestmark = pytest.mark.slow
@@ -32,16 +32,6 @@ class Clock:
 
     def __call__(self) -> float:
         return self.t
-
-
-def wait_for(pred, timeout_s=60.0):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        v = pred()
-        if v:
-            return v
-        time.sleep(0.1)
-    return pred()
 
 
 @pytest.fixture
