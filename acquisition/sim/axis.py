@@ -198,6 +198,14 @@ class SimAxis:
                 return c, int(self._motor[i]), int(self._table[i])
             return c, self._hold_counts[0], self._hold_counts[1]
 
+    def snapshot(self, now: float | None = None) -> tuple[AxisState, int, int, int]:
+        """(state, servo counter, motor counts, table counts) of one servo cycle, taken under
+        the axis' lock: a controller's register image is consistent, so a round trip started
+        between two separate reads cannot pair the old rest position with the new running flag."""
+        with self._lock:
+            counter, motor, table = self.latched(now)
+            return self.state, counter, motor, table
+
     def position_at(self, now: float | None = None) -> tuple[float, float]:
         """Motor (rev) and table (mm) at wall time ``now``, interpolated between servo cycles."""
         with self._lock:

@@ -162,8 +162,7 @@ class SimModbusController(LoopThread):
     def _header(self) -> np.ndarray:
         ax = self.axis
         now = ax.clock()
-        state = ax.update(now)
-        counter, motor, table = ax.latched(now)
+        state, counter, motor, table = ax.snapshot(now)
         words = np.zeros(mm.RING_BASE, dtype=np.int64)
         words[: mm.STATUS_WORDS] = mm.encode_status(
             state, ax.fault_code, counter, motor, table, ax.twin.temperature_c,

@@ -32,8 +32,7 @@ _SPACE = {1: "coil", 5: "coil", 15: "coil", 2: "discrete_input", 3: "holding", 6
 
 def profile_words(profile: RegisterProfile, axis: SimAxis, start_value: int = 0) -> dict[str, dict[int, int]]:
     """What the controller holds now: {function: {address: word or bit}} for every read value."""
-    counter, motor_c, table_c = axis.latched()
-    state = axis.update()
+    state, counter, motor_c, table_c = axis.snapshot()
     physical = {"motor": float(axis.scale.motor_rev(motor_c)), "table": float(axis.scale.table_mm(table_c)),
                 "temperature": float(axis.twin.temperature_c), "running": float(state == AxisState.RUNNING),
                 "done": float(state == AxisState.DONE), "start": float(start_value), "abort": 0.0}

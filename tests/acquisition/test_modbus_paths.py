@@ -257,3 +257,43 @@ def test_mebm_modbus_1_trace_mode_over_rtu(trace_mode_b_um, tmp_path):
     assert r.trace.mode == "trace" and r.trace.latched and r.trace.lost_samples == 0
     assert r.controller.startswith("modbus+rtu://")
     assert abs(r.result.backlash_mean_um - trace_mode_b_um) <= 1.0
+
+
+def test_a_profile_register_image_is_one_servo_cycle_even_when_the_cnc_starts_during_it():
+    """Stop 26's CI failure: the simulated PLC read the positions, then the state; a round trip
+    started between the two paired the rest position (0 mm) with the running flag, and the
+    passive detector measured the round trip from the wrong start. The start is forced into
+    that window here: another thread starts the axis while the image is being taken."""
+    axis = SimAxis(KinematicTwin(backlash_um=120.0), servo_rate_hz=SERVO_HZ)
+    axis.prepare(PROGRAM)
+    inner = axis.latched
+    started = threading.Event()
+
+    def latched(now=None):
+        out = inner(now)
+        if not started.is_set():
+            started.set()
+            t = threading.Thread(target=axis.start, args=(PROGRAM,))
+            t.start()
+            t.join(timeout=0.2)  # waits on the axis' lock if the image holds it
+        return out
+
+    axis.latched = latched
+    words = profile_words(FLOAT_CDAB, axis)
+    running = FLOAT_CDAB.values["running"]
+    flag = words[running.function][running.address]
+    table_spec = FLOAT_CDAB.values["table"]
+    table_mm = table_spec.decode([words[table_spec.function][table_spec.address + i] for i in range(table_spec.count)])
+    assert poll_started(axis)
+    # consistent: either the image is from before the start (flag clear, at rest at 0 mm) or
+    # from the round trip (flag set, at the program's start)
+    assert (flag, round(table_mm, 3)) in {(0, 0.0), (1, PROGRAM.start_mm)}
+
+
+def poll_started(axis, timeout_s=5.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if axis.cycles_started == 1:
+            return True
+        time.sleep(0.01)
+    return False
