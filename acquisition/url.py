@@ -30,6 +30,13 @@ def is_simulator_url(url: str) -> bool:
     return parts.scheme == "sim" or (parts.scheme == "canopen" and parts.netloc == "virtual")
 
 
+def needs_callers_process(url: str) -> bool:
+    """A controller reachable only from the process that created it: CANopen on python-can's
+    in-process ``virtual`` bus (a cycle on it cannot run in a worker process)."""
+    parts = urlsplit(url)
+    return parts.scheme == "canopen" and parts.netloc == "virtual"
+
+
 def default_trigger(url: str) -> str:
     """``active`` for a simulator, ``passive`` for any other controller."""
     return "active" if is_simulator_url(url) else "passive"

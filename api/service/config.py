@@ -167,6 +167,9 @@ class Settings:
     scheduler_enabled: bool = True
     catch_up_missed: bool = True
     spool_retry_s: float = 30.0
+    # cycles run in up to this many worker processes (api.service.runner.CycleProcesses); 0: on
+    # the scheduler's threads (the library's default; `mebm serve` uses 2, default_settings)
+    cycle_processes: int = 0
     machines: tuple[tuple[str, str], ...] = ()  # (name, description)
     axes: tuple[AxisConfig, ...] = ()
     simulator: SimulatorSettings = field(default_factory=SimulatorSettings)
@@ -217,7 +220,7 @@ DEMO_SIMULATOR = SimulatorSettings(backlash_um_at_20c=190.0, temperature_amplitu
 def default_settings() -> Settings:
     return Settings(machines=((DEMO_MACHINE, "demo: the seed paper's Y axis on a simulated controller"),),
                     axes=(demo_axis(),), mqtt=MqttSettings(url=DEFAULT_MQTT_URL),
-                    opcua=OpcuaSettings(enabled=True), simulator=DEMO_SIMULATOR)
+                    opcua=OpcuaSettings(enabled=True), simulator=DEMO_SIMULATOR, cycle_processes=2)
 
 
 # -- parsing -----------------------------------------------------------------------------------
@@ -414,7 +417,11 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
     auth = doc.get("auth", {})
     _unknown(auth, {"bootstrap_admin_key", "demo_keys"}, "auth")
     sched = doc.get("scheduler", {})
-    _unknown(sched, {"enabled", "catch_up_missed", "spool_retry_s"}, "scheduler")
+    _unknown(sched, {"enabled", "catch_up_missed", "spool_retry_s", "cycle_processes"}, "scheduler")
+    cycle_processes = _get(sched, "cycle_processes", int, "scheduler", base.cycle_processes)
+    if not 0 <= cycle_processes <= 64:
+        raise ConfigError(f"scheduler.cycle_processes (={cycle_processes}) must be 0..64 (0: cycles run in the "
+                          "service's own process)")
     sim = doc.get("simulator", {})
     sim_fields = set(SimulatorSettings.__dataclass_fields__)
     _unknown(sim, sim_fields, "simulator")
@@ -469,6 +476,7 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
         scheduler_enabled=_get(sched, "enabled", bool, "scheduler", base.scheduler_enabled),
         catch_up_missed=_get(sched, "catch_up_missed", bool, "scheduler", base.catch_up_missed),
         spool_retry_s=_get(sched, "spool_retry_s", float, "scheduler", base.spool_retry_s),
+        cycle_processes=cycle_processes,
         machines=machines, axes=axes, simulator=simulator,
         log_level=_get(logging_, "level", str, "logging", base.log_level), limits=limits,
         retention=retention, retention_interval_s=retention_interval_s,

@@ -26,7 +26,7 @@ from api.service.plot_process import PlotProcess
 from api.service.demo import DemoController
 from api.service.health import HealthProbe
 from api.service.leases import FleetScheduler
-from api.service.runner import CycleRunner, DriverRunner
+from api.service.runner import CycleProcesses, CycleRunner, DriverRunner
 from api.service.scheduler import CycleScheduler
 from api.service.events import Event, EventHub, events_of_saved_cycle
 from api.service.maintenance import MaintenanceLoop
@@ -71,7 +71,8 @@ class StartReport:
 class Service:
     def __init__(self, settings: Settings, *, runner: CycleRunner | None = None, db_wait_s: float = 30.0):
         self.settings = settings
-        self.runner = runner or DriverRunner()
+        # the production runner measures in worker processes (the acquisition and analysis off the API's interpreter)
+        self.runner = runner or DriverRunner(processes=CycleProcesses(settings.cycle_processes))
         self.db_wait_s = db_wait_s
         self.engine = None
         self.factory = None
@@ -159,6 +160,9 @@ class Service:
         self.status = StatusCache(self.factory, ttl_s=st.status_max_age_s)
         self.executor = CycleExecutor(self.factory, Path(st.data_dir), self.runner, self.resolve_url,
                                       on_saved=self._on_saved)
+        if isinstance(self.runner, DriverRunner) and self.runner.processes is not None and (
+                st.scheduler_enabled or not self.fleet):  # (an API-only fleet replica runs no cycle)
+            self.runner.processes.start()  # spawned in the background; cycles run in the service until they are up
         if isinstance(self.scheduler, FleetScheduler):  # started again (an ASGI lifespan run twice): one worker
             self.scheduler.stop()
         if self.fleet:  # leases in the database decide which worker runs which axis (docs/fleet.md)
@@ -236,6 +240,8 @@ class Service:
             self._sqlite_lock.release()
             self._sqlite_lock = None
         self.events.close()
+        if isinstance(self.runner, DriverRunner) and self.runner.processes is not None:
+            self.runner.processes.close()
         self.gap_jobs.close()  # (self.plots is the interpreter's, shared: it ends with it)
         for sim in self.simulators.values():
             sim.stop()

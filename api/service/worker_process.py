@@ -1,7 +1,7 @@
 """Worker processes of the service: a ``spawn``-started pool that ends with the service.
 
-Used for the CPU work a request would otherwise do on the service's own interpreter (gap
-diagnoses, figure renders): pure Python, numpy and matplotlib hold the interpreter lock
+Used for the CPU work a request or a cycle would otherwise do on the service's own interpreter
+(gap diagnoses, figure renders, the cycles' acquisition and analysis): pure Python, numpy and matplotlib hold the interpreter lock
 while they run, and every status poll then waits for it. In a separate process they only
 share the CPU.
 
@@ -13,6 +13,7 @@ so a watchdog thread ends it once its parent is gone.
 
 from __future__ import annotations
 
+import importlib
 import logging
 import multiprocessing
 import os
@@ -25,7 +26,12 @@ log = logging.getLogger(__name__)
 PARENT_POLL_S = 2.0
 
 
-def _worker_init(parent_pid: int, nice: int, what: str) -> None:
+def _worker_init(parent_pid: int, nice: int, what: str, imports: tuple[str, ...] = (),
+                 log_level: int | None = None) -> None:
+    if log_level is not None:  # the service's log lines, from this process too (on stderr, like the service's)
+        logging.basicConfig(level=log_level, format=f"%(asctime)s %(levelname)s %(name)s [{what} process]: %(message)s")
+    for name in imports:  # warm: the first task does not pay the imports
+        importlib.import_module(name)
     if nice:
         try:
             os.nice(nice)
@@ -40,8 +46,10 @@ def _worker_init(parent_pid: int, nice: int, what: str) -> None:
     threading.Thread(target=watch, name=f"mebm-{what}-parent-watch", daemon=True).start()
 
 
-def spawn_pool(*, what: str, nice: int = 0, workers: int = 1) -> ProcessPoolExecutor:
+def spawn_pool(*, what: str, nice: int = 0, workers: int = 1, imports: tuple[str, ...] = (),
+               log_level: int | None = None) -> ProcessPoolExecutor:
     """A pool of ``workers`` spawned processes at ``nice`` above the service, each ending
-    when the service ends; ``what`` names them in log lines."""
+    when the service ends; ``what`` names them in log lines. Each imports ``imports`` when it
+    starts, and with ``log_level`` logs to stderr as the service does."""
     return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=_worker_init, initargs=(os.getpid(), nice, what))
+                               initializer=_worker_init, initargs=(os.getpid(), nice, what, tuple(imports), log_level))

@@ -1,0 +1,134 @@
+"""Cycles in worker processes (api.service.runner.CycleProcesses): the acquisition and the
+analysis run off the service's interpreter; a busy or starting pool never delays a cycle;
+a process that dies fails its cycle with a reason and the next one runs in a fresh process."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from dataclasses import replace
+
+import pytest
+
+from api.service.config import ConfigError, default_settings, parse_settings
+from api.service.runner import CycleProcesses, DriverRunner, NoFreeProcess
+from api.service.service import Service
+from storage.db import AxisRecord, config_repo, results_repo, session_scope
+from tests.api.rest.conftest import make_settings
+from tests.storage.db import factories as f
+
+
+def wait_for(pred, timeout_s=60.0):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if pred():
+            return True
+        time.sleep(0.02)
+    return pred()
+
+
+def started(processes: CycleProcesses) -> bool:
+    return processes._free == processes.processes
+
+
+def _pid() -> int:
+    return os.getpid()
+
+
+def test_a_free_process_runs_the_call_a_busy_one_sends_it_back_at_once():
+    procs = CycleProcesses(1)
+    procs.start()
+    try:
+        assert wait_for(lambda: started(procs))
+        assert procs.run(_pid) != os.getpid()  # in the worker process
+        busy = threading.Thread(target=procs.run, args=(time.sleep, 1.5))
+        busy.start()
+        assert wait_for(lambda: procs._free == 0, 5)
+        t = time.perf_counter()
+        with pytest.raises(NoFreeProcess):
+            procs.run(_pid)
+        assert time.perf_counter() - t < 0.1  # refused at once: the caller runs it itself
+        busy.join()
+        assert procs.run(abs, -3) == 3
+        assert (procs.in_process, procs.inline, procs.crashes) == (3, 1, 0)
+    finally:
+        procs.close()
+    with pytest.raises(NoFreeProcess):  # closed: nothing restarts behind the service's back
+        procs.run(_pid)
+    assert procs._pool is None
+
+
+def test_a_controller_only_this_process_can_reach_is_measured_here():
+    procs = CycleProcesses(1)
+    runner = DriverRunner(processes=procs)
+    here = []
+    runner.run_here = lambda axis, url: here.append(url)  # noqa: ARG005
+    runner(AxisRecord(1, 1, "m", f.settings()), "canopen://virtual/0?node=3")
+    assert here == ["canopen://virtual/0?node=3"] and procs.inline == procs.in_process == 0
+    injected = DriverRunner(lambda url: None, processes=procs)  # an injected driver factory stays in-process
+    assert injected.processes is None
+
+
+def test_cycle_processes_setting():
+    assert default_settings().cycle_processes == 2  # `mebm serve`
+    assert parse_settings({"scheduler": {"cycle_processes": 0}}).cycle_processes == 0
+    for bad in (-1, 65, 1.5, True):
+        with pytest.raises(ConfigError, match="cycle_processes"):
+            parse_settings({"scheduler": {"cycle_processes": bad}})
+
+
+def _sim_service(tmp_path, processes: int) -> Service:
+    settings = make_settings(f"sqlite:///{tmp_path}/db.sqlite3", tmp_path, cycle_processes=processes)
+    axis = settings.axes[0]
+    settings = replace(settings, axes=(replace(axis, settings=replace(axis.settings, controller_url="sim")),),
+                       simulator=replace(settings.simulator, time_scale=20.0))
+    svc = Service(settings)
+    svc.start()
+    return svc
+
+
+def _cycles(svc, axis_id):
+    with session_scope(svc.factory) as s:
+        return results_repo.list_measurements(s, axis_id, limit=50)[1]
+
+
+def test_the_service_measures_in_a_worker_process_and_survives_its_death(tmp_path):
+    svc = _sim_service(tmp_path, 1)
+    try:
+        procs = svc.runner.processes
+        with session_scope(svc.factory) as s:
+            axis_id = config_repo.list_axes(s)[0].id
+        assert wait_for(lambda: started(procs)) and svc.scheduler.idle(120)  # (a fresh sim axis measures at start)
+        before = {c.id for c in _cycles(svc, axis_id)}
+        inline = procs.inline
+        svc.trigger(axis_id, "test")
+        assert svc.scheduler.idle(120)
+        (first,) = [c for c in _cycles(svc, axis_id) if c.id not in before]
+        assert first.status == "ok", first.failure_reason
+        assert first.backlash_mean_um == pytest.approx(svc.simulators[axis_id].twin.backlash_um(first.temperature_c),
+                                                       abs=15.0)
+        assert (procs.in_process, procs.inline) == (1, inline)
+        # the process dies while its round trip runs (the simulated axis moves): that cycle fails
+        # with the reason, and the next runs in a fresh process
+        sim_axis = svc.simulators[axis_id].axis
+        victims = list(procs._pool._processes.values())
+        n = sim_axis.cycles_started
+        svc.trigger(axis_id, "test")
+        assert wait_for(lambda: sim_axis.cycles_started == n + 1, 30)
+        for p in victims:
+            p.kill()
+        assert svc.scheduler.idle(120)
+        before.add(first.id)
+        (second,) = [c for c in _cycles(svc, axis_id) if c.id not in before]
+        assert second.status == "failed" and "CycleProcessDied" in second.failure_reason
+        assert procs.crashes == 1
+        assert wait_for(lambda: started(procs))
+        svc.trigger(axis_id, "test")
+        assert svc.scheduler.idle(120)
+        third = _cycles(svc, axis_id)[0]
+        assert third.status == "ok" and (procs.in_process, procs.inline) == (2, inline)
+        assert not set(procs._pool._processes.values()) & set(victims)
+    finally:
+        svc.stop()
+    assert procs._pool is None
