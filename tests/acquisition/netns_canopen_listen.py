@@ -186,6 +186,22 @@ class Capture(threading.Thread):
             return out
 
 
+def _own_namespace(pid: int, timeout_s: float = 60.0) -> None:
+    """Wait until ``unshare -n`` (``pid``) has entered its new network namespace. The veth end
+    moved into ``pid``'s namespace before that stays in the hub's (seen in CI on a loaded host:
+    ``ip addr add ... dev c1`` then fails in the role's empty namespace)."""
+    mine = os.readlink("/proc/self/ns/net")
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            if os.readlink(f"/proc/{pid}/ns/net") != mine:
+                return
+        except FileNotFoundError:
+            raise RuntimeError(f"the role process {pid} ended before it had a network namespace") from None
+        time.sleep(0.005)
+    raise TimeoutError(f"the role process {pid} had no network namespace of its own after {timeout_s:g} s")
+
+
 class Role:
     def __init__(self, name: str, idx: int):
         self.name = name
@@ -193,6 +209,7 @@ class Role:
         self.proc = subprocess.Popen(["unshare", "-n", sys.executable, str(SCRIPT), "--role", name],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env, cwd=ROOT)
         host, child = f"h{idx}", f"c{idx}"
+        _own_namespace(self.proc.pid)
         _run("ip", "link", "add", host, "type", "veth", "peer", "name", child)
         _run("ip", "link", "set", child, "netns", str(self.proc.pid))
         _run("ip", "link", "set", host, "master", "br0")

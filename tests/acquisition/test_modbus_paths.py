@@ -260,10 +260,11 @@ def test_mebm_modbus_1_trace_mode_over_rtu(trace_mode_b_um, tmp_path):
 
 
 def test_a_profile_register_image_is_one_servo_cycle_even_when_the_cnc_starts_during_it():
-    """Stop 26's CI failure: the simulated PLC read the positions, then the state; a round trip
-    started between the two paired the rest position (0 mm) with the running flag, and the
-    passive detector measured the round trip from the wrong start. The start is forced into
-    that window here: another thread starts the axis while the image is being taken."""
+    """The simulated PLC took the positions, then the state, outside one lock: a round trip
+    started between the two paired the rest position (0 mm) with the running flag in one
+    register image, which no real PLC serves. The start is forced into that window here:
+    another thread starts the axis while the image is being taken. (The same pairing across
+    two Modbus reads, which a real PLC can serve, is test_passive's flag-first test.)"""
     axis = SimAxis(KinematicTwin(backlash_um=120.0), servo_rate_hz=SERVO_HZ)
     axis.prepare(PROGRAM)
     inner = axis.latched

@@ -224,6 +224,45 @@ def test_the_passive_trace_counts_lost_samples_only_in_the_controllers_own_trace
 
 
 # -- register profiles: a polled PLC the CNC drives ---------------------------------------------
+def test_a_start_between_the_flag_read_and_the_position_read_is_measured_from_its_true_start():
+    """Stop 26's CI failure, forced: the CNC starts the round trip right after the PLC served a
+    position read. The running flag is read before the positions in every poll, so the poll
+    that saw the flag set also has positions of the round trip; read the other way round (as
+    before), it paired the rest position (0 mm) with the set flag and the round trip, which
+    starts at -2 mm, was refused as cut short."""
+    import time
+
+    from acquisition.modbus_profile import load_profile
+    from acquisition.sim.axis import SimAxis
+    from acquisition.sim.profile_server import SimProfileController
+    from acquisition.sim.twin import KinematicTwin
+
+    profile_file = ROOT / "examples" / "modbus-profiles" / "plc-gateway-float32-cdab.toml"
+    profile = load_profile(profile_file)
+    slow = RoundTripProgram(-2.0, 22.0, 300.0, acceleration_mm_s2=500.0, dwell_s=0.3)
+    axis = SimAxis(KinematicTwin(backlash_um=120.0, position_gain_per_s=30.0), servo_rate_hz=1000.0, time_scale=0.5)
+    axis.prepare(slow)  # the start takes effect at once
+    armed_at = time.monotonic() + 1.0
+
+    class StartsAfterAPositionRead(SimProfileController):
+        def read(self, func_code, address, count):
+            out = super().read(func_code, address, count)
+            positions = profile.values["table"]
+            if (func_code == 3 and address <= positions.address < address + count and axis.cycles_started == 0
+                    and time.monotonic() >= armed_at):
+                axis.start(slow)
+            return out
+
+    with StartsAfterAPositionRead(axis, profile, slow) as sim:
+        driver = driver_from_url(f"modbus://127.0.0.1:{sim.port}?profile={profile_file}&start_timeout_s=60",
+                                 timeout_s=2.0)
+        res = run_cycle(driver, AXIS, slow, useful_travel_mm=USEFUL)
+    assert axis.cycles_started == 1
+    assert res.ok, res.reason
+    assert "flag" in res.trace.notes[0]
+    assert res.result.backlash_mean_um == pytest.approx(120.0, abs=1.0)
+
+
 @pytest.mark.parametrize("running_flag", [True, False], ids=["profile-running-flag", "profile-positions-only"])
 def test_a_profile_controller_gets_passive_mode_from_its_polled_samples(running_flag):
     """The float32 CDAB gateway profile: polled samples (no trace ring), its [running] flag or
