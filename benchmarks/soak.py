@@ -181,6 +181,7 @@ def main() -> int:
         return 1
     stop = threading.Event()
     status_ms: list[float] = []
+    status_at: list[float] = []  # when each status answer came (monotonic), for the p99 by minute
     answers: dict[str, int] = {}
     rss: list[float] = []
     lock = threading.Lock()
@@ -204,6 +205,7 @@ def main() -> int:
                 if kind == "status":
                     with lock:
                         status_ms.append((time.perf_counter() - t) * 1e3)
+                        status_at.append(time.monotonic())
                 count(kind, code)
                 stop.wait(pause_s)
 
@@ -286,7 +288,7 @@ def main() -> int:
     for sim in sims:
         sim.kill()
     try:
-        return report(tmp, url, status_ms, answers, rss)
+        return report(tmp, url, status_ms, answers, rss, [t - t0 for t in status_at])
     finally:
         if a.keep:
             print(f"data folder kept: {tmp}")
@@ -294,7 +296,7 @@ def main() -> int:
             shutil.rmtree(tmp, ignore_errors=True)
 
 
-def report(tmp: Path, url: str, status_ms, answers, rss) -> int:
+def report(tmp: Path, url: str, status_ms, answers, rss, status_t_s=()) -> int:
     con = sqlite3.connect(tmp / "soak.sqlite3")
     cycles = con.execute("SELECT id, uuid, axis_id, status, run_file, raw_run_lost FROM cycles").fetchall()
     outcomes = con.execute("SELECT status, substr(coalesce(failure_reason, ''), 1, 60), count(*) FROM cycles "
@@ -341,6 +343,12 @@ def report(tmp: Path, url: str, status_ms, answers, rss) -> int:
     print("cycle outcomes:", "; ".join(f"{st}{' (' + why + ')' if why else ''}: {n}" for st, why, n in outcomes[:8]))
     print(f"cycles not in a final state: {sum(1 for c in cycles if c[3] not in final)}; "
           f"ok cycles whose run is neither kept nor marked lost: {unmarked}; axes: {len(axes)}")
+    if len(status_t_s) == len(status_ms) and ms:  # where the tail is: each minute's p99 (faults at 1/4, 1/2, 3/4)
+        by_min: dict[int, list[float]] = {}
+        for t_s, v in zip(status_t_s, status_ms, strict=True):
+            by_min.setdefault(int(t_s // 60), []).append(v)
+        per = [sorted(v)[min(int(0.99 * len(v)), len(v) - 1)] for _, v in sorted(by_min.items())]
+        print("status p99 by minute (ms):", " ".join(f"{v:.0f}" for v in per))
     if len(rss) >= 30:  # bounded: the last third of the run against the first (the workers start late)
         third = len(rss) // 3
         print(f"rss (service and its worker processes): max of the first third {max(rss[:third]):.0f} MB, "

@@ -116,7 +116,9 @@ class CycleProcesses:
     must be listening when the CNC starts its round trip): it runs on the caller's thread
     instead, as every cycle did before. A process that dies fails its cycle with
     :class:`CycleProcessDied` (the axis may have been moving: it is not retried here; the
-    schedule measures again) and a fresh set of processes starts in the background.
+    schedule measures again) and a fresh set of processes starts in the background. A death
+    breaks the whole pool (``concurrent.futures``): a cycle running in another of its
+    processes at that moment fails the same way.
     """
 
     def __init__(self, processes: int):
