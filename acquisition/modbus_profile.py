@@ -181,12 +181,9 @@ class RegisterProfile:
 def plan_reads(specs: list[ValueSpec], max_gap: int) -> tuple[ReadRequest, ...]:
     """Group values of one function into as few reads as the limits allow: a value joins the
     read before it when the registers between them are at most ``max_gap`` and the read stays
-    within the function's size limit. Reads come in address order per function; a read
-    holding a flag (``running``, ``done``) comes first, then the one holding the motor
-    position. Flags first: a flag reads set only once the round trip has started, so the
-    positions read after it in the same poll belong to the round trip. Read the other way
-    round, a start landing between the two reads paired the rest position with the set flag,
-    and the round trip was measured from the wrong start (stop 26's CI failure)."""
+    within the function's size limit. Reads come in address order per function; the read
+    holding the motor position comes first (a passive driver following the running flag
+    reads the flag first: ``ProfileModbusDriver.poll``)."""
     by_fn: dict[str, list[ValueSpec]] = {}
     for s in specs:
         by_fn.setdefault(s.function, []).append(s)
@@ -200,7 +197,7 @@ def plan_reads(specs: list[ValueSpec], max_gap: int) -> tuple[ReadRequest, ...]:
                 cur = []
             cur.append(s)
         reads.append(_request(fn, cur))
-    reads.sort(key=lambda r: (0 if {"running", "done"} & set(r.values) else 1, 0 if "motor" in r.values else 1))
+    reads.sort(key=lambda r: 0 if "motor" in r.values else 1)
     return tuple(reads)
 
 
