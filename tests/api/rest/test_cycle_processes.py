@@ -16,16 +16,8 @@ from api.service.runner import CycleProcesses, DriverRunner, NoFreeProcess
 from api.service.service import Service
 from storage.db import AxisRecord, config_repo, results_repo, session_scope
 from tests.api.rest.conftest import make_settings
+from tests.api.rest.test_service import wait_for
 from tests.storage.db import factories as f
-
-
-def wait_for(pred, timeout_s=60.0):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if pred():
-            return True
-        time.sleep(0.02)
-    return pred()
 
 
 def started(processes: CycleProcesses) -> bool:
@@ -40,7 +32,7 @@ def test_a_free_process_runs_the_call_a_busy_one_sends_it_back_at_once():
     procs = CycleProcesses(1)
     procs.start()
     try:
-        assert wait_for(lambda: started(procs))
+        assert wait_for(lambda: started(procs), 60)
         assert procs.run(_pid) != os.getpid()  # in the worker process
         busy = threading.Thread(target=procs.run, args=(time.sleep, 1.5))
         busy.start()
@@ -99,7 +91,7 @@ def test_the_service_measures_in_a_worker_process_and_survives_its_death(tmp_pat
         procs = svc.runner.processes
         with session_scope(svc.factory) as s:
             axis_id = config_repo.list_axes(s)[0].id
-        assert wait_for(lambda: started(procs)) and svc.scheduler.idle(120)  # (a fresh sim axis measures at start)
+        assert wait_for(lambda: started(procs), 60) and svc.scheduler.idle(120)  # (a fresh sim axis measures at start)
         before = {c.id for c in _cycles(svc, axis_id)}
         inline = procs.inline
         svc.trigger(axis_id, "test")
@@ -123,7 +115,7 @@ def test_the_service_measures_in_a_worker_process_and_survives_its_death(tmp_pat
         (second,) = [c for c in _cycles(svc, axis_id) if c.id not in before]
         assert second.status == "failed" and "CycleProcessDied" in second.failure_reason
         assert procs.crashes == 1
-        assert wait_for(lambda: started(procs))
+        assert wait_for(lambda: started(procs), 60)
         svc.trigger(axis_id, "test")
         assert svc.scheduler.idle(120)
         third = _cycles(svc, axis_id)[0]
