@@ -112,10 +112,7 @@ class Service:
 
     def _on_saved(self, axis_id, cycle, alerts) -> None:
         if self.status is not None:
-            try:
-                self.status.recompute(axis_id)  # swapped in: status polls never wait for it
-            except Exception as exc:  # noqa: BLE001 - dropped instead; the next request computes it and says why
-                log.warning("axis %s: the status could not be recomputed after the cycle (%s)", axis_id, exc)
+            self.status.invalidate(axis_id)
         axis = self.executor.known_axis(axis_id) if self.executor is not None else None
         machine, name = (axis.machine_name, axis.name) if axis is not None else ("?", "?")
         for ev in events_of_saved_cycle(axis_id, machine, name, cycle, alerts):

@@ -153,26 +153,6 @@ class StatusCache:
                 self._cache[axis_id] = (now, st)
             return st
 
-    def recompute(self, axis_id: int) -> AxisStatus:
-        """After this process stored a cycle of the axis: compute its new status and swap it
-        in. Requests meanwhile get the previous one at once instead of waiting for the
-        recomputation. (Invalidating made the first status request after every cycle compute
-        it: with three axes cycling every 2 s that was about 1 % of the soak's polls, so
-        status p99 was the recomputation's time, and it grew with the history: 14-16 ms in
-        the first minutes, 28.9 ms over 30 minutes.) On an error the entry is dropped, so
-        the next request computes it and reports the error, as before."""
-        with self._axis_lock(axis_id):
-            now = time.monotonic()
-            try:
-                with session_scope(self.factory) as s:
-                    st = compute_status(s, axis_id, self._history_memo)
-            except BaseException:
-                self.invalidate(axis_id)
-                raise
-            with self._lock:
-                self._cache[axis_id] = (now, st)
-            return st
-
     def _axis_lock(self, axis_id: int) -> threading.Lock:
         with self._lock:
             return self._locks.setdefault(axis_id, threading.Lock())
