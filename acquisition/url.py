@@ -26,8 +26,7 @@ TRIGGER_KEYS = ("trigger", "running_flag", *PASSIVE_KEYS)
 
 def is_simulator_url(url: str) -> bool:
     """A controller that can only be a simulation: ``sim://``, or CANopen on the in-process bus."""
-    parts = urlsplit(url)
-    return parts.scheme == "sim" or (parts.scheme == "canopen" and parts.netloc == "virtual")
+    return urlsplit(url).scheme == "sim" or needs_callers_process(url)
 
 
 def needs_callers_process(url: str) -> bool:

@@ -184,14 +184,17 @@ def test_pinned_worker_never_touches_other_axes(pg, tmp_path):
         anyone.stop()
 
 
+def two_workers(url, tmp_path, axes, runner):
+    """Workers "one" and "two" on the same axes, without a schedule (cycles only when asked)."""
+    return tuple(start(fleet_settings(url, tmp_path / name, axes, interval_s=None, worker=replace(LEASE, name=name)),
+                       runner) for name in ("one", "two"))
+
+
 def test_manual_trigger_through_either_worker_runs_once(pg, tmp_path):
     url, factory = pg
     axes = [("m", "x"), ("m", "y"), ("m", "z")]
     runner = SharedRunner(hold_s=0.3)
-    one = start(fleet_settings(url, tmp_path / "one", axes, interval_s=None, worker=replace(LEASE, name="one")),
-                runner)
-    two = start(fleet_settings(url, tmp_path / "two", axes, interval_s=None, worker=replace(LEASE, name="two")),
-                runner)
+    one, two = two_workers(url, tmp_path, axes, runner)
     try:
         ids = sorted(one.executor._axes)
         # settled: every axis held and the shares balanced (2 and 1), so no lease moves while the
@@ -516,10 +519,7 @@ def test_repair_verification_through_any_worker_runs_on_the_owner_and_survives_a
     url, factory = pg
     axes = [("m", "x")]
     runner = SharedRunner(hold_s=0.1)
-    one = start(fleet_settings(url, tmp_path / "one", axes, interval_s=None, worker=replace(LEASE, name="one")),
-                runner)
-    two = start(fleet_settings(url, tmp_path / "two", axes, interval_s=None, worker=replace(LEASE, name="two")),
-                runner)
+    one, two = two_workers(url, tmp_path, axes, runner)
     try:
         (axis_id,) = one.executor._axes
         assert poll(lambda: len(one.scheduler.held | two.scheduler.held) == 1, timeout_s=30)
