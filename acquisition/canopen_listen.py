@@ -376,7 +376,7 @@ class CanopenListenDriver(BlockingLinkDriver):
                                    "the round trip is not measured", code=emcy[0])
         return self._take()
 
-    def _passive_trace(self, cycle, found, rate, skew_s, t_first_block, last_progress) -> AcquiredTrace:
+    def _passive_trace(self, cycle, found, rate, skew_s, t_first_block, last_progress, clock_s=0.0) -> AcquiredTrace:
         """The base's trace, with the SYNCs of the round trip that have no sample counted as lost:
         every SYNC is a sample here (no polled rest), so any gap in the cut is a loss."""
         counter = np.rint(found.t_s * rate).astype(np.int64)
@@ -389,7 +389,7 @@ class CanopenListenDriver(BlockingLinkDriver):
                 f"{lost} of the round trip's {span} SYNCs have no sample, at most {allowed} allowed "
                 f"(max_lost_samples); on the bus so far: {_stats_text(self.listen_stats)}",
                 lost_samples=lost, first_missing=first_missing)
-        trace = super()._passive_trace(cycle, found, rate, skew_s, t_first_block, last_progress)
+        trace = super()._passive_trace(cycle, found, rate, skew_s, t_first_block, last_progress, clock_s)
         return replace(trace, lost_samples=lost, notes=(*trace.notes, "listen-only: mebm sent no frame"))
 
 

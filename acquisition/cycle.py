@@ -81,7 +81,8 @@ class CycleResult:
             out["acquisition"] = {
                 "protocol": t.protocol, "mode": t.mode, "latched": t.latched, "samples": len(t),
                 "lost_samples": t.lost_samples, "sample_rate_hz": t.servo_rate_hz,
-                "skew_uncertainty_um": t.skew_uncertainty_um, "temperature_c": t.temperature_c,
+                "skew_uncertainty_um": t.skew_uncertainty_um, "clock_uncertainty_s": t.clock_uncertainty_s,
+                "temperature_c": t.temperature_c,
                 "samples_per_s": t.samples_per_s, "trigger": t.trigger,
             }
         if self.ok:
@@ -109,7 +110,8 @@ class CycleResult:
         t = self.trace
         extra = {
             "controller": self.controller, "acquisition_mode": t.mode, "latched": t.latched,
-            "skew_uncertainty_um": t.skew_uncertainty_um, "lost_samples": t.lost_samples,
+            "skew_uncertainty_um": t.skew_uncertainty_um, "clock_uncertainty_s": t.clock_uncertainty_s,
+            "lost_samples": t.lost_samples,
             "sample_rate_hz": t.servo_rate_hz, "counter_first": int(t.counter[0]), "counter_last": int(t.counter[-1]),
             "travel_program_mm": [self.program.start_mm, self.program.end_mm], "trigger": t.trigger,
         }
@@ -178,7 +180,8 @@ def _evaluate(driver, axis, program, trace, tasks, useful_travel_mm, settings, t
         validate_trace(trace, program, axis, useful_travel_mm)
         result = analyze_round_trip(trace.time_s, trace.motor_rev, trace.table_mm, axis,
                                     useful_travel_mm=useful_travel_mm, settings=settings,
-                                    uncertainty=UncertaintyInputs(sampling_bound_um=trace.skew_uncertainty_um))
+                                    uncertainty=UncertaintyInputs(sampling_bound_um=trace.skew_uncertainty_um,
+                                                                  clock_uncertainty_s=trace.clock_uncertainty_s))
         decision = decide(result.backlash_mean_um, tasks,
                           backlash_uncertainty_um=result.backlash_mean_uncertainty_um) if tasks else None
     except MebmError as exc:

@@ -366,7 +366,7 @@ class ControllerDriver(ABC):
                 pending.append((c, m, t))
                 pending_n += c.size
                 if pending_n >= ENCODER_BATCH:
-                    monitor.check(*_join(pending), skew_s=assembler.skew_s)
+                    monitor.check(*_join(pending), skew_s=assembler.skew_s, clock_s=assembler.clock_s)
                     pending, pending_n = [], 0
                 if t_first_block is None:
                     t_first_block = now
@@ -375,7 +375,7 @@ class ControllerDriver(ABC):
                 finished = True
                 break
             if block.caught_up and pending:
-                monitor.check(*_join(pending), skew_s=assembler.skew_s)
+                monitor.check(*_join(pending), skew_s=assembler.skew_s, clock_s=assembler.clock_s)
                 pending, pending_n = [], 0
             if c.size == 0 and time.monotonic() - last_progress > self.stall_timeout_s:
                 raise ControllerTimeoutError(
@@ -387,8 +387,8 @@ class ControllerDriver(ABC):
         if not finished:
             raise ControllerTimeoutError(f"the round trip did not finish ({max_iter} reads)")
         if pending:
-            monitor.check(*_join(pending), skew_s=assembler.skew_s)
-        monitor.finish(skew_s=assembler.skew_s)
+            monitor.check(*_join(pending), skew_s=assembler.skew_s, clock_s=assembler.clock_s)
+        monitor.finish(skew_s=assembler.skew_s, clock_s=assembler.clock_s)
         time_s, counter, motor, table = assembler.arrays(rate)
         if counter.size < 2:
             raise ControllerTimeoutError(f"{self.describe()} reported the round trip done with {counter.size} sample(s)")
@@ -404,6 +404,7 @@ class ControllerDriver(ABC):
             temperature_c=float(np.mean(temps)) if temps else float("nan"),
             latched=self.latched,
             skew_uncertainty_um=assembler.skew_s * program.speed_mm_s * 1e3,
+            clock_uncertainty_s=assembler.clock_s,
             lost_samples=assembler.lost_samples,
             servo_rate_hz=rate,
             program=program,
@@ -436,7 +437,7 @@ class ControllerDriver(ABC):
         # the detector's time-outs run on the samples' clock; this bounds the wall clock too
         deadline = time.monotonic() + settings.start_timeout_s + settings.max_duration_s + 3 * self.timeout_s + 5.0
         last_counter: int | None = None
-        skew_s = 0.0
+        skew_s = clock_s = 0.0
         last_progress = time.monotonic()
         t_first_block = None
         while True:
@@ -456,6 +457,7 @@ class ControllerDriver(ABC):
                 last_counter = int(c[-1])
                 last_progress = time.monotonic()
                 skew_s = max(skew_s, block.skew_s)
+                clock_s = max(clock_s, block.clock_s)
                 t = block.time_s if block.time_s is not None else c / rate
                 found = detector.feed(t, block.motor_rev, block.table_mm, block.running, run_start=block.run_start)
                 if found is not None:
@@ -466,10 +468,10 @@ class ControllerDriver(ABC):
                     f"listened for a round trip ({detector.phase})")
             if block.caught_up:
                 await asyncio.sleep(self.poll_interval_s)
-        return self._passive_trace(cycle, found, rate, skew_s, t_first_block, last_progress)
+        return self._passive_trace(cycle, found, rate, skew_s, t_first_block, last_progress, clock_s)
 
     def _passive_trace(self, cycle: AcquisitionCycle, found: DetectedRoundTrip, rate: float, skew_s: float,
-                       t_first_block: float | None, last_progress: float) -> AcquiredTrace:
+                       t_first_block: float | None, last_progress: float, clock_s: float = 0.0) -> AcquiredTrace:
         axis = cycle.axis
         counter = np.rint(found.t_s * rate).astype(np.int64) if math.isfinite(rate) and rate > 0 \
             else np.arange(len(found), dtype=np.int64)
@@ -486,14 +488,15 @@ class ControllerDriver(ABC):
         program = observed_program(found, fallback=cycle.program)
         monitor = EncoderMonitor(program, axis.transmission_mm_per_rev, rate,
                                  jump_margin_mm=self.jump_margin_mm, stuck_travel_mm=self.stuck_travel_mm)
-        monitor.check(counter, found.motor_rev, found.table_mm, skew_s=skew_s)
-        monitor.finish(skew_s=skew_s)
+        monitor.check(counter, found.motor_rev, found.table_mm, skew_s=skew_s, clock_s=clock_s)
+        monitor.finish(skew_s=skew_s, clock_s=clock_s)
         temps = [x for x in (cycle.temperature0_c,) if math.isfinite(x)]
         return AcquiredTrace(
             protocol=self.protocol, mode=self.mode, time_s=found.t_s - found.t_s[0], counter=counter,
             motor_rev=found.motor_rev, table_mm=found.table_mm,
             temperature_c=float(np.mean(temps)) if temps else float("nan"), latched=self.latched,
-            skew_uncertainty_um=skew_s * program.speed_mm_s * 1e3, lost_samples=lost, servo_rate_hz=rate,
+            skew_uncertainty_um=skew_s * program.speed_mm_s * 1e3, clock_uncertainty_s=clock_s, lost_samples=lost,
+            servo_rate_hz=rate,
             program=program, wall_time_s=time.monotonic() - cycle.t_wall0,
             drain_time_s=(last_progress - t_first_block) if t_first_block is not None else float("nan"),
             notes=(f"passive: found by the {found.found_by}, stroke {found.stroke_mm:.3f} mm at "

@@ -40,16 +40,18 @@ class EncoderMonitor:
         self._held = (np.zeros(0, dtype=np.int64), empty, empty)  # not yet judged: c, motor mm, table mm
         self._context = (np.zeros(0, dtype=np.int64), empty, empty)  # last judged samples (c, motor, table)
 
-    def check(self, counter: np.ndarray, motor_rev: np.ndarray, table_mm: np.ndarray, skew_s: float = 0.0) -> None:
-        """``skew_s``: worst-case time between the motor and table readings (unlatched modes)."""
+    def check(self, counter: np.ndarray, motor_rev: np.ndarray, table_mm: np.ndarray, skew_s: float = 0.0,
+              clock_s: float = 0.0) -> None:
+        """``skew_s``: worst-case time between the motor and table readings (unlatched modes);
+        ``clock_s``: bound on the error of the counter as a clock, in seconds (polled modes)."""
         self._judge(np.asarray(counter), np.asarray(motor_rev, dtype=float) * self.k_a,
-                    np.asarray(table_mm, dtype=float), skew_s, final=False)
+                    np.asarray(table_mm, dtype=float), skew_s, clock_s, final=False)
 
-    def finish(self, skew_s: float = 0.0) -> None:
+    def finish(self, skew_s: float = 0.0, clock_s: float = 0.0) -> None:
         """Judge the samples held back for their right-hand neighbours (end of the trace)."""
-        self._judge(np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0), skew_s, final=True)
+        self._judge(np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0), skew_s, clock_s, final=True)
 
-    def _judge(self, counter, motor_mm, table_mm, skew_s, *, final: bool) -> None:
+    def _judge(self, counter, motor_mm, table_mm, skew_s, clock_s, *, final: bool) -> None:
         hc, hm, ht = self._held
         c = np.concatenate([hc, counter])
         m = np.concatenate([hm, motor_mm])
@@ -62,7 +64,8 @@ class EncoderMonitor:
         # the counter is the clock: polled modes skip servo cycles irregularly
         bad = encoder_outliers(np.concatenate([cm, m]), np.concatenate([ct, t]), self.outlier_settings,
                                time_s=np.concatenate([cc, c]).astype(float),
-                               sampling_bound_um=self.v_mm_s * skew_s * 1e3)
+                               sampling_bound_um=self.v_mm_s * skew_s * 1e3,
+                               clock_uncertainty_s=clock_s * self.rate if self.rate > 0 else 0.0)
         bad = bad[cm.size : cm.size + ready]
         self.outliers += int(np.count_nonzero(bad))
         self.seen += ready

@@ -224,7 +224,7 @@ class ProfileModbusDriver(ModbusDriver):
         cur.last_counter, cur.last_raw = counter, (s.motor_rev, s.table_mm)
         c = np.array([counter], dtype=np.int64)
         return SampleBlock(c, np.array([s.motor_rev]), np.array([table]), finished=finished,
-                           time_s=c / COUNTER_HZ, skew_s=skew)
+                           time_s=c / COUNTER_HZ, skew_s=skew, clock_s=s.timing_s)
 
     # -- the cycle ------------------------------------------------------------------------------
     async def acquire_async(self, program: RoundTripProgram, axis) -> AcquiredTrace:

@@ -35,6 +35,7 @@ class TraceAssembler:
         self.lost_samples = 0  # missing counter values (continuous wires)
         self.duplicates = 0  # samples dropped as already assembled (polled wires)
         self.skew_s = 0.0  # worst motor/table skew of any block (unlatched wires)
+        self.clock_s = 0.0  # worst error of any block's time stamps (polled wires)
         self.samples = 0
         self._expected = first_counter  # next counter (continuous)
         self._last: int | None = None  # last counter kept
@@ -64,6 +65,7 @@ class TraceAssembler:
             self._check_continuity(c, t)
             self._expected = int(c[-1]) + 1
         self.skew_s = max(self.skew_s, float(block.skew_s))
+        self.clock_s = max(self.clock_s, float(block.clock_s))
         self._counter.append(c)
         self._motor.append(m)
         self._table.append(t)

@@ -90,7 +90,9 @@ class SampleBlock:
     ``time_s`` is the sample time when the wire knows it (else the base class derives it
     from the counter and the servo rate). ``finished``: the program has ended and this
     block holds its last sample. ``skew_s``: worst-case time between the motor and
-    table readings of each sample (0 when latched together).
+    table readings of each sample (0 when latched together). ``clock_s``: bound on the
+    error of ``time_s`` (a polled sample is stamped at the middle of its request, not
+    when the controller latched it; 0 when the wire carries the controller's time).
     """
 
     counter: np.ndarray
@@ -99,6 +101,7 @@ class SampleBlock:
     finished: bool = False
     time_s: np.ndarray | None = None
     skew_s: float = 0.0
+    clock_s: float = 0.0
     caught_up: bool = True  # False: more samples are already waiting, drain again at once
     running: np.ndarray | None = None  # passive mode: the controller's "program running" flag per sample
     run_start: bool = False  # passive mode: the first sample is the first of the controller's program run
@@ -138,6 +141,7 @@ class AcquiredTrace:
     drain_time_s: float = float("nan")  # wall time from the first to the last drained block
     trigger: str = "active"  # "active": mebm started the round trip; "passive": the CNC did, mebm detected it
     notes: tuple[str, ...] = field(default_factory=tuple)
+    clock_uncertainty_s: float = 0.0  # bound on the error of time_s (polled samples: half the longest request)
 
     def __len__(self) -> int:
         return int(self.time_s.shape[0])

@@ -8,7 +8,7 @@ import sys
 from api.cli.output import print_json, print_table
 from core.criteria import RoundTripSettings, analyze_round_trip
 from core.criteria.lost_motion import clearance_from_feeds
-from core.criteria.uncertainty import UncertaintyInputs
+from core.criteria.uncertainty import inputs_of_run
 from core.errors import MebmError, TraceError
 from storage.dataset import read_dataset
 
@@ -42,12 +42,11 @@ def run(a: argparse.Namespace) -> int:
         for axis_name in r.spec.axes:
             axis = ds.machine.axes[axis_name]
             try:
-                # a run measured with separate (unlatched) reads states its skew x speed
-                skew = r.spec.extra.get("skew_uncertainty_um") or 0.0
+                # a run measured with separate (unlatched) reads states its skew x speed, a polled one its clock
                 res = analyze_round_trip(
                     r.time_s, r.motor_rev(axis_name), r.table_mm(axis_name), axis,
                     useful_travel_mm=tuple(a.useful_travel_mm) if a.useful_travel_mm else None,
-                    settings=settings, uncertainty=UncertaintyInputs(sampling_bound_um=float(skew)),
+                    settings=settings, uncertainty=inputs_of_run(r.spec.extra),
                 )
             except MebmError as exc:
                 failures.append(f"{r.spec.file} (axis {axis_name}): {exc}")

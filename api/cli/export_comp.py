@@ -10,7 +10,7 @@ from pathlib import Path
 from api.service.compensation import COMP_TYPES, FORMATS, export, load_round_trip
 from core.compensation import LOOP_ENCODERS
 from core.criteria import analyze_round_trip
-from core.criteria.uncertainty import UncertaintyInputs
+from core.criteria.uncertainty import inputs_of_run
 from core.errors import InputError
 
 
@@ -43,11 +43,10 @@ def run(a: argparse.Namespace) -> int:
     folder = Path(a.dataset)
     axis, r = load_round_trip(folder, a.run, a.axis)
     loop = a.loop_encoder or str(axis.extra.get("loop_encoder", "motor"))
-    skew = r.spec.extra.get("skew_uncertainty_um") or 0.0
     result = analyze_round_trip(
         r.time_s, r.motor_rev(axis.name), r.table_mm(axis.name), axis,
         useful_travel_mm=tuple(a.useful_travel_mm) if a.useful_travel_mm else None,
-        uncertainty=UncertaintyInputs(sampling_bound_um=float(skew)),
+        uncertainty=inputs_of_run(r.spec.extra),
     )
     ex = export(result, a.format, step_mm=a.step_mm, comp_type=a.comp_type, joint=a.joint,
                 loop_encoder=loop, reference_mm=a.reference_mm, source=f"{folder.name}/{a.run}",

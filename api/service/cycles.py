@@ -370,6 +370,7 @@ class CycleExecutor:
             "finished_at": fc.finished_at.isoformat(), "failure_reason": fc.failure_reason,
             "temperature_c": fc.temperature_c, "utility_day": fc.utility_day, "uncertainty_um": fc.uncertainty_um,
             "sampling_bound_um": _sampling_bound_um(fc.round_trip),
+            "clock_uncertainty_s": fc.round_trip.clock_uncertainty_s if fc.round_trip is not None else 0.0,
             "dataset_folder": str(folder) if folder else None, "run_file": fc.run_file,
             "trace_file": str(trace_file) if trace_file else None, "raw_run_lost": fc.raw_run_lost,
             "tasks": [_task_doc(t) for t in tasks],
@@ -452,7 +453,8 @@ class CycleExecutor:
         if status == "ok":
             try:
                 time_s, motor_rev, table_mm = self._spooled_trace(d)
-                rt = analyse(axis, time_s, motor_rev, table_mm, sampling_bound_um=d.get("sampling_bound_um") or 0.0)
+                rt = analyse(axis, time_s, motor_rev, table_mm, sampling_bound_um=d.get("sampling_bound_um") or 0.0,
+                             clock_uncertainty_s=d.get("clock_uncertainty_s") or 0.0)
                 tasks = [MachiningTask(**t) for t in d["tasks"]]
                 decision = make_decision(axis, tasks, rt.backlash.mean_um, _expanded(rt))
             except DatabaseUnavailableError:

@@ -70,13 +70,18 @@ def noise_sigma_mm(values_mm: np.ndarray) -> float:
 
 
 def hampel_mask(values_mm: np.ndarray, settings: OutlierSettings = OutlierSettings(), *,
-                detrend: bool = False, noise_mm: float | None = None, time_s: np.ndarray | None = None) -> np.ndarray:
+                detrend: bool = False, noise_mm: float | None = None, time_s: np.ndarray | None = None,
+                clock_uncertainty_s: float = 0.0) -> np.ndarray:
     """Boolean mask of the outliers of one contiguous signal (mm).
 
     ``detrend``: compare each sample with the window's median after removing the
     window's median velocity (for an encoder's position while the axis moves), per
     unit of ``time_s`` when given (polled or decimated samples are irregular), else
     per sample. ``noise_mm``: the global noise scale, estimated when not given.
+    ``clock_uncertainty_s``: a bound on the error of each ``time_s`` (a polled sample is
+    stamped at the middle of its request, not when the controller latched it): a sample
+    moved along the motion by up to 2 |v| u from its neighbours' line is not told apart
+    from a stamp error, so it is not called an outlier.
     """
     v = np.asarray(values_mm, dtype=float)
     n = v.size
@@ -121,6 +126,8 @@ def hampel_mask(values_mm: np.ndarray, settings: OutlierSettings = OutlierSettin
     ref = np.median(win, axis=1)
     mad = np.median(np.abs(win - ref[:, None]), axis=1)
     thr = np.maximum(settings.n_sigmas * _MAD_TO_SIGMA * mad, thr_global)
+    if detrend and t is not None and clock_uncertainty_s > 0:
+        thr = thr + 2.0 * np.abs(vel) * clock_uncertainty_s
     centre = win[:, h]
     mask[test[np.abs(centre - ref) > thr]] = True
     return mask
@@ -128,13 +135,16 @@ def hampel_mask(values_mm: np.ndarray, settings: OutlierSettings = OutlierSettin
 
 def encoder_outliers(motor_mm: np.ndarray, table_mm: np.ndarray,
                      settings: OutlierSettings = OutlierSettings(), *, time_s: np.ndarray | None = None,
-                     sampling_bound_um: float = 0.0) -> np.ndarray:
+                     sampling_bound_um: float = 0.0, clock_uncertainty_s: float = 0.0) -> np.ndarray:
     """Outliers of one contiguous stretch of motion: on the motor-table difference and
     on each encoder's smoothness. ``motor_mm`` is the motor position as table travel
     (k_a x_m); ``time_s`` (or any clock, e.g. a servo-cycle counter) the sampling
     instants when they are irregular. ``sampling_bound_um``: the known scatter of the
     readings from sampling (skew x speed when the encoders are read separately); no
-    deviation within twice that is called an outlier. Returns a boolean mask."""
+    deviation within twice that is called an outlier. ``clock_uncertainty_s``: a bound
+    on the error of each ``time_s`` (polled samples), for the smoothness tests only: the
+    motor-table difference of a latched pair does not depend on when it was latched.
+    Returns a boolean mask."""
     m = np.asarray(motor_mm, dtype=float)
     t = np.asarray(table_mm, dtype=float)
     if m.shape != t.shape:
@@ -145,8 +155,8 @@ def encoder_outliers(motor_mm: np.ndarray, table_mm: np.ndarray,
         settings = replace(settings, floor_um=max(settings.floor_um, 2.0 * sampling_bound_um))
     return (
         hampel_mask(t - m, settings)
-        | hampel_mask(m, settings, detrend=True, time_s=time_s)
-        | hampel_mask(t, settings, detrend=True, time_s=time_s)
+        | hampel_mask(m, settings, detrend=True, time_s=time_s, clock_uncertainty_s=clock_uncertainty_s)
+        | hampel_mask(t, settings, detrend=True, time_s=time_s, clock_uncertainty_s=clock_uncertainty_s)
     )
 
 

@@ -89,6 +89,8 @@ class RoundTripResult:
     budgets: dict[str, UncertaintyBudget] = field(default_factory=dict)
     # ISO 230-2 reversal values and the clearance estimate (core.criteria.lost_motion)
     lost_motion: LostMotion | None = None
+    # the bound on the samples' time stamps the outlier test allowed for (polled samples)
+    clock_uncertainty_s: float = 0.0
 
     @property
     def backlash_mean_uncertainty_um(self) -> float:
@@ -116,6 +118,7 @@ class RoundTripResult:
             "smoothing_mm": self.smoothing_mm,
             "sample_spacing_mm": self.sample_spacing_mm,
             "outliers_removed": self.outliers_removed,
+            "clock_uncertainty_s": self.clock_uncertainty_s,
             "noise_um": self.noise_um,
             "backlash_mean_um": self.backlash.mean_um,
             "backlash_min_um": self.backlash.min_um,
@@ -292,7 +295,8 @@ def analyze_round_trip(
     # a reversal, or for a lead error of 5 mm in one bin. Dropped, counted, and refused
     # past max_fraction: the same rule the acquisition applies online.
     outliers = encoder_outliers(nominal, table, settings.outliers, time_s=t,
-                                sampling_bound_um=uncertainty.sampling_bound_um)
+                                sampling_bound_um=uncertainty.sampling_bound_um,
+                                clock_uncertainty_s=uncertainty.clock_uncertainty_s)
     n_out = int(np.count_nonzero(outliers))
     check_outlier_fraction(n_out, n_samples, settings.outliers, "of the round trip")
     if n_out:
@@ -421,6 +425,7 @@ def analyze_round_trip(
         noise_um=noise_mm * 1e3,
         budgets=budgets,
         lost_motion=lm,
+        clock_uncertainty_s=float(uncertainty.clock_uncertainty_s),
     )
 
 

@@ -75,7 +75,9 @@ class UncertaintyInputs:
     half-width a of the sampling error on b (skew x speed, latch jitter x speed).
     ``transmission_rel_tolerance``: half-width of the relative uncertainty of the
     configured k_a. ``repeatability_um``/``normalisation_um``: standard uncertainties
-    from the history, when the caller has one."""
+    from the history, when the caller has one. ``clock_uncertainty_s``: a bound on the
+    error of each sample's time stamp (polled samples; the outlier test's smoothness
+    checks allow for it, the backlash does not depend on it)."""
 
     table_resolution_um: float | None = None
     motor_resolution_um: float | None = None
@@ -83,11 +85,12 @@ class UncertaintyInputs:
     transmission_rel_tolerance: float = 0.0
     repeatability_um: float = 0.0
     normalisation_um: float = 0.0
+    clock_uncertainty_s: float = 0.0
     notes: dict = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
         for key in ("table_resolution_um", "motor_resolution_um", "sampling_bound_um",
-                    "transmission_rel_tolerance", "repeatability_um", "normalisation_um"):
+                    "transmission_rel_tolerance", "repeatability_um", "normalisation_um", "clock_uncertainty_s"):
             v = getattr(self, key)
             if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise InputError(f"{key} (={v!r}) must be a finite number >= 0")
@@ -112,3 +115,11 @@ def history_components(inputs: UncertaintyInputs) -> tuple[UncertaintyComponent,
         out.append(UncertaintyComponent("normalisation", inputs.normalisation_um,
                                         inputs.notes.get("normalisation", "20 °C normalisation: β and thermometer")))
     return tuple(out)
+
+
+def inputs_of_run(extra: dict) -> UncertaintyInputs:
+    """The inputs a stored round-trip run states in its ``extra`` fields: the sampling
+    bound (``skew_uncertainty_um``, separate reads) and the time stamps' bound
+    (``clock_uncertainty_s``, polled samples)."""
+    return UncertaintyInputs(sampling_bound_um=float(extra.get("skew_uncertainty_um") or 0.0),
+                             clock_uncertainty_s=float(extra.get("clock_uncertainty_s") or 0.0))

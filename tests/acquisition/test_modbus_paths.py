@@ -157,6 +157,11 @@ def test_rtu_over_a_pty_pair_with_a_profile(trace_mode_b_um, tmp_path):
             assert driver.describe().startswith(f"modbus+rtu://{mebm_end}")
             r = run_cycle(driver, AXIS, PROGRAM)
     _check_same_b(r, trace_mode_b_um, latched=True)
+    # polled samples are stamped at the middle of their request; the bound (half the longest
+    # request) is carried to the outlier test, a loaded host's slow request is not a glitch
+    assert 0 < r.trace.clock_uncertainty_s < 1.0
+    assert r.result.clock_uncertainty_s == r.trace.clock_uncertainty_s
+    assert r.to_run("run.csv").spec.extra["clock_uncertainty_s"] == r.trace.clock_uncertainty_s
 
 
 class _PyModbusTcpPlc:

@@ -6,6 +6,7 @@ import pytest
 from core.criteria import analyze_round_trip
 from core.criteria.outliers import OutlierSettings, encoder_outliers, hampel_mask, noise_sigma_mm
 from core.criteria.roundtrip import RoundTripSettings
+from core.criteria.uncertainty import UncertaintyInputs
 from core.dataset import AxisSpec
 from core.errors import InputError, OutlierError, TraceError
 from tests.core.criteria.synth import round_trip, true_criteria
@@ -114,3 +115,34 @@ def test_sampling_scatter_within_its_bound_is_not_an_outlier():
     assert not encoder_outliers(motor, table, time_s=t, sampling_bound_um=bound_um).any()
     table[700] += 5.0  # a real glitch still is one
     assert np.flatnonzero(encoder_outliers(motor, table, time_s=t, sampling_bound_um=bound_um)).tolist() == [700]
+
+
+def test_time_stamp_scatter_within_its_bound_is_not_an_outlier():
+    # polled, latched reads: each pair is consistent, but it is stamped at the middle of its
+    # request, not when the controller latched it; on a loaded host a request takes up to
+    # ~10 ms, so a stamp may be off by ±5 ms: 83 µm at 1000 mm/min (requests follow each
+    # other, so the stamps still increase)
+    rng = np.random.default_rng(5)
+    n, v_mm_s, dt, u_s = 3000, 1000.0 / 60.0, 12e-3, 5e-3
+    latched_at = np.arange(n) * dt
+    stamped = latched_at + rng.uniform(-u_s, u_s, n) * (rng.random(n) < 0.05)  # 5 % of the requests were slow
+    motor = v_mm_s * latched_at
+    table = motor - 0.006
+    assert encoder_outliers(motor, table, time_s=stamped).sum() > 0.01 * n  # unexplained, they look like glitches
+    assert not encoder_outliers(motor, table, time_s=stamped, clock_uncertainty_s=u_s).any()
+    assert not encoder_outliers(motor, table, time_s=latched_at).any()  # the stamps were all it was
+    table[1700] += 0.005  # a glitch of one encoder still is one: the motor-table difference does not move in time
+    assert np.flatnonzero(encoder_outliers(motor, table, time_s=stamped, clock_uncertainty_s=u_s)).tolist() == [1700]
+    r = analyze_round_trip(*_polled(u_s), AXIS, uncertainty=UncertaintyInputs(clock_uncertainty_s=u_s))
+    assert r.clock_uncertainty_s == u_s and r.to_dict()["clock_uncertainty_s"] == u_s
+    with pytest.raises(OutlierError, match="outliers"):
+        analyze_round_trip(*_polled(u_s), AXIS)
+
+
+def _polled(u_s):
+    """A round trip polled every 12.5 ms, 5 % of its stamps off by up to ``u_s``."""
+    s = _trip(rate_hz=80.0)
+    rng = np.random.default_rng(6)
+    n = s.time_s.size
+    stamped = s.time_s + rng.uniform(-u_s, u_s, n) * (rng.random(n) < 0.05)
+    return stamped, s.motor_rev, s.table_mm
