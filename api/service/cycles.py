@@ -114,7 +114,7 @@ def _fin(x):
 class CycleExecutor:
     """Runs cycles for the scheduler and stores them (see the module docstring)."""
 
-    def __init__(self, factory, data_dir: Path, runner: CycleRunner, resolve_url, *, on_saved=None):
+    def __init__(self, factory, data_dir: Path, runner: CycleRunner, resolve_url, *, on_saved=None, status=None):
         self.factory = factory
         self.data_dir = Path(data_dir)
         self.spool_dir = self.data_dir / "spool"
@@ -123,6 +123,9 @@ class CycleExecutor:
         self.runner = runner
         self.resolve_url = resolve_url
         self.on_saved = on_saved or (lambda axis_id, cycle, alerts: None)
+        # the status cache (api.service.status.StatusCache): the new status is computed in
+        # the transaction that stores a cycle and published after its commit
+        self.status = status
         self._axes: dict[int, AxisRecord] = {}  # last known settings, for cycles during a DB outage
         self._spool_lock = threading.Lock()  # guards _in_flight and unsaved
         self._replay_lock = threading.Lock()
@@ -266,6 +269,7 @@ class CycleExecutor:
         try:
             with session_scope(self.factory) as s:
                 cycle, alerts = results_repo.save_finished_cycle(s, fc)
+                publish = self._prepare_status(s, fc.axis_id)
         except DatabaseUnavailableError as exc:
             if spool is None:
                 log.error("cycle %s could not be spooled and the database is down (%s): kept in memory "
@@ -278,10 +282,27 @@ class CycleExecutor:
             return None
         if spool is not None:
             spool.unlink(missing_ok=True)
-        self._notify(fc.axis_id, cycle, alerts)
+        self._notify(fc.axis_id, cycle, alerts, publish)
         return cycle
 
-    def _notify(self, axis_id: int, cycle: CycleRecord, alerts: list[AlertRecord]) -> None:
+    def _prepare_status(self, s, axis_id: int):
+        """The status cache's publication of the axis' new status, computed in ``s`` (a
+        savepoint: a failing read leaves the cycle's transaction usable); None if there is
+        no cache or it failed (the status is then recomputed on its next use)."""
+        if self.status is None:
+            return None
+        try:
+            with s.begin_nested():
+                return self.status.prepare(s, axis_id)
+        except Exception:  # noqa: BLE001 - the cycle is stored all the same
+            log.exception("axis %s: the new status could not be computed with the cycle", axis_id)
+            return None
+
+    def _notify(self, axis_id: int, cycle: CycleRecord, alerts: list[AlertRecord], publish=None) -> None:
+        if publish is not None:
+            publish()
+        elif self.status is not None:
+            self.status.invalidate(axis_id)
         for a in alerts:
             if a.active:
                 log.warning("ALERT raised on axis %s: %s", axis_id, a.message)
@@ -440,9 +461,10 @@ class CycleExecutor:
         try:
             with session_scope(self.factory) as s:
                 cycle, alerts = results_repo.save_finished_cycle(s, fc)
+                publish = self._prepare_status(s, fc.axis_id)
         except DatabaseUnavailableError:
             return None
-        self._notify(fc.axis_id, cycle, alerts)
+        self._notify(fc.axis_id, cycle, alerts, publish)
         return cycle
 
     def _from_spool(self, path: Path) -> FinishedCycle:

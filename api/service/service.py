@@ -111,8 +111,7 @@ class Service:
         return sim
 
     def _on_saved(self, axis_id, cycle, alerts) -> None:
-        if self.status is not None:
-            self.status.invalidate(axis_id)
+        # (the executor has published the axis' new status: computed with the cycle, issue 21)
         axis = self.executor.known_axis(axis_id) if self.executor is not None else None
         machine, name = (axis.machine_name, axis.name) if axis is not None else ("?", "?")
         for ev in events_of_saved_cycle(axis_id, machine, name, cycle, alerts):
@@ -159,7 +158,7 @@ class Service:
                     _restrict(p, 0o600)
         self.status = StatusCache(self.factory, ttl_s=st.status_max_age_s)
         self.executor = CycleExecutor(self.factory, Path(st.data_dir), self.runner, self.resolve_url,
-                                      on_saved=self._on_saved)
+                                      on_saved=self._on_saved, status=self.status)
         if isinstance(self.runner, DriverRunner) and self.runner.processes is not None and (
                 st.scheduler_enabled or not self.fleet):  # (an API-only fleet replica runs no cycle)
             self.runner.processes.start()  # spawned in the background; cycles run in the service until they are up

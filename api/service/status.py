@@ -111,6 +111,10 @@ class StatusCache:
         self._locks: dict[int, threading.Lock] = {}
         self._lock = threading.Lock()
         self._history_memo = HistoryMemo()  # the prognosis fit, redone only when its inputs change
+        # per axis, bumped by every invalidation and publication: a recomputation that
+        # started before one is returned to its caller but not cached
+        self._gen: dict[int, int] = {}
+        self._epoch = 0  # bumped by invalidating every axis
 
     def fresh(self, axis_id: int) -> AxisStatus | None:
         """The cached status if it is recent enough (no database access)."""
@@ -147,11 +151,46 @@ class StatusCache:
             if hit is not None:
                 return hit
             now = time.monotonic()
+            gen = self._stamp(axis_id)
             with session_scope(self.factory) as s:
                 st = compute_status(s, axis_id, self._history_memo)
             with self._lock:
-                self._cache[axis_id] = (now, st)
+                if self._stamp(axis_id) == gen:  # not if a newer status was published meanwhile
+                    self._cache[axis_id] = (now, st)
             return st
+
+    def prepare(self, s, axis_id: int):
+        """The status of ``axis_id`` computed in the transaction ``s`` that stores a cycle, so
+        that no poller has to recompute it after the commit (issue 21: the first poll after
+        each cycle paid for the recomputation). Computed before the commit, it already
+        contains the new measurement. Returns the function the caller calls once the
+        commit is done, which publishes it. Until then pollers get the cached status, as
+        they did before this existed (the old code invalidated after the commit): the
+        window in which a client may see the new measurement elsewhere but not yet in the
+        status is the few statements between the commit and the publication, not a
+        recomputation. If the transaction rolls back, the function is not called and
+        nothing of it stays (the history memo's new entry included); if the axis' status
+        is invalidated in between (e.g. its tasks changed), the publication is dropped and
+        the next use recomputes. Errors propagate (the caller keeps the cycle and
+        invalidates instead)."""
+        memo = self._history_memo.staged()
+        with self._lock:
+            gen = self._stamp(axis_id)
+        now = time.monotonic()
+        st = compute_status(s, axis_id, memo)
+
+        def publish() -> None:
+            with self._lock:
+                if self._stamp(axis_id) != gen:  # invalidated since (the entry was dropped then): recomputed on use
+                    return
+                memo.apply()
+                self._gen[axis_id] = gen[1] + 1  # a computation started before the commit is not kept
+                self._cache[axis_id] = (now, st)
+
+        return publish
+
+    def _stamp(self, axis_id: int) -> tuple[int, int]:
+        return self._epoch, self._gen.get(axis_id, 0)
 
     def _axis_lock(self, axis_id: int) -> threading.Lock:
         with self._lock:
@@ -161,7 +200,9 @@ class StatusCache:
         with self._lock:
             if axis_id is None:
                 self._cache.clear()
+                self._epoch += 1
             else:
                 self._cache.pop(axis_id, None)
+                self._gen[axis_id] = self._gen.get(axis_id, 0) + 1
 
 
