@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from fastapi.testclient import TestClient  # noqa: E402
-from sqlalchemy import insert  # noqa: E402
+from sqlalchemy import func, insert, select  # noqa: E402
 
 from api.rest import create_app  # noqa: E402
 from api.service.config import Settings, demo_axis  # noqa: E402
@@ -79,6 +79,35 @@ def seed(url: str, minutes: int) -> tuple[int, str]:
     return axis.id, key
 
 
+def after_new_results(svc, axis_id: int, repeat: int) -> tuple[float, float]:
+    """The status recomputation a stored cycle pays (``StatusCache.prepare``, inside the
+    transaction that stores it), each time after one more result, as cycles add them."""
+    times = []
+    last = None
+    with session_scope(svc.factory) as s:
+        last = s.scalar(select(func.max(Result.id)))
+    for k in range(repeat):
+        w = datetime.now(timezone.utc)
+        n = last + 1 + k
+        with session_scope(svc.factory) as s:
+            s.execute(insert(Cycle), [dict(id=n, uuid=str(uuid.uuid4()), axis_id=axis_id, trigger="schedule", status="ok",
+                                           requested_at=w, started_at=w, finished_at=w, temperature_c=21.0)])
+            s.execute(insert(Result), [dict(id=n, cycle_id=n, axis_id=axis_id, measured_at=w, temperature_c=21.0,
+                                            utility_day=366.0, backlash_mean_um=260.0, backlash_min_um=255.0,
+                                            backlash_max_um=265.0, backlash_std_um=2.0, useful_travel_start_mm=0.0,
+                                            useful_travel_end_mm=1000.0, n_samples=12000, peak_speed_mm_min=3000.0,
+                                            uncertainty_um=0.8, state="OK")])
+            s.execute(insert(LeadCriteriaRow), [dict(result_id=n, direction=d, e_p_um=10.0, e_p_um_per_1000mm=8.0,
+                                                     v_u_um=12.0, v_300_um=6.0, v_2pi_um=3.0, n_strokes=1)
+                                                for d in ("positive", "negative")])
+            rollup.refresh(s, axis_id, w)
+            t = time.perf_counter()
+            publish = svc.status.prepare(s, axis_id)
+            times.append(time.perf_counter() - t)
+        publish()
+    return statistics.median(times) * 1e3, max(times) * 1e3
+
+
 def timed(client, path, key, repeat):
     times, size = [], 0
     for _ in range(repeat):
@@ -109,6 +138,9 @@ def main() -> int:
                                ("plot tbe_history", f"/api/v1/axes/{axis_id}/plots/tbe_history.png")):
                 med, worst, size = timed(client, path, key, 1 if name.endswith("(first)") else a.repeat)
                 print(f"{name:<22} median {med:8.1f} ms  max {worst:8.1f} ms  body {size / 1e3:8.1f} kB")
+            med, worst = after_new_results(client.app.state.service, axis_id, a.repeat)
+            print(f"{'status, new result':<22} median {med:8.1f} ms  max {worst:8.1f} ms  "
+                  "(recomputed in the storing transaction, one new result each time)")
     return 0
 
 

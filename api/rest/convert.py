@@ -95,13 +95,13 @@ def _lost_motion(rt, s: AxisStatus) -> dict:
         out = {"reversal_mean_um": lm.mean_um, "reversal_max_um": lm.max_abs_um,
                "lost_motion": {**lm.to_dict(), "tbe_basis": TBE_BASIS}}
     if s.history is not None:
-        out.setdefault("lost_motion", {"tbe_basis": TBE_BASIS})["clearance_history"] = s.history.clearance.to_dict()
+        out.setdefault("lost_motion", {"tbe_basis": TBE_BASIS})["clearance_history"] = s.history.clearance.to_dict(points=False)
     return out
 
 
 def _prognosis(s: AxisStatus) -> dict | None:
     if s.history is not None:
-        return prognosis_body(s.history)
+        return prognosis_body(s.history, points=False)  # the points: GET /axes/{id}/prognosis
     if s.history_error:
         return {"identifiable": False, "reason": f"the prognosis could not be computed: {s.history_error}"}
     return None

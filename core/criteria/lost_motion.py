@@ -52,7 +52,13 @@ class ClearanceEstimate:
     source: str  # "program" or "history"
     reason: str
 
-    def to_dict(self) -> dict:
+    def to_dict(self, *, points: bool = True) -> dict:
+        """``points`` False: the count of the (feed, lost motion) points instead of their
+        lists (a history's are up to 3000 of each; the status the MES polls needs none)."""
+        if not points:
+            out = self.to_dict()
+            del out["feeds_mm_min"], out["lost_motion_um"]
+            return {**out, "points": len(self.feeds_mm_min)}
         return {
             "clearance_um": self.clearance_um,
             "clearance_uncertainty_um": self.clearance_uncertainty_um,

@@ -67,6 +67,9 @@ def test_prognosis_endpoint_status_and_plot(app_env, runner):
     st = client.get(f"{V1}/axes/{axis_id}/status", headers=h).json()
     assert st["prognosis"]["alarm_temperature_c"] == p["alarm_temperature_c"]
     assert st["prognosis"]["computed_at"] == p["computed_at"]
+    # the status the MES polls counts the history's points; GET /prognosis lists them
+    for c in (st["prognosis"]["clearance_history"], st["lost_motion"]["clearance_history"]):
+        assert c["points"] == 81 and "feeds_mm_min" not in c and c["clearance_um"] == p["clearance_history"]["clearance_um"]
     assert st["reversal_mean_um"] == pytest.approx(st["backlash_mean_um"], abs=0.5)
     assert "total lost motion" in st["lost_motion"]["tbe_basis"]
     r = client.get(f"{V1}/axes/{axis_id}/plots/prognosis.png", headers=h)
