@@ -447,6 +447,8 @@ class CuttableProxy:
                 threading.Thread(target=self._pump, args=(a, b), daemon=True).start()
 
     def _pump(self, src, dst):
+        import socket
+
         try:
             while True:
                 data = src.recv(65536)
@@ -457,7 +459,15 @@ class CuttableProxy:
         except OSError:
             pass
         finally:
+            # shutdown first: close() alone does not end the other pump's recv() on the same
+            # socket (Linux keeps it open while a thread is blocked in it), so the FIN that the
+            # server sent (e.g. ending an idle-in-transaction session while the link was cut)
+            # never reached the worker, whose query then waited forever after the heal
             for s in (src, dst):
+                try:
+                    s.shutdown(socket.SHUT_RDWR)
+                except OSError:
+                    pass
                 try:
                     s.close()
                 except OSError:
