@@ -5,14 +5,20 @@ normal events and end the cycle as ``failed`` with a reason a technician can act
 (the driver has already sent the abort). No partial result is ever reported as a
 valid measurement: a failed cycle carries no criteria. Usable from a thread
 (:func:`run_cycle`) or an asyncio loop (:func:`run_cycle_async`).
+
+A round trip whose trace has a stretch of travel without samples (a polled wire whose
+host or network paused: nothing later can recover those samples) is run once more, if
+mebm commanded it (``repeat_on_hole``). The result says so (``attempts``,
+``repeated_after``), and so does the stored run; the first trace is refused, not used.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -24,6 +30,8 @@ from core.criteria.uncertainty import UncertaintyInputs
 from core.dataset import AxisSpec, Run, RunSpec
 from core.errors import MebmError, TraceError
 from core.tbe import AxisDecision, MachiningTask, decide
+
+log = logging.getLogger(__name__)
 
 def reason_code(exc: BaseException) -> str:
     """A stable short code for the kind of failure (for the service, metrics and tests):
@@ -57,6 +65,8 @@ class CycleResult:
     started_at: float = 0.0
     duration_s: float = 0.0
     error: BaseException | None = field(default=None, compare=False, repr=False)
+    attempts: int = 1  # round trips run for this result (2: the first trace had a hole)
+    repeated_after: str | None = None  # why the first round trip was refused, when repeated
 
     @property
     def ok(self) -> bool:
@@ -75,7 +85,10 @@ class CycleResult:
             "reason": self.reason,
             "reason_code": self.reason_code,
             "duration_s": self.duration_s,
+            "attempts": self.attempts,
         }
+        if self.repeated_after is not None:
+            out["repeated_after"] = self.repeated_after
         if self.trace is not None:
             t = self.trace
             out["acquisition"] = {
@@ -115,6 +128,8 @@ class CycleResult:
             "sample_rate_hz": t.servo_rate_hz, "counter_first": int(t.counter[0]), "counter_last": int(t.counter[-1]),
             "travel_program_mm": [self.program.start_mm, self.program.end_mm], "trigger": t.trigger,
         }
+        if self.repeated_after is not None:
+            extra["repeated_after"] = self.repeated_after
         spec = RunSpec(file=file, kind="round_trip", axes=(self.axis,), feed_mm_min=self.program.feed_mm_min,
                        temperature_c=t.temperature_c if math.isfinite(t.temperature_c) else 20.0,
                        utility_day=utility_day, acceleration_mm_s2=self.program.acceleration_mm_s2, extra=extra)
@@ -217,10 +232,46 @@ def default_program(axis: AxisSpec, feed_mm_min: float, *, acceleration_mm_s2: f
                             acceleration_mm_s2=acceleration_mm_s2, dwell_s=dwell_s)
 
 
+def sampling_hole(res: CycleResult, settings: RoundTripSettings = RoundTripSettings()) -> str | None:
+    """Why ``res`` is worth running once more, or None: an active round trip refused for a
+    stretch of travel without samples (two consecutive samples more than
+    ``settings.max_gap_mm`` apart). A polled wire (latched or separate reads) has no
+    buffer to recover such a stretch from; its cause, a paused host or network, passes. A
+    failure of another kind (an encoder fault, samples the controller itself lost, a
+    timeout) is not repeated: it would fail again or need a technician."""
+    t = res.trace
+    if res.ok or res.reason_code != "trace" or t is None or t.trigger != "active" or len(t) < 2:
+        return None
+    dx = np.abs(np.diff(t.table_mm))
+    i = int(np.argmax(dx))
+    if not dx[i] > settings.max_gap_mm:
+        return None
+    dt = float(t.time_s[i + 1] - t.time_s[i])
+    return (f"{res.reason} (no sample for {dt:.3f} s over {dx[i]:.2f} mm at {t.table_mm[i]:.2f} mm: "
+            f"the wire or the host paused)")
+
+
+def _repeated(first: CycleResult, hole: str, second: CycleResult) -> CycleResult:
+    log.warning("%s axis %s: round trip run again: %s", first.controller, first.axis, hole)
+    reason = second.reason if second.ok else f"{second.reason} (the round trip was run twice; the first: {hole})"
+    return replace(second, reason=reason, attempts=first.attempts + 1, repeated_after=hole,
+                   started_at=first.started_at, duration_s=first.duration_s + second.duration_s)
+
+
 def run_cycle(driver: ControllerDriver, axis: AxisSpec, program: RoundTripProgram, *,
               tasks: Sequence[MachiningTask] = (), useful_travel_mm: tuple[float, float] | None = None,
-              settings: RoundTripSettings = RoundTripSettings()) -> CycleResult:
-    """One measurement cycle from a thread (runs its own event loop). Never raises for faults."""
+              settings: RoundTripSettings = RoundTripSettings(), repeat_on_hole: bool = True) -> CycleResult:
+    """One measurement cycle from a thread (runs its own event loop). Never raises for faults.
+    ``repeat_on_hole``: run the round trip once more if its trace has a hole
+    (:func:`sampling_hole`)."""
+    res = _run_once(driver, axis, program, tasks, useful_travel_mm, settings)
+    hole = sampling_hole(res, settings) if repeat_on_hole else None
+    if hole is None:
+        return res
+    return _repeated(res, hole, _run_once(driver, axis, program, tasks, useful_travel_mm, settings))
+
+
+def _run_once(driver, axis, program, tasks, useful_travel_mm, settings) -> CycleResult:
     t0, wall0 = time.monotonic(), time.time()
     try:
         trace = driver.acquire(program, axis)
@@ -231,8 +282,17 @@ def run_cycle(driver: ControllerDriver, axis: AxisSpec, program: RoundTripProgra
 
 async def run_cycle_async(driver: ControllerDriver, axis: AxisSpec, program: RoundTripProgram, *,
                           tasks: Sequence[MachiningTask] = (), useful_travel_mm: tuple[float, float] | None = None,
-                          settings: RoundTripSettings = RoundTripSettings()) -> CycleResult:
+                          settings: RoundTripSettings = RoundTripSettings(),
+                          repeat_on_hole: bool = True) -> CycleResult:
     """:func:`run_cycle` for callers already inside an asyncio loop."""
+    res = await _run_once_async(driver, axis, program, tasks, useful_travel_mm, settings)
+    hole = sampling_hole(res, settings) if repeat_on_hole else None
+    if hole is None:
+        return res
+    return _repeated(res, hole, await _run_once_async(driver, axis, program, tasks, useful_travel_mm, settings))
+
+
+async def _run_once_async(driver, axis, program, tasks, useful_travel_mm, settings) -> CycleResult:
     t0, wall0 = time.monotonic(), time.time()
     try:
         trace = await driver.acquire_async(program, axis)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import socket
 
 import numpy as np
@@ -10,7 +11,7 @@ from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusIOException
 
 from acquisition import modbus_map as mm
-from acquisition.cycle import run_cycle
+from acquisition.cycle import run_cycle, run_cycle_async
 from acquisition.errors import ControllerConnectionError, DeviceBusyError, ProtocolError
 from acquisition.modbus import ModbusDriver
 from acquisition.scale import EncoderScale
@@ -386,3 +387,28 @@ def test_controller_refusing_connections_fails_then_succeeds_once_it_accepts():
         peer.recover()
         r = run_cycle(peer.driver(), AXIS, PROGRAM)
         assert r.ok, r.reason
+
+
+# A polled wire has no buffer: a pause of the host or the network leaves a stretch of travel
+# without samples. "slow" delays the controller's replies by 0.6 s for 0.3 s of the run,
+# in the first round trip only (cycles=1) or in two (cycles=2).
+def test_a_hole_in_a_polled_trace_runs_the_round_trip_once_more():
+    with modbus_peer(mode="separate", time_scale=1.0, faults=["slow:at=0.3,s=0.6,for=0.3"]) as peer:
+        r = run_cycle(peer.driver(), AXIS, PROGRAM)
+        assert r.ok, r.reason
+        assert r.attempts == 2 and "no samples between" in r.repeated_after and "paused" in r.repeated_after
+        # unlatched reads: b̄ within the skew bound the result carries
+        assert abs(r.result.backlash_mean_um - 120.0) < r.trace.skew_uncertainty_um + 1.0
+        assert r.to_dict()["attempts"] == 2 and r.to_dict()["repeated_after"] == r.repeated_after
+        assert r.to_run("rt.csv").spec.extra["repeated_after"] == r.repeated_after
+
+
+def test_a_hole_is_repeated_once_only_and_not_when_asked_not_to():
+    with modbus_peer(mode="separate", time_scale=1.0, faults=["slow:at=0.3,s=0.6,for=0.3,cycles=2"]) as peer:
+        r = asyncio.run(run_cycle_async(peer.driver(), AXIS, PROGRAM))  # the asyncio path repeats alike
+        assert not r.ok and r.reason_code == "trace" and r.attempts == 2
+        assert "run twice" in r.reason and r.result is None
+    with modbus_peer(mode="separate", time_scale=1.0, faults=["slow:at=0.3,s=0.6,for=0.3"]) as peer:
+        r = run_cycle(peer.driver(), AXIS, PROGRAM, repeat_on_hole=False)
+        assert not r.ok and r.reason_code == "trace" and r.attempts == 1 and r.repeated_after is None
+        assert "no samples between" in r.reason
