@@ -187,7 +187,11 @@ def run_rigid(t0, h, cmd, gain, u0, x0, side0, fixed, lam, per, amp, pha, pos, h
             e = cc - x
             n, g = _nut(u, fixed, lam, per, amp, pha)
             hb, dhb = _half(n, pos, hw)
-            if side != 0 and (side * e > 0.0 or (e == 0.0 and side * cd >= 0.0)):
+            # engaged: the error pushes against the flank, or is nil (to rounding, as the gap
+            # branch takes it) with the command moving that way; an exact e == 0 test let a
+            # zero-width play flip between the flank and the gap 8 times at one instant and
+            # end the step through the cut-short path (table resting while the nut moved)
+            if side != 0 and (side * e > 0.0 or (abs(e) < 1e-13 and side * cd >= 0.0)):
                 gy = g * (1.0 - side * dhb)
                 if gy < 1e-6:
                     gy = 1e-6

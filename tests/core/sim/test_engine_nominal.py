@@ -4,7 +4,7 @@ import itertools
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from core.sim import AxisModel, Effects, ServoDynamics, circle, line, round_trip, simulate
@@ -125,6 +125,9 @@ def test_the_fixed_step_integrator_reproduces_the_exact_one(b_um, radius, feed, 
     feed=st.floats(50.0, 5000.0),
     travel=st.floats(1.0, 30.0),
 )
+# found by CI (hypothesis seed 1962026592): a zero-width play flipped between flank and gap
+# at one instant until the step was cut short, leaving the table 0.8 nm off the nut
+@example(b_um=0.0, gain=24.375, feed=1341.0, travel=1.0)
 def test_property_nominal_table_stays_in_the_backlash_and_b_is_recovered(b_um, gain, feed, travel):
     axis = AxisModel(position_gain_per_s=gain, backlash_um=b_um)
     tr = simulate({"y": axis}, round_trip(0.0, travel, feed, dwell_s=0.1), rate_hz=500.0)
