@@ -358,7 +358,12 @@ class CycleExecutor:
             extra={"cycle_uuid": req.uuid, "axis_id": axis.id, "measured_at": finished.isoformat(),
                    "temperature_measured": math.isfinite(temp), "cycle_status": "ok" if out.ok else "failed",
                    **({"trigger": out.trigger} if out.trigger else {}),
-                   **({} if out.ok else {"failure_reason": out.reason or ""})},
+                   **({} if out.ok else {"failure_reason": out.reason or ""}),
+                   **({"repeated_after": out.repeated_after} if out.repeated_after else {}),
+                   # the bounds the run was analysed with, so a re-analysis of the file
+                   # (mebm analyze, inputs_of_run) states the same uncertainty
+                   **({"skew_uncertainty_um": _sampling_bound_um(out.round_trip),
+                       "clock_uncertainty_s": out.round_trip.clock_uncertainty_s} if out.round_trip is not None else {})},
         )
         append_runs(folder, machine, [Run(spec, cols)])
         return file

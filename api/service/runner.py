@@ -59,6 +59,7 @@ class CycleOutcome:
     feed_mm_min: float | None = None
     acceleration_mm_s2: float | None = None
     trigger: str | None = None  # "active" (mebm started the round trip) or "passive" (the CNC did)
+    repeated_after: str | None = None  # why a first round trip was refused and run again (a hole)
 
     @staticmethod
     def failed(reason: str, temperature_c: float | None = None) -> "CycleOutcome":
@@ -264,7 +265,8 @@ class DriverRunner:
         # res.program: the round trip as run (passive mode: as observed, not as configured)
         common = dict(temperature_c=temp, feed_mm_min=res.program.feed_mm_min,
                       acceleration_mm_s2=res.program.acceleration_mm_s2,
-                      trigger=trace.trigger if trace is not None else getattr(driver, "trigger", None), **raw)
+                      trigger=trace.trigger if trace is not None else getattr(driver, "trigger", None),
+                      repeated_after=res.repeated_after, **raw)
         if not res.ok:
             return CycleOutcome(ok=False, reason=f"{res.reason_code}: {res.reason}", **common)
         return CycleOutcome(ok=True, uncertainty_um=res.uncertainty_um, round_trip=res.result, **common)
