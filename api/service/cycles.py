@@ -37,6 +37,7 @@ from api.service.folders import dataset_folder_name, migrate_legacy_folders
 from api.service.runner import CycleOutcome, CycleRunner, analyse
 from core.dataset import MachineSpec, Run, RunSpec
 from core.criteria.roundtrip import with_history_uncertainty
+from core.criteria.uncertainty import UncertaintyInputs
 from core.errors import MebmError
 from core.history import TemperatureModel, history_uncertainty
 from core.tbe import AxisDecision, MachiningTask, decide
@@ -480,8 +481,9 @@ class CycleExecutor:
         if status == "ok":
             try:
                 time_s, motor_rev, table_mm = self._spooled_trace(d)
-                rt = analyse(axis, time_s, motor_rev, table_mm, sampling_bound_um=d.get("sampling_bound_um") or 0.0,
-                             clock_uncertainty_s=d.get("clock_uncertainty_s") or 0.0)
+                rt = analyse(axis, time_s, motor_rev, table_mm, uncertainty=UncertaintyInputs(
+                    sampling_bound_um=d.get("sampling_bound_um") or 0.0,
+                    clock_uncertainty_s=d.get("clock_uncertainty_s") or 0.0))
                 tasks = [MachiningTask(**t) for t in d["tasks"]]
                 decision = make_decision(axis, tasks, rt.backlash.mean_um, _expanded(rt))
             except DatabaseUnavailableError:

@@ -80,8 +80,8 @@ def useful_travel_mm(axis: AxisRecord) -> tuple[float, float]:
     return a + inset, b - inset
 
 
-def analyse(axis: AxisRecord, time_s, motor_rev, table_mm, *, sampling_bound_um: float = 0.0,
-            clock_uncertainty_s: float = 0.0) -> RoundTripResult:
+def analyse(axis: AxisRecord, time_s, motor_rev, table_mm, *,
+            uncertainty: UncertaintyInputs | None = None) -> RoundTripResult:
     """Backlash profile and lead criteria of a raw round trip (core, Section 3).
 
     A trace programmed with over-travel (``acquisition.cycle.default_program``) is
@@ -92,8 +92,7 @@ def analyse(axis: AxisRecord, time_s, motor_rev, table_mm, *, sampling_bound_um:
     lo, hi = axis.spec.travel_mm
     travel = (lo, hi) if x.size and x.min() < lo - 0.5 and x.max() > hi + 0.5 else useful_travel_mm(axis)
     return analyze_round_trip(time_s, motor_rev, table_mm, axis.spec, useful_travel_mm=travel,
-                              uncertainty=UncertaintyInputs(sampling_bound_um=sampling_bound_um,
-                                                            clock_uncertainty_s=clock_uncertainty_s))
+                              uncertainty=uncertainty or UncertaintyInputs())
 
 
 log = logging.getLogger(__name__)
