@@ -162,6 +162,7 @@ class Service:
         if isinstance(self.runner, DriverRunner) and self.runner.processes is not None and (
                 st.scheduler_enabled or not self.fleet):  # (an API-only fleet replica runs no cycle)
             self.runner.processes.start()  # spawned in the background; cycles run in the service until they are up
+        self.plots.warm_up()  # the plot process too, so the first plot asked for is not the slow one
         if isinstance(self.scheduler, FleetScheduler):  # started again (an ASGI lifespan run twice): one worker
             self.scheduler.stop()
         if self.fleet:  # leases in the database decide which worker runs which axis (docs/fleet.md)

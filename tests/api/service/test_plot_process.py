@@ -79,3 +79,26 @@ def test_use_process_false_draws_here():
 
 def test_services_of_one_interpreter_share_the_renderer():
     assert PlotProcess.shared() is PlotProcess.shared()
+
+
+def test_a_warm_up_spawns_the_process_in_the_background_and_the_first_draw_uses_it(renderer):
+    renderer.warm_up()  # returns at once: the spawn and the blank figure happen on a thread
+    assert renderer.warmed.wait(60), "the warm-up did not finish"
+    assert renderer.warm_pid not in (None, os.getpid())
+    assert renderer.draw(pid_of_renderer) == renderer.warm_pid  # the warm process draws it
+    assert renderer.renders == 1  # the warm-up is not a client's render
+    renderer.warm_up()  # once per renderer
+    assert renderer.draw(pid_of_renderer) == renderer.warm_pid
+
+
+def test_a_service_warms_its_renderer_at_start(tmp_path):
+    from api.service.config import Settings
+    from api.service.service import Service
+
+    svc = Service(Settings(data_dir=tmp_path, database_url=f"sqlite:///{tmp_path}/m.sqlite3", demo_keys=False,
+                           scheduler_enabled=False))
+    svc.start()
+    try:
+        assert svc.plots.warmed.wait(60) and svc.plots.warm_pid is not None
+    finally:
+        svc.stop()
