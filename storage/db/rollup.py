@@ -90,8 +90,8 @@ def _pack(stats: dict) -> bytes:
 
 
 def _combine(arrays: list[np.ndarray]) -> dict[str, dict[str, MomentSums]]:
-    """Add packed moment sums (k, drivers, criteria, fields) into MomentSums."""
-    a = np.stack(arrays) if arrays else np.full((1, len(DRIVERS), len(CRITERIA), 10), np.nan)
+    """Add blocks of packed moment sums, each (k, drivers, criteria, fields), into MomentSums."""
+    a = np.concatenate(arrays) if arrays else np.full((1, len(DRIVERS), len(CRITERIA), 10), np.nan)
     tot = np.nansum(a[..., _SUM_FIELDS], axis=0)
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN ranges stay NaN
@@ -191,26 +191,33 @@ def trend_view(s: Session, axis_id: int, *, since: datetime | None = None, until
     hi_edge = as_utc(buckets[-1][0]) + HOUR
     head = _rows(s, axis_id, since, lo_edge, hi_inclusive=False)
     tail = _rows(s, axis_id, hi_edge, until, hi_inclusive=True)
-    packed = [np.frombuffer(b[6], dtype="<f8").reshape(len(DRIVERS), len(CRITERIA), 10) for b in buckets]
+    shape = (len(DRIVERS), len(CRITERIA), 10)
+    # one buffer for every hour's sums (not one array per hour: a year is 8,760 of them)
+    packed = [np.frombuffer(b"".join(b[6] for b in buckets), dtype="<f8").reshape(-1, *shape)]
     for edge in (head, tail):
         if edge:
-            packed.append(np.frombuffer(_pack(stats_of(edge)), dtype="<f8").reshape(len(DRIVERS), len(CRITERIA), 10))
+            packed.append(np.frombuffer(_pack(stats_of(edge)), dtype="<f8").reshape(1, *shape))
     stats = _combine(packed)
-    ids: list[int] = [r[0] for r in head]
-    vals: list[float] = [r[4] for r in head]
-    for b in buckets:
-        pair = sorted({(b[2], b[3]), (b[4], b[5])})
-        ids += [p[0] for p in pair]
-        vals += [p[1] for p in pair]
-    ids += [r[0] for r in tail]
-    vals += [r[4] for r in tail]
+    # each hour shows its cycles of smallest and largest b̄, in cycle id order (one when they are the same)
+    mn_id, mx_id = (np.array([b[k] for b in buckets], dtype=np.int64) for k in (2, 4))
+    mn_b, mx_b = (np.array([b[k] for b in buckets], dtype=float) for k in (3, 5))
+    first = mn_id <= mx_id
+    pair_ids = np.stack([np.where(first, mn_id, mx_id), np.where(first, mx_id, mn_id)], axis=1)
+    pair_b = np.stack([np.where(first, mn_b, mx_b), np.where(first, mx_b, mn_b)], axis=1)
+    two = np.stack([np.ones(len(buckets), bool), mn_id != mx_id], axis=1)
+    ids: list[int] = [r[0] for r in head] + pair_ids[two].tolist() + [r[0] for r in tail]
+    vals: list[float] = [r[4] for r in head] + pair_b[two].tolist() + [r[4] for r in tail]
     total = len(head) + len(tail) + in_buckets
     keep = range(len(ids)) if max_points is None else minmax_indices(vals, max_points).tolist()
     chosen = [ids[i] for i in keep]
     rows = []
     for i in range(0, len(chosen), 5000):
         part = chosen[i : i + 5000]
-        rows += [tuple(r) for r in s.execute(_select(axis_id).where(Result.cycle_id.in_(part))).all()]
+        # by cycle id only: the ids are this axis' (from its rollups), and with the axis in the
+        # WHERE SQLite walks the axis' whole (axis, time) index instead (64 ms against 10 ms a year)
+        by_id = select(*_COLUMNS).join(LeadCriteriaRow, (LeadCriteriaRow.result_id == Result.id)
+                                       & (LeadCriteriaRow.direction == "positive"))  # fmt: skip
+        rows += [tuple(r) for r in s.execute(by_id.where(Result.cycle_id.in_(part))).all()]
     rows.sort(key=lambda r: (as_utc(r[1]), r[0]))
     return TrendView(_series(rows), total, stats)
 
