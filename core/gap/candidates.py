@@ -154,9 +154,12 @@ def friction_stage() -> Stage:
     """Friction as lost motion of a stiff chain: a break-away threshold (stick until the
     chain's stretch exceeds it, then slip: Karnopp-type static friction), a Stribeck part
     decaying with speed, a viscous part. The Coulomb part of the lost motion is
-    inseparable from the backlash on round trips (it is in ``backlash_um``). Not
-    covered: the chain's own dynamics (see :func:`friction_chain_stage`), pre-sliding
-    hysteresis below 0.1 µm, position-dependent friction."""
+    inseparable from the backlash on round trips (it is in ``backlash_um``). On contours
+    the Coulomb part and the static excess are refitted on the assumed chain, with and
+    without pre-sliding (LuGre, a pre-sliding length of 0.5 µm or more; see
+    ``core.gap.diagnose._Diagnosis._friction_on_contours``). Not covered: the chain's own
+    dynamics (see :func:`friction_chain_stage`), pre-sliding on round trips (they do not
+    show it), position-dependent friction."""
     return Stage(
         "friction", ("breakaway_lost_motion_um", "stribeck_velocity_mm_s", "viscous_lost_motion_um_per_mm_s"),
         np.array([1.0, 2.0, 0.0]), np.array([0.0, 0.05, 0.0]), np.array([100.0, 20.0, 0.3]), kernel="friction",
