@@ -42,14 +42,20 @@ EFFECTS = {
 }
 
 
-def _round_trips(effects: Effects, rng, conditions=(*TRAIN, TEST)) -> Dataset:
-    axis = AxisModel(name="y", transmission_mm_per_rev=6.857, backlash_um=60.0, effects=effects, encoders=ENC)
+def _round_trip_runs(axis: AxisModel, rng, conditions=(*TRAIN, TEST), prefix: str = "rt") -> list:
+    """Round trips of ``axis`` at ``conditions``: the first three train, the fourth test."""
     runs = []
     for i, (feed, acc, temp) in enumerate(conditions):
         start = (10.0, 40.0, 70.0, 30.0)[i]
-        prog = round_trip(start, start + 100.0, feed, acc, 0.5)
-        tr = simulate({"y": axis}, prog, temperature_c=temp, rate_hz=500.0, rng=rng)
-        runs.append(tr.to_run(f"rt_{i}.csv", split="test" if i == 3 else "train"))
+        prog = round_trip(start, start + 100.0, feed, acc, 0.5, axis=axis.name)
+        tr = simulate({axis.name: axis}, prog, temperature_c=temp, rate_hz=500.0, rng=rng)
+        runs.append(tr.to_run(f"{prefix}_{i}.csv", split="test" if i == 3 else "train"))
+    return runs
+
+
+def _round_trips(effects: Effects, rng, conditions=(*TRAIN, TEST)) -> Dataset:
+    axis = AxisModel(name="y", transmission_mm_per_rev=6.857, backlash_um=60.0, effects=effects, encoders=ENC)
+    runs = _round_trip_runs(axis, rng, conditions)
     return Dataset(MachineSpec("t", {"y": axis.to_axis_spec((0.0, 200.0))}), tuple(runs))
 
 
@@ -116,13 +122,7 @@ def test_friction_with_pre_sliding_is_named_from_circles_and_its_length_found():
     axes = {a: AxisModel(name=a, transmission_mm_per_rev=6.857, backlash_um=b, effects=Effects(friction=fr), encoders=ENC)
             for a, b in (("x", 40.0), ("y", 90.0))}  # fmt: skip
     rng = np.random.default_rng(11)
-    runs = []
-    for a in axes:
-        for i, (feed, acc, temp) in enumerate((*TRAIN, TEST)):
-            start = (10.0, 40.0, 70.0, 30.0)[i]
-            tr = simulate({a: axes[a]}, round_trip(start, start + 100.0, feed, acc, 0.5, axis=a), temperature_c=temp,
-                          rate_hz=500.0, rng=rng)  # fmt: skip
-            runs.append(tr.to_run(f"rt_{a}_{i}.csv", split="test" if i == 3 else "train"))
+    runs = [r for a in axes for r in _round_trip_runs(axes[a], rng, prefix=f"rt_{a}")]
     for i, (r, feed) in enumerate(((40.0, 600.0), (60.0, 1000.0), (50.0, 1400.0), (30.0, 2400.0))):
         tr = simulate(axes, circle(r, (100.0, 100.0), feed, "ccw" if i % 2 == 0 else "cw"), rate_hz=500.0, rng=rng)
         runs.append(tr.to_run(f"c_{i}.csv", split="test" if i == 3 else "train"))
