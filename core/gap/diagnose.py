@@ -35,7 +35,7 @@ import numpy as np
 from core.dataset import Dataset
 from core.gap import contour as ct
 from core.gap import roundtrip as rt
-from core.gap.candidates import ASSUMED_MASS_KG, ASSUMED_STIFFNESS_N_PER_UM, EFFECTS, REGISTRY, SERVO_LOWER, SERVO_NAMES, SERVO_UPPER, compose, derived, servo_piece
+from core.gap.candidates import ASSUMED_MASS_KG, ASSUMED_STIFFNESS_N_PER_UM, EFFECTS, FRICTION_CHAIN_MIN_MM_S2, REGISTRY, SERVO_LOWER, SERVO_NAMES, SERVO_UPPER, compose, derived, servo_piece
 from core.gap.candidates import sim_piece, stage_starts, train_residuals
 from core.gap.data import Contour, GapError, RoundTrip, choose_split, prepare_contour, prepare_round_trip
 from core.gap.report import Candidate, GapReport
@@ -112,18 +112,35 @@ class Fitted:
     rt_res: list = field(default_factory=list)
     ct_res: list = field(default_factory=list)
     gap_after_um: float = float("nan")
+    # friction refitted on the contours, per axis: (effects by name, backlash share µm, params)
+    ct_friction: dict = field(default_factory=dict)
 
     def score(self, penalty: float) -> float:
         return self.gap_after_um * (1 + penalty * self.n_params)
 
 
 PRESLIDING_MIN_UM = 0.5  # the contours' pre-sliding friction form: shorter is the Karnopp form
+CHAIN_CT_NAMES = ("chain_frequency_hz", "coulomb_per_mass_mm_s2", "static_excess_per_mass_mm_s2")
+
+
+def _in_threads(calls: Sequence, workers: int) -> list:
+    """The results of ``calls`` (callables without arguments), in order, run in up to
+    ``workers`` threads (their time is in nogil numba kernels and numpy)."""
+    def run(c):
+        with np.errstate(over="ignore", invalid="ignore"):  # as in _fit_all: a trial step may overflow
+            return c()
+
+    if workers <= 1 or len(calls) <= 1:
+        return [run(c) for c in calls]
+    with ThreadPoolExecutor(min(workers, len(calls)), thread_name_prefix="mebm-gap-part") as ex:
+        return list(ex.map(run, calls))
 
 
 class _Diagnosis:
-    def __init__(self, dataset: Dataset, settings: GapSettings):
+    def __init__(self, dataset: Dataset, settings: GapSettings, workers: int = 1):
         self.ds = dataset
         self.s = settings
+        self.workers = workers  # threads for the independent parts of one candidate's fit
         self.axes = dataset.machine.axes
         self.memo = ct.SimMemo()
         split = choose_split(dataset)
@@ -318,37 +335,21 @@ class _Diagnosis:
             if not fx.is_nominal:
                 pieces[a] = fx
                 bl[a] = max(0.0, b)
-        for a, af in f.rt_fits.items():
-            chain = any(st.kernel == "friction_chain" for st in af.stages) and self.fast_motion.get(a, False)
-            if chain and a in pieces and self.train_ct:
-                fx, b_sim, th = self._friction_chain_on_contours(a, pieces, float(af.fit.theta[0]),
-                                                                 dict(zip(af.model.names, af.fit.theta)))  # fmt: skip
-                pieces[a], bl[a] = fx, b_sim
-                for n, v in zip(("chain_frequency_hz", "coulomb_per_mass_mm_s2", "static_excess_per_mass_mm_s2"), th):
-                    f.params[f"{a}.contour_{n}"] = float(v)
-            elif "friction" in af.effects and a in pieces and self.train_ct:
-                b_rt = float(af.fit.theta[0])
-                fr, b_sim = self._friction_on_contours(a, pieces, bl, b_rt)
-                stiff = pieces[a].with_effect("friction", fr)
-                # the same friction on a chain of its own frequency (the lost-motion form's
-                # assumed chain as the start): kept when it matches the train contours better
-                k, m = ASSUMED_STIFFNESS_N_PER_UM, ASSUMED_MASS_KG
-                start = {"chain_frequency_hz": math.sqrt(k * 1e6 / m) / (2 * math.pi), "chain_damping_ratio": 0.2,
-                         "coulomb_per_mass_mm_s2": max(fr.coulomb_n / m * 1e3, 50.0),
-                         "static_excess_per_mass_mm_s2": max((fr.static_n - fr.coulomb_n) / m * 1e3, 50.0)}  # fmt: skip
-                fx_c = None
-                if self.fast_motion.get(a, False):
-                    fx_c, b_c, th = self._friction_chain_on_contours(a, pieces, b_rt, start)
-                if fx_c is not None and self._axis_envelope_cost(a, fx_c, b_c) < self._axis_envelope_cost(a, stiff, b_sim):
-                    pieces[a], bl[a] = fx_c, b_c
-                    for n, v in zip(("chain_frequency_hz", "coulomb_per_mass_mm_s2", "static_excess_per_mass_mm_s2"), th):
-                        f.params[f"{a}.contour_{n}"] = float(v)
-                else:
-                    pieces[a], bl[a] = stiff, b_sim
-                    f.params[f"{a}.coulomb_lost_motion_um"] = fr.coulomb_n / ASSUMED_STIFFNESS_N_PER_UM
-                    f.params[f"{a}.static_to_coulomb"] = fr.static_n / max(fr.coulomb_n, 1e-9)
-                    if fr.model == "lugre":  # the pre-sliding form was kept
-                        f.params[f"{a}.presliding_um"] = fr.coulomb_n / fr.bristle_stiffness_n_per_um
+        # friction's contour refit, per axis (independent: in threads); a pair on top of a
+        # friction fit keeps the base's refit for the axes it made one for
+        todo = [a for a, af in f.rt_fits.items() if "friction" in af.effects and a in pieces and self.train_ct]
+        reuse = {a: base.ct_friction[a] for a in todo if base is not None and a in base.ct_friction}
+        fresh = [a for a in todo if a not in reuse]
+        done = dict(zip(fresh, _in_threads([lambda a=a: self._friction_axis_on_contours(a, f.rt_fits[a], pieces, bl)
+                                            for a in fresh], self.workers)))  # fmt: skip
+        for a in todo:
+            objs, b_share, params = reuse.get(a) or done[a]
+            fx = pieces[a]
+            for name, pc in objs.items():
+                fx = fx.with_effect(name, pc)
+            pieces[a], bl[a] = fx, max(0.0, float(f.rt_fits[a].fit.theta[0]) - b_share)
+            f.params.update({f"{a}.{k}": v for k, v in params.items()})
+            f.ct_friction[a] = (objs, b_share, params)
         gains = {a: spec.position_gain_per_s for a, spec in self.axes.items()}
         servo_src = base.servo if base is not None and "servo_dynamics" in base.effects else {}
         if f.effects[-1] == "servo_dynamics" and self.train_ct:
@@ -380,6 +381,35 @@ class _Diagnosis:
         f.ct_res = [ct.contour_residual_um(c, sims[c.file]) for c in self.test_ct]
 
 
+    def _friction_axis_on_contours(self, a: str, af: _AxisFit, pieces: dict, bl: dict):
+        """Friction of axis ``a`` refitted on the train contours: the chain form's refit when
+        the round trips took it and the contours carry fast motion, else the stiff form's
+        (Karnopp or pre-sliding) and, with fast motion, the same friction on a chain, the
+        better kept. Returns (the effects it sets by name, the backlash it accounts for in
+        µm, its parameters)."""
+        b_rt = float(af.fit.theta[0])
+        fast = self.fast_motion.get(a, False)
+        if fast and any(st.kernel == "friction_chain" for st in af.stages):
+            fx, b_sim, th = self._friction_chain_on_contours(a, pieces, b_rt, dict(zip(af.model.names, af.fit.theta)))
+            return ({"compliance": fx.compliance, "friction": fx.friction}, b_rt - b_sim,
+                    {f"contour_{n}": float(v) for n, v in zip(CHAIN_CT_NAMES, th)})  # fmt: skip
+        fr, b_sim = self._friction_on_contours(a, pieces, bl, b_rt)
+        stiff = pieces[a].with_effect("friction", fr)
+        if fast:  # the same friction on a chain of its own frequency (the assumed chain as the start)
+            k, m = ASSUMED_STIFFNESS_N_PER_UM, ASSUMED_MASS_KG
+            start = {"chain_frequency_hz": math.sqrt(k * 1e6 / m) / (2 * math.pi), "chain_damping_ratio": 0.2,
+                     "coulomb_per_mass_mm_s2": max(fr.coulomb_n / m * 1e3, 1.2 * FRICTION_CHAIN_MIN_MM_S2),
+                     "static_excess_per_mass_mm_s2": max((fr.static_n - fr.coulomb_n) / m * 1e3, 50.0)}  # fmt: skip
+            fx_c, b_c, th = self._friction_chain_on_contours(a, pieces, b_rt, start)
+            if self._axis_envelope_cost(a, fx_c, b_c) < self._axis_envelope_cost(a, stiff, b_sim):
+                return ({"compliance": fx_c.compliance, "friction": fx_c.friction}, b_rt - b_c,
+                        {f"contour_{n}": float(v) for n, v in zip(CHAIN_CT_NAMES, th)})  # fmt: skip
+        params = {"coulomb_lost_motion_um": fr.coulomb_n / ASSUMED_STIFFNESS_N_PER_UM,
+                  "static_to_coulomb": fr.static_n / max(fr.coulomb_n, 1e-9)}  # fmt: skip
+        if fr.model == "lugre":  # the pre-sliding form was kept
+            params["presliding_um"] = fr.coulomb_n / fr.bristle_stiffness_n_per_um
+        return {"friction": fr}, b_rt - b_sim, params
+
     def _axis_envelope_cost(self, a: str, fx, b_um: float) -> float:
         """Envelope-scored tracking RSS of axis ``a`` on the train contours for effects ``fx``."""
         m = AxisModel.from_axis_spec(self.axes[a], max(0.0, b_um), effects=fx)
@@ -410,12 +440,13 @@ class _Diagnosis:
         def res(th):
             fx, b = make(th)
             m = AxisModel.from_axis_spec(spec, b, effects=fx)
-            return np.concatenate([ct.tracking_envelope_residual_um(c, {a: self.memo.axis(c, a, m)}, [a], stacked=True)
-                                   for c in mine])  # fmt: skip
+            sims = _in_threads([lambda c=c: self.memo.axis(c, a, m) for c in mine], self.workers)
+            return np.concatenate([ct.tracking_envelope_residual_um(c, {a: sim}, [a], stacked=True)
+                                   for c, sim in zip(mine, sims)])  # fmt: skip
 
         x0 = np.array([vals["chain_frequency_hz"], vals["coulomb_per_mass_mm_s2"], vals["static_excess_per_mass_mm_s2"]])
         starts = [x0 * np.array([fm, 1.0, em]) for fm in (1.0, 2.0) for em in (1.0, 3.0, 6.0)]
-        lo, hi = np.array([5.0, 0.0, 0.0]), np.array([300.0, 20000.0, 40000.0])
+        lo, hi = np.array([5.0, FRICTION_CHAIN_MIN_MM_S2, 0.0]), np.array([300.0, 20000.0, 40000.0])
         r = rt.fit_ls(res, starts, lo, hi, n_starts=1, max_nfev=12, diff_step=0.05)
         fx, b = make(r.theta)
         return fx, b, r.theta
@@ -455,13 +486,12 @@ class _Diagnosis:
         def res(th):
             fr, b = make(th)
             m = AxisModel.from_axis_spec(spec, b, effects=pieces[a].with_effect("friction", fr))
-            return np.concatenate([(c.table_mm[a][c.fit_idx] - self.memo.axis(c, a, m)[c.fit_idx]) * 1e3 for c in mine])
+            sims = _in_threads([lambda c=c: self.memo.axis(c, a, m) for c in mine], self.workers)
+            return np.concatenate([(c.table_mm[a][c.fit_idx] - sim[c.fit_idx]) * 1e3 for c, sim in zip(mine, sims)])
 
         hi = max(0.45 * b_rt_um, 0.2)
         x0 = np.array([base.coulomb_n / k, (base.static_n - base.coulomb_n) / k])
         starts = [x0, np.array([0.1 * hi, 2.0]), np.array([0.5 * hi, 0.3 * hi])]
-        r = rt.fit_ls(res, starts, np.array([0.0, 0.0]), np.array([hi, 150.0]), n_starts=1, max_nfev=12,
-                      diff_step=1e-2)  # fmt: skip
         # pre-sliding: lp from PRESLIDING_MIN_UM (stiffer bristles are the Karnopp form) to the
         # apparent backlash; six starts spread over the Coulomb share and lp, the best pursued
         lp_hi = max(b_rt_um, 2 * PRESLIDING_MIN_UM)
@@ -471,8 +501,13 @@ class _Diagnosis:
         # table bounces across the backlash in a limit cycle (core.sim.Friction), which a fit
         # to slow train contours can pick and fast test contours then show
         lc_lo = min(0.02 * 9.81 * ASSUMED_MASS_KG / k, 0.5 * hi)
-        rp = rt.fit_ls(res, p_starts, np.array([lc_lo, 0.0, PRESLIDING_MIN_UM]), np.array([hi, 150.0, lp_hi]),
-                       n_starts=1, max_nfev=15, diff_step=1e-2)  # fmt: skip
+        # the two forms' fits are independent: side by side
+        r, rp = _in_threads([
+            lambda: rt.fit_ls(res, starts, np.array([0.0, 0.0]), np.array([hi, 150.0]), n_starts=1, max_nfev=12,
+                              diff_step=1e-2),
+            lambda: rt.fit_ls(res, p_starts, np.array([lc_lo, 0.0, PRESLIDING_MIN_UM]), np.array([hi, 150.0, lp_hi]),
+                              n_starts=1, max_nfev=15, diff_step=1e-2),
+        ], self.workers)  # fmt: skip
         # kept when it fits better with a pre-sliding length off its lower bound (at the bound
         # it is the Karnopp form, fitted above)
         presliding = rp.rss < r.rss and rp.theta[2] > 1.01 * PRESLIDING_MIN_UM
@@ -531,7 +566,7 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: 
     workers = min(os.cpu_count() or 1, 4) if workers is None else int(workers)
     s = settings or GapSettings()
     _check(dataset)
-    d = _Diagnosis(dataset, s)
+    d = _Diagnosis(dataset, s, workers)
     d.fit_nominal()
     rt_nom, ct_nom = d.rt_nom, d.ct_nom
     gap_before = _rms_all(rt_nom + ct_nom)

@@ -133,3 +133,9 @@ def test_friction_with_pre_sliding_is_named_from_circles_and_its_length_found():
     p = rep.candidates[0].values
     for a in axes:  # the pre-sliding form was kept, with about the true length (20 µm)
         assert 10.0 <= p[f"{a}.presliding_um"] <= 40.0, {k: v for k, v in p.items() if k.startswith(a)}
+    # a second effect tried on top keeps friction's contour refit (it is not fitted again)
+    on_top = [c for c in rep.pairs if c.effect.startswith("friction+")]
+    assert on_top, rep.text()
+    for c in on_top:
+        for a in axes:
+            assert c.values[f"{a}.presliding_um"] == p[f"{a}.presliding_um"], c.effect
