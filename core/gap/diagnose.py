@@ -120,6 +120,7 @@ class Fitted:
 
 
 PRESLIDING_MIN_UM = 0.5  # the contours' pre-sliding friction form: shorter is the Karnopp form
+CONTOUR_SIGNAL_FACTOR = 1.5  # train contours whose residual RMS is within this of their noise show nothing
 CHAIN_CT_NAMES = ("chain_frequency_hz", "coulomb_per_mass_mm_s2", "static_excess_per_mass_mm_s2")
 
 
@@ -198,6 +199,7 @@ class _Diagnosis:
         self.ct_nom_plain = [ct.contour_plain_residual_um(c, self.sim_nom[c.file]) for c in self.test_ct]
         self.train_ct_rss_nom = self._ct_train_rss(self.sim_nom)
         self.fast_motion = {a: self._fast_motion(a) for a in ct_axes}
+        self.ct_shows = {a: self._contours_show_something(a) for a in ct_axes}
 
     def _fast_motion(self, a: str) -> bool:
         """Do the train contours of axis ``a`` carry fast motion (faster than the envelope
@@ -222,6 +224,19 @@ class _Diagnosis:
         if not fast:
             return False
         return rt.rms(np.concatenate(fast)) > 3.0 * sigma
+
+    def _contours_show_something(self, a: str) -> bool:
+        """Does the nominal model leave anything on the train contours of axis ``a`` beyond
+        their own white noise (the RMS of the tracking residual above 1.5 times the noise
+        from its first differences, i.e. a systematic part above 1.1 times the noise)? If
+        not, nothing there can pin friction's contour parameters down, and the refit is
+        skipped (the round trips' friction is taken as it is). On bench_gap's twin datasets
+        the ratio is 1.0 (none), 1.4-1.5 (thermal) and 2.5-10 (friction, seeds 7, 3101, 3102)."""
+        parts = [(c.table_mm[a][c.fit_idx] - self.sim_nom[c.file][a][c.fit_idx]) * 1e3 for c in self.train_ct
+                 if a in c.axes and c.fit_idx.size > 2]  # fmt: skip
+        if not parts:
+            return False
+        return rt.rms(np.concatenate(parts)) > CONTOUR_SIGNAL_FACTOR * noise_floor_um(parts)
 
     def _ct_train_rss(self, sims: Mapping[str, dict]) -> float:
         return sum(float(np.sum(ct.tracking_envelope_residual_um(c, sims[c.file]) ** 2)) for c in self.train_ct)
@@ -388,6 +403,8 @@ class _Diagnosis:
         better kept. Returns (the effects it sets by name, the backlash it accounts for in
         µm, its parameters)."""
         b_rt = float(af.fit.theta[0])
+        if not self.ct_shows.get(a, True):  # nothing on the train contours to refit on
+            return {"friction": pieces[a].friction, "compliance": pieces[a].compliance}, b_rt - bl[a], {}
         fast = self.fast_motion.get(a, False)
         if fast and any(st.kernel == "friction_chain" for st in af.stages):
             fx, b_sim, th = self._friction_chain_on_contours(a, pieces, b_rt, dict(zip(af.model.names, af.fit.theta)))
