@@ -128,7 +128,10 @@ def _in_threads(calls: Sequence, workers: int) -> list:
     """The results of ``calls`` (callables without arguments), in order, run in up to
     ``workers`` threads (their time is in nogil numba kernels and numpy)."""
     def run(c):
-        with np.errstate(over="ignore", invalid="ignore"):  # as in _fit_all: a trial step may overflow
+        # a trial step may send a fit's parameters where the model overflows: the fit rejects
+        # such steps (non-finite residuals are replaced, a diverged fit is a failed start), so
+        # numpy's overflow warnings would only alarm the reader
+        with np.errstate(over="ignore", invalid="ignore"):
             return c()
 
     if workers <= 1 or len(calls) <= 1:
@@ -558,21 +561,10 @@ def _candidate(f: Fitted, s: GapSettings) -> Candidate:
 
 
 def _fit_all(d: _Diagnosis, jobs: list[tuple[tuple[str, ...], Fitted | None]], workers: int) -> list[Fitted]:
-    """``d.fit_candidate`` on each (effects, base), in order. The fits are independent and
-    their time is spent in numba kernels compiled ``nogil`` and in numpy, so threads run
-    them side by side; the answer is the same as one after the other (the diagnosis' memo
-    holds pure results only, keyed by their inputs)."""
-    def fit(job: tuple[tuple[str, ...], Fitted | None]) -> Fitted:
-        # a trial step may send a candidate's parameters where the model overflows: the fit
-        # rejects such steps (non-finite residuals are replaced, a diverged fit is a failed
-        # start), so numpy's overflow warnings would only alarm the reader
-        with np.errstate(over="ignore", invalid="ignore"):
-            return d.fit_candidate(*job)
-
-    if workers <= 1 or len(jobs) <= 1:
-        return [fit(job) for job in jobs]
-    with ThreadPoolExecutor(min(workers, len(jobs)), thread_name_prefix="mebm-gap-fit") as ex:
-        return list(ex.map(fit, jobs))
+    """``d.fit_candidate`` on each (effects, base), in order, in up to ``workers`` threads
+    (:func:`_in_threads`). The answer is the same as one after the other: the diagnosis'
+    memo holds pure results only, keyed by their inputs."""
+    return _in_threads([lambda job=job: d.fit_candidate(*job) for job in jobs], workers)
 
 
 def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: int | None = None) -> GapReport:
