@@ -125,6 +125,7 @@ def _serve(a: argparse.Namespace) -> int:
     import uvicorn
 
     from api.rest import create_app
+    from api.service.plot_process import PlotProcess
     from api.service.service import Service
 
     # The service's threads (cycles, the in-process simulator, the event publishers) are
@@ -173,6 +174,8 @@ def _serve(a: argparse.Namespace) -> int:
         if opcua is not None:
             opcua.close()
         service.stop()
+        # the figure process is the interpreter's (shared by in-process restarts); this one ends now
+        PlotProcess.shared().close()
         sock.close()
     sys.stdout.flush()
     return 0

@@ -33,7 +33,7 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from api.service.worker_process import spawn_pool
+from api.service.worker_process import end_pool, spawn_pool
 from core.dataset import Dataset, Run
 from core.errors import MebmError
 from core.gap import diagnose
@@ -216,6 +216,6 @@ class GapJobs:
     def close(self) -> None:
         self.forget()
         self._queue.shutdown(wait=False, cancel_futures=True)
-        if self._pool is not None:
-            self._pool.shutdown(wait=False, cancel_futures=True)
+        if self._pool is not None:  # a diagnosis is asked again, not waited for
+            end_pool(self._pool, grace_s=0.0, what="gap diagnosis")
             self._pool = None

@@ -33,7 +33,7 @@ from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
 from concurrent.futures.process import BrokenProcessPool
 
-from api.service.worker_process import spawn_pool
+from api.service.worker_process import end_pool, spawn_pool
 from core.errors import MebmError
 
 log = logging.getLogger(__name__)
@@ -133,8 +133,8 @@ class PlotProcess:
     def close(self) -> None:
         with self._lock:
             pool, self._pool = self._pool, None
-        if pool is not None:
-            pool.shutdown(wait=False, cancel_futures=True)
+        if pool is not None:  # a render is asked again, not waited for
+            end_pool(pool, grace_s=0.0, what="plot")
 
 
 def _warm() -> int:

@@ -22,7 +22,7 @@ import logging
 import math
 import threading
 from collections.abc import Callable
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import CancelledError, Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Protocol
@@ -32,7 +32,7 @@ import numpy as np
 from acquisition import cycle as acq_cycle
 from acquisition.driver import ControllerDriver
 from acquisition.url import driver_from_url, needs_callers_process
-from api.service.worker_process import spawn_pool
+from api.service.worker_process import end_pool, spawn_pool
 from core.criteria import RoundTripResult, analyze_round_trip
 from core.criteria.uncertainty import UncertaintyInputs
 from core.errors import MebmError
@@ -98,6 +98,9 @@ def analyse(axis: AxisRecord, time_s, motor_rev, table_mm, *,
 log = logging.getLogger(__name__)
 
 # what a cycle process imports when it starts, so its first cycle is as fast as the others
+# how long a cycle still running in a worker process may take to finish when the service stops
+CLOSE_GRACE_S = 10.0
+
 CYCLE_IMPORTS = ("api.service.runner", "acquisition.modbus", "acquisition.modbus_polled", "acquisition.canopen",
                  "acquisition.canopen_listen", "core.criteria")
 
@@ -108,6 +111,10 @@ class NoFreeProcess(Exception):
 
 class CycleProcessDied(MebmError):
     """The process running a cycle died (killed, out of memory) before it returned."""
+
+
+class CycleNotRun(MebmError):
+    """The service stopped after the cycle was handed to a process but before it started."""
 
 
 class CycleProcesses:
@@ -180,6 +187,8 @@ class CycleProcesses:
                 raise NoFreeProcess from None
             try:
                 out = fut.result()
+            except CancelledError:  # close() cancelled it before a process took it
+                raise CycleNotRun("the service stopped before the cycle started: nothing was measured") from None
             except BrokenProcessPool:
                 self._count("crashes")
                 self._drop(pool)
@@ -204,12 +213,13 @@ class CycleProcesses:
         pool.shutdown(wait=False, cancel_futures=True)
 
     def close(self) -> None:
-        """Stop the processes (a cycle running in one finishes first; nothing new starts)."""
+        """Stop the processes (nothing new starts; a cycle running in one gets
+        ``CLOSE_GRACE_S`` to finish, then its process is terminated)."""
         self._closed = True
         with self._lock:
             pool, self._pool, self._free = self._pool, None, 0
         if pool is not None:
-            pool.shutdown(wait=False, cancel_futures=True)
+            end_pool(pool, grace_s=CLOSE_GRACE_S, what="cycle")
 
 
 def _started() -> bool:
@@ -241,7 +251,7 @@ class DriverRunner:
                 return self.processes.run(_cycle_in_process, axis, controller_url, self.timeout_s)
             except NoFreeProcess:
                 pass
-            except CycleProcessDied as exc:
+            except (CycleProcessDied, CycleNotRun) as exc:
                 log.error("axis %s: %s", axis.id, exc)
                 return CycleOutcome.failed(f"{type(exc).__name__}: {exc}")
         return self.run_here(axis, controller_url)

@@ -53,3 +53,34 @@ def spawn_pool(*, what: str, nice: int = 0, workers: int = 1, imports: tuple[str
     starts, and with ``log_level`` logs to stderr as the service does."""
     return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
                                initializer=_worker_init, initargs=(os.getpid(), nice, what, tuple(imports), log_level))
+
+
+def end_pool(pool: ProcessPoolExecutor, *, grace_s: float, what: str) -> None:
+    """Shut ``pool`` down and make sure its processes and its manager thread are gone.
+
+    ``shutdown(wait=False)`` alone leaves the ending to ``concurrent.futures``' exit hook,
+    which races with the manager thread closing its wake-up pipe (seen: ``OSError: [Errno 9]
+    Bad file descriptor`` in ``_python_exit``, then a worker never told to stop, and
+    ``multiprocessing``'s own exit hook joining it for ever: a service that ignored SIGTERM).
+    So: no new work, queued work cancelled; a task still running gets ``grace_s`` to finish;
+    then the processes are terminated (killed if they ignore it) and the manager thread joined.
+    """
+    manager = getattr(pool, "_executor_manager_thread", None)  # shutdown() forgets them: take them first
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    deadline = time.monotonic() + grace_s
+    for p in procs:
+        p.join(max(deadline - time.monotonic(), 0.0))
+    left = [p for p in procs if p.is_alive()]
+    if left:
+        log.warning("the %s process(es) %s did not end within %g s of the stop: terminated", what,
+                    ", ".join(str(p.pid) for p in left), grace_s)
+    for p in left:
+        p.terminate()
+    for p in left:
+        p.join(2.0)
+        if p.is_alive():
+            p.kill()
+            p.join(2.0)
+    if manager is not None and manager.is_alive():
+        manager.join(5.0)

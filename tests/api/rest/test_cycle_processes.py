@@ -12,7 +12,7 @@ from dataclasses import replace
 import pytest
 
 from api.service.config import ConfigError, default_settings, parse_settings
-from api.service.runner import CycleProcesses, DriverRunner, NoFreeProcess
+from api.service.runner import CycleProcessDied, CycleProcesses, DriverRunner, NoFreeProcess
 from api.service.service import Service
 from storage.db import AxisRecord, config_repo, results_repo, session_scope
 from tests.api.rest.conftest import make_settings
@@ -49,6 +49,42 @@ def test_a_free_process_runs_the_call_a_busy_one_sends_it_back_at_once():
     with pytest.raises(NoFreeProcess):  # closed: nothing restarts behind the service's back
         procs.run(_pid)
     assert procs._pool is None
+
+
+def _mark_then_sleep(path: str, t_s: float) -> None:
+    open(path, "w").close()  # noqa: SIM115 (the test waits for it: the cycle is running now)
+    time.sleep(t_s)
+
+
+def test_closing_ends_the_processes_and_the_pool_thread_a_stuck_cycle_included(monkeypatch, tmp_path):
+    """The stop does not leave the pool's ending to the interpreter's exit hooks (a race there
+    once left a worker running and a service that ignored SIGTERM): a cycle still running
+    after the grace is terminated, and nothing of the pool is left when close returns."""
+    monkeypatch.setattr("api.service.runner.CLOSE_GRACE_S", 0.5)
+    procs = CycleProcesses(1)
+    procs.start()
+    assert wait_for(lambda: started(procs), 60)
+    pool = procs._pool
+    workers = list(pool._processes.values())
+    manager = pool._executor_manager_thread
+    outcome = []
+
+    def stuck():
+        try:
+            procs.run(_mark_then_sleep, str(tmp_path / "running"), 60)
+        except CycleProcessDied as exc:
+            outcome.append(exc)
+
+    busy = threading.Thread(target=stuck)
+    busy.start()
+    assert wait_for(lambda: (tmp_path / "running").exists(), 10)
+    t = time.perf_counter()
+    procs.close()
+    assert time.perf_counter() - t < 8  # the grace, then terminate: not the 60 s the cycle wanted
+    assert workers and not any(p.is_alive() for p in workers)
+    assert not manager.is_alive()
+    busy.join(10)
+    assert not busy.is_alive() and len(outcome) == 1  # the cycle failed with a reason, not silently
 
 
 def test_a_controller_only_this_process_can_reach_is_measured_here():
