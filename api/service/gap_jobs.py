@@ -33,7 +33,7 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from api.service.worker_process import end_pool, spawn_pool
+from api.service.worker_process import IDLE_END_S, end_pool, spawn_pool
 from core.dataset import Dataset, Run
 from core.errors import MebmError
 from core.gap import diagnose
@@ -148,6 +148,7 @@ class GapJobs:
         self._lock = threading.Lock()
         self._queue = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mebm-gap")
         self._pool: ProcessPoolExecutor | None = None
+        self._closing = False
 
     # -- the queue ------------------------------------------------------------------------------
     def submit(self, key: tuple, folder: Path, runs: int) -> Future:
@@ -202,6 +203,8 @@ class GapJobs:
         try:
             return self._process().submit(self.compute, folder, runs).result()
         except BrokenProcessPool as exc:
+            if self._closing:  # the service stops: end_pool ended it
+                raise DiagnosisCrashed(f"the service stopped while diagnosing runs={runs}; ask again") from None
             self.crashes += 1
             self._pool = None  # a fresh process for the next job
             log.error("the gap diagnosis process died during %s (runs=%d): %s", folder, runs, exc)
@@ -214,8 +217,9 @@ class GapJobs:
         return self._pool
 
     def close(self) -> None:
+        self._closing = True
         self.forget()
         self._queue.shutdown(wait=False, cancel_futures=True)
         if self._pool is not None:  # a diagnosis is asked again, not waited for
-            end_pool(self._pool, grace_s=0.0, what="gap diagnosis")
+            end_pool(self._pool, grace_s=IDLE_END_S, what="gap diagnosis")
             self._pool = None

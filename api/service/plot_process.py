@@ -33,7 +33,7 @@ from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
 from concurrent.futures.process import BrokenProcessPool
 
-from api.service.worker_process import end_pool, spawn_pool
+from api.service.worker_process import IDLE_END_S, end_pool, spawn_pool
 from core.errors import MebmError
 
 log = logging.getLogger(__name__)
@@ -134,7 +134,7 @@ class PlotProcess:
         with self._lock:
             pool, self._pool = self._pool, None
         if pool is not None:  # a render is asked again, not waited for
-            end_pool(pool, grace_s=0.0, what="plot")
+            end_pool(pool, grace_s=IDLE_END_S, what="plot")
 
 
 def _warm() -> int:

@@ -97,10 +97,10 @@ def analyse(axis: AxisRecord, time_s, motor_rev, table_mm, *,
 
 log = logging.getLogger(__name__)
 
-# what a cycle process imports when it starts, so its first cycle is as fast as the others
 # how long a cycle still running in a worker process may take to finish when the service stops
 CLOSE_GRACE_S = 10.0
 
+# what a cycle process imports when it starts, so its first cycle is as fast as the others
 CYCLE_IMPORTS = ("api.service.runner", "acquisition.modbus", "acquisition.modbus_polled", "acquisition.canopen",
                  "acquisition.canopen_listen", "core.criteria")
 

@@ -24,6 +24,9 @@ from concurrent.futures import ProcessPoolExecutor
 log = logging.getLogger(__name__)
 
 PARENT_POLL_S = 2.0
+# an idle worker ends within milliseconds of the stop; one still busy after this is
+# terminated by end_pool when its work is asked again rather than waited for
+IDLE_END_S = 1.0
 
 
 def _worker_init(parent_pid: int, nice: int, what: str, imports: tuple[str, ...] = (),

@@ -5,6 +5,7 @@ with a clear error and is replaced; a crash is not cached as an answer."""
 from __future__ import annotations
 
 import os
+import time
 
 import pytest
 
@@ -16,6 +17,9 @@ def where_am_i(folder: str, runs: int) -> dict:
     dies the way an out-of-memory kill does: the process ends without an answer."""
     if runs == 99:
         os._exit(137)
+    if runs == 98:  # a long diagnosis: marks that it runs, then takes a minute
+        open(os.path.join(folder, "running"), "w").close()  # noqa: SIM115
+        time.sleep(60)
     return {"pid": os.getpid(), "folder": folder, "runs": runs, "nice": os.nice(0)}
 
 
@@ -47,6 +51,23 @@ def test_a_worker_that_dies_fails_its_job_and_is_replaced(jobs, tmp_path):
     with pytest.raises(DiagnosisCrashed):
         jobs.submit(("b", 99), tmp_path, 99).result(timeout=120)
     assert jobs.crashes == 2
+
+
+def test_closing_ends_a_running_diagnosis_at_once_without_counting_a_crash(tmp_path):
+    """The stop does not wait for a diagnosis (it is asked again), and leaves no process."""
+    j = GapJobs(compute=where_am_i)
+    fut = j.submit(("c", 98), tmp_path, 98)
+    deadline = time.monotonic() + 120
+    while not (tmp_path / "running").exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    procs = list(j._pool._processes.values())
+    t = time.perf_counter()
+    j.close()
+    assert time.perf_counter() - t < 10  # not the minute the diagnosis wanted
+    assert procs and not any(p.is_alive() for p in procs)
+    with pytest.raises(DiagnosisCrashed, match="service stopped"):
+        fut.result(timeout=10)
+    assert j.crashes == 0
 
 
 def test_the_pending_bound_holds_without_a_process(tmp_path):
