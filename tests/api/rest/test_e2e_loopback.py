@@ -61,7 +61,11 @@ def test_scheduler_simulator_database_status_trend_alert(live):
     assert wait_for(lambda: ok_count() >= 1), client.get(f"{V1}/axes/{axis_id}/measurements", headers=read).json()
     # the status is published just after the cycle's commit (StatusCache.prepare): a list read
     # in between sees the cycle before the status does (seen on a loaded machine)
-    st = wait_for(lambda: (b := client.get(f"{V1}/axes/{axis_id}/status", headers=read).json())["measurement_id"] and b, 5.0)
+    def measured_status():
+        body = client.get(f"{V1}/axes/{axis_id}/status", headers=read).json()
+        return body if body["measurement_id"] is not None else None
+
+    st = wait_for(measured_status, 5.0)
     assert st["backlash_mean_um"] == pytest.approx(226.0, abs=4.0)
     assert st["state"] == "WARNING" and st["temperature_c"] == pytest.approx(20.0, abs=0.05)
     assert st["backlash_limit_um"] == pytest.approx(236.0, abs=0.1)
