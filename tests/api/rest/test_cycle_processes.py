@@ -80,7 +80,8 @@ def test_closing_ends_the_processes_and_the_pool_thread_a_stuck_cycle_included(m
     assert wait_for(lambda: (tmp_path / "running").exists(), 10)
     t = time.perf_counter()
     procs.close()
-    assert time.perf_counter() - t < 8  # the grace, then terminate: not the 60 s the cycle wanted
+    # the grace, then terminate (end_pool waits at most grace + 9 s), not the 60 s the cycle wanted
+    assert time.perf_counter() - t < 30
     assert workers and not any(p.is_alive() for p in workers)
     assert not manager.is_alive()
     busy.join(10)

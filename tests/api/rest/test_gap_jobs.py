@@ -63,7 +63,7 @@ def test_closing_ends_a_running_diagnosis_at_once_without_counting_a_crash(tmp_p
     procs = list(j._pool._processes.values())
     t = time.perf_counter()
     j.close()
-    assert time.perf_counter() - t < 10  # not the minute the diagnosis wanted
+    assert time.perf_counter() - t < 30  # end_pool waits at most 1 + 9 s: not the minute the diagnosis wanted
     assert procs and not any(p.is_alive() for p in procs)
     with pytest.raises(DiagnosisCrashed, match="service stopped"):
         fut.result(timeout=10)
