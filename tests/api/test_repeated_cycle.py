@@ -18,10 +18,14 @@ from tests.storage.db.backends import db_url, engine  # noqa: F401 - fixtures
 
 @pytest.fixture
 def slow_once():
-    # separate reads (no latch, no trace buffer): replies slowed by 0.6 s for 0.3 s of the
-    # first round trip leave a stretch of travel without samples; the second is clean
+    # separate reads (no latch, no trace buffer): replies slowed by 1.2 s for 0.3 s of the
+    # first round trip leave a stretch of travel without samples; the second is clean.
+    # The axis runs at a third of real speed, as the polled-path tests in test_passive slow
+    # theirs: the injected pause still leaves a hole of about 11 mm, and a host pause during
+    # the repeat must last three times as long (about 0.2 s, not 0.07 s) to leave one over
+    # max_gap_mm (2 mm). At full speed a 0.15 s pause once failed the repeat.
     axis = SimAxis(KinematicTwin(backlash_um=120.0, position_gain_per_s=30.0), servo_rate_hz=500.0,
-                   time_scale=1.0, faults=[parse_fault("slow:at=0.3,s=0.6,for=0.3")])
+                   time_scale=1.0 / 3.0, faults=[parse_fault("slow:at=0.3,s=1.2,for=0.3")])
     sim = SimModbusController(axis)
     sim.start_in_thread()
     yield sim
