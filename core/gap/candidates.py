@@ -31,7 +31,8 @@ from scipy.signal import savgol_filter
 from core.dataset import AxisSpec
 from core.gap.data import RoundTrip
 from core.gap.play import play, play_friction, play_inertia
-from core.gap.roundtrip import REFERENCE_C, RTModel, residual_periods_mm, residual_um
+from core.gap.roundtrip import (ENVELOPE_WINDOW_S, REFERENCE_C, TRAIN_ENVELOPE_WINDOWS_S, RTModel, residual_periods_mm,
+                                residual_um)
 from core.sim import (
     CATEGORIES,
     BacklashProfile,
@@ -367,6 +368,8 @@ def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
         np.r_[2000.0, *[s.upper for s in stages]] if stages else np.array([2000.0]),
         predict, int(sum(len(s.names) for s in stages)), {s.effect: s.info for s in stages},
         prior=prior if priors else None, envelope=any(s.kernel in ENVELOPE_KERNELS for s in stages),
+        train_windows_s=(TRAIN_ENVELOPE_WINDOWS_S if any(s.kernel == "compliance" for s in stages)
+                         else (ENVELOPE_WINDOW_S,)),
     )  # fmt: skip
 
 

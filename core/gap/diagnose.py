@@ -294,7 +294,8 @@ class _Diagnosis:
                 fitted_vals.update(zip(model.names[-len(st.names):], fr.theta[-len(st.names):]))
                 # the reference in the form's own metric (an envelope-scored chain against the
                 # reference's envelope-scored residuals)
-                ref_rss = (rt.train_rss(ref_model, ref_fit.theta, runs, True) if model.envelope and not ref_model.envelope
+                ref_rss = (rt.train_rss(ref_model, ref_fit.theta, runs, True, model.train_windows_s)
+                           if model.envelope and (not ref_model.envelope or ref_model.train_windows_s != model.train_windows_s)
                            else ref_fit.rss)  # fmt: skip
                 gain = n * math.log(max(fr.rss, 1e-12) / max(ref_rss, 1e-12)) + len(st.names) * math.log(max(n, 2))
                 tried.append((gain, st, stages, model, fr, ref_rss))
