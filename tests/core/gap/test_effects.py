@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from core.dataset import Dataset, MachineSpec
-from core.gap import diagnose
+from core.gap import GapSettings, diagnose
 from core.sim import (
     AxisModel,
     BacklashProfile,
@@ -127,7 +127,10 @@ def test_friction_with_pre_sliding_is_named_from_circles_and_its_length_found():
         tr = simulate(axes, circle(r, (100.0, 100.0), feed, "ccw" if i % 2 == 0 else "cw"), rate_hz=500.0, rng=rng)
         runs.append(tr.to_run(f"c_{i}.csv", split="test" if i == 3 else "train"))
     m = MachineSpec("t", {a: ax.to_axis_spec((0.0, 200.0)) for a, ax in axes.items()})
-    rep = diagnose(Dataset(m, tuple(runs)))
+    # noise factor 1.5: friction leaves 0.47 µm on a 0.25 µm floor, at the default 2x's edge
+    # (on the machine of stop 33 it fell under it, the second-effect step did not run and
+    # the last assertion had nothing to check); the fits do not depend on it
+    rep = diagnose(Dataset(m, tuple(runs)), GapSettings(noise_factor=1.5))
     assert rep.effect == "friction", rep.text()
     assert rep.gap_after_um <= 0.5 * rep.gap_before_um, rep.text()
     p = rep.candidates[0].values
