@@ -337,7 +337,8 @@ class _Diagnosis:
             if af is None:
                 f.rt_res.append(rt.model_residual_um(self.nom_model[r.axis], self.nom_fit[r.axis].theta, r, envelope=True))
             else:
-                f.rt_res.append(rt.model_residual_um(af.model, af.fit.theta, r, envelope=True))
+                f.rt_res.append(_bounded(rt.model_residual_um(af.model, af.fit.theta, r, envelope=True),
+                                         f"test round trip {r.file}", f.notes))
         f.gap_after_um = _rms_all(f.rt_res + f.ct_res)
         return f
 
@@ -401,7 +402,8 @@ class _Diagnosis:
             return
         for c in self.test_ct:
             sims[c.file] = self.memo.table(c, models)
-        f.ct_res = [ct.contour_residual_um(c, sims[c.file]) for c in self.test_ct]
+        f.ct_res = [_bounded(ct.contour_residual_um(c, sims[c.file]), f"test contour {c.file}", f.notes)
+                    for c in self.test_ct]  # fmt: skip
 
 
     def _friction_axis_on_contours(self, a: str, af: _AxisFit, pieces: dict, bl: dict):
@@ -544,6 +546,22 @@ def _with_gain(m: AxisModel, gain: float) -> AxisModel:
         return m
     return AxisModel(m.name, m.transmission_mm_per_rev, m.screw_lead_mm, float(gain), m.backlash_um, m.initial_side,
                      m.effects, m.encoders)  # fmt: skip
+
+
+def _bounded(resid_um: np.ndarray, what: str, notes: list[str]) -> np.ndarray:
+    """A test residual whose simulation diverged (non-finite, or beyond
+    ``rt.NONFINITE_RESIDUAL``: seen on the independent plant, a friction chain fitted on
+    round trips that grew to 1e68 µm on a test circle its train circles never showed)
+    counts as ``NONFINITE_RESIDUAL`` per sample there, as in the fits, and the candidate's
+    notes say so; the report then shows a candidate that cannot predict that run, not a
+    number of 68 digits."""
+    with np.errstate(invalid="ignore"):
+        bad = ~np.isfinite(resid_um) | (np.abs(resid_um) > rt.NONFINITE_RESIDUAL)
+    if not bad.any():
+        return resid_um
+    notes.append(f"the model's simulation diverged on {what} ({int(bad.sum())} samples counted as "
+                 f"{rt.NONFINITE_RESIDUAL:g} µm)")
+    return np.where(bad, np.where(np.nan_to_num(resid_um) < 0, -1.0, 1.0) * rt.NONFINITE_RESIDUAL, resid_um)
 
 
 def _took_something(f: Fitted, gap_before: float) -> bool:
