@@ -62,6 +62,7 @@ class _MachineLink:
         self.machine = machine
         self.online_topic = f"{pub.prefix}/{topic_level(machine)}/online"
         self.connected = False
+        self.closing = False  # close() asked for the disconnect: not a lost connection
         self.status: dict[str, bytes] = {}  # topic -> the newest status body
         self.outbox: collections.OrderedDict[int, tuple[str, bytes]] = collections.OrderedDict()  # key -> alert
         self.in_flight: dict[int, int] = {}  # paho mid -> outbox key
@@ -101,7 +102,10 @@ class _MachineLink:
     def _on_disconnect(self, client, userdata, flags, reason_code, properties):
         with self._lock:
             was, self.connected = self.connected, False
-        if was:
+        if self.closing:
+            log.info("MQTT disconnected from %s:%s for machine %s (service stopping)", self.pub.host, self.pub.port,
+                     self.machine)
+        elif was:
             log.warning("MQTT connection of machine %s lost (%s): retrying with back-off", self.machine, reason_code)
 
     def _on_publish(self, client, userdata, mid, reason_code, properties):
@@ -141,6 +145,7 @@ class _MachineLink:
 
     def close(self) -> None:
         with self._lock:
+            self.closing = True
             if self.connected:
                 self.client.publish(self.online_topic, b"offline", qos=QOS, retain=True)
         self.client.disconnect()

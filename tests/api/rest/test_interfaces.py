@@ -10,6 +10,7 @@ import hashlib
 import hmac
 import http.server
 import json
+import logging
 import shutil
 import socket
 import subprocess
@@ -93,7 +94,7 @@ def _measure(svc, axis_id):
 
 
 @needs_mosquitto
-def test_an_mqtt_subscriber_receives_the_retained_status_the_birth_and_each_alert(tmp_path):
+def test_an_mqtt_subscriber_receives_the_retained_status_the_birth_and_each_alert(tmp_path, caplog):
     port, prefix = _free_port(), f"t{uuid.uuid4().hex[:8]}"
     broker = Broker(port, tmp_path)
     runner = FakeRunner(backlash_um=200.0)
@@ -133,6 +134,13 @@ def test_an_mqtt_subscriber_receives_the_retained_status_the_birth_and_each_aler
             info = client.get("/api/v1/interfaces", headers=hdr(read)).json()
             assert info["mqtt"]["connected"] == {"vmc-850": True}
             assert info["event_consumers"]["mqtt"]["failed"] == 0
+            caplog.set_level(logging.INFO, logger="mebm.mqtt")
+        # the service's own stop is a clean disconnect, not a lost connection (it logged a
+        # WARNING "lost ... retrying" until stop 33), and the retained birth says offline
+        mine = [r for r in caplog.records if r.name == "mebm.mqtt"]
+        assert not [r for r in mine if r.levelno >= logging.WARNING], [r.getMessage() for r in mine]
+        assert any("service stopping" in r.getMessage() for r in mine)
+        assert _sub(port, f"{prefix}/vmc-850/online", 1) == [(f"{prefix}/vmc-850/online", b"offline")]
     finally:
         broker.stop()
 
