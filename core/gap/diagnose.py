@@ -293,9 +293,8 @@ class _Diagnosis:
                 fr = rt.fit_model(model, runs, starts, n_starts=2 if st.starts and not bfit else 1, max_nfev=st.max_nfev)
                 fitted_vals.update(zip(model.names[-len(st.names):], fr.theta[-len(st.names):]))
                 # the reference in the form's own metric (an envelope-scored chain against the
-                # reference's envelope-scored residuals)
-                ref_rss = (rt.train_rss(ref_model, ref_fit.theta, runs, True, model.train_windows_s)
-                           if model.envelope and (not ref_model.envelope or ref_model.train_windows_s != model.train_windows_s)
+                # reference's residuals scored the same way, over the form's train windows)
+                ref_rss = (rt.train_rss(ref_model, ref_fit.theta, runs, True, model.train_windows_s) if model.envelope
                            else ref_fit.rss)  # fmt: skip
                 gain = n * math.log(max(fr.rss, 1e-12) / max(ref_rss, 1e-12)) + len(st.names) * math.log(max(n, 2))
                 tried.append((gain, st, stages, model, fr, ref_rss))
