@@ -290,7 +290,8 @@ class _Diagnosis:
                     starts = [np.concatenate([bfit.fit.theta, s0]) for s0 in st.starts]
                 else:
                     starts = stage_starts(stages, np.array([self.b_um[a]]))
-                fr = rt.fit_model(model, runs, starts, n_starts=2 if st.starts and not bfit else 1, max_nfev=st.max_nfev)
+                fr = rt.fit_model(model, runs, starts, n_starts=st.n_starts if st.starts and not bfit else 1,
+                                  max_nfev=st.max_nfev, diff_step=st.diff_step)
                 fitted_vals.update(zip(model.names[-len(st.names):], fr.theta[-len(st.names):]))
                 # the reference in the form's own metric (an envelope-scored chain against the
                 # reference's residuals scored the same way, over the form's train windows)

@@ -216,7 +216,7 @@ def fit(model: RTModel, runs: Sequence[RoundTrip], starts: Sequence[np.ndarray] 
 
 
 def fit_model(model: RTModel, runs: Sequence[RoundTrip], starts: Sequence[np.ndarray] = (),
-              n_starts: int = 1, max_nfev: int | None = None) -> FitResult:
+              n_starts: int = 1, max_nfev: int | None = None, diff_step: float | None = None) -> FitResult:
     """Least-squares fit of a round-trip model on ``runs``: ``starts`` are extra start
     points beside ``model.x0``; the RSS excludes the priors."""
     n_prior = 0 if model.prior is None else int(np.size(model.prior(model.x0)))
@@ -227,7 +227,8 @@ def fit_model(model: RTModel, runs: Sequence[RoundTrip], starts: Sequence[np.nda
             parts.append(model.prior(theta))
         return np.concatenate(parts)
 
-    r = fit_ls(res, [model.x0, *starts], model.lower, model.upper, n_starts, n_prior, max_nfev=max_nfev)
+    r = fit_ls(res, [model.x0, *starts], model.lower, model.upper, n_starts, n_prior, max_nfev=max_nfev,
+               diff_step=diff_step)
     rss = train_rss(model, r.theta, runs, model.envelope)
     # the residuals per sample: each window's stacked (d, e) repeats the same samples
     n_res = r.n_res // len(model.train_windows_s) if model.envelope else r.n_res
