@@ -290,8 +290,11 @@ class _Diagnosis:
                     starts = [np.concatenate([bfit.fit.theta, s0]) for s0 in st.starts]
                 else:
                     starts = stage_starts(stages, np.array([self.b_um[a]]))
+                # alone: the stage's own step and starts; on top of a base, whose parameters are
+                # fitted again too, the default step (a 1 % step over all of them costs
+                # twice the diagnosis' time, seen on the first cases of seed 6397)
                 fr = rt.fit_model(model, runs, starts, n_starts=st.n_starts if st.starts and not bfit else 1,
-                                  max_nfev=st.max_nfev, diff_step=st.diff_step)
+                                  max_nfev=st.max_nfev, diff_step=None if bfit else st.diff_step)
                 fitted_vals.update(zip(model.names[-len(st.names):], fr.theta[-len(st.names):]))
                 # the reference in the form's own metric (an envelope-scored chain against the
                 # reference's residuals scored the same way, over the form's train windows)
