@@ -89,7 +89,6 @@ class Stage:
     # start values of the backlash, as factors of the nominal one (a stage that changes
     # what the nominal fit takes for backlash)
     backlash_factors: tuple[float, ...] = (1.0,)
-    n_starts: int = 2  # the cheapest starts that are refined (alone; on top of a base: 1)
 
 
 # ---- round-trip stages ------------------------------------------------------------

@@ -293,7 +293,7 @@ class _Diagnosis:
                 # alone: the stage's own step and starts; on top of a base, whose parameters are
                 # fitted again too, the default step (a 1 % step over all of them costs
                 # twice the diagnosis' time, seen on the first cases of seed 6397)
-                fr = rt.fit_model(model, runs, starts, n_starts=st.n_starts if st.starts and not bfit else 1,
+                fr = rt.fit_model(model, runs, starts, n_starts=2 if st.starts and not bfit else 1,
                                   max_nfev=st.max_nfev, diff_step=None if bfit else st.diff_step)
                 fitted_vals.update(zip(model.names[-len(st.names):], fr.theta[-len(st.names):]))
                 # the reference in the form's own metric (an envelope-scored chain against the
