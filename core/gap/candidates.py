@@ -262,10 +262,14 @@ def compliance_stage() -> Stage:
     now steps by 1 % (``diff_step``), from 16 starts of frequency, damping and guide friction, each
     with the nominal backlash, twice and four times it (a table that floats across the
     gap makes the nominal fit take the clearance for smaller than it is: 22 µm where the
-    compliance fit finds 101 µm on 9401 case 33); the two cheapest are refined, 12
-    iterations each. Test gaps of the candidate, before -> after, on the independent
-    plant (tuning: seeds 8647, 9401, 7919 of earlier evaluations and 3202-3406, all
-    ``default_rng([s, i])``): see docs/gap-diagnosis.md."""
+    compliance fit finds 101 µm on 9401 case 33); the two cheapest are refined, at most
+    12 evaluations each (``max_nfev``; the Jacobian's not counted). Fitted on top of a
+    base (a second effect), every start begins with the base's fitted values (the
+    backlash not multiplied), only the cheapest start is refined, and at scipy's default
+    step (``core.gap.diagnose._Diagnosis.fit_candidate``: a 1 % step over a base's
+    parameters doubled the diagnosis' time). Test gaps of the candidate, before ->
+    after, on the independent plant (tuning: seeds 8647, 9401, 7919 of earlier
+    evaluations and 3202-3406, all ``default_rng([s, i])``): see docs/gap-diagnosis.md."""
     return Stage(
         "compliance", ("natural_frequency_hz", "damping_ratio", "guide_damping_per_s", "guide_friction_mm_s2"),
         np.array([60.0, 0.3, 5.0, 300.0]), np.array([3.0, 0.02, 0.0, 0.0]),
