@@ -62,14 +62,13 @@ PROFILE_SMOOTHNESS_WEIGHT = 0.05  # µm of residual per µm of second difference
 # a healthy chain, the compliance family); sliding guides, or rolling ones run dry, seized
 # or over-preloaded, at 0.05-0.2 g and more, with stick-slip (the friction family).
 FRICTION_CHAIN_MIN_MM_S2 = 0.05 * 9810.0
-# Stop 36 experiment, as evaluated on 50 tuning cases (docs/gap-diagnosis.md, "A hunting
-# chain"): the motor smoothed over 5/9 ms (was 16/30 ms) and the compliance form's train fit
-# by multiple shooting, the table restarting from its measured state every 100 ms.
-# 33 -> 30 of 50 named correctly: reverted in the next commit.
-SMOOTH_POSITION_S = 0.005  # Savitzky-Golay windows of the motor record driving a chain kernel
-SMOOTH_VELOCITY_S = 0.009
-SHOOT_HORIZON_S = 0.1
-SHOOT_KERNELS = ("compliance",)
+# Savitzky-Golay windows (order 2) of the motor record driving a chain kernel. 16 ms keeps
+# 99 % of 25 Hz but cuts above ~60 Hz, where the chains ring: a rattle the motor record
+# carries is then not started in the model (stop 36: 4172 case 22 with its true parameters,
+# 18.4 µm test gap at 16/30 ms, 1.2 µm at 5/9 ms). Lighter windows did not name more of
+# the tuning cases (33 -> 33 of 50; docs/gap-diagnosis.md, "A hunting chain").
+SMOOTH_POSITION_S = 0.016
+SMOOTH_VELOCITY_S = 0.03
 
 
 @dataclass(frozen=True)
@@ -338,26 +337,6 @@ def _x0(run: RoundTrip, hb: float) -> float:
     return float(run.u_mm[0] - run.side0 * hb)
 
 
-def shooting_states(run: RoundTrip, nut_mm: np.ndarray, memo: dict, horizon_s: float):
-    """Where and from what state the table restarts in a multiple-shooting prediction: every
-    ``horizon_s`` from the first compared sample, the measured table (its encoder's zero
-    carried to the model's by the midpoint of the measured table-minus-nut, the middle of
-    the backlash, which a round trip crosses both ways) and its velocity (Savitzky-Golay
-    over 9 ms, kept in the memo per run)."""
-    key = ("shoot", run.file, horizon_s)
-    hit = memo.get(key)
-    if hit is None:
-        step = max(1, int(round(horizon_s / run.dt_s)))
-        idx = np.arange(run.start, run.x_mm.size, step, dtype=np.int64)
-        nv = 2 * int(round(0.009 / run.dt_s / 2)) + 1
-        xv = (savgol_filter(run.x_mm, nv, 2, deriv=1, delta=run.dt_s) if 5 <= nv < run.x_mm.size
-              else np.gradient(run.x_mm, run.t_s))  # fmt: skip
-        hit = memo[key] = (idx, xv[idx])
-    idx, v = hit
-    lo, hi = np.percentile(run.x_mm[run.start :] - nut_mm[run.start :], [0.5, 99.5])
-    return idx, run.x_mm[idx] - 0.5 * (lo + hi), v
-
-
 def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
     """One round-trip model: the nominal backlash plus ``stages`` (at most one kernel)."""
     kernels = [s for s in stages if s.kernel]
@@ -369,7 +348,7 @@ def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
     def parts(theta):
         return [theta[cuts[i] : cuts[i + 1]] for i in range(len(stages))]
 
-    def predict(theta, run, shoot=False):
+    def predict(theta, run):
         ths = parts(theta)
         u = run.u_mm
         for st, th in zip(stages, ths):
@@ -402,13 +381,8 @@ def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
             us, vs_ = smooth_u(run, memo)
             if u is not run.u_mm:
                 us = us + (u - run.u_mm)
-            if shoot:
-                ri, xr, vr = shooting_states(run, us, memo, SHOOT_HORIZON_S)
-                x = play_inertia(us, vs_, run.t_s, hbc, w * w, 2 * zeta * w, c_guide, mu, nsub,
-                                 _x0(run, float(hbc[0])), mu_s, v_band, ri, xr, vr)  # fmt: skip
-            else:
-                x = play_inertia(us, vs_, run.t_s, hbc, w * w, 2 * zeta * w, c_guide, mu, nsub,
-                                 _x0(run, float(hbc[0])), mu_s, v_band)  # fmt: skip
+            x = play_inertia(us, vs_, run.t_s, hbc, w * w, 2 * zeta * w, c_guide, mu, nsub, _x0(run, float(hbc[0])),
+                             mu_s, v_band)  # fmt: skip
         for st, th in zip(stages, ths):
             if st.out_map is not None:
                 x = st.out_map(th, run, x)
@@ -429,8 +403,6 @@ def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
         prior=prior if priors else None, envelope=any(s.kernel in ENVELOPE_KERNELS for s in stages),
         train_windows_s=(TRAIN_ENVELOPE_WINDOWS_S if any(s.kernel == "compliance" for s in stages)
                          else (ENVELOPE_WINDOW_S,)),
-        predict_train=((lambda theta, run: predict(theta, run, True))
-                       if SHOOT_HORIZON_S > 0 and any(s.kernel in SHOOT_KERNELS for s in stages) else None),
     )  # fmt: skip
 
 
