@@ -64,7 +64,7 @@ PROFILE_SMOOTHNESS_WEIGHT = 0.05  # µm of residual per µm of second difference
 FRICTION_CHAIN_MIN_MM_S2 = 0.05 * 9810.0
 # Savitzky-Golay windows (order 2) of the motor record driving a chain kernel. 16 ms keeps
 # 99 % of 25 Hz but cuts above ~60 Hz, where the chains ring: a rattle the motor record
-# carries is then not started in the model (stop 36: 4172 case 22 with its true parameters,
+# carries is then not started in the model (stop 36: seed 4172, JSON index 22, true parameters:
 # 18.4 µm test gap at 16/30 ms, 1.2 µm at 5/9 ms). Lighter windows did not name more of
 # the tuning cases (33 -> 33 of 50; docs/gap-diagnosis.md, "A hunting chain").
 SMOOTH_POSITION_S = 0.016
