@@ -62,6 +62,10 @@ PROFILE_SMOOTHNESS_WEIGHT = 0.05  # µm of residual per µm of second difference
 # a healthy chain, the compliance family); sliding guides, or rolling ones run dry, seized
 # or over-preloaded, at 0.05-0.2 g and more, with stick-slip (the friction family).
 FRICTION_CHAIN_MIN_MM_S2 = 0.05 * 9810.0
+# Weight of the penalty that keeps a chain's fitted damping above the floor at which the
+# position loop, closed on the table through that chain, is stable (:func:`loop_damping_floor`),
+# in µm of residual per unit relative shortfall of the damping ratio.
+LOOP_STABILITY_WEIGHT = 1e4
 # Savitzky-Golay windows (order 2) of the motor record driving a chain kernel. 16 ms keeps
 # 99 % of 25 Hz but cuts above ~60 Hz, where the chains ring: a rattle the motor record
 # carries is then not started in the model (stop 36: seed 4172, JSON index 22, true parameters:
@@ -206,7 +210,33 @@ def friction_stage() -> Stage:
     )  # fmt: skip
 
 
-def friction_chain_stage() -> Stage:
+def loop_damping_floor(gain_per_s: float, omega: float, guide_per_s: float) -> float:
+    """The smallest chain damping ratio at which the position loop, closed on the table
+    through the chain, is stable: per unit table mass, with an ideal velocity loop and the
+    nut in contact, ``x'' = w^2 (u - x) + 2 zeta w (u' - x') - g x'`` and ``u' = K (c - x)``
+    give ``s^3 + (2 zeta w + g) s^2 + (w^2 + 2 zeta w K) s + K w^2``, stable (Routh-Hurwitz)
+    when ``(2 zeta w + g)(w^2 + 2 zeta w K) > K w^2``, about ``zeta > (K - g) / (2 w)``.
+    A machine that makes parts has a stable loop (it may still hunt through its backlash, a
+    bounded cycle); the round trips, driven by the recorded motor, cannot tell, and a chain
+    fitted below this floor makes the closed-loop contour simulation grow without bound
+    (independent 9401 case 27: 32.6 Hz at zeta 0.02, no guide damping, K 32/s)."""
+    k, w, g = gain_per_s, omega, guide_per_s
+    if k <= 0.0 or g >= k:
+        return 0.0
+    # K z^2 + (w^2 + g K) z + (g - K) w^2 = 0 for z = 2 zeta w
+    b = w * w + g * k
+    z = (-b + math.sqrt(b * b - 4.0 * k * (g - k) * w * w)) / (2.0 * k)
+    return max(0.0, z / (2.0 * w))
+
+
+def _stability_penalty(gain_per_s: float | None, fn: float, zeta: float, guide_per_s: float) -> float:
+    if not gain_per_s:
+        return 0.0
+    floor = loop_damping_floor(gain_per_s, 2 * math.pi * fn, guide_per_s)
+    return LOOP_STABILITY_WEIGHT * max(0.0, floor - zeta) / floor if floor > 0.0 else 0.0
+
+
+def friction_chain_stage(gain_per_s: float | None = None) -> Stage:
     """Friction on a compliant chain (per unit table mass): the table is a mass behind
     the nut's spring-damper, held by Coulomb friction and a static friction above it
     (Karnopp): it sticks until the chain's stretch breaks it away, then slips and rings
@@ -223,7 +253,9 @@ def friction_chain_stage() -> Stage:
     least ``FRICTION_CHAIN_MIN_MM_S2`` (0.05 g): a chain held by less is a compliant chain
     with its normal rolling-guide friction (the compliance family), which this form would
     otherwise also fit, by its static part, better than compliance's own form (seen on
-    the independent plant's two-mass chains, tuning seeds 3202 and 3204)."""
+    the independent plant's two-mass chains, tuning seeds 3202 and 3204). The chain's
+    damping is held above the position loop's stability floor (a penalty,
+    :func:`loop_damping_floor`)."""
     return Stage(
         "friction", ("chain_frequency_hz", "chain_damping_ratio", "coulomb_per_mass_mm_s2", "static_excess_per_mass_mm_s2",
                      "stick_band_mm_s"),
@@ -232,6 +264,8 @@ def friction_chain_stage() -> Stage:
         starts=tuple(np.array([fn, 0.1, mu, ex * mu, 0.5]) for fn in (25.0, 80.0) for mu in (600.0, 2000.0)
                      for ex in (0.5, 2.0)),
         info={"form": "chain"}, derive_starts=_chain_starts_from_lost_motion, max_nfev=40,
+        prior=((lambda th: np.array([_stability_penalty(gain_per_s, th[0], th[1], GUIDE_DAMPING_PER_S)]))
+               if gain_per_s else None),
     )  # fmt: skip
 
 
@@ -249,7 +283,7 @@ def _chain_starts_from_lost_motion(prev: Mapping[str, float]) -> tuple[np.ndarra
     return tuple(out)
 
 
-def compliance_stage() -> Stage:
+def compliance_stage(gain_per_s: float | None = None) -> Stage:
     """The table as a mass on a spring-damper behind the nut, held by guide damping and
     Coulomb guide friction (per unit mass): lag proportional to acceleration, ringing
     after acceleration changes, the table floating across the backlash when braking. A
@@ -259,6 +293,8 @@ def compliance_stage() -> Stage:
     on :func:`core.gap.roundtrip.residual_env_um`), not its phase. Not covered: a second
     resonance, stiffness that changes along the travel, a hunting cycle whose amplitude
     depends on the loop (the recorded motor carries it, the model does not close it).
+    The damping is held above the floor at which the position loop, closed on the table
+    through this chain, is stable (a penalty, :func:`loop_damping_floor`).
 
     The fit: the train cost of a table that rattles across the backlash is rough at small
     parameter steps (each rattle is an event), so scipy's default finite-difference step
@@ -282,7 +318,8 @@ def compliance_stage() -> Stage:
         np.array([60.0, 0.3, 5.0, 300.0]), np.array([3.0, 0.02, 0.0, 0.0]),
         np.array([300.0, 2.0, 200.0, FRICTION_CHAIN_MIN_MM_S2]),
         kernel="compliance",
-        prior=lambda th: np.array([GUIDE_FRICTION_PRIOR_WEIGHT * math.log(max(th[3], 1.0) / GUIDE_FRICTION_PRIOR_MM_S2)]),
+        prior=lambda th: np.array([GUIDE_FRICTION_PRIOR_WEIGHT * math.log(max(th[3], 1.0) / GUIDE_FRICTION_PRIOR_MM_S2),
+                                   _stability_penalty(gain_per_s, th[0], th[1], th[2])]),
         starts=tuple(np.array([fn, z, g, mu]) for fn in (15.0, 30.0, 60.0, 120.0) for z in (0.12, 0.3)
                      for g, mu in ((2.0, 100.0), (10.0, 450.0))),
         backlash_factors=(1.0, 2.0, 4.0), diff_step=0.01, max_nfev=12,
@@ -515,8 +552,8 @@ def _cyclic_factory(runs, axis, resid):
 
 REGISTRY: dict[str, Strategy] = {
     "friction": Strategy("friction", f"{friction_stage.__doc__}\n{friction_chain_stage.__doc__}",
-                         lambda runs, axis, resid: (friction_stage(), friction_chain_stage())),
-    "compliance": Strategy("compliance", compliance_stage.__doc__, lambda runs, axis, resid: compliance_stage()),
+                         lambda runs, axis, resid: (friction_stage(), friction_chain_stage(axis.position_gain_per_s))),
+    "compliance": Strategy("compliance", compliance_stage.__doc__, lambda runs, axis, resid: compliance_stage(axis.position_gain_per_s)),
     "thermal": Strategy("thermal", thermal_stage.__doc__, lambda runs, axis, resid: thermal_stage(runs, axis)),
     "backlash_profile": Strategy("backlash_profile", profile_stage.__doc__,
                                  lambda runs, axis, resid: profile_stage(runs, axis)),  # fmt: skip
