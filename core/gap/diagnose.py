@@ -11,8 +11,8 @@
    with it, fitted on the train runs only, predicting the test runs. A round-trip axis
    takes the extension only if it passes a BIC test on its train fit; contours take the
    round-trip fit through the twin only if it does not worsen the train contours.
-5. Rank by test gap times (1 + penalty_per_param * n_params); name the best unless it
-   fails to cut the gap by min_reduction or the gap is within noise_factor of the noise.
+5. Rank by test gap times (1 + penalty_per_param * n_params); name the best if it cuts
+   the gap by min_reduction and the gap is above noise_factor times the noise.
 6. Second effect: every other candidate on top of the best, fitted on the train runs;
    accepted if it cuts the best's test gap by another min_reduction while that gap is
    still above the noise floor.
@@ -20,6 +20,9 @@
    the two best single candidates are each tried as a base with every other on top; a
    pair is named if it cuts the gap before by min_reduction and its second effect cuts
    its base's gap by min_reduction too (two effects whose train runs confound them).
+8. Otherwise the best single candidate is still named if it cuts the gap by
+   min_first_reduction (a weaker cut; the decision says that most of the gap stays
+   unexplained), else the answer is none.
 """
 
 from __future__ import annotations
@@ -52,6 +55,10 @@ class GapSettings:
 
     penalty_per_param: float = 0.01
     min_reduction: float = 0.25  # best candidate must cut the test gap by at least this fraction
+    # ... or, when no pair explains it either, at least this fraction (a weak cut, said so).
+    # Set on the visible-gap cases the 0.25 rule answered none on the tuning seeds (stop 37,
+    # docs/gap-diagnosis.md "Ranking"): every one cut by 15 % or more was named right.
+    min_first_reduction: float = 0.15
     noise_factor: float = 2.0  # ... and the gap before must exceed this multiple of the noise floor
     second_effect: bool = True
     keep_curves: bool = True
@@ -655,6 +662,22 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: 
                         f"{(1 - second.gap_after_um / gap_before) * 100:.0f} %.")  # fmt: skip
             second_text = (f"A second effect remains: {second.effects[1]} (together the test gap falls to "
                            f"{second.gap_after_um:.2f} µm; {effect} alone leaves {best.gap_after_um:.2f} µm).")  # fmt: skip
+    if (effect == "none" and gap_before > s.noise_factor * noise
+            and ranked[0].gap_after_um <= (1 - s.min_first_reduction) * gap_before):
+        # no pair either: the best single candidate, a weak cut, is still the likeliest of
+        # the modelled effects. Every pair on top of it was tried above (a pair that cuts
+        # its gap by min_reduction would also have passed there), so no second effect.
+        best = ranked[0]
+        effect = best.effects[0]
+        decision = (f"{effect} cuts the test gap by {(1 - best.gap_after_um / gap_before) * 100:.0f} % only "
+                    f"(under {s.min_reduction * 100:.0f} %): the likeliest of the modelled effects, but most of "
+                    "the gap stays unexplained.")  # fmt: skip
+        if s.second_effect:
+            on_top = any(p.effects[0] == effect for p in pairs)
+            second_text = ("No second effect found (no other candidate on top cuts the remaining gap by "
+                           f"{s.min_reduction * 100:.0f} %)." if on_top else
+                           "No second effect found (no other candidate took anything on its own).")  # fmt: skip
+        joint = True  # the second-effect step below has been done
     if effect != "none" and s.second_effect and not joint:
         if best.gap_after_um > s.noise_factor * noise:
             # a candidate that took no axis on its own and cut no test gap is not tried on top
@@ -726,7 +749,7 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: 
         n_test_samples=int(sum(r.size for r in rt_nom + ct_nom)),
         decision=decision,
         thresholds={"penalty_per_param": s.penalty_per_param, "min_reduction": s.min_reduction,
-                    "noise_factor": s.noise_factor},  # fmt: skip
+                    "min_first_reduction": s.min_first_reduction, "noise_factor": s.noise_factor},  # fmt: skip
         curves=curves,
         effects=tuple(effects_list),
         second_effect=second_text,

@@ -142,3 +142,25 @@ def test_friction_with_pre_sliding_is_named_from_circles_and_its_length_found():
     for c in on_top:
         for a in axes:
             assert c.values[f"{a}.presliding_um"] == p[f"{a}.presliding_um"], c.effect
+
+
+def test_a_weak_cut_is_named_as_such_and_below_the_weaker_threshold_none():
+    """When no single candidate cuts the gap by ``min_reduction`` and no pair explains it,
+    the best one is still named if it cuts by ``min_first_reduction``, and the decision says
+    that most of the gap stays unexplained; below that the answer is none. The thresholds
+    are moved around the thermal dataset's own cut, so that the same fits fall on each side."""
+    ds = _round_trips(EFFECTS["thermal"], np.random.default_rng(7))
+    alone = diagnose(ds, GapSettings(keep_curves=False, second_effect=False))
+    assert alone.effect == "thermal", alone.text()
+    cut = 1.0 - alone.gap_after_um / alone.gap_before_um  # the best single candidate's cut
+    assert cut > 0.5
+    strict = 0.5 * (cut + 1.0)  # more than the best single cut: it fails the main rule
+    weak = diagnose(ds, GapSettings(keep_curves=False, min_reduction=strict, min_first_reduction=cut - 0.05))
+    assert weak.effect == "thermal" and weak.effects == ("thermal",), weak.text()
+    assert " only (under " in weak.decision and "most of the gap stays unexplained" in weak.decision
+    assert weak.second_effect.startswith("No second effect found"), weak.second_effect
+    assert weak.gap_after_um < weak.gap_before_um
+    assert weak.to_dict()["thresholds"]["min_first_reduction"] == pytest.approx(cut - 0.05)
+    none = diagnose(ds, GapSettings(keep_curves=False, second_effect=False, min_reduction=strict,
+                                    min_first_reduction=cut + 0.05))  # fmt: skip
+    assert none.effect == "none" and none.gap_after_um == none.gap_before_um, none.text()
