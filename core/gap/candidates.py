@@ -26,7 +26,6 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.ndimage import uniform_filter1d
 from scipy.signal import savgol_filter
 
 from core.dataset import AxisSpec
@@ -70,22 +69,10 @@ LOOP_STABILITY_WEIGHT = 1e4
 # Savitzky-Golay windows (order 2) of the motor record driving a chain kernel. 16 ms keeps
 # 99 % of 25 Hz but cuts above ~60 Hz, where the chains ring: a rattle the motor record
 # carries is then not started in the model (stop 36: seed 4172, JSON index 22, true parameters:
-# 18.4 µm test gap at 16/30 ms, 1.2 µm at 5/9 ms). The friction chain keeps 16/30 ms (chosen
-# for its stick-slip; lighter windows cost the twin's friction cases up to 0.25 µm); the
-# compliance form takes 5/9 ms (docs/gap-diagnosis.md, "A hunting chain").
+# 18.4 µm test gap at 16/30 ms, 1.2 µm at 5/9 ms). Lighter windows did not name more of
+# the tuning cases (33 -> 33 of 50; docs/gap-diagnosis.md, "A hunting chain").
 SMOOTH_POSITION_S = 0.016
 SMOOTH_VELOCITY_S = 0.03
-COMPLIANCE_SMOOTH_POSITION_S = 0.005
-COMPLIANCE_SMOOTH_VELOCITY_S = 0.009
-# Restarts of the compliance form's train prediction where the measured table starts to
-# rattle: a rattling chain is multistable (stop 31, 36), and driven by the same motor the
-# model settles into another cycle than the machine's, whose train cost then outweighs
-# everything else. The rattle is where the 50 ms moving RMS of table-minus-motor, about its
-# 50 ms moving mean, exceeds 5 µm; the table restarts from its measured state 100 ms before
-# each such onset and runs free from there. Both numbers were set before the tuning run.
-RATTLE_WINDOW_S = 0.05
-RATTLE_RMS_UM = 5.0
-RATTLE_LEAD_S = 0.1
 
 
 @dataclass(frozen=True)
@@ -367,62 +354,20 @@ def _speed_mm_s(run: RoundTrip) -> np.ndarray:
     return np.abs(np.gradient(u, run.t_s))
 
 
-def smooth_u(run: RoundTrip, memo: dict, position_s: float = SMOOTH_POSITION_S,
-             velocity_s: float = SMOOTH_VELOCITY_S) -> tuple[np.ndarray, np.ndarray]:
-    """Nut travel and velocity with the motor encoder noise averaged out (Savitzky-Golay
-    over ``position_s`` and ``velocity_s``), kept in the diagnosis' memo."""
-    key = ("smooth", run.file, position_s, velocity_s)
+def smooth_u(run: RoundTrip, memo: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Nut travel and velocity with the motor encoder noise averaged out (Savitzky-Golay),
+    kept in the diagnosis' memo."""
+    key = ("smooth", run.file)
     hit = memo.get(key)
     if hit is not None:
         return hit
     u = run.u_mm
-    n = 2 * int(round(position_s / run.dt_s / 2)) + 1
-    nv = 2 * int(round(velocity_s / run.dt_s / 2)) + 1
+    n = 2 * int(round(SMOOTH_POSITION_S / run.dt_s / 2)) + 1
+    nv = 2 * int(round(SMOOTH_VELOCITY_S / run.dt_s / 2)) + 1
     us = savgol_filter(u, n, 2) if 5 <= n < u.size else u
     vs = savgol_filter(u, nv, 2, deriv=1, delta=run.dt_s) if 5 <= nv < u.size else np.gradient(u, run.t_s)
     memo[key] = (us, vs)
     return us, vs
-
-
-def rattle_onsets(run: RoundTrip) -> np.ndarray:
-    """Sample indices (from ``run.start``) where the measured table starts to rattle against
-    the nut: rising edges of the ``RATTLE_WINDOW_S`` moving RMS of table-minus-motor, about
-    its moving mean, above ``RATTLE_RMS_UM``. A run rattling from its first compared sample
-    has an onset there. The first motion and each reversal, where table-minus-motor steps
-    by the backlash, count as onsets too (as in the stop-36 tuning run): the table restarts
-    from its measured state before crossing the backlash."""
-    m = 1e3 * (run.x_mm[run.start :] - run.u_mm[run.start :])
-    if m.size < 3:
-        return np.empty(0, np.int64)
-    w = max(3, int(round(RATTLE_WINDOW_S / run.dt_s)))
-    dev = m - uniform_filter1d(m, w, mode="nearest")
-    on = uniform_filter1d(dev * dev, w, mode="nearest") > RATTLE_RMS_UM**2
-    edges = np.flatnonzero(on & ~np.r_[False, on[:-1]])
-    return (edges + run.start).astype(np.int64)
-
-
-def shooting_states(run: RoundTrip, nut_mm: np.ndarray, memo: dict):
-    """Where and from what state the table restarts in the compliance form's train
-    prediction: ``RATTLE_LEAD_S`` before each rattle onset (:func:`rattle_onsets`, not
-    before the first compared sample), the measured table (its encoder's zero carried to
-    the model's by the midpoint of the measured table-minus-nut, the middle of the
-    backlash, which a round trip crosses both ways) and its velocity (Savitzky-Golay over
-    9 ms). Indices and velocities are kept in the memo per run."""
-    key = ("shoot", run.file)
-    hit = memo.get(key)
-    if hit is None:
-        lead = int(round(RATTLE_LEAD_S / run.dt_s))
-        idx = np.unique(np.maximum(rattle_onsets(run) - lead, run.start)).astype(np.int64)
-        nv = 2 * int(round(0.009 / run.dt_s / 2)) + 1
-        xv = (savgol_filter(run.x_mm, nv, 2, deriv=1, delta=run.dt_s) if 5 <= nv < run.x_mm.size
-              else np.gradient(run.x_mm, run.t_s))  # fmt: skip
-        hit = memo[key] = (idx, xv[idx])
-    idx, v = hit
-    lo, hi = np.percentile(run.x_mm[run.start :] - nut_mm[run.start :], [0.5, 99.5])
-    return idx, run.x_mm[idx] - 0.5 * (lo + hi), v
-
-
-_NO_RESTARTS = (np.empty(0, np.int64), np.empty(0), np.empty(0))
 
 
 def _x0(run: RoundTrip, hb: float) -> float:
@@ -440,7 +385,7 @@ def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
     def parts(theta):
         return [theta[cuts[i] : cuts[i + 1]] for i in range(len(stages))]
 
-    def predict(theta, run, restart=False):
+    def predict(theta, run):
         ths = parts(theta)
         u = run.u_mm
         for st, th in zip(stages, ths):
@@ -470,14 +415,11 @@ def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
             hbc = np.maximum(0.0, hb - mu / (w * w))  # backlash_um is the apparent one
             # sub-steps: omega h <= 0.05 (0.1 for the friction chain, fitted from many starts)
             nsub = max(1, int(math.ceil(run.dt_s * w / (0.1 if kern[0].kernel == "friction_chain" else 0.05))))
-            comp = kern[0].kernel == "compliance"
-            us, vs_ = (smooth_u(run, memo, COMPLIANCE_SMOOTH_POSITION_S, COMPLIANCE_SMOOTH_VELOCITY_S) if comp
-                       else smooth_u(run, memo))  # fmt: skip
+            us, vs_ = smooth_u(run, memo)
             if u is not run.u_mm:
                 us = us + (u - run.u_mm)
-            rs = shooting_states(run, us, memo) if restart and comp else _NO_RESTARTS
             x = play_inertia(us, vs_, run.t_s, hbc, w * w, 2 * zeta * w, c_guide, mu, nsub, _x0(run, float(hbc[0])),
-                             mu_s, v_band, *rs)  # fmt: skip
+                             mu_s, v_band)  # fmt: skip
         for st, th in zip(stages, ths):
             if st.out_map is not None:
                 x = st.out_map(th, run, x)
@@ -498,8 +440,6 @@ def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
         prior=prior if priors else None, envelope=any(s.kernel in ENVELOPE_KERNELS for s in stages),
         train_windows_s=(TRAIN_ENVELOPE_WINDOWS_S if any(s.kernel == "compliance" for s in stages)
                          else (ENVELOPE_WINDOW_S,)),
-        predict_train=((lambda theta, run: predict(theta, run, True))
-                       if any(s.kernel == "compliance" for s in stages) else None),
     )  # fmt: skip
 
 

@@ -71,8 +71,7 @@ def play_friction(u, half_width, lost_mm, breakaway_mm, x0):
 # by this file only, so an edit there would leave a stale compiled copy here (compiling
 # costs about 0.5 s once per process).
 @njit(nogil=True)
-def play_inertia(u, nut_v, t, half_width, w2, c_contact, c_guide, mu, nsub, x0, mu_static=0.0, v_band=0.0,
-                 reset_idx=np.empty(0, np.int64), x_reset=np.empty(0), v_reset=np.empty(0)):
+def play_inertia(u, nut_v, t, half_width, w2, c_contact, c_guide, mu, nsub, x0, mu_static=0.0, v_band=0.0):
     """The table as a mass behind the nut (Compliance): per unit mass,
     x'' = w2 (n - x -+ b/2) + c_contact (n' - x')  in contact with a flank (pushing only),
           - c_guide x' - mu sign(x')                 (guide damping and Coulomb friction),
@@ -82,19 +81,12 @@ def play_inertia(u, nut_v, t, half_width, w2, c_contact, c_guide, mu, nsub, x0, 
     zero-velocity band: a slowing table is caught without its velocity crossing zero,
     which makes stick-slip set in at higher drive speeds). Semi-implicit Euler with ``nsub`` steps per sample,
     the nut linear between samples; nut_v (mm/s) is the nut velocity per sample (given
-    separately so that it can be smoothed harder than the position). w2 in 1/s^2, c in 1/s, mu in mm/s^2, positions mm.
-    ``reset_idx`` (increasing sample indices) with ``x_reset``/``v_reset``: the table's
-    position and velocity are set to those values at these samples (multiple shooting:
-    each stretch between two resets is predicted from a measured state)."""
+    separately so that it can be smoothed harder than the position). w2 in 1/s^2, c in 1/s, mu in mm/s^2, positions mm."""
     n = u.size
     out = np.empty(n)
     x = x0
     v = 0.0
     mus = max(mu, mu_static)
-    k = 0
-    if reset_idx.size and reset_idx[0] == 0:
-        x, v = x_reset[0], v_reset[0]
-        k = 1
     out[0] = x
     for i in range(1, n):
         h = (t[i] - t[i - 1]) / nsub
@@ -118,10 +110,5 @@ def play_inertia(u, nut_v, t, half_width, w2, c_contact, c_guide, mu, nsub, x0, 
                     vn = vn / (1.0 + h * c_guide)
             v = vn
             x += h * v
-        if k < reset_idx.size and reset_idx[k] == i:
-            out[i] = x  # the prediction up to this sample; the next stretch starts from the measured state
-            x, v = x_reset[k], v_reset[k]
-            k += 1
-            continue
         out[i] = x
     return out

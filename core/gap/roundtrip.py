@@ -56,9 +56,6 @@ class RTModel:
     envelope: bool = False
     # the windows of its train score when ``envelope`` is set (:func:`residual_train_env_um`)
     train_windows_s: tuple[float, ...] = (ENVELOPE_WINDOW_S,)
-    # the prediction the train score uses, when it is not ``predict`` (a chain kernel's
-    # multiple shooting, :func:`core.gap.candidates.shooting_states`)
-    predict_train: Callable[[np.ndarray, RoundTrip], np.ndarray] | None = None
 
 
 def _x0(run: RoundTrip, hb: float) -> float:
@@ -149,7 +146,7 @@ def model_residual_um(model: "RTModel", theta: np.ndarray, run: RoundTrip, idx: 
     ``train``: the train score, :func:`residual_train_env_um` over ``windows_s`` (default
     the model's ``train_windows_s``) in place of the former."""
     env = model.envelope if envelope is None else envelope
-    pred = (model.predict_train if train and model.predict_train is not None else model.predict)(theta, run)
+    pred = model.predict(theta, run)
     if not env:
         return residual_um(pred, run, idx)
     if not train:
