@@ -553,7 +553,8 @@ def _cyclic_factory(runs, axis, resid):
 REGISTRY: dict[str, Strategy] = {
     "friction": Strategy("friction", f"{friction_stage.__doc__}\n{friction_chain_stage.__doc__}",
                          lambda runs, axis, resid: (friction_stage(), friction_chain_stage(axis.position_gain_per_s))),
-    "compliance": Strategy("compliance", compliance_stage.__doc__, lambda runs, axis, resid: compliance_stage(axis.position_gain_per_s)),
+    "compliance": Strategy("compliance", compliance_stage.__doc__,
+                           lambda runs, axis, resid: compliance_stage(axis.position_gain_per_s)),
     "thermal": Strategy("thermal", thermal_stage.__doc__, lambda runs, axis, resid: thermal_stage(runs, axis)),
     "backlash_profile": Strategy("backlash_profile", profile_stage.__doc__,
                                  lambda runs, axis, resid: profile_stage(runs, axis)),  # fmt: skip
