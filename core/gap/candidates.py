@@ -236,7 +236,7 @@ def _stability_penalty(gain_per_s: float | None, fn: float, zeta: float, guide_p
     return LOOP_STABILITY_WEIGHT * max(0.0, floor - zeta) / floor if floor > 0.0 else 0.0
 
 
-def friction_chain_stage(gain_per_s: float | None = None) -> Stage:
+def friction_chain_stage() -> Stage:
     """Friction on a compliant chain (per unit table mass): the table is a mass behind
     the nut's spring-damper, held by Coulomb friction and a static friction above it
     (Karnopp): it sticks until the chain's stretch breaks it away, then slips and rings
@@ -253,9 +253,11 @@ def friction_chain_stage(gain_per_s: float | None = None) -> Stage:
     least ``FRICTION_CHAIN_MIN_MM_S2`` (0.05 g): a chain held by less is a compliant chain
     with its normal rolling-guide friction (the compliance family), which this form would
     otherwise also fit, by its static part, better than compliance's own form (seen on
-    the independent plant's two-mass chains, tuning seeds 3202 and 3204). The chain's
-    damping is held above the position loop's stability floor (a penalty,
-    :func:`loop_damping_floor`)."""
+    the independent plant's two-mass chains, tuning seeds 3202 and 3204). Its damping is
+    not held above the position loop's linear stability floor (:func:`loop_damping_floor`,
+    which the compliance form keeps): Coulomb and static friction bound a chain's
+    oscillation, so a linearly unstable loop with them is a bounded hunting cycle, and the
+    floor cost the plant-form test's Karnopp dataset its whole cut (14.97 -> 15.32 µm)."""
     return Stage(
         "friction", ("chain_frequency_hz", "chain_damping_ratio", "coulomb_per_mass_mm_s2", "static_excess_per_mass_mm_s2",
                      "stick_band_mm_s"),
@@ -264,8 +266,6 @@ def friction_chain_stage(gain_per_s: float | None = None) -> Stage:
         starts=tuple(np.array([fn, 0.1, mu, ex * mu, 0.5]) for fn in (25.0, 80.0) for mu in (600.0, 2000.0)
                      for ex in (0.5, 2.0)),
         info={"form": "chain"}, derive_starts=_chain_starts_from_lost_motion, max_nfev=40,
-        prior=((lambda th: np.array([_stability_penalty(gain_per_s, th[0], th[1], GUIDE_DAMPING_PER_S)]))
-               if gain_per_s else None),
     )  # fmt: skip
 
 
@@ -552,7 +552,7 @@ def _cyclic_factory(runs, axis, resid):
 
 REGISTRY: dict[str, Strategy] = {
     "friction": Strategy("friction", f"{friction_stage.__doc__}\n{friction_chain_stage.__doc__}",
-                         lambda runs, axis, resid: (friction_stage(), friction_chain_stage(axis.position_gain_per_s))),
+                         lambda runs, axis, resid: (friction_stage(), friction_chain_stage())),
     "compliance": Strategy("compliance", compliance_stage.__doc__,
                            lambda runs, axis, resid: compliance_stage(axis.position_gain_per_s)),
     "thermal": Strategy("thermal", thermal_stage.__doc__, lambda runs, axis, resid: thermal_stage(runs, axis)),

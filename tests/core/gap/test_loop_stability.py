@@ -31,7 +31,7 @@ def test_guide_damping_at_least_the_gain_needs_no_chain_damping():
     assert _max_real_root(10.0, 2 * math.pi * 40.0, 25.0, 1e-4) < 0.0
 
 
-def test_the_chain_stages_penalise_only_an_unstable_loop():
+def test_the_compliance_stage_penalises_only_an_unstable_loop():
     comp = C.compliance_stage(32.0)
     floor = C.loop_damping_floor(32.0, 2 * math.pi * 32.6, 0.0)
     stable, unstable = np.array([32.6, 1.2 * floor, 0.0, 196.0]), np.array([32.6, 0.3 * floor, 0.0, 196.0])
@@ -39,10 +39,9 @@ def test_the_chain_stages_penalise_only_an_unstable_loop():
     assert comp.prior(unstable)[1] == pytest.approx(0.7 * C.LOOP_STABILITY_WEIGHT)
     edge = np.array([32.6, floor * (1 - 1e-6), 0.0, 196.0])
     assert comp.prior(edge)[1] < 1.0  # continuous at the floor: no step in the cost
-    chain = C.friction_chain_stage(32.0)
-    assert chain.prior(np.array([32.6, 0.01, 600.0, 600.0, 0.5]))[0] > 0.0
-    assert chain.prior(np.array([32.6, 0.5, 600.0, 600.0, 0.5]))[0] == 0.0
-    assert C.friction_chain_stage().prior is None  # no gain known: no floor
+    assert C.compliance_stage().prior(unstable)[1] == 0.0  # no gain known: no floor
+    # friction bounds a chain's oscillation (a hunting cycle): the friction chain has no floor
+    assert C.friction_chain_stage().prior is None
 
 
 @pytest.mark.parametrize("factor, bounded", [(1.3, True), (0.5, False)])
