@@ -62,9 +62,10 @@ PROFILE_SMOOTHNESS_WEIGHT = 0.05  # µm of residual per µm of second difference
 # a healthy chain, the compliance family); sliding guides, or rolling ones run dry, seized
 # or over-preloaded, at 0.05-0.2 g and more, with stick-slip (the friction family).
 FRICTION_CHAIN_MIN_MM_S2 = 0.05 * 9810.0
-# Weight of the penalty that keeps a chain's fitted damping above the floor at which the
-# position loop, closed on the table through that chain, is stable (:func:`loop_damping_floor`),
-# in µm of residual per unit relative shortfall of the damping ratio.
+# Weight of the penalty that keeps the compliance form's fitted damping above the floor at
+# which the position loop, closed on the table through that chain, is stable
+# (:func:`loop_damping_floor`; the friction chain has none, see its docstring), in µm of
+# residual per unit relative shortfall of the damping ratio.
 LOOP_STABILITY_WEIGHT = 1e4
 # Savitzky-Golay windows (order 2) of the motor record driving a chain kernel. 16 ms keeps
 # 99 % of 25 Hz but cuts above ~60 Hz, where the chains ring: a rattle the motor record

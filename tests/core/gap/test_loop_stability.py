@@ -1,6 +1,7 @@
-"""The chain forms' damping floor: the position loop closed on the table through the chain
-must be stable (a machine that makes parts is), which the open-loop round-trip fit cannot
-see and the closed-loop contour simulation depends on."""
+"""The compliance form's damping floor: the position loop closed on the table through the
+chain must be stable (a machine that makes parts is), which the open-loop round-trip fit
+cannot see and the closed-loop contour simulation depends on. The friction chain has no
+floor: its friction bounds the cycle."""
 
 import math
 
