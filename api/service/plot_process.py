@@ -125,10 +125,9 @@ class PlotProcess:
         with self._lock:
             if self._pool is pool:
                 self._pool = None
-        if kill:
-            for p in list((getattr(pool, "_processes", None) or {}).values()):
-                p.kill()
-        pool.shutdown(wait=False, cancel_futures=True)
+        # end_pool, not shutdown(wait=False) alone: that leaves the ending to an exit hook that
+        # races with the manager thread (see end_pool); a stuck render gets no grace
+        end_pool(pool, grace_s=0.0 if kill else IDLE_END_S, what="plot")
 
     def close(self) -> None:
         with self._lock:

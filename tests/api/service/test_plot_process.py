@@ -66,9 +66,9 @@ def test_a_stuck_render_times_out_and_the_next_one_gets_a_fresh_process():
         with pytest.raises(RenderTimeout, match="longer than 1 s"):
             r.draw(sleep_s, 120.0)
         r.timeout_s = 60.0
+        assert not os.path.exists(f"/proc/{first}"), "the stuck process was not ended and reaped"
         second = r.draw(pid_of_renderer)
         assert second != first
-        assert not os.path.exists(f"/proc/{first}") or open(f"/proc/{first}/stat").read().split()[2] == "Z"
     finally:
         r.close()
 
