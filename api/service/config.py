@@ -91,13 +91,17 @@ class MqttSettings:
 
 @dataclass(frozen=True)
 class WebhookSettings:
-    """``[webhooks]``: POST alert changes, signed per Standard Webhooks."""
+    """``[webhooks]``: POST alert and work-order changes, signed per Standard Webhooks.
+    Messages are kept in the database until delivered: ``max_attempts`` tries with
+    back-off, then ``failed`` until an admin re-queues them."""
 
     urls: tuple[str, ...] = ()
     secret: str | None = None  # whsec_<base64>
     timeout_s: float = 5.0
     max_attempts: int = 5
-    log_max: int = 200
+    log_max: int = 200  # the in-memory log of attempts
+    keep_delivered_days: float = 7.0  # delivered messages are purged after this
+    max_failed: int = 10000  # failed messages kept beyond this: the oldest are deleted (logged, counted)
 
 
 DEFAULT_OPCUA_ENDPOINT = "opc.tcp://127.0.0.1:4840/mebm/"
@@ -639,7 +643,8 @@ def _mtconnect(table: Mapping | None, base: MtconnectSettings) -> MtconnectSetti
 def _webhooks(table: Mapping | None, base: WebhookSettings) -> WebhookSettings:
     if table is None:
         return base
-    _unknown(table, {"urls", "secret", "timeout_s", "max_attempts", "log_max"}, "webhooks")
+    _unknown(table, {"urls", "secret", "timeout_s", "max_attempts", "log_max", "keep_delivered_days", "max_failed"},
+             "webhooks")
     urls = table.get("urls", list(base.urls))
     if not isinstance(urls, list) or not all(isinstance(u, str) for u in urls):
         raise ConfigError("webhooks.urls must be a list of http(s) URLs")
@@ -649,7 +654,10 @@ def _webhooks(table: Mapping | None, base: WebhookSettings) -> WebhookSettings:
     out = WebhookSettings(urls=tuple(urls), secret=_get(table, "secret", str, "webhooks", base.secret) or None,
                           timeout_s=_get(table, "timeout_s", float, "webhooks", base.timeout_s),
                           max_attempts=_get(table, "max_attempts", int, "webhooks", base.max_attempts),
-                          log_max=_get(table, "log_max", int, "webhooks", base.log_max))  # fmt: skip
+                          log_max=_get(table, "log_max", int, "webhooks", base.log_max),
+                          keep_delivered_days=_get(table, "keep_delivered_days", float, "webhooks",
+                                                   base.keep_delivered_days),
+                          max_failed=_get(table, "max_failed", int, "webhooks", base.max_failed))  # fmt: skip
     check_webhooks(out, "webhooks")
     return out
 
@@ -665,8 +673,9 @@ def check_webhooks(w: WebhookSettings, where: str) -> None:
             raise ConfigError(f"{where}.secret must be whsec_ followed by base64") from exc
         if len(key) < 16:
             raise ConfigError(f"{where}.secret is {len(key)} bytes; use at least 16 (24-64 random bytes)")
-    if not w.timeout_s > 0 or w.max_attempts < 1 or w.log_max < 1:
-        raise ConfigError(f"{where}: timeout_s must be > 0, max_attempts and log_max >= 1")
+    if not (w.timeout_s > 0 and w.keep_delivered_days > 0) or min(w.max_attempts, w.log_max, w.max_failed) < 1:
+        raise ConfigError(f"{where}: timeout_s and keep_delivered_days must be > 0, "
+                          "max_attempts, log_max and max_failed >= 1")
 
 
 def _limits(table: Mapping, base: LimitSettings) -> LimitSettings:

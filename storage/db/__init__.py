@@ -6,7 +6,7 @@ functions take a session and core types and return core types or the frozen
 records of :mod:`storage.db.records`.
 """
 
-from storage.db import config_repo, leases, maintenance_repo, results_repo, ui_sessions_repo
+from storage.db import config_repo, leases, maintenance_repo, results_repo, ui_sessions_repo, webhooks_repo
 from storage.db.engine import (
     integrity_problems,
     is_sqlite,
@@ -51,5 +51,5 @@ __all__ = [
     "TbeRecord", "TrendSeries", "TrendView", "as_utc", "config_repo", "current_revision", "head_revision", "integrity_problems",
     "is_sqlite", "leases", "maintenance_repo", "OrderRequest", "RepairRecord", "TransitionRecord", "WorkOrderRecord",
     "make_engine", "make_session_factory", "ping", "results_repo", "session_scope", "sqlite_url", "ui_sessions_repo",
-    "upgrade", "utcnow", "WaitingCycleError",
+    "upgrade", "utcnow", "WaitingCycleError", "webhooks_repo",
 ]

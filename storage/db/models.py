@@ -414,3 +414,30 @@ class AxisLease(Base):
     previous_owner: Mapped[str | None] = mapped_column(String(36), nullable=True)
     acquired_at: Mapped[datetime | None] = mapped_column(UtcDateTime, nullable=True)
     expires_at: Mapped[datetime] = mapped_column(UtcDateTime)
+
+
+class WebhookMessage(Base):
+    """One webhook message to one receiver URL, kept until it is delivered (issue 17's
+    webhooks made durable): a message survives a restart, a receiver outage longer than
+    the retries, and a worker that died while sending it (another live worker takes it
+    once ``claimed_until`` has passed). ``state``: ``pending`` (to send at ``next_at``),
+    ``delivered`` or ``failed`` (every attempt used; kept for an admin to re-queue)."""
+
+    __tablename__ = "webhook_messages"
+    __table_args__ = (Index("ix_webhook_messages_state_next_at", "state", "next_at"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    msg_id: Mapped[str] = mapped_column(String(40), index=True)  # the webhook-id header, the same on every retry
+    url: Mapped[str] = mapped_column(Text)
+    event_type: Mapped[str] = mapped_column(String(60))
+    axis_id: Mapped[int] = mapped_column(Integer)
+    body: Mapped[str] = mapped_column(Text)
+    created_at: Mapped[datetime] = mapped_column(UtcDateTime)
+    state: Mapped[str] = mapped_column(String(10))
+    attempts: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    next_at: Mapped[datetime] = mapped_column(UtcDateTime)
+    last_status: Mapped[int | None] = mapped_column(Integer, nullable=True)  # HTTP status of the last attempt
+    last_error: Mapped[str | None] = mapped_column(Text, nullable=True)
+    done_at: Mapped[datetime | None] = mapped_column(UtcDateTime, nullable=True)
+    claimed_by: Mapped[str | None] = mapped_column(String(36), nullable=True)
+    claimed_until: Mapped[datetime | None] = mapped_column(UtcDateTime, nullable=True)

@@ -1,4 +1,5 @@
-"""/webhooks/deliveries and /interfaces: what the publishers and the OPC UA server did (issue 17)."""
+"""/webhooks/deliveries, /webhooks/messages and /interfaces: what the publishers and the OPC UA
+server did (issue 17)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,8 @@ from typing import Annotated
 from fastapi import APIRouter, Query, Request
 
 from api.rest.auth import AdminKey, ReadKey
+from api.rest.deps import SessionDep
+from storage.db import utcnow, webhooks_repo
 
 router = APIRouter(tags=["interfaces"])
 
@@ -23,7 +26,9 @@ def interfaces(request: Request, _k: ReadKey) -> dict:
             "connected": mqtt.connections(),
             "alerts_acknowledged": mqtt.published, "alerts_dropped": mqtt.dropped},
         "webhooks": None if hooks is None else {
-            "urls": len(hooks.settings.urls), "delivered": hooks.delivered, "failed_attempts": hooks.failed},
+            "urls": len(hooks.settings.urls), "delivered": hooks.delivered, "failed_attempts": hooks.failed,
+            "given_up": hooks.given_up, "waiting_for_database": hooks.unstored,
+            "dropped_database_unreachable": hooks.unstored_dropped, "failed_deleted": hooks.purged_failed},
         "opcua": None if st.opcua is None else st.opcua.describe(),
         "mtconnect": _mtconnect(st),
         "event_consumers": subs,
@@ -44,3 +49,27 @@ def _mtconnect(st) -> dict | None:
 def deliveries(request: Request, _k: AdminKey, limit: Annotated[int, Query(ge=1, le=1000)] = 100) -> list[dict]:
     hooks = request.app.state.webhooks
     return [] if hooks is None else hooks.log_entries()[:limit]
+
+
+@router.get("/webhooks/messages", summary="Webhook messages kept in the database, newest first (admin): "
+            "pending, delivered (purged after webhooks.keep_delivered_days) or failed (every attempt used)")
+def messages(s: SessionDep, _k: AdminKey,
+             state: Annotated[str | None, Query(pattern="^(pending|delivered|failed)$")] = None,
+             limit: Annotated[int, Query(ge=1, le=1000)] = 100) -> dict:
+    rows = webhooks_repo.list_messages(s, state=state, limit=limit)
+    return {"counts": webhooks_repo.counts(s), "items": [
+        {"id": m.id, "webhook_id": m.msg_id, "url": m.url, "type": m.event_type, "axis_id": m.axis_id,
+         "state": m.state, "attempts": m.attempts, "created_at": m.created_at, "next_at": m.next_at,
+         "last_status": m.last_status, "last_error": m.last_error, "done_at": m.done_at}
+        for m in rows]}  # fmt: skip
+
+
+@router.post("/webhooks/messages/retry", summary="Send every failed webhook message again (admin), "
+             "e.g. once the receiver is back; each keeps its webhook-id")
+def retry(request: Request, s: SessionDep, _k: AdminKey) -> dict:
+    n = webhooks_repo.requeue_failed(s, utcnow())
+    s.commit()
+    hooks = request.app.state.webhooks
+    if hooks is not None:
+        hooks.wake()
+    return {"requeued": n}

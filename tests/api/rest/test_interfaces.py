@@ -222,6 +222,124 @@ def test_a_webhook_receiver_verifies_the_signature_of_each_alert_change_after_a_
                                                                                    (1, 200, True)]  # fmt: skip
 
 
+class Accept(http.server.BaseHTTPRequestHandler):
+    """A webhook endpoint that takes everything (200) and keeps (webhook-id, type)."""
+
+    received: list = []
+
+    def do_POST(self):  # noqa: N802 - http.server's name
+        body = json.loads(self.rfile.read(int(self.headers["content-length"])))
+        Accept.received.append((self.headers["webhook-id"], body["type"]))
+        self.send_response(200)
+        self.end_headers()
+
+    def log_message(self, *args):
+        pass
+
+
+def _serve_later(port: int) -> http.server.ThreadingHTTPServer:
+    Accept.received = []
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", port), Accept)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    return server
+
+
+def _messages(client, admin, state=None) -> dict:
+    q = "" if state is None else f"?state={state}"
+    return client.get(f"/api/v1/webhooks/messages{q}", headers=hdr(admin)).json()
+
+
+def test_webhook_messages_pending_when_the_service_stops_are_sent_after_the_restart(tmp_path):
+    port = _free_port()  # nothing listens there yet: the receiver is down
+    hooks = WebhookSettings(urls=(f"http://127.0.0.1:{port}/hook",), secret=SECRET, max_attempts=20)
+    runner = FakeRunner(backlash_um=400.0)
+    app = _app(tmp_path, runner, webhooks=hooks)
+    with TestClient(app) as client:
+        svc = app.state.service
+        _, admin, axis_id = _keys_and_axis(svc)
+        _measure(svc, axis_id)  # raises the alert and opens a work order: two messages
+        _until(lambda: _messages(client, admin)["counts"]["pending"] == 2
+               and _messages(client, admin)["items"][-1]["attempts"] >= 1, "a refused first attempt")
+        pending = _messages(client, admin, "pending")["items"]
+        assert [m["type"] for m in pending] == ["work_order.open", "alert.raised"]  # newest first
+        assert pending[0]["attempts"] == 0  # held back behind the alert: the receiver gets them in order
+        assert "refused" in pending[1]["last_error"].lower()
+    server = _serve_later(port)  # the receiver comes back while the service is down
+    try:
+        app = _app(tmp_path, runner, webhooks=hooks)
+        with TestClient(app) as client:
+            _until(lambda: len(Accept.received) == 2, "the two messages after the restart", 60)
+            _until(lambda: _messages(client, admin)["counts"] == {"pending": 0, "delivered": 2, "failed": 0},
+                   "both messages marked delivered")
+    finally:
+        server.shutdown()
+    assert Accept.received == [(m["webhook_id"], m["type"]) for m in reversed(pending)]  # same ids, in order
+
+
+def test_a_webhook_message_that_used_every_attempt_is_kept_and_sent_again_when_an_admin_asks(tmp_path):
+    port = _free_port()
+    hooks = WebhookSettings(urls=(f"http://127.0.0.1:{port}/hook",), secret=SECRET, max_attempts=2)
+    runner = FakeRunner(backlash_um=400.0)
+    app = _app(tmp_path, runner, webhooks=hooks)
+    with TestClient(app) as client:
+        svc = app.state.service
+        read, admin, axis_id = _keys_and_axis(svc)
+        _measure(svc, axis_id)
+        _until(lambda: _messages(client, admin)["counts"]["failed"] == 2, "both messages failed", 60)
+        failed = _messages(client, admin, "failed")["items"]
+        assert [m["attempts"] for m in failed] == [2, 2]
+        hw = client.get("/api/v1/interfaces", headers=hdr(read)).json()["webhooks"]
+        assert hw["given_up"] == 2 and hw["failed_attempts"] == 4 and hw["delivered"] == 0
+        assert client.post("/api/v1/webhooks/messages/retry", headers=hdr(read)).status_code == 403
+        server = _serve_later(port)
+        try:
+            assert client.post("/api/v1/webhooks/messages/retry", headers=hdr(admin)).json() == {"requeued": 2}
+            _until(lambda: _messages(client, admin)["counts"]["delivered"] == 2, "the re-queued messages", 30)
+        finally:
+            server.shutdown()
+        assert Accept.received == [(m["webhook_id"], m["type"]) for m in reversed(failed)]
+        assert client.get("/api/v1/webhooks/messages?state=lost", headers=hdr(admin)).status_code == 422
+
+
+def test_webhook_messages_wait_in_memory_while_the_database_is_unreachable_and_are_stored_after(tmp_path):
+    from types import SimpleNamespace
+
+    from api.webhooks import WebhookSender
+    from storage.db import make_engine, make_session_factory, upgrade, webhooks_repo
+    from storage.db.records import AlertRecord
+
+    down = make_engine(f"postgresql+psycopg://nobody@127.0.0.1:{_free_port()}/none")  # a refused connection
+    up = make_engine(f"sqlite:///{tmp_path}/db.sqlite3")
+    upgrade(up)
+    port = _free_port()
+    server = _serve_later(port)
+    svc = SimpleNamespace(events=EventHub(), factory=make_session_factory(down))
+    sender = WebhookSender(svc, WebhookSettings(urls=(f"http://127.0.0.1:{port}/hook",), secret=SECRET))
+    try:
+        alert = AlertRecord(id=7, axis_id=1, kind="tbe", raised_at=utcnow(), cleared_at=None, acknowledged_at=None,
+                            acknowledged_by=None, raised_by_measurement_id=1, cleared_by_measurement_id=None,
+                            task_name="circle", tbe_um=50.0, tolerance_um=45.0, backlash_um=300.0,
+                            backlash_limit_um=200.0, message="ALARM")
+        svc.events.publish(Event("alert_changed", 1, "m", "y", utcnow(), alert=alert))
+        _until(lambda: sender.unstored == 1, "the message held in memory")
+        time.sleep(0.5)
+        assert Accept.received == [] and sender.unstored == 1  # nothing sent, nothing lost
+        svc.factory = make_session_factory(up)  # the database answers again
+        _until(lambda: len(Accept.received) == 1, "the message sent once stored", 30)
+        assert Accept.received[0][1] == "alert.raised" and sender.unstored == 0
+        def delivered():
+            with session_scope(svc.factory) as s:
+                return webhooks_repo.counts(s)["delivered"] == 1
+
+        _until(delivered, "the message marked delivered")
+    finally:
+        sender.close()
+        svc.events.close()
+        server.shutdown()
+        down.dispose()
+        up.dispose()
+
+
 def test_a_slow_consumer_never_delays_a_cycle_and_a_full_queue_drops_its_oldest(tmp_path):
     hub = EventHub()
     gate, busy, seen = threading.Event(), threading.Event(), []
