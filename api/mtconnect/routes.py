@@ -6,11 +6,14 @@ asks for ``application/json``. Errors are MTConnectError documents (OUT_OF_RANGE
 INVALID_REQUEST, NO_DEVICE, INVALID_URI, UNSUPPORTED, UNAUTHORIZED), as an agent sends them.
 
 Read-only: only GET. With ``require_key`` any valid API key (``X-API-Key`` or
-``Authorization: Bearer``) may read; without it, everyone on the network can.
+``Authorization: Bearer``) may read; without it, everyone on the network can. Failed keys
+are logged and throttled per client address as the REST API's are (an UNAUTHORIZED
+document with status 429 and ``Retry-After`` past the burst).
 """
 
 from __future__ import annotations
 
+import logging
 import re
 import threading
 import time
@@ -23,6 +26,8 @@ from api.mtconnect import documents as doc
 from api.mtconnect.agent import MTConnectAgent
 from api.mtconnect.buffer import OutOfRangeError
 from storage.db import StorageError, config_repo, session_scope
+
+log = logging.getLogger(__name__)
 
 PREFIX = "/mtconnect"
 DEFAULT_COUNT = 100
@@ -92,9 +97,24 @@ def make_router(agent: MTConnectAgent) -> APIRouter:
 
     def respond(request: Request, build) -> Response:
         as_json = _wants_json(request)
+        headers = {}
         try:
-            if agent.settings.require_key and not keys.check(agent.service.factory, _secret(request)):
-                raise MTConnectError("UNAUTHORIZED", "a valid access key is required (X-API-Key header)")
+            if agent.settings.require_key:
+                # failed keys are throttled per client address with the REST API's bucket
+                # (app.state.auth_throttle, [limits] auth_failures_*): the same address guessing
+                # keys on either path is one budget
+                client = request.client.host if request.client else "unknown"
+                throttle = getattr(request.app.state, "auth_throttle", None)
+                wait_s = throttle.blocked(client) if throttle is not None else 0.0
+                if wait_s > 0:
+                    headers["Retry-After"] = str(max(1, round(wait_s)))
+                    raise MTConnectError("TOO_MANY_FAILURES", f"too many failed authentications from {client}; "
+                                         f"retry in {wait_s:.0f} s")
+                if not keys.check(agent.service.factory, _secret(request)):
+                    if throttle is not None:
+                        throttle.take(client)
+                    log.warning("failed authentication from %s: GET %s (MTConnect)", client, request.url.path)
+                    raise MTConnectError("UNAUTHORIZED", "a valid access key is required (X-API-Key header)")
             for name in UNSUPPORTED:
                 if name in request.query_params:
                     raise MTConnectError("UNSUPPORTED", f"the parameter '{name}' is not supported by this agent")
@@ -102,13 +122,15 @@ def make_router(agent: MTConnectAgent) -> APIRouter:
             return Response(body, media_type=JSON if as_json else XML)
         except MTConnectError as exc:
             status, code, msg = STATUS.get(exc.code, 400), exc.code, str(exc)
+            if code == "TOO_MANY_FAILURES":  # MTConnect has no code of its own for it
+                status, code = 429, "UNAUTHORIZED"
         except OutOfRangeError as exc:
             status, code, msg = 400, "OUT_OF_RANGE", str(exc)
         except StorageError as exc:
             status, code, msg = 503, "INTERNAL_ERROR", f"the database is unavailable: {exc}"
         h = agent.header()
         body = doc.error_json(h, code, msg) if as_json else doc.error_xml(h, code, msg)
-        return Response(body, status_code=status, media_type=JSON if as_json else XML)
+        return Response(body, status_code=status, media_type=JSON if as_json else XML, headers=headers)
 
     def devices(device: str | None):
         devs = agent.devices(device)

@@ -269,6 +269,23 @@ def test_a_key_is_needed_only_when_configured(tmp_path, schemas):
         assert off.state.mtconnect is None and client.get("/mtconnect/probe").status_code == 404
 
 
+def test_failed_keys_are_throttled_per_address_with_the_rest_apis_budget(tmp_path, schemas):
+    from api.service.config import LimitSettings
+
+    settings_kw = dict(mtconnect=MtconnectSettings(require_key=True),
+                       limits=LimitSettings(auth_failures_per_minute=1.0, auth_failure_burst=3))
+    app = _app(tmp_path, FakeRunner(), **settings_kw)
+    with TestClient(app) as client:
+        with session_scope(app.state.service.factory) as s:
+            key = config_repo.create_key(s, "mes", "read")[1]
+        codes = [client.get("/mtconnect/current", headers={"X-API-Key": f"guess{i}"}).status_code for i in range(3)]
+        assert codes == [401, 401, 401]
+        r = client.get("/mtconnect/current", headers=hdr(key))  # even a right key waits now
+        assert r.status_code == 429 and int(r.headers["retry-after"]) >= 1
+        assert schemas.error_ok(r.content).find("e:Errors/e:Error", NS).get("errorCode") == "UNAUTHORIZED"
+        assert client.get("/api/v1/machines", headers=hdr(key)).status_code == 429  # one budget for both paths
+
+
 class _Server:
     """The app under a real uvicorn on a free loopback port, in this process."""
 
