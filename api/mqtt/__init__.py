@@ -188,6 +188,9 @@ class MqttPublisher:
         elif ev.kind == "work_order_changed":
             body = json.dumps(order_document(ev), separators=(",", ":")).encode()
             self.link(ev.machine).publish_alert(f"{base}/maintenance", body)
+            status = self.service.status_document(ev.axis_id)  # its work_order changed: the retained one too
+            if status is not None:
+                self.link(ev.machine).publish_status(f"{base}/status", status)
 
     def connected(self, machine: str) -> bool:
         link = self._links.get(machine)

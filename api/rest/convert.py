@@ -83,8 +83,18 @@ def status(s: AxisStatus, now: datetime, next_run: datetime | None) -> sc.AxisSt
         binding_task=d.binding_task if d else None, tasks=tasks, active_alert_id=s.active_alert_id,
         last_cycle_status=s.last_cycle_status, last_cycle_at=s.last_cycle_at,
         last_failure_reason=s.last_failure_reason, next_run_at=next_run, last_raw_run_lost=s.last_raw_run_lost,
-        **lm, prognosis=_prognosis(s),
+        **lm, prognosis=_prognosis(s), work_order=_active_order(s.work_order),
     )
+
+
+def _active_order(o) -> dict | None:
+    """The status' summary of the axis' active work order (issue 20), for an MES that polls
+    the status rather than the maintenance endpoints."""
+    if o is None:
+        return None
+    return {"id": o.id, "kind": o.kind, "state": o.state, "opened_at": o.opened_at, "due_at": o.due_at,
+            "restore_below_um": o.restore_below_um, "recommendation": o.recommendation,
+            "href": f"/api/v1/maintenance/orders/{o.id}"}
 
 
 def _lost_motion(rt, s: AxisStatus) -> dict:

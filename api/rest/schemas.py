@@ -137,6 +137,9 @@ class AxisStatusOut(BaseModel):
     last_failure_reason: str | None
     last_raw_run_lost: str | None = Field(
         None, description="why the raw run of the last finished cycle could not be kept (null: it was kept)")
+    work_order: dict[str, Any] | None = Field(
+        None, description="the axis' active maintenance order (null: none): id, kind, state, opened_at, due_at, "
+                          "restore_below_um, recommendation and its link; GET /maintenance/orders/{id} has the rest")
     next_run_at: datetime | None
 
 

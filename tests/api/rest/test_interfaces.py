@@ -102,7 +102,7 @@ def test_an_mqtt_subscriber_receives_the_retained_status_the_birth_and_each_aler
         app = _app(tmp_path, runner, mqtt=MqttSettings(url=f"mqtt://127.0.0.1:{port}", topic_prefix=prefix))
         with TestClient(app) as client:
             svc = app.state.service
-            read, _, axis_id = _keys_and_axis(svc)
+            read, admin, axis_id = _keys_and_axis(svc)
             assert _sub(port, f"{prefix}/vmc-850/online", 1) == [(f"{prefix}/vmc-850/online", b"online")]
             _measure(svc, axis_id)
             rest = client.get(f"/api/v1/axes/{axis_id}/status", headers=hdr(read)).json()
@@ -131,6 +131,18 @@ def test_an_mqtt_subscriber_receives_the_retained_status_the_birth_and_each_aler
             ((topic, payload),) = got
             alert = json.loads(payload)
             assert topic == f"{prefix}/vmc-850/y/alerts" and alert["active"] is True and alert["tbe_um"] > alert["tolerance_um"]
+            # the ALARM opened a work order; acknowledging it (no measurement) republishes the
+            # retained status with the order's new state, as REST shows it
+
+            def retained_order_state():
+                (_, p), = _sub(port, f"{prefix}/vmc-850/y/status", 1)
+                return (json.loads(p).get("work_order") or {}).get("state")
+
+            _until(lambda: retained_order_state() == "open", "the order in the retained status")
+            order_id = client.get(f"/api/v1/axes/{axis_id}/status", headers=hdr(read)).json()["work_order"]["id"]
+            r = client.post(f"/api/v1/maintenance/orders/{order_id}/ack", headers=hdr(admin))
+            assert r.status_code == 200, r.text
+            _until(lambda: retained_order_state() == "acknowledged", "the acknowledged order in the retained status")
             info = client.get("/api/v1/interfaces", headers=hdr(read)).json()
             assert info["mqtt"]["connected"] == {"vmc-850": True}
             assert info["event_consumers"]["mqtt"]["failed"] == 0

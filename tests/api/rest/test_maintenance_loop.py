@@ -77,8 +77,11 @@ def test_wear_alarm_order_repair_verification_verified(live):
 
     # new chain: OK, no order (the start-up catch-up measurement may come first)
     wait_for(lambda: measurements() and measurements()[-1]["status"] in ("ok", "failed"))
+    def status():
+        return client.get(f"{V1}/axes/{axis_id}/status", headers=read).json()
+
     measure()
-    assert client.get(f"{V1}/axes/{axis_id}/status", headers=read).json()["state"] == "OK"
+    assert status()["state"] == "OK" and status()["work_order"] is None
     assert orders() == []
 
     # six utility days of wear: +60 µm, past the 236 µm limit -> ALARM and a corrective order
@@ -91,6 +94,10 @@ def test_wear_alarm_order_repair_verification_verified(live):
     assert order["backlash_um"] == pytest.approx(250.0, abs=5.0) and order["tbe_um"] > order["tolerance_um"]
     assert f"Restore the backlash below {order['restore_below_um']:.1f} µm" in order["recommendation"]
     assert order["restore_below_um"] < order["backlash_limit_um"]
+    wo = status()["work_order"]  # the status an MES polls names the order
+    assert (wo["id"], wo["kind"], wo["state"], wo["href"]) == (order["id"], "corrective", "open",
+                                                               f"{V1}/maintenance/orders/{order['id']}")
+    assert wo["restore_below_um"] == order["restore_below_um"] and wo["recommendation"] == order["recommendation"]
     # another ALARM does not open a second order
     measure()
     assert len(orders("all")) == 1
@@ -101,6 +108,7 @@ def test_wear_alarm_order_repair_verification_verified(live):
     assert client.post(f"{V1}/maintenance/orders/{order['id']}/ack", headers=read).status_code == 403
     r = client.post(f"{V1}/maintenance/orders/{order['id']}/ack", json={"note": "on it"}, headers=operate)
     assert r.status_code == 200 and r.json()["state"] == "acknowledged"
+    assert status()["work_order"]["state"] == "acknowledged"  # the step shows at once (the cache is invalidated)
     r = client.post(f"{V1}/maintenance/orders/{order['id']}/ack", headers=operate)
     assert r.status_code == 409 and "'acknowledged'" in r.json()["detail"]
 
@@ -127,7 +135,7 @@ def test_wear_alarm_order_repair_verification_verified(live):
     assert v["changes"]["backlash_mean_um"]["change"] < -40 and v["changes"]["backlash_mean_um"]["significant"]
     assert sim.twin.wear.repairs == 1
     assert orders("active") == []
-    assert client.get(f"{V1}/axes/{axis_id}/status", headers=read).json()["state"] == "OK"
+    assert status()["state"] == "OK" and status()["work_order"] is None
 
     # the prognosis now fits only the measurements after the last repair
     p = client.get(f"{V1}/axes/{axis_id}/prognosis", headers=read).json()
