@@ -144,11 +144,27 @@ def schedule_of(body: ScheduleIn) -> Schedule:
     return sch
 
 
+def check_controller_url(url: str) -> None:
+    """Refuse a controller URL whose options a cycle would refuse (unknown option, trigger,
+    passive settings, device id, serial line, a register profile that does not load, a
+    CANopen mapping), as a 422 naming it, when the axis is created rather than at its first
+    cycle. Builds the driver without connecting (drivers connect when a cycle opens them)."""
+    if url == "sim":  # the embedded simulator: no driver of its own
+        return
+    from acquisition.url import driver_from_url
+
+    try:
+        driver_from_url(url)
+    except MebmError as exc:
+        raise InputError(f"controller_url: {exc}") from exc
+
+
 def axis_settings(body: AxisIn, *, allow_link_local: bool) -> AxisSettings:
     """The stored settings of a new axis (``allow_link_local``: limits.allow_link_local_controllers)."""
     problem = link_local_problem(body.controller_url)
     if problem and not allow_link_local:
         raise InputError(problem)
+    check_controller_url(body.controller_url)
     try:
         spec = AxisSpec(body.name, body.transmission_mm_per_rev, body.screw_lead_mm, body.position_gain_per_s,
                         tuple(body.travel_mm))

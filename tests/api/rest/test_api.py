@@ -189,6 +189,16 @@ def test_schedule_and_new_axis(app_env):
     assert r.status_code == 201, r.text
     assert client.post(f"{V1}/machines/{machine_id}/axes", json=body, headers=h).status_code == 409
     assert len(client.get(f"{V1}/machines/{machine_id}/axes", headers=h).json()) == 2
+    # a controller URL a cycle would refuse is refused on create, naming the option
+    for url, says in (("modbus://10.0.0.5:502?trigger=sometimes", "trigger"),
+                      ("modbus://10.0.0.5:502?speed=9", "unknown option"),
+                      ("modbus://10.0.0.5:502?device_id=300", "device_id"),
+                      ("modbus://10.0.0.5:502?trigger=active&rest_s=2", "trigger=passive only"),
+                      ("modbus+rtu:///dev/ttyUSB0?parity=X", "parity"),
+                      ("modbus://10.0.0.5:502?profile=/nonexistent/profile.toml", "profile")):
+        r = client.post(f"{V1}/machines/{machine_id}/axes", json={**body, "name": "z", "controller_url": url}, headers=h)
+        assert r.status_code == 422 and "controller_url" in r.json()["detail"] and says in r.json()["detail"], (url, r.text)
+    assert len(client.get(f"{V1}/machines/{machine_id}/axes", headers=h).json()) == 2
 
 
 def test_backlash_outside_the_tbe_model_is_stored_without_a_decision(app_env, runner):
