@@ -34,14 +34,10 @@ class NewMessage:
 
 
 @dataclass(frozen=True)
-class MessageRecord:
+class MessageRecord(NewMessage):
+    """A stored message: what was enqueued, its row id and its delivery so far."""
+
     id: int
-    msg_id: str
-    url: str
-    event_type: str
-    axis_id: int
-    body: str
-    created_at: datetime
     state: str
     attempts: int
     next_at: datetime
