@@ -72,8 +72,7 @@ def claim_due(s: Session, sender: str, now: datetime, claim_s: float, limit: int
     ``limit``, claimed by ``sender`` for ``claim_s``. A row another sender claimed in
     between is left to it (the claim is a conditional update: of two senders only the one
     whose update hit the row has it)."""
-    heads = select(func.min(WebhookMessage.id)).where(WebhookMessage.state == PENDING).group_by(WebhookMessage.url)
-    ids = s.scalars(select(WebhookMessage.id).where(WebhookMessage.id.in_(heads), _due(now))
+    ids = s.scalars(select(WebhookMessage.id).where(WebhookMessage.id.in_(_heads()), _due(now))
                     .order_by(WebhookMessage.id).limit(limit)).all()
     until = now + timedelta(seconds=claim_s)
     mine = []
@@ -107,10 +106,20 @@ def release(s: Session, message_id: int) -> None:
               .values(claimed_by=None, claimed_until=None))
 
 
+def _heads():
+    """The oldest pending message of each receiver: the only one that may be sent."""
+    return select(func.min(WebhookMessage.id)).where(WebhookMessage.state == PENDING).group_by(WebhookMessage.url)
+
+
 def next_due(s: Session) -> datetime | None:
-    """When the earliest pending message is due (claims and order aside), None when none is
-    pending."""
-    return as_utc(s.scalar(select(func.min(WebhookMessage.next_at)).where(WebhookMessage.state == PENDING)))
+    """When a sender should look next: the earliest time a receiver's head becomes
+    claimable (its ``next_at``, or the end of another sender's claim on it); None when none
+    is pending. The messages queued behind a head are not due before it, whatever their own
+    ``next_at`` (one row per receiver is read: the heads)."""
+    rows = s.execute(select(WebhookMessage.next_at, WebhookMessage.claimed_until)
+                     .where(WebhookMessage.id.in_(_heads()))).all()
+    times = [max(as_utc(n), as_utc(c)) if c is not None else as_utc(n) for n, c in rows]
+    return min(times, default=None)
 
 
 def counts(s: Session) -> dict[str, int]:

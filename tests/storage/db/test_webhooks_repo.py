@@ -45,6 +45,8 @@ def test_each_receiver_gets_its_messages_in_order_and_a_claim_is_one_senders(fac
     assert claim(factory, "s1", T0) == ["msg_a1", "msg_b1"]  # the head of each receiver's queue
     assert claim(factory, "s2", T0) == []  # both claimed; a2 waits behind a1
     assert attempt(factory, "msg_a1", T0, ok=False, retry_s=4.0) == wr.PENDING
+    with session_scope(factory) as s:  # b1, claimed by s1 until T0 + 60 s; a2 behind a1 does not count
+        assert wr.next_due(s) == T0 + timedelta(seconds=4)
     assert claim(factory, "s1", T0 + timedelta(seconds=1)) == []  # a1 backs off, a2 still behind it
     assert claim(factory, "s1", T0 + timedelta(seconds=5)) == ["msg_a1"]
     assert attempt(factory, "msg_a1", T0 + timedelta(seconds=5), ok=True) == wr.DELIVERED
@@ -57,6 +59,14 @@ def test_each_receiver_gets_its_messages_in_order_and_a_claim_is_one_senders(fac
         assert (a1.msg_id, a1.attempts, a1.last_status) == ("msg_a1", 2, 200)
 
 
+def test_a_receivers_queue_waits_for_its_head_so_a_sender_does_not_spin(factory):
+    put(factory, ("a1", A), ("a2", A), ("a3", A))  # a2, a3 due at once on their own
+    claim(factory, "s1", T0)
+    attempt(factory, "msg_a1", T0, ok=False, retry_s=8.0)
+    with session_scope(factory) as s:
+        assert wr.next_due(s) == T0 + timedelta(seconds=8)  # not T0: a sender sleeps until then
+
+
 def test_a_message_that_used_every_attempt_is_kept_failed_until_requeued_and_no_longer_blocks(factory):
     put(factory, ("a1", A), ("a2", A))
     claim(factory, "s1", T0)
@@ -67,6 +77,7 @@ def test_a_message_that_used_every_attempt_is_kept_failed_until_requeued_and_no_
         assert wr.counts(s) == {"pending": 0, "delivered": 1, "failed": 1}
         (f,) = wr.list_messages(s, state=wr.FAILED)
         assert (f.msg_id, f.last_status, f.last_error, f.attempts) == ("msg_a1", 503, "HTTP 503", 1)
+        assert wr.next_due(s) is None
         assert wr.requeue_failed(s, T0 + timedelta(hours=1)) == 1
         assert wr.next_due(s) == T0 + timedelta(hours=1)
     assert claim(factory, "s1", T0 + timedelta(hours=1)) == ["msg_a1"]  # the same webhook-id again
