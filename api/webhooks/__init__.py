@@ -144,9 +144,9 @@ class WebhookSender:
             except StorageError as exc:
                 log.warning("webhook messages not stored yet (%d waiting in memory): %s", len(batch), exc)
                 return False
-            with self._lock:  # only this method removes, and only what it stored: the oldest len(batch)
-                for _ in batch:
-                    self._unstored.popleft()
+            stored = {id(m) for m in batch}  # the batch's objects, alive until here: their ids are theirs
+            with self._lock:  # what was stored, not the oldest len(batch): handle() may have dropped some
+                self._unstored = collections.deque(m for m in self._unstored if id(m) not in stored)
             return True
 
     # -- the sender thread ---------------------------------------------------------------
@@ -173,7 +173,7 @@ class WebhookSender:
         while not self._stop.is_set():
             now = datetime.now(timezone.utc)
             with session_scope(factory) as s:
-                rows = [r for r in webhooks_repo.claim_due(s, self.sender, now, claim_s, BATCH)]
+                rows = webhooks_repo.claim_due(s, self.sender, now, claim_s, BATCH)
             if not rows:
                 break
             for row in rows:
