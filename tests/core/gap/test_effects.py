@@ -164,3 +164,6 @@ def test_a_weak_cut_is_named_as_such_and_below_the_weaker_threshold_none():
     none = diagnose(ds, GapSettings(keep_curves=False, second_effect=False, min_reduction=strict,
                                     min_first_reduction=cut + 0.05))  # fmt: skip
     assert none.effect == "none" and none.gap_after_um == none.gap_before_um, none.text()
+    # off by default (stop 38: on a fresh seed it named three cases, all wrongly)
+    off = diagnose(ds, GapSettings(keep_curves=False, second_effect=False, min_reduction=strict))
+    assert off.effect == "none" and off.to_dict()["thresholds"]["min_first_reduction"] is None, off.text()
