@@ -649,10 +649,15 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: 
         # single candidates as a base with every other candidate on top; name a pair only
         # if it cuts the gap before by min_reduction and its second effect cuts its
         # base's gap by min_reduction too (each effect is needed).
-        pairs = _fit_all(d, [((base.effects[0], e2), base)
-                             for base in [f for f in ranked if _took_something(f, gap_before)][:2]
-                             for e2 in EFFECTS if e2 != base.effects[0] and _took_something(fits[e2], gap_before)],
-                         workers)  # fmt: skip
+        took = [f for f in ranked if _took_something(f, gap_before)]
+        jobs = [((base.effects[0], e2), base) for base in took[:2]
+                for e2 in EFFECTS if e2 != base.effects[0] and _took_something(fits[e2], gap_before)]
+        # the other pairs of candidates that took something, once each, from the better of
+        # the two: two effects that each alone extrapolate badly rank last by test gap
+        tried = {frozenset(j[0]) for j in jobs}
+        jobs += [((a.effects[0], b.effects[0]), a) for i, a in enumerate(took) for b in took[i + 1:]
+                 if frozenset((a.effects[0], b.effects[0])) not in tried]
+        pairs = _fit_all(d, jobs, workers)
         pairs.sort(key=lambda f: f.score(s.penalty_per_param))
         ok = [f for f in pairs if f.gap_after_um <= (1 - s.min_reduction) * gap_before
               and f.gap_after_um <= (1 - s.min_reduction) * fits[f.effects[0]].gap_after_um]  # fmt: skip
