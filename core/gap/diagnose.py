@@ -17,9 +17,11 @@
    accepted if it cuts the best's test gap by another min_reduction while that gap is
    still above the noise floor.
 7. Two together: when no single candidate cuts a gap above the noise by min_reduction,
-   the two best single candidates are each tried as a base with every other on top; a
-   pair is named if it cuts the gap before by min_reduction and its second effect cuts
-   its base's gap by min_reduction too (two effects whose train runs confound them).
+   the two best single candidates are each tried as a base with every other on top, and
+   every other pair of candidates that took something once, from the better of the two
+   (two effects that each alone extrapolate badly rank last by test gap); a pair is
+   named if it cuts the gap before by min_reduction and its second effect cuts its
+   base's gap by min_reduction too (two effects whose train runs confound them).
 8. Otherwise the answer is none; with min_first_reduction set (off by default), the best
    single candidate is still named if it cuts the gap by that weaker fraction (the
    decision says that most of the gap stays unexplained).
