@@ -35,6 +35,15 @@ def models_for(axes: Mapping[str, AxisSpec], backlash_um: Mapping[str, float],
 
 
 SIM_STEP_S = 5e-4  # command grid of the diagnosis' simulations: chord error < 0.01 µm on R >= 10 mm at 3 m/min
+# Integration steps per radian of a chain's (or pre-sliding bristles') natural frequency in
+# the diagnosis' simulations; the twin's default is 20 (core.sim.engine.STEPS_PER_RADIAN).
+# Measured on bench_gap's twin friction dataset (seed 7, a train circle): against 20 steps,
+# 10 moves the table by at most 0.0005 µm RMS (Karnopp, a 200 Hz chain, LuGre with a
+# 0.5-2 µm pre-sliding length at 2-4 µm Coulomb lost motion) and 0.012 µm RMS (0.10 µm
+# peak) for the stiffest bristles fitted (8 µm Coulomb over 0.5 µm), against noise floors
+# of 0.2-1 µm, and halves the time of the pre-sliding simulations, which took half of a
+# diagnosis (stop 39, bench_gap's independent wear-bump dataset: 51 of 110 s on one thread).
+SIM_STEPS_PER_RADIAN = 10.0
 
 
 class SimMemo:
@@ -53,7 +62,8 @@ class SimMemo:
         if hit is not None:
             return hit
         prog = _one_axis(c.program, c.axes.index(axis))
-        tr = simulate({axis: model}, prog, temperature_c=c.temperature_c, rate_hz=c.rate_hz, step_s=SIM_STEP_S)
+        tr = simulate({axis: model}, prog, temperature_c=c.temperature_c, rate_hz=c.rate_hz, step_s=SIM_STEP_S,
+                      steps_per_radian=SIM_STEPS_PER_RADIAN)
         skew = model.effects.sampling_skew
         tau = skew.table_delay_s if skew is not None else 0.0  # the table latched tau after the motor
         out = np.interp(c.t_s + tau, tr.time_s, tr.table_true_mm[axis])

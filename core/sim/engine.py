@@ -182,7 +182,7 @@ class SimTrace:
         return Run(spec=spec, columns=self.columns())
 
 
-def _dynamic_step_s(axis: AxisModel) -> float:
+def _dynamic_step_s(axis: AxisModel, steps_per_radian: float = STEPS_PER_RADIAN) -> float:
     fx = axis.effects
     h = math.inf  # a rigid chain with servo dynamics only: the command grid's step
     if fx.compliance is not None or fx.friction is not None:
@@ -191,7 +191,7 @@ def _dynamic_step_s(axis: AxisModel) -> float:
         k_si = ch.stiffness_n_per_um * 1e6
         if fx.friction is not None and fx.friction.model == "lugre":
             k_si += fx.friction.bristle_stiffness_n_per_um * 1e6
-        h = min(h, 1.0 / (STEPS_PER_RADIAN * math.sqrt(k_si / ch.table_mass_kg)))
+        h = min(h, 1.0 / (steps_per_radian * math.sqrt(k_si / ch.table_mass_kg)))
     # Servo dynamics set no bound of their own: the lag is solved exactly per step, the
     # delays are interpolated between steps and the loop sees the table at mid-step, so
     # the result converges at second order (a 0.3 ms lag with 0.2 ms dead time on a 50 mm
@@ -219,7 +219,7 @@ def _initial_side(side) -> float:
     return f
 
 
-def _simulate_axis(axis, chain, cmd, t0, h, ts, ts_tab, frac):
+def _simulate_axis(axis, chain, cmd, t0, h, ts, ts_tab, frac, steps_per_radian=STEPS_PER_RADIAN):
     n0 = float(cmd[0])  # the table rests on the command; the nut at table + frac b/2
     nut = n0
     for _ in range(20):
@@ -237,7 +237,7 @@ def _simulate_axis(axis, chain, cmd, t0, h, ts, ts_tab, frac):
         kernels.run_rigid(t0, h, cmd, k, u0, x0, side, *args, ts, ts_tab, out_u, out_x, out_xt)
         return out_u, out_x, out_xt, h
     fx = axis.effects
-    sub = _dynamic_step_s(axis)
+    sub = _dynamic_step_s(axis, steps_per_radian)
     nsub = 1 if math.isinf(sub) else max(1, math.ceil(h / sub - 1e-9))
     sd = fx.servo_dynamics
     lag = sd.velocity_lag_s if sd else 0.0
@@ -278,16 +278,22 @@ def simulate(
     rate_hz: float = 1000.0,
     step_s: float | None = None,
     rng: np.random.Generator | None = None,
+    steps_per_radian: float = STEPS_PER_RADIAN,
 ) -> SimTrace:
     """Run ``program`` on ``axes`` (a model for each of ``program.axes``).
 
     temperature_c is the machine temperature (used by the thermal effect); rate_hz
     the sampling rate of the recorded trace; step_s the command grid step (see the
     module docstring; default min(0.25 ms, 1/(4 rate_hz))). rng draws the encoder
-    noise (default: a Generator seeded with 0, so runs are reproducible).
+    noise (default: a Generator seeded with 0, so runs are reproducible);
+    steps_per_radian the integration steps per radian of a compliant chain's natural
+    frequency (with LuGre friction, of the chain and bristles together), at most
+    MAX_DYNAMIC_STEP_S apart (default STEPS_PER_RADIAN, the twin's; the gap diagnosis
+    takes fewer, see core.gap.contour.SIM_STEPS_PER_RADIAN).
     """
     temp = require_finite("temperature_c", temperature_c)
     rate = require_positive("rate_hz", rate_hz)
+    spr = require_positive("steps_per_radian", steps_per_radian)
     h = min(MAX_GRID_STEP_S, 0.25 / rate) if step_s is None else require_positive("step_s", step_s)
     missing = [a for a in program.axes if a not in axes]
     if missing:
@@ -314,7 +320,8 @@ def simulate(
         side = _initial_side(side_name)
         skew = axis.effects.sampling_skew.table_delay_s if axis.effects.sampling_skew else 0.0
         ts_tab = ts + skew
-        u, x, xt, h_used = _simulate_axis(axis, chain, np.ascontiguousarray(commands[i]), t0, h, ts, ts_tab, side)
+        u, x, xt, h_used = _simulate_axis(axis, chain, np.ascontiguousarray(commands[i]), t0, h, ts, ts_tab, side,
+                                          spr)
         enc = axis.encoders
         ka = axis.transmission_mm_per_rev
         motor = u / ka

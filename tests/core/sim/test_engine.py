@@ -5,7 +5,7 @@ import pytest
 
 from core.dataset import AxisSpec
 from core.errors import InputError
-from core.sim import AxisModel, Effects, Thermal, circle, round_trip, simulate
+from core.sim import AxisModel, Compliance, Effects, Friction, Thermal, circle, round_trip, simulate
 
 
 @pytest.mark.parametrize(
@@ -15,6 +15,7 @@ from core.sim import AxisModel, Effects, Thermal, circle, round_trip, simulate
         ({"rate_hz": 1e6}, "lower rate_hz"),
         ({"step_s": -1.0}, "step_s"),
         ({"temperature_c": float("nan")}, "temperature_c"),
+        ({"steps_per_radian": 0.0}, "steps_per_radian"),
     ],
 )
 def test_bad_settings_raise_input_error_naming_them(kwargs, named):
@@ -53,3 +54,22 @@ def test_to_run_gives_the_dataset_columns_and_circle_metadata():
     )  # fmt: skip
     assert (s.temperature_c, s.split, s.utility_day, s.extra["operator"]) == (25.0, "train", 4.0, "sim")
     assert np.all(np.diff(run.time_s) > 0)
+
+
+@pytest.mark.parametrize("effects", [
+    Effects(friction=Friction(coulomb_n=1600.0, static_n=2000.0, stribeck_velocity_mm_s=2.0, model="lugre",
+                              bristle_stiffness_n_per_um=3200.0)),  # 0.5 µm pre-sliding: the stiffest fitted
+    Effects(compliance=Compliance(stiffness_n_per_um=790.0, table_mass_kg=500.0, damping_ratio=0.05)),  # 200 Hz
+])  # fmt: skip
+def test_fewer_steps_per_radian_take_longer_steps_and_stay_within_hundredths_of_a_micrometre(effects):
+    """The gap diagnosis simulates at 10 steps per radian (core.gap.contour): the step
+    it takes is longer than the twin's and the table moves by under 0.02 µm RMS."""
+    axes = {a: AxisModel(a, backlash_um=10.0, effects=effects) for a in ("x", "y")}
+    prog = circle(50.0, feed_mm_min=2000.0, lead_in_deg=90.0)
+    fine = simulate(axes, prog, rate_hz=500.0, step_s=5e-4)
+    coarse = simulate(axes, prog, rate_hz=500.0, step_s=5e-4, steps_per_radian=10.0)
+    for a in ("x", "y"):
+        assert coarse.step_s[a] > 1.5 * fine.step_s[a]
+        d_um = (coarse.table_true_mm[a] - fine.table_true_mm[a]) * 1e3
+        assert np.sqrt(np.mean(d_um**2)) < 0.02
+        assert np.max(np.abs(d_um)) < 0.3
