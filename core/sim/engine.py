@@ -219,7 +219,7 @@ def _initial_side(side) -> float:
     return f
 
 
-def _simulate_axis(axis, chain, cmd, t0, h, ts, ts_tab, frac, steps_per_radian=STEPS_PER_RADIAN):
+def _simulate_axis(axis, chain, cmd, t0, h, ts, ts_tab, frac, steps_per_radian):
     n0 = float(cmd[0])  # the table rests on the command; the nut at table + frac b/2
     nut = n0
     for _ in range(20):

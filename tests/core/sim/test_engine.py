@@ -5,6 +5,7 @@ import pytest
 
 from core.dataset import AxisSpec
 from core.errors import InputError
+from core.gap.contour import SIM_STEP_S, SIM_STEPS_PER_RADIAN
 from core.sim import AxisModel, Compliance, Effects, Friction, Thermal, circle, round_trip, simulate
 
 
@@ -62,12 +63,12 @@ def test_to_run_gives_the_dataset_columns_and_circle_metadata():
     Effects(compliance=Compliance(stiffness_n_per_um=790.0, table_mass_kg=500.0, damping_ratio=0.05)),  # 200 Hz
 ])  # fmt: skip
 def test_fewer_steps_per_radian_take_longer_steps_and_stay_within_hundredths_of_a_micrometre(effects):
-    """The gap diagnosis simulates at 10 steps per radian (core.gap.contour): the step
-    it takes is longer than the twin's and the table moves by under 0.02 µm RMS."""
+    """The gap diagnosis simulates at its own steps per radian (core.gap.contour, 10): the
+    step it takes is longer than the twin's and the table moves by under 0.02 µm RMS."""
     axes = {a: AxisModel(a, backlash_um=10.0, effects=effects) for a in ("x", "y")}
     prog = circle(50.0, feed_mm_min=2000.0, lead_in_deg=90.0)
-    fine = simulate(axes, prog, rate_hz=500.0, step_s=5e-4)
-    coarse = simulate(axes, prog, rate_hz=500.0, step_s=5e-4, steps_per_radian=10.0)
+    fine = simulate(axes, prog, rate_hz=500.0, step_s=SIM_STEP_S)
+    coarse = simulate(axes, prog, rate_hz=500.0, step_s=SIM_STEP_S, steps_per_radian=SIM_STEPS_PER_RADIAN)
     for a in ("x", "y"):
         assert coarse.step_s[a] > 1.5 * fine.step_s[a]
         d_um = (coarse.table_true_mm[a] - fine.table_true_mm[a]) * 1e3
