@@ -96,6 +96,7 @@ class GapReport:
     second_effect: str = ""  # the sentence on a second effect
     program_source: str = "recorded command columns"
     pairs: tuple[Candidate, ...] = ()  # the dominant effect with each other candidate on top
+    observations: tuple[str, ...] = ()  # what the data show beside the decision (a rattling table)
 
     def to_dict(self) -> dict:
         return {
@@ -118,6 +119,7 @@ class GapReport:
             "thresholds": dict(self.thresholds),
             "machine_id": self.machine_id,
             "pairs": [c.to_dict() for c in self.pairs],
+            "observations": list(self.observations),
         }
 
     def text(self) -> str:
@@ -140,6 +142,7 @@ class GapReport:
         if self.second_effect:
             lines.append(self.second_effect)
         lines.append(f"Where: {self.where.summary}")
+        lines += [f"Observed: {o}" for o in self.observations]
         lines.append(f"Contour programs: {self.program_source}.")
         q = "; ".join(f"{k}: {v}" for k, v in self.quantity.items())
         lines.append(f"Compared quantity: {q}. Gaps are RMS over all {self.n_test_samples} test samples.")

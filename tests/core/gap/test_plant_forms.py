@@ -35,6 +35,11 @@ def test_an_independent_plant_form_is_named_and_its_gap_halved(effect):
     rep = diagnose(case.dataset, GapSettings(keep_curves=False, second_effect=False))
     assert rep.effect == effect, rep.text()
     assert rep.gap_after_um <= 0.5 * rep.gap_before_um, rep.text()
+    if effect == "friction":  # this draw is Karnopp stick-slip: its slowest train stroke rattles
+        found = rep.where.details["rattle"]
+        assert [(f["file"], f["axis"]) for f in found] == [("rt_x_00.csv", "x")], found
+        assert 40.0 < found[0]["frequency_hz"] < 80.0
+        assert rep.to_dict()["observations"] == list(rep.observations) and "Observed: The table rattles" in rep.text()
 
 
 def test_an_independent_plant_without_effect_is_none_at_the_noise_floor():
@@ -42,3 +47,4 @@ def test_an_independent_plant_without_effect_is_none_at_the_noise_floor():
     rep = diagnose(case.dataset, GapSettings(keep_curves=False))
     assert rep.effect == "none", rep.text()
     assert rep.gap_before_um <= 2.0 * rep.noise_floor_um, rep.text()
+    assert rep.where.details["rattle"] == [] and rep.observations == () and "Observed:" not in rep.text()

@@ -1,0 +1,29 @@
+"""The gap panel shows what the diagnosis observed beside its answer (a rattling table),
+as its own paragraph, escaped, and nothing when there is nothing to say."""
+
+from types import SimpleNamespace
+
+from api.ui.routes import templates
+
+
+def _render(observations):
+    report = {
+        "effect": "none", "gap_before_um": 12.17, "gap_after_um": 12.17, "noise_floor_um": 0.25,
+        "runs_used": ["rt_x_00.csv"], "computed_at": "2026-11-27T16:00:00+00:00", "candidates": [],
+        "report": "Gap diagnosis of machine m1", "residuals": [],
+    }  # fmt: skip
+    if observations is not None:
+        report["observations"] = observations
+    return templates.get_template("_gap.html").render(
+        gap="done", report=report, age_s=5.0, axis=SimpleNamespace(id=1), who=SimpleNamespace(csrf="t"))
+
+
+def test_an_observation_is_shown_as_its_own_paragraph_and_escaped():
+    html = _render(["The table rattles against the nut on 1 round trip(s): rt_x_00.csv <x> at 58 Hz."])
+    assert '<p class="warn-text gap-observed">The table rattles against the nut' in html
+    assert "&lt;x&gt;" in html and "<x>" not in html
+
+
+def test_no_observation_no_paragraph():
+    assert "gap-observed" not in _render([])
+    assert "gap-observed" not in _render(None)  # a result kept from before observations existed: no key
