@@ -21,7 +21,7 @@ QUADRANT_WINDOW_DEG = 10.0
 # is left after a 50 ms moving mean), its 50 ms moving RMS over RATTLE_MIN_UM, on at least
 # RATTLE_MIN_FRACTION of the moving samples. A backlash crossing at a reversal lasts a few
 # windows; white encoder noise is 0.05-1 µm; a stick-slipping or hunting chain is tens of
-# µm through whole strokes (seen: 50 Hz, 43 µm RMS on independent seed 3547 case 34).
+# µm through whole strokes (seen: 58-71 Hz, 22-42 µm RMS on independent seed 3547 case 34).
 # A rattle is a cycle: its spectrum is tonal, at least RATTLE_MIN_TONALITY of the power above
 # 20 Hz within ±10 % of the dominant frequency and its first five harmonics (a stick-slip
 # sawtooth or a hunting chain: 0.86-1.0 on the cases above). A late table latch with a
@@ -71,11 +71,10 @@ def rattles(rts: Sequence[RoundTrip]) -> list[dict]:
     so a technician is told where it is even when no candidate explains it. Per round
     trip that rattles: its file, axis, split and feed, the fraction of its moving samples
     that rattle, the median moving RMS there (µm), and the dominant frequency (Hz) and
-    tonality (``RATTLE_MIN_TONALITY``) of the longest rattling stretch. The threshold is ``RATTLE_MIN_UM`` (not a multiple of the
-    noise floor: a rattle at tens of Hz inflates that estimate itself, to 5.5 µm on seed
+    tonality (``RATTLE_MIN_TONALITY``) of the longest rattling stretch. The threshold is
+    ``RATTLE_MIN_UM`` (not a multiple of the noise floor: a rattle at tens of Hz inflates that estimate itself, to 5.5 µm on seed
     3547 case 31, whose strokes all stick-slip)."""
     out = []
-    thr = RATTLE_MIN_UM
     for r in rts:
         m = (r.x_mm[r.start :] - r.u_mm[r.start :]) * 1e3
         n = int(round(RATTLE_WINDOW_S / r.dt_s))
@@ -85,7 +84,7 @@ def rattles(rts: Sequence[RoundTrip]) -> list[dict]:
         mrms = np.sqrt(np.maximum(uniform_filter1d(hp * hp, n, mode="nearest"), 0.0))
         v = np.gradient(r.u_mm[r.start :], r.t_s[r.start :])
         moving = np.abs(v) > 0.05 * max(float(np.percentile(np.abs(v), 99)), 1e-9)
-        hot = moving & (mrms > thr)
+        hot = moving & (mrms > RATTLE_MIN_UM)
         if not moving.any() or hot.sum() < RATTLE_MIN_FRACTION * moving.sum():
             continue
         # the longest run of rattling samples: its spectrum
@@ -119,12 +118,13 @@ def rattle_sentence(found: Sequence[Mapping]) -> str:
         return ""
     parts = []
     for f in found:
-        hz = f" at {f['frequency_hz']:.0f} Hz"
         parts.append(f"{f['file']} (axis {f['axis']}, {f['split']}, {f['feed_mm_min']:.0f} mm/min: {f['rms_um']:.1f} µm "
-                     f"RMS{hz} over {f['fraction_of_stroke'] * 100:.0f} % of the stroke)")
+                     f"RMS at {f['frequency_hz']:.0f} Hz over {f['fraction_of_stroke'] * 100:.0f} % of the stroke)")
     return (f"The table rattles against the nut on {len(found)} round trip(s): {'; '.join(parts)}. That is stick-slip "
             "or a chain hunting across its backlash (friction or compliance), whose cycle a model driven by the "
             "recorded motor may not follow.")
+
+
 START_UP_DEG = 20.0  # a circle that starts from rest on its data arc: its first degrees are the start-up
 
 
