@@ -321,12 +321,18 @@ def test_status_block_is_a_typed_decode_of_the_register_map():
 def test_a_ring_overrun_over_the_wire_is_counted_and_the_cycle_still_ends():
     # replies slowed to 50 ms while the controller writes 5000 records/s into a 64-record
     # ring: the reader is lapped again and again; with losses tolerated the trace must still
-    # run in order to the controller's last record, its gaps being exactly the lost count
+    # run in order to the controller's last record, and every record from the first to the
+    # last is either kept or counted lost. (The losses are gaps between kept records, or
+    # records before the first one kept: on a loaded host the whole program can be written
+    # before the first read gets through, seen in stops 40 and 41, and then only the ring's
+    # last 64 records are kept and every earlier one is counted.)
     with modbus_peer(faults=["slow:at=0.3,s=0.05"], ring_records=64) as peer:
         tr = peer.driver(max_lost_samples=10**6).acquire(PROGRAM, AXIS)
         c = tr.counter
         assert tr.lost_samples > 0 and np.all(np.diff(c) >= 1)
-        assert int(np.sum(np.diff(c) - 1)) == tr.lost_samples
+        lost_before_first = int(c[0]) - peer.axis.trace_first
+        assert lost_before_first >= 0
+        assert lost_before_first + int(np.sum(np.diff(c) - 1)) == tr.lost_samples
         assert int(c[-1]) == peer.axis.trace_first + peer.axis.trace_count() - 1
 
 
