@@ -15,13 +15,12 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 import numpy as np
-from scipy.ndimage import uniform_filter1d
 from scipy.optimize import minimize_scalar
 
 from core.dataset import AxisSpec
 from core.gap.candidates import SERVO_LOWER, SERVO_NAMES, SERVO_UPPER, servo_piece
 from core.gap.data import Contour
-from core.gap.roundtrip import fit_ls
+from core.gap.roundtrip import fit_ls, slow_and_envelope
 from core.sim import AxisModel, Effects, simulate
 from core.sim.programs import Program
 
@@ -105,10 +104,8 @@ def envelope_residual_um(measured_um: np.ndarray, simulated_um: np.ndarray, wind
     n = max(1, int(window))
     if n < 3 or measured_um.size < 2 * n:
         return measured_um - simulated_um
-    lm = uniform_filter1d(measured_um, n, mode="nearest")
-    ls = uniform_filter1d(simulated_um, n, mode="nearest")
-    em = np.sqrt(np.maximum(uniform_filter1d((measured_um - lm) ** 2, n, mode="nearest"), 0.0))
-    es = np.sqrt(np.maximum(uniform_filter1d((simulated_um - ls) ** 2, n, mode="nearest"), 0.0))
+    lm, em = slow_and_envelope(measured_um, n)
+    ls, es = slow_and_envelope(simulated_um, n)
     d = lm - ls
     if stacked:
         return np.concatenate([d, em - es])

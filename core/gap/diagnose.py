@@ -36,6 +36,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.ndimage import uniform_filter1d
 
 from core.dataset import Dataset
 from core.gap import contour as ct
@@ -241,7 +242,7 @@ class _Diagnosis:
             n = max(3, int(round(ct.ENVELOPE_WINDOW_S * c.rate_hz)))
             if r.size < 2 * n:
                 continue
-            fast.append(r - ct.uniform_filter1d(r, n, mode="nearest"))
+            fast.append(r - uniform_filter1d(r, n, mode="nearest"))
         if not fast:
             return False
         return rt.rms(np.concatenate(fast)) > 3.0 * sigma

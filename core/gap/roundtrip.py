@@ -95,6 +95,14 @@ def residual_um(pred: np.ndarray, run: RoundTrip, idx: np.ndarray | None = None)
 TRAIN_ENVELOPE_WINDOWS_S = (0.05, 0.25)
 
 
+def slow_and_envelope(x: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``x`` split at a window of ``n`` samples: its moving mean, and the moving RMS of the
+    rest (the envelope above 1/window). The round trips' and contours' envelope residuals
+    and the rattle observation (:func:`core.gap.where.rattles`) all split so."""
+    low = uniform_filter1d(x, n, mode="nearest")
+    return low, np.sqrt(np.maximum(uniform_filter1d((x - low) ** 2, n, mode="nearest"), 0.0))
+
+
 def residual_env_um(pred: np.ndarray, run: RoundTrip, idx: np.ndarray | None = None,
                     stacked: bool = False, window_s: float = ENVELOPE_WINDOW_S) -> np.ndarray:
     """Measured against predicted table-minus-nut (µm), sample by sample below 20 Hz and
@@ -112,10 +120,8 @@ def residual_env_um(pred: np.ndarray, run: RoundTrip, idx: np.ndarray | None = N
     if n < 3 or m.size < 2 * n:
         return residual_um(pred, run, idx)
     s = (pred[run.start :] - run.u_mm[run.start :]) * 1e3
-    lm = uniform_filter1d(m, n, mode="nearest")
-    ls = uniform_filter1d(s, n, mode="nearest")
-    em = np.sqrt(np.maximum(uniform_filter1d((m - lm) ** 2, n, mode="nearest"), 0.0))
-    es = np.sqrt(np.maximum(uniform_filter1d((s - ls) ** 2, n, mode="nearest"), 0.0))
+    lm, em = slow_and_envelope(m, n)
+    ls, es = slow_and_envelope(s, n)
     d, e = lm - ls, em - es
     if idx is not None:
         d, e = d[idx - run.start], e[idx - run.start]

@@ -9,11 +9,10 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 import numpy as np
-from scipy.ndimage import uniform_filter1d
 
 from core.gap.data import Contour, RoundTrip
 from core.gap.report import Where
-from core.gap.roundtrip import residual_periods_mm, rms
+from core.gap.roundtrip import residual_periods_mm, rms, slow_and_envelope
 from core.history import pearson_r
 
 QUADRANT_WINDOW_DEG = 10.0
@@ -36,12 +35,17 @@ REVERSAL_MARGIN_MM = 1.0
 ACCEL_FRACTION = 0.1
 
 
+def moving_mask(u_mm: np.ndarray, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the samples where the nut moves, its velocity in mm/s): faster than 5 % of the
+    stroke's top speed (its 99th percentile)."""
+    v = np.gradient(u_mm, t_s)
+    return np.abs(v) > 0.05 * max(float(np.percentile(np.abs(v), 99)), 1e-9), v
+
+
 def rt_phases(run: RoundTrip, backlash_um: float) -> np.ndarray:
     """Phase label per sample: 0 rest, 1 reversal transient, 2 acceleration, 3 constant velocity."""
     t, u = run.t_s, run.u_mm
-    v = np.gradient(u, t)
-    vmax = max(float(np.percentile(np.abs(v), 99)), 1e-9)
-    moving = np.abs(v) > 0.05 * vmax
+    moving, v = moving_mask(u, t)
     cmd = run.command_mm if run.command_mm is not None else u
     acc = np.gradient(np.gradient(cmd, t), t)
     n = max(1, int(round(0.01 / run.dt_s)))
@@ -80,12 +84,11 @@ def rattles(rts: Sequence[RoundTrip]) -> list[dict]:
         n = int(round(RATTLE_WINDOW_S / r.dt_s))
         if n < 3 or m.size < 4 * n:
             continue
-        hp = m - uniform_filter1d(m, n, mode="nearest")
-        mrms = np.sqrt(np.maximum(uniform_filter1d(hp * hp, n, mode="nearest"), 0.0))
-        v = np.gradient(r.u_mm[r.start :], r.t_s[r.start :])
-        moving = np.abs(v) > 0.05 * max(float(np.percentile(np.abs(v), 99)), 1e-9)
-        hot = moving & (mrms > RATTLE_MIN_UM)
-        if not moving.any() or hot.sum() < RATTLE_MIN_FRACTION * moving.sum():
+        low, mrms = slow_and_envelope(m, n)
+        hp = m - low
+        mov, _ = moving_mask(r.u_mm[r.start :], r.t_s[r.start :])
+        hot = mov & (mrms > RATTLE_MIN_UM)
+        if not mov.any() or hot.sum() < RATTLE_MIN_FRACTION * mov.sum():
             continue
         # the longest run of rattling samples: its spectrum
         edges = np.flatnonzero(np.diff(np.r_[0, hot.astype(np.int8), 0]))
@@ -106,7 +109,7 @@ def rattles(rts: Sequence[RoundTrip]) -> list[dict]:
         if tonality < RATTLE_MIN_TONALITY:
             continue
         out.append({"file": r.file, "axis": r.axis, "split": r.split, "feed_mm_min": round(float(r.feed_mm_min), 1),
-                    "fraction_of_stroke": round(float(hot.sum() / moving.sum()), 3),
+                    "fraction_of_stroke": round(float(hot.sum() / mov.sum()), 3),
                     "rms_um": round(float(np.median(mrms[hot])), 2), "frequency_hz": round(freq, 1),
                     "tonality": round(tonality, 3)})  # fmt: skip
     return out
