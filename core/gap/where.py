@@ -76,8 +76,8 @@ def rattles(rts: Sequence[RoundTrip]) -> list[dict]:
     trip that rattles: its file, axis, split and feed, the fraction of its moving samples
     that rattle, the median moving RMS there (µm), and the dominant frequency (Hz) and
     tonality (``RATTLE_MIN_TONALITY``) of the longest rattling stretch. The threshold is
-    ``RATTLE_MIN_UM`` (not a multiple of the noise floor: a rattle at tens of Hz inflates that estimate itself, to 5.5 µm on seed
-    3547 case 31, whose strokes all stick-slip)."""
+    ``RATTLE_MIN_UM``, not a multiple of the noise floor: a rattle at tens of Hz inflates
+    that estimate itself, to 5.5 µm on seed 3547 case 31, whose strokes all stick-slip."""
     out = []
     for r in rts:
         m = (r.x_mm[r.start :] - r.u_mm[r.start :]) * 1e3
@@ -119,10 +119,8 @@ def rattle_sentence(found: Sequence[Mapping]) -> str:
     """One sentence on :func:`rattles`' findings (empty when there are none)."""
     if not found:
         return ""
-    parts = []
-    for f in found:
-        parts.append(f"{f['file']} (axis {f['axis']}, {f['split']}, {f['feed_mm_min']:.0f} mm/min: {f['rms_um']:.1f} µm "
-                     f"RMS at {f['frequency_hz']:.0f} Hz over {f['fraction_of_stroke'] * 100:.0f} % of the stroke)")
+    parts = [f"{f['file']} (axis {f['axis']}, {f['split']}, {f['feed_mm_min']:.0f} mm/min: {f['rms_um']:.1f} µm RMS "
+             f"at {f['frequency_hz']:.0f} Hz over {f['fraction_of_stroke'] * 100:.0f} % of the stroke)" for f in found]
     return (f"The table rattles against the nut on {len(found)} round trip(s): {'; '.join(parts)}. That is stick-slip "
             "or a chain hunting across its backlash (friction or compliance), whose cycle a model driven by the "
             "recorded motor may not follow.")
