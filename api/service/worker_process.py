@@ -20,6 +20,7 @@ import os
 import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
+from multiprocessing.connection import wait as wait_for_sentinels
 
 log = logging.getLogger(__name__)
 
@@ -71,19 +72,33 @@ def end_pool(pool: ProcessPoolExecutor, *, grace_s: float, what: str) -> None:
     manager = getattr(pool, "_executor_manager_thread", None)  # shutdown() forgets them: take them first
     procs = list((getattr(pool, "_processes", None) or {}).values())
     pool.shutdown(wait=False, cancel_futures=True)
-    deadline = time.monotonic() + grace_s
-    for p in procs:
-        p.join(max(deadline - time.monotonic(), 0.0))
-    left = [p for p in procs if p.is_alive()]
+    left = still_running(procs, grace_s)
     if left:
         log.warning("the %s process(es) %s did not end within %g s of the stop: terminated", what,
                     ", ".join(str(p.pid) for p in left), grace_s)
     for p in left:
         p.terminate()
-    for p in left:
-        p.join(2.0)
-        if p.is_alive():
-            p.kill()
-            p.join(2.0)
+    for p in still_running(left, 2.0):
+        p.kill()
+    still_running(left, 2.0)
     if manager is not None and manager.is_alive():
         manager.join(5.0)
+
+
+def still_running(procs: list[multiprocessing.Process], timeout_s: float) -> list[multiprocessing.Process]:
+    """The processes of ``procs`` that have not ended within ``timeout_s``.
+
+    Waits on their sentinels (a pipe the process holds until it ends), not ``join()``: the
+    pool's manager thread joins its processes too, and of two threads reaping one child the
+    loser's ``waitpid`` fails (ECHILD), which ``multiprocessing`` takes for "still running".
+    A process that had ended cleanly was then reported as not ending within the grace and
+    "terminated" (seen at ``make run``'s stop during the cycle processes' start-up).
+    """
+    pending = {p.sentinel: p for p in procs}
+    deadline = time.monotonic() + timeout_s
+    while pending:
+        for s in wait_for_sentinels(list(pending), max(deadline - time.monotonic(), 0.0)):
+            pending.pop(s)
+        if time.monotonic() >= deadline:
+            break
+    return list(pending.values())

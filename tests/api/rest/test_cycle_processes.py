@@ -4,6 +4,8 @@ a process that dies fails its cycle with a reason and the next one runs in a fre
 
 from __future__ import annotations
 
+import logging
+import multiprocessing
 import os
 import threading
 import time
@@ -14,6 +16,7 @@ import pytest
 from api.service.config import ConfigError, default_settings, parse_settings
 from api.service.runner import CycleProcessDied, CycleProcesses, DriverRunner, NoFreeProcess
 from api.service.service import Service
+from api.service.worker_process import end_pool, spawn_pool, still_running
 from storage.db import AxisRecord, config_repo, results_repo, session_scope
 from tests.api.rest.conftest import make_settings
 from tests.api.rest.test_service import wait_for
@@ -162,3 +165,57 @@ def test_the_service_measures_in_a_worker_process_and_survives_its_death(tmp_pat
     finally:
         svc.stop()
     assert procs._pool is None
+
+
+def test_a_process_that_ends_within_the_grace_is_not_reported_or_terminated(caplog):
+    """end_pool must not take a process that has ended for one still running. The pool's
+    manager thread reaps its processes too; when another thread wins the reaping,
+    ``Process.join`` returns and ``is_alive`` stays true (waitpid: ECHILD), so an idle
+    process that had ended on the stop was logged as "did not end within 10 s of the stop:
+    terminated" a second after it (seen at `make run`). Here a third thread reaps it first."""
+    pool = spawn_pool(what="test", workers=1)
+    assert pool.submit(_pid).result(timeout=60) != os.getpid()
+    (proc,) = pool._processes.values()
+    reaped = []
+
+    def reap():
+        try:
+            reaped.append(os.waitpid(proc.pid, 0)[1])
+        except ChildProcessError:  # the pool's manager thread reaped it first (proc.exitcode has it then)
+            pass
+
+    reaper = threading.Thread(target=reap, daemon=True)
+    reaper.start()
+    t = time.perf_counter()
+    with caplog.at_level(logging.WARNING, logger="api.service.worker_process"):
+        end_pool(pool, grace_s=10.0, what="test")
+    assert "did not end" not in caplog.text
+    assert time.perf_counter() - t < 10.0  # it ended on the stop: the grace was not used up
+    reaper.join(5)
+    # it ended by itself, not terminated, whichever thread reaped it
+    assert (reaped and os.WIFEXITED(reaped[0]) and os.WEXITSTATUS(reaped[0]) == 0) or proc.exitcode == 0
+
+
+def test_a_process_reaped_by_another_thread_counts_as_ended():
+    """The race above, made certain: the process has ended and another thread has reaped it
+    (CPython's join() then returns at once and is_alive() stays true for ever, as waitpid
+    fails with ECHILD). still_running, which end_pool uses, goes by the process' sentinel."""
+    proc = multiprocessing.get_context("spawn").Process(target=abs, args=(-1,))
+    proc.start()
+    _, status = os.waitpid(proc.pid, 0)  # this thread reaps it, not the Process object
+    assert os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0
+    t = time.perf_counter()
+    assert still_running([proc], 10.0) == []
+    assert time.perf_counter() - t < 5.0  # at once, not after the timeout
+
+
+def test_a_process_still_running_is_returned_after_the_timeout():
+    proc = multiprocessing.get_context("spawn").Process(target=time.sleep, args=(60,))
+    proc.start()
+    try:
+        t = time.perf_counter()
+        assert still_running([proc], 0.5) == [proc]
+        assert 0.5 <= time.perf_counter() - t < 5.0
+    finally:
+        proc.kill()
+        proc.join(5)
