@@ -81,6 +81,8 @@ def end_pool(pool: ProcessPoolExecutor, *, grace_s: float, what: str) -> None:
     for p in still_running(left, 2.0):
         p.kill()
     still_running(left, 2.0)
+    for p in left:  # reap what was terminated (a no-op where the manager thread did)
+        p.join(0)
     if manager is not None and manager.is_alive():
         manager.join(5.0)
 
