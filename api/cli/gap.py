@@ -9,8 +9,9 @@ from pathlib import Path
 
 from api.cli.output import _clean
 from core.gap import LABELS, CaseSize, diagnose, run_benchmark
-from core.gap.benchmark import SMALL
-from storage.dataset import read_dataset
+from core.errors import InputError
+from core.gap.benchmark import SMALL, benchmark_case
+from storage.dataset import read_dataset, write_dataset
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -34,6 +35,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--plant", choices=("twin", "independent", "both"), default="twin",
                    help="which plant generates the cases: the project's twin, the independent simulator, or both "
                         "(default twin)")  # fmt: skip
+    b.add_argument("--only", metavar="N[,N...]", help="diagnose only these cases, numbered from 1 as the case lines "
+                   "print them, with the same data as in the whole run of --cases and --seed (to look at a case again)")
+    b.add_argument("--write-datasets", metavar="DIR", help="also write each case's dataset to "
+                   "DIR/<plant>-seed<S>-case<NNN>/ (for `mebm gap diagnose`), with truth.json beside it: the injected "
+                   "effects and every parameter the plant drew")  # fmt: skip
     b.set_defaults(func=run_benchmark_cmd)
 
 
@@ -74,15 +80,33 @@ def write_plots(report, folder: Path) -> list[Path]:
     return out
 
 
+def _only(text: str | None, n_cases: int) -> list[int] | None:
+    """``--only`` as 0-based indexes (it counts from 1, as the case lines do)."""
+    if text is None:
+        return None
+    try:
+        nums = sorted({int(x) for x in text.split(",") if x.strip()})
+    except ValueError:
+        raise InputError(f"--only (={text!r}) must be case numbers separated by commas, e.g. 15,21") from None
+    if not nums or not all(1 <= n <= n_cases for n in nums):
+        raise InputError(f"--only (={text!r}) must name cases 1..{n_cases} (--cases)")
+    return [n - 1 for n in nums]
+
+
 def run_benchmark_cmd(a: argparse.Namespace) -> int:
     if a.cases < 1:
-        from core.errors import InputError
-
         raise InputError(f"--cases (={a.cases}) must be >= 1")
+    only = _only(a.only, a.cases)
     size = SMALL if a.small else CaseSize()
     plants = ("twin", "independent") if a.plant == "both" else (a.plant,)
     results = []
     for plant in plants:
+        if a.write_datasets:
+            for i in range(a.cases) if only is None else only:
+                labs, ds, truth = benchmark_case(plant, a.cases, a.seed, i, size)
+                folder = write_dataset(Path(a.write_datasets) / f"{plant}-seed{a.seed}-case{i + 1:03d}", ds)
+                _write_json({"plant": plant, "seed": a.seed, "cases": a.cases, "case": i + 1,
+                             "labels": list(labs), "truth": truth}, str(folder / "truth.json"))  # fmt: skip
 
         def progress(c, plant=plant):
             got = "+".join(c.diagnosed_effects) or c.diagnosed
@@ -90,8 +114,11 @@ def run_benchmark_cmd(a: argparse.Namespace) -> int:
                   f"{c.gap_after_um:6.2f} µm (noise {c.noise_floor_um:.2f}) {c.seconds:5.1f} s"
                   f"{'' if c.split_given else ' [no split field]'}", flush=True)  # fmt: skip
 
-        res = run_benchmark(a.cases, a.seed, size, progress=progress, plant=plant, jobs=a.jobs)
+        res = run_benchmark(a.cases, a.seed, size, progress=progress, plant=plant, jobs=a.jobs, only=only)
         print()
+        if only is not None:
+            print(f"only cases {', '.join(str(i + 1) for i in only)} of the {a.cases} drawn from seed {a.seed}: "
+                  "the figures below are of these alone")  # fmt: skip
         print(format_summary(res))
         print()
         results.append(res)

@@ -18,7 +18,7 @@ its label and scores it.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -373,16 +373,44 @@ class BenchmarkResult:
 def make_plant_case(plant: str, labels: tuple[str, ...], rng: np.random.Generator, size: CaseSize,
                     split_fields: bool) -> tuple[Dataset, bool]:
     """A dataset of ``plant`` with ``labels``; returns (dataset, whether it has split fields)."""
+    ds, split_given, _ = _plant_case(plant, labels, rng, size, split_fields)
+    return ds, split_given
+
+
+def _plant_case(plant: str, labels: tuple[str, ...], rng: np.random.Generator, size: CaseSize,
+                split_fields: bool) -> tuple[Dataset, bool, dict]:
     if plant == "twin":
-        return make_case(labels or "none", rng, size, split_fields=split_fields).dataset, split_fields
+        case = make_case(labels or "none", rng, size, split_fields=split_fields)
+        return case.dataset, split_fields, case.truth
     if plant == "independent":
         from core.gap.plant import PlantSize, make_plant_case as make_independent
 
         psize = PlantSize(size.rt_train_per_axis, size.rt_test_per_axis, size.circles_train, size.circles_test,
                           size.rt_rate_hz, size.circle_rate_hz, size.rt_duration_s)  # fmt: skip
-        ds = make_independent(labels, rng, psize).dataset
-        return ds, any(r.spec.split is not None for r in ds.runs)
+        case = make_independent(labels, rng, psize)
+        return case.dataset, any(r.spec.split is not None for r in case.dataset.runs), case.truth
     raise ValueError(f"plant (={plant!r}) must be one of {PLANTS}")
+
+
+def _draw(n_cases: int, seed: int) -> list[tuple[tuple[str, ...], bool]]:
+    """Per case of a benchmark of ``n_cases`` drawn from ``seed``: its labels and whether its
+    dataset has split fields (a third have none)."""
+    rng = np.random.default_rng(seed)
+    labels = labels_for(n_cases, rng)
+    no_split = set(rng.choice(n_cases, n_cases // 3, replace=False).tolist())
+    return [(labs, i not in no_split) for i, labs in enumerate(labels)]
+
+
+def benchmark_case(plant: str, n_cases: int, seed: int, index: int,
+                   size: CaseSize = CaseSize()) -> tuple[tuple[str, ...], Dataset, dict]:
+    """Case ``index`` (0-based) of ``run_benchmark(n_cases, seed, size, plant=plant)``, the
+    same data: its labels, its dataset and the plant's truth (every drawn parameter), to
+    look at a case apart (``mebm gap benchmark --write-datasets``)."""
+    if not 0 <= index < n_cases:
+        raise ValueError(f"index (={index}) must be in 0..{n_cases - 1}")
+    labs, with_split = _draw(n_cases, seed)[index]
+    ds, _, truth = _plant_case(plant, labs, np.random.default_rng([seed, index]), size, with_split)
+    return labs, ds, truth
 
 
 def _one_case(args) -> CaseResult:
@@ -403,18 +431,20 @@ def _one_case(args) -> CaseResult:
 
 def run_benchmark(n_cases: int, seed: int, size: CaseSize = CaseSize(),
                   progress: Callable[[CaseResult], None] | None = None, plant: str = "twin",
-                  jobs: int = 1) -> BenchmarkResult:
+                  jobs: int = 1, only: Collection[int] | None = None) -> BenchmarkResult:
     """Generate ``n_cases`` datasets of ``plant`` (balanced labels, a quarter mixed, a third
     without split fields) and diagnose each without its label, in ``jobs`` processes.
-    Each case's data depend only on (seed, index), so the result does not depend on jobs."""
+    Each case's data depend only on (seed, index), so the result does not depend on jobs.
+    ``only``: diagnose just these cases (0-based indexes) of the same draw, with the same
+    data as in the whole run (to look again at a case of an evaluation)."""
     if plant not in PLANTS:
         raise ValueError(f"plant (={plant!r}) must be one of {PLANTS}")
     if jobs < 1:
         raise ValueError(f"jobs (={jobs}) must be >= 1")
-    rng = np.random.default_rng(seed)
-    labels = labels_for(n_cases, rng)
-    no_split = set(rng.choice(n_cases, n_cases // 3, replace=False).tolist())
-    work = [(i, labs, seed, size, plant, i not in no_split) for i, labs in enumerate(labels)]
+    if only is not None and not all(0 <= i < n_cases for i in only):
+        raise ValueError(f"only (={sorted(only)}) must hold case indexes in 0..{n_cases - 1}")
+    work = [(i, labs, seed, size, plant, with_split) for i, (labs, with_split) in enumerate(_draw(n_cases, seed))
+            if only is None or i in only]  # fmt: skip
     out = []
     if jobs == 1:
         for w in work:

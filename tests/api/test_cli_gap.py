@@ -112,3 +112,44 @@ def test_a_case_whose_diagnosis_raises_is_scored_wrong_not_a_stopped_benchmark(m
     monkeypatch.setattr(dg, "diagnose", boom)
     res = _one_case((0, ("thermal",), 5, SMALL, "twin", True))
     assert res.diagnosed == "error" and not res.correct and "infs or NaNs" in res.axis
+
+
+def test_one_case_of_a_benchmark_again_and_its_dataset_written(tmp_path, capsys):
+    """--only re-runs a case of a draw with the data of the whole run (case 3 of seed 4's
+    three is a `none` case: a quick diagnosis); --write-datasets leaves it as a dataset
+    folder that `mebm gap diagnose` reads, with truth.json beside it."""
+    from core.gap.benchmark import SMALL, benchmark_case, run_benchmark
+
+    out = tmp_path / "bench.json"
+    assert main(["gap", "benchmark", "--cases", "3", "--seed", "4", "--small", "--plant", "twin", "--only", "3",
+                 "--write-datasets", str(tmp_path / "cases"), "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert [line.split(":")[0] for line in text.splitlines() if line.startswith("twin case")] == ["twin case   3/3"]
+    assert "only cases 3 of the 3 drawn from seed 4" in text
+    (case,) = json.loads(out.read_text())["cases"]
+    assert case["index"] == 2 and case["labels"] == []
+    # the same data as in the whole run: the written dataset is the benchmark's case
+    folder = tmp_path / "cases" / "twin-seed4-case003"
+    truth = json.loads((folder / "truth.json").read_text())
+    assert truth["labels"] == [] and truth["case"] == 3 and truth["seed"] == 4
+    labs, ds, _ = benchmark_case("twin", 3, 4, 2, SMALL)
+    from storage.dataset import read_dataset
+
+    back = read_dataset(folder)
+    assert [r.spec.file for r in back.runs] == [r.spec.file for r in ds.runs]
+    for r0, r1 in zip(ds.runs, back.runs):
+        for col, v in r0.columns.items():
+            np.testing.assert_allclose(r1.columns[col], v, rtol=0, atol=1e-6)
+    assert main(["gap", "diagnose", str(folder), "--json", "-"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["effect"] == "none"
+    assert doc["gap_before_um"] == pytest.approx(case["gap_before_um"], rel=0.01)
+    # and run_benchmark's own subset is the same case as the whole draw's
+    with pytest.raises(ValueError, match="only"):
+        run_benchmark(3, 4, SMALL, only=[3])
+
+
+@pytest.mark.parametrize("only", ["0", "4", "x", ","])
+def test_benchmark_refuses_cases_it_did_not_draw(only, capsys):
+    assert main(["gap", "benchmark", "--cases", "3", "--only", only]) != 0
+    assert "--only" in capsys.readouterr().err
