@@ -133,6 +133,7 @@ def test_one_case_of_a_benchmark_again_and_its_dataset_written(tmp_path, capsys)
     truth = json.loads((folder / "truth.json").read_text())
     assert truth["labels"] == [] and truth["case"] == 3 and truth["seed"] == 4
     labs, ds, _ = benchmark_case("twin", 3, 4, 2, SMALL)
+    assert labs == ()
     from storage.dataset import read_dataset
 
     back = read_dataset(folder)
@@ -144,7 +145,7 @@ def test_one_case_of_a_benchmark_again_and_its_dataset_written(tmp_path, capsys)
     doc = json.loads(capsys.readouterr().out)
     assert doc["effect"] == "none"
     assert doc["gap_before_um"] == pytest.approx(case["gap_before_um"], rel=0.01)
-    # and run_benchmark's own subset is the same case as the whole draw's
+    # a case outside the draw is refused by run_benchmark itself too, not only by the CLI
     with pytest.raises(ValueError, match="only"):
         run_benchmark(3, 4, SMALL, only=[3])
 
