@@ -18,7 +18,7 @@ its label and scores it.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -271,6 +271,11 @@ class CaseResult:
     diagnosed_effects: tuple[str, ...] = ()
     plant: str = "twin"
     split_given: bool = True
+    # every candidate's test gap alone and every pair's (base+second), in µm, and the
+    # decision's sentence: why a case was missed, without diagnosing it again
+    candidate_gaps_um: Mapping[str, float] = field(default_factory=dict)
+    pair_gaps_um: Mapping[str, float] = field(default_factory=dict)
+    decision: str = ""
 
     @property
     def ratio(self) -> float:
@@ -426,7 +431,9 @@ def _one_case(args) -> CaseResult:
                           time.perf_counter() - t0, f"{type(exc).__name__}: {exc}", labs, (), plant, split_given)  # fmt: skip
     dt = time.perf_counter() - t0
     return CaseResult(i, "+".join(labs) or "none", rep.effect, rep.gap_before_um, rep.gap_after_um,
-                      rep.noise_floor_um, dt, "", labs, tuple(rep.effects), plant, split_given)  # fmt: skip
+                      rep.noise_floor_um, dt, "", labs, tuple(rep.effects), plant, split_given,
+                      {c.effect: c.gap_after_um for c in rep.candidates}, {c.effect: c.gap_after_um for c in rep.pairs},
+                      rep.decision)  # fmt: skip
 
 
 def run_benchmark(n_cases: int, seed: int, size: CaseSize = CaseSize(),

@@ -1,6 +1,7 @@
 """``mebm gap diagnose`` and ``mebm gap benchmark`` end to end."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -145,6 +146,17 @@ def test_one_case_of_a_benchmark_again_and_its_dataset_written(tmp_path, capsys)
     doc = json.loads(capsys.readouterr().out)
     assert doc["effect"] == "none"
     assert doc["gap_before_um"] == pytest.approx(case["gap_before_um"], rel=0.01)
+    # the case's JSON keeps every candidate's and pair's test gap and the decision, as the
+    # diagnosis of the written dataset gives them (figures masked: the CSV rounds to 1 nm)
+    assert set(case["candidate_gaps_um"]) == {c["effect"] for c in doc["candidates"]} and len(doc["candidates"]) > 1
+    for c in doc["candidates"]:
+        assert case["candidate_gaps_um"][c["effect"]] == pytest.approx(c["gap_after_um"], rel=0.01)
+    assert case["pair_gaps_um"] == pytest.approx({p["effect"]: p["gap_after_um"] for p in doc["pairs"]}, rel=0.01)
+
+    def masked(text):
+        return re.sub(r"\d+(\.\d+)?", "#", text)
+
+    assert case["decision"] and masked(case["decision"]) == masked(doc["decision"])
     # a case outside the draw is refused by run_benchmark itself too, not only by the CLI
     with pytest.raises(ValueError, match="only"):
         run_benchmark(3, 4, SMALL, only=[3])
