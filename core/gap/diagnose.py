@@ -595,6 +595,23 @@ def _took_something(f: Fitted, gap_before: float) -> bool:
     return bool(f.rt_fits or f.servo) or f.gap_after_um < TOOK_FRACTION * gap_before
 
 
+def close_rivals(fits: Mapping[str, Fitted], named: Sequence[str], best: Fitted | None, gap_before: float,
+                 min_reduction: float) -> list[Fitted]:
+    """Single candidates outside the answer that the test runs do not tell apart from it,
+    best first: each cuts the test gap by ``min_reduction`` itself, and the named effect
+    alone (``best``) does not cut the rival's test gap by ``min_reduction`` again (the
+    standard every cut of the decision is held to). None for a ``none`` answer
+    (``best`` None). The answer stands (it scores best); these say how sure it is. Seen
+    most between the two chain families, whose forms overlap (docs/gap-diagnosis.md,
+    "Friction on a chain and compliance overlap")."""
+    if best is None:
+        return []
+    keep = 1.0 - min_reduction
+    out = [f for e, f in fits.items() if e not in named and f.gap_after_um <= keep * gap_before
+           and best.gap_after_um > keep * f.gap_after_um]
+    return sorted(out, key=lambda f: f.gap_after_um)
+
+
 def _candidate(f: Fitted, s: GapSettings) -> Candidate:
     params: dict = {}
     for k, v in f.params.items():
@@ -730,6 +747,7 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: 
             second_text = "No second effect found: the remaining gap is at the noise floor."
     chosen = second or best
     effects_list = [] if effect == "none" else list(chosen.effects)
+    rivals = close_rivals(fits, effects_list, None if effect == "none" else best, gap_before, s.min_reduction)
     gap_after = gap_before if effect == "none" else chosen.gap_after_um
     cands = [_candidate(f, s) for f in ([best] + [f for f in ranked if f is not best])]
     none_c = Candidate("none", gap_before, {}, 0, gap_before, True, "the nominal model", ())
@@ -794,4 +812,5 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: 
         program_source=program_source,
         pairs=tuple(_candidate(f, s) for f in pairs),
         observations=observations,
+        close_alternatives=tuple((f.effects[0], f.gap_after_um) for f in rivals),
     )

@@ -97,6 +97,9 @@ class GapReport:
     program_source: str = "recorded command columns"
     pairs: tuple[Candidate, ...] = ()  # the dominant effect with each other candidate on top
     observations: tuple[str, ...] = ()  # what the data show beside the decision (a rattling table)
+    # single candidates the test runs do not tell apart from the answer: (effect, gap_after_um), best
+    # first (core.gap.diagnose.close_rivals)
+    close_alternatives: tuple[tuple[str, float], ...] = ()
 
     def to_dict(self) -> dict:
         return {
@@ -120,6 +123,7 @@ class GapReport:
             "machine_id": self.machine_id,
             "pairs": [c.to_dict() for c in self.pairs],
             "observations": list(self.observations),
+            "close_alternatives": [{"effect": e, "gap_after_um": _num(g, 3)} for e, g in self.close_alternatives],
         }
 
     def text(self) -> str:
@@ -141,6 +145,13 @@ class GapReport:
             )
         if self.second_effect:
             lines.append(self.second_effect)
+        if self.close_alternatives:
+            alts = ", ".join(f"{e} ({g:.2f} µm)" for e, g in self.close_alternatives)
+            cut = self.thresholds.get("min_reduction", 0.25) * 100
+            own = next((f" ({c.gap_after_um:.2f} µm)" for c in self.candidates if c.effect == self.effect), "")
+            lines.append(f"Not told apart: {alts} also cut the test gap by {cut:.0f} % or more, and {self.effect} "
+                         f"alone{own} does not cut theirs by another {cut:.0f} %; test runs at other conditions "
+                         "(feed, acceleration, temperature) may separate them.")  # fmt: skip
         lines.append(f"Where: {self.where.summary}")
         lines += [f"Observed: {o}" for o in self.observations]
         lines.append(f"Contour programs: {self.program_source}.")

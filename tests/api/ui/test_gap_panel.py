@@ -1,12 +1,13 @@
-"""The gap panel shows what the diagnosis observed beside its answer (a rattling table),
-as its own paragraph, escaped, and nothing when there is nothing to say."""
+"""The gap panel shows what the diagnosis observed beside its answer (a rattling table)
+and the candidates its test runs do not tell apart from the answer, each as its own
+paragraph, escaped, and nothing when there is nothing to say."""
 
 from types import SimpleNamespace
 
 from api.ui.routes import templates
 
 
-def _render(observations):
+def _render(observations, alternatives=None):
     report = {
         "effect": "none", "gap_before_um": 12.17, "gap_after_um": 12.17, "noise_floor_um": 0.25,
         "runs_used": ["rt_x_00.csv"], "computed_at": "2026-11-27T16:00:00+00:00", "candidates": [],
@@ -14,6 +15,8 @@ def _render(observations):
     }  # fmt: skip
     if observations is not None:
         report["observations"] = observations
+    if alternatives is not None:
+        report["close_alternatives"] = alternatives
     return templates.get_template("_gap.html").render(
         gap="done", report=report, age_s=5.0, axis=SimpleNamespace(id=1), who=SimpleNamespace(csrf="t"))
 
@@ -27,3 +30,11 @@ def test_an_observation_is_shown_as_its_own_paragraph_and_escaped():
 def test_no_observation_no_paragraph():
     assert "gap-observed" not in _render([])
     assert "gap-observed" not in _render(None)  # a result kept from before observations existed: no key
+
+
+def test_candidates_not_told_apart_are_named_with_their_gaps():
+    html = _render([], [{"effect": "compliance", "gap_after_um": 12.004}, {"effect": "<thermal>", "gap_after_um": 13.5}])
+    p = html[html.index('<p class="gap-alternatives">'):]
+    p = " ".join(p[: p.index("</p>")].split())
+    assert "do not tell none apart from compliance (12.00 µm), &lt;thermal&gt; (13.50 µm): each cuts" in p
+    assert "gap-alternatives" not in _render([], []) and "gap-alternatives" not in _render([])
