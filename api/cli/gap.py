@@ -153,6 +153,9 @@ def format_summary(res) -> str:
     lines.append(f"effect cases whose gap_before is within 2x the noise floor (the effect did not show): {len(hidden)}"
                  + (f"; named correctly without them: {sum(c.correct for c in res.cases if c not in hidden)}/{n_vis}"
                     f" = {res.fraction_correct_visible() * 100:.1f} %" if hidden else ""))  # fmt: skip
+    close, wrong, there = res.close_alternative_cases
+    lines.append(f"answers with a candidate not told apart from them: {close}; of them wrong: {wrong}, "
+                 f"with an injected effect among those candidates: {there}")  # fmt: skip
     for c in res.errors:
         lines.append(f"case {c.index + 1} ({c.label}): the diagnosis raised {c.axis}")
     lines.append(f"diagnoses that raised: {len(res.errors)} (scored as wrong)")

@@ -276,6 +276,7 @@ class CaseResult:
     candidate_gaps_um: Mapping[str, float] = field(default_factory=dict)
     pair_gaps_um: Mapping[str, float] = field(default_factory=dict)
     decision: str = ""
+    close_alternatives: tuple[str, ...] = ()  # the report's candidates not told apart from the answer
 
     @property
     def ratio(self) -> float:
@@ -317,6 +318,15 @@ class BenchmarkResult:
     def second_effect_recall(self) -> tuple[int, int]:
         mixed = [c for c in self.cases if len(c.labels) > 1]
         return sum(1 for c in mixed if c.second_found), len(mixed)
+
+    @property
+    def close_alternative_cases(self) -> tuple[int, int, int]:
+        """Answers that came with candidates not told apart from them (the report's
+        ``close_alternatives``), how many of them were wrong, and of those how many had an
+        injected effect among the alternatives."""
+        close = [c for c in self.cases if c.close_alternatives]
+        wrong = [c for c in close if not c.correct]
+        return len(close), len(wrong), sum(1 for c in wrong if set(c.labels) & set(c.close_alternatives))
 
     def hidden_effect_cases(self, noise_factor: float = 2.0) -> tuple[CaseResult, ...]:
         """Effect cases whose nominal test gap is within ``noise_factor`` times the noise
@@ -366,6 +376,7 @@ class BenchmarkResult:
             "none_gap_within_2x_noise": [hit, n_none],
             "second_effect_recall": [rec, n_mixed],
             "effect_cases_within_2x_noise": len(self.hidden_effect_cases()),
+            "close_alternative_cases": list(self.close_alternative_cases),
             "diagnoses_that_raised": len(self.errors),
             "fraction_correct_without_them": self.fraction_correct_visible(),
             "median_gap_ratio_effect_cases": self.median_ratio_effect_cases,
@@ -433,7 +444,7 @@ def _one_case(args) -> CaseResult:
     return CaseResult(i, "+".join(labs) or "none", rep.effect, rep.gap_before_um, rep.gap_after_um,
                       rep.noise_floor_um, dt, "", labs, tuple(rep.effects), plant, split_given,
                       {c.effect: c.gap_after_um for c in rep.candidates}, {c.effect: c.gap_after_um for c in rep.pairs},
-                      rep.decision)  # fmt: skip
+                      rep.decision, tuple(e for e, _ in rep.close_alternatives))  # fmt: skip
 
 
 def run_benchmark(n_cases: int, seed: int, size: CaseSize = CaseSize(),

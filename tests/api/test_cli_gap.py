@@ -98,6 +98,25 @@ def test_benchmark_reports_effect_cases_the_data_did_not_show_beside_the_score()
     text = format_summary(res)
     assert "did not show): 1; named correctly without them: 2/3 = 66.7 %" in text
     assert res.to_dict()["effect_cases_within_2x_noise"] == 1
+    assert "answers with a candidate not told apart from them: 0; of them wrong: 0" in text
+
+
+def test_benchmark_counts_answers_that_came_with_a_close_alternative():
+    from api.cli.gap import format_summary
+    from core.gap.benchmark import BenchmarkResult, CaseResult
+
+    def case(i, labels, diagnosed, alternatives):
+        return CaseResult(i, "+".join(labels), diagnosed, 20.0, 10.0, 0.4, 1.0, "", labels, (diagnosed,),
+                          close_alternatives=alternatives)
+
+    res = BenchmarkResult((case(0, ("compliance",), "compliance", ("friction",)),  # right, close call
+                           case(1, ("friction",), "compliance", ("friction",)),  # wrong, the truth was close
+                           case(2, ("friction",), "compliance", ("thermal",)),  # wrong, the truth was not
+                           case(3, ("thermal",), "thermal", ())), 7)
+    assert res.close_alternative_cases == (3, 2, 1)
+    assert res.to_dict()["close_alternative_cases"] == [3, 2, 1]
+    assert "answers with a candidate not told apart from them: 3; of them wrong: 2, with an injected effect " \
+           "among those candidates: 1" in format_summary(res)
 
 
 def test_a_case_whose_diagnosis_raises_is_scored_wrong_not_a_stopped_benchmark(monkeypatch):
@@ -157,6 +176,7 @@ def test_one_case_of_a_benchmark_again_and_its_dataset_written(tmp_path, capsys)
         return re.sub(r"\d+(\.\d+)?", "#", text)
 
     assert case["decision"] and masked(case["decision"]) == masked(doc["decision"])
+    assert case["close_alternatives"] == [a["effect"] for a in doc["close_alternatives"]]
     # a case outside the draw is refused by run_benchmark itself too, not only by the CLI
     with pytest.raises(ValueError, match="only"):
         run_benchmark(3, 4, SMALL, only=[3])
