@@ -66,6 +66,9 @@ class Friction:
       + viscous_n_s_per_mm v, with a stick-slip switch: at rest the table sticks while
       the chain force is within static_n (Karnopp's model, solved as a velocity-level
       complementarity each step, so sticking needs no small-velocity window).
+      ``stick_band_mm_s`` > 0 adds Karnopp's zero-velocity band to it: a table slower
+      than that counts as at rest (the round-trip chain form's law, which the gap
+      diagnosis carries to contours); 0, the default, leaves the switch as it is.
       ``"lugre"``: the LuGre bristle model with the same steady-state curve, adding
       pre-sliding (elastic micro-motion, bristle_stiffness_n_per_um) and frictional lag.
 
@@ -87,9 +90,11 @@ class Friction:
     model: str = "stribeck"
     bristle_stiffness_n_per_um: float = 100.0
     bristle_damping_ratio: float = 0.5
+    stick_band_mm_s: float = 0.0
 
     def __post_init__(self) -> None:
         o = "friction"
+        object.__setattr__(self, "stick_band_mm_s", _nonneg(o, "stick_band_mm_s", self.stick_band_mm_s))
         object.__setattr__(self, "coulomb_n", _nonneg(o, "coulomb_n", self.coulomb_n))
         static = self.coulomb_n if self.static_n is None else _nonneg(o, "static_n", self.static_n)
         if static < self.coulomb_n:

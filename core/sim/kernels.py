@@ -261,7 +261,7 @@ def run_dynamic(
     t0, hc, nsub, cmd, gain, u0, x0, side0, fixed, lam, per, amp, pha, pos, hw,
     lag_s, dead_s, compliant, k_n_mm, mass_kg, c_contact, c_visc,
     fr_model, fc, fs, vs, sig0, sig1,
-    ts, ts_tab, out_u, out_x, out_xt, kff=0.0, fb_s=0.0,
+    ts, ts_tab, out_u, out_x, out_xt, kff=0.0, fb_s=0.0, v_band=0.0,
 ):  # fmt: skip
     """Servo dynamics and/or a compliant chain with friction, fixed step hc / nsub.
 
@@ -274,6 +274,11 @@ def run_dynamic(
     contact at each flank; viscous terms implicit; Coulomb/static friction as a
     velocity-level complementarity (the table sticks when the friction impulse can
     stop it, which needs no small-velocity window); LuGre bristle state implicit.
+    ``v_band`` > 0 (mm/s, Stribeck model only): Karnopp's zero-velocity band as well, a
+    table slower than it counts as at rest (sticks while the chain force is within the
+    static friction, else breaks away against the Stribeck friction at its speed), as the
+    round-trip chain form has it (:func:`core.gap.play.play_inertia`); 0 leaves the
+    velocity-level switch alone.
     """
     h = hc / nsub
     u = u0
@@ -352,11 +357,12 @@ def run_dynamic(
                 f = flank_force(n - x, hb, k_n_mm, c_contact, nv - v)
                 vf = v + h * acc * f
                 if fr_model == FRICTION_STRIBECK:
-                    if v == 0.0:
+                    if v == 0.0 or abs(v) <= v_band:
                         if abs(f) <= fs:
                             vn = 0.0
                         else:
-                            vn = (vf - math.copysign(h * acc * fs, f)) / damp_imp
+                            r = v / vs
+                            vn = (vf - math.copysign(h * acc * (fc + (fs - fc) * math.exp(-r * r)), f)) / damp_imp
                     else:
                         r = v / vs
                         ff = fc + (fs - fc) * math.exp(-r * r)
