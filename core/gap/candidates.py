@@ -371,10 +371,6 @@ def smooth_u(run: RoundTrip, memo: dict) -> tuple[np.ndarray, np.ndarray]:
     return us, vs
 
 
-def _x0(run: RoundTrip, hb: float) -> float:
-    return float(run.u_mm[0] - run.side0 * hb)
-
-
 def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
     """One round-trip model: the nominal backlash plus ``stages`` (at most one kernel)."""
     kernels = [s for s in stages if s.kernel]
@@ -399,12 +395,12 @@ def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
         hb = np.maximum(hb, 0.0)
         kern = next(((st, th) for st, th in zip(stages, ths) if st.kernel), None)
         if kern is None:
-            x = play(u, hb, _x0(run, float(hb[0])))
+            x = play(u, hb, run.start_table_mm(float(hb[0])))
         elif kern[0].kernel == "friction":
             ls, vs, cv = kern[1]
             v = _speed_mm_s(run)
             lost = 1e-3 * (ls * np.exp(-((v / vs) ** 2)) + cv * v)
-            x = play_friction(u, hb, lost, 1e-3 * ls, _x0(run, float(hb[0])))
+            x = play_friction(u, hb, lost, 1e-3 * ls, run.start_table_mm(float(hb[0])))
         else:
             if kern[0].kernel == "friction_chain":
                 fn, zeta, mu, ex, v_band = kern[1]
@@ -419,7 +415,7 @@ def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
             us, vs_ = smooth_u(run, memo)
             if u is not run.u_mm:
                 us = us + (u - run.u_mm)
-            x = play_inertia(us, vs_, run.t_s, hbc, w * w, 2 * zeta * w, c_guide, mu, nsub, _x0(run, float(hbc[0])),
+            x = play_inertia(us, vs_, run.t_s, hbc, w * w, 2 * zeta * w, c_guide, mu, nsub, run.start_table_mm(float(hbc[0])),
                              mu_s, v_band)  # fmt: skip
         for st, th in zip(stages, ths):
             if st.out_map is not None:
@@ -485,7 +481,9 @@ def sim_piece(effect: str, params: Mapping[str, float], info: Mapping, axis: Axi
         mu, ex = p["coulomb_per_mass_mm_s2"], p["static_excess_per_mass_mm_s2"]
         comp = Compliance(stiffness_n_per_um=w * w * m * 1e-6, table_mass_kg=m, damping_ratio=p["chain_damping_ratio"],
                           guide_damping_n_s_per_mm=GUIDE_DAMPING_PER_S * m * 1e-3)  # fmt: skip
-        fr = Friction(coulomb_n=mu * m * 1e-3, static_n=(mu + ex) * m * 1e-3, stribeck_velocity_mm_s=0.1)
+        # the round trips' stick band too: one parameter set for both (issue 15)
+        fr = Friction(coulomb_n=mu * m * 1e-3, static_n=(mu + ex) * m * 1e-3, stribeck_velocity_mm_s=0.1,
+                      stick_band_mm_s=p.get("stick_band_mm_s", 0.0))  # fmt: skip
         return [("compliance", comp), ("friction", fr)], 2e3 * mu / (w * w)
     if effect == "friction":
         k = ASSUMED_STIFFNESS_N_PER_UM

@@ -49,10 +49,25 @@ class RoundTrip:
     fit_idx: np.ndarray
     command_mm: np.ndarray | None = None
     start: int = 0  # first sample compared: the table state before the first motion is unknown
+    # where the table rested in the backlash at the first sample, from the encoders (mm):
+    # the nut's lead on the table, +: the nut against the flank that drives a + move (see
+    # :func:`rest_lead_mm`); None: not measurable, the nut assumed on the driving flank
+    rest_lead_mm: float | None = None
 
     @property
     def dt_s(self) -> float:
         return float(np.median(np.diff(self.t_s)))
+
+    def start_table_mm(self, half_gap_mm: float) -> float:
+        """The table at the first sample for a model whose nut-table contact opens
+        ``half_gap_mm`` each side: the measured rest place, clipped to the model's gap,
+        else the nut on the flank that drives the first motion. For a rigid play only the
+        time of the first engagement depends on it (and it is not scored); a table with
+        mass behind a compliant chain meets the nut at speed after crossing the gap, which
+        sets off ringing and can start stick-slip where a start on the flank slides (the
+        independent plant's Karnopp axes are bistable so: tuning seed 4234, case 41)."""
+        lead = self.side0 * half_gap_mm if self.rest_lead_mm is None else self.rest_lead_mm
+        return float(self.u_mm[0] - min(max(lead, -half_gap_mm), half_gap_mm))
 
 
 @dataclass(frozen=True)
@@ -117,6 +132,35 @@ def _first_direction(u: np.ndarray) -> int:
     return 1 if moved.size == 0 or d[moved[0]] > 0 else -1
 
 
+REST_MOVE_MM = 2e-3  # the motor at rest: within 2 µm of its first sample
+REST_SAMPLES = 10
+
+
+def rest_lead_mm(t_s: np.ndarray, u_mm: np.ndarray, x_mm: np.ndarray) -> float | None:
+    """The nut's lead on the table at the first sample, measured on the encoders, in mm.
+
+    ``d = x - u`` is ``c - h`` while the nut drives in + and ``c + h`` in - (``h`` the
+    apparent half backlash, Coulomb stretch included), so the lead is ``c - d0``, with
+    ``c`` the midpoint of the medians of ``d`` over the samples moving each way at over
+    0.3 of the top speed and ``d0`` the mean over the first samples at rest (at most
+    ``REST_SAMPLES``, the motor within ``REST_MOVE_MM`` of its start; a run that starts in
+    motion: its first sample). None when the run does not move both ways. Same principle as the contours' measured
+    start (:func:`_measured_side`), in mm: a chain model's contact gap is narrower than the
+    apparent backlash by the Coulomb stretch, and a table at rest sits in that gap."""
+    n = u_mm.size
+    w = max(1, int(round(0.01 / max(float(np.median(np.diff(t_s))), 1e-9))))
+    v = np.gradient(np.convolve(np.pad(u_mm, (w // 2, w - 1 - w // 2), mode="edge"), np.ones(w) / w, mode="valid"), t_s)
+    vmax = float(np.max(np.abs(v))) if n else 0.0
+    d = x_mm - u_mm
+    pos, neg = d[v > 0.3 * vmax], d[v < -0.3 * vmax]
+    if vmax <= 0 or pos.size < 20 or neg.size < 20:
+        return None
+    moved = np.flatnonzero(np.abs(u_mm - u_mm[0]) > REST_MOVE_MM)
+    n0 = max(1, min(REST_SAMPLES, int(moved[0]) if moved.size else n))
+    c = 0.5 * (float(np.median(neg)) + float(np.median(pos)))
+    return c - float(np.mean(d[:n0]))
+
+
 def prepare_round_trip(run: Run, axis_spec, split: str) -> RoundTrip:
     a = run.spec.axes[0]
     m = np.asarray(run.motor_rev(a), float)
@@ -133,11 +177,12 @@ def prepare_round_trip(run: Run, axis_spec, split: str) -> RoundTrip:
     k = np.flatnonzero(moved_u & (np.maximum.accumulate(moved_x)))
     start = int(k[0]) if k.size else 0
     idx = _fit_idx(u.size - start) + start
+    t = np.asarray(run.time_s, float)
     return RoundTrip(
-        file=run.spec.file, axis=a, split=split, t_s=np.asarray(run.time_s, float), u_mm=u, x_mm=x,
+        file=run.spec.file, axis=a, split=split, t_s=t, u_mm=u, x_mm=x,
         temperature_c=float(run.spec.temperature_c), feed_mm_min=float(run.spec.feed_mm_min),
         acceleration_mm_s2=run.spec.acceleration_mm_s2, side0=_first_direction(u), fit_idx=idx,
-        command_mm=None if cmd is None else np.asarray(cmd, float), start=start,
+        command_mm=None if cmd is None else np.asarray(cmd, float), start=start, rest_lead_mm=rest_lead_mm(t, u, x),
     )
 
 

@@ -476,10 +476,11 @@ class _Diagnosis:
         spec = self.axes[a]
         info = {"form": "chain"}
         zeta = vals["chain_damping_ratio"]
+        band = vals.get("stick_band_mm_s", 0.0)  # the round trips' (none from the lost-motion form)
 
         def make(th):
             p = {"chain_frequency_hz": th[0], "chain_damping_ratio": zeta, "coulomb_per_mass_mm_s2": th[1],
-                 "static_excess_per_mass_mm_s2": th[2]}  # fmt: skip
+                 "static_excess_per_mass_mm_s2": th[2], "stick_band_mm_s": band}  # fmt: skip
             piece, b_share = sim_piece("friction", p, info, spec, b_rt_um)
             fx = pieces[a]
             for name, pc in piece:

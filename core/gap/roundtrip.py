@@ -58,13 +58,9 @@ class RTModel:
     train_windows_s: tuple[float, ...] = (ENVELOPE_WINDOW_S,)
 
 
-def _x0(run: RoundTrip, hb: float) -> float:
-    return float(run.u_mm[0] - run.side0 * hb)
-
-
 def predict_nominal(theta, run: RoundTrip) -> np.ndarray:
     hb = 0.5e-3 * theta[0]
-    return play(run.u_mm, np.full(run.u_mm.size, hb), _x0(run, hb))
+    return play(run.u_mm, np.full(run.u_mm.size, hb), run.start_table_mm(hb))
 
 
 def nominal_model(b0_um: float) -> RTModel:
