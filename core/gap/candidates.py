@@ -415,8 +415,8 @@ def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
             us, vs_ = smooth_u(run, memo)
             if u is not run.u_mm:
                 us = us + (u - run.u_mm)
-            x = play_inertia(us, vs_, run.t_s, hbc, w * w, 2 * zeta * w, c_guide, mu, nsub, run.start_table_mm(float(hbc[0])),
-                             mu_s, v_band)  # fmt: skip
+            x = play_inertia(us, vs_, run.t_s, hbc, w * w, 2 * zeta * w, c_guide, mu, nsub,
+                             run.start_table_mm(float(hbc[0])), mu_s, v_band)  # fmt: skip
         for st, th in zip(stages, ths):
             if st.out_map is not None:
                 x = st.out_map(th, run, x)

@@ -144,12 +144,14 @@ def rest_lead_mm(t_s: np.ndarray, u_mm: np.ndarray, x_mm: np.ndarray) -> float |
     ``c`` the midpoint of the medians of ``d`` over the samples moving each way at over
     0.3 of the top speed and ``d0`` the mean over the first samples at rest (at most
     ``REST_SAMPLES``, the motor within ``REST_MOVE_MM`` of its start; a run that starts in
-    motion: its first sample). None when the run does not move both ways. Same principle as the contours' measured
-    start (:func:`_measured_side`), in mm: a chain model's contact gap is narrower than the
-    apparent backlash by the Coulomb stretch, and a table at rest sits in that gap."""
+    motion: its first sample). None when the run does not move both ways. The principle
+    of the contours' measured start (:func:`_measured_side`), in mm instead of a fraction
+    of the apparent backlash: a chain model's contact gap is narrower than the apparent
+    backlash by the Coulomb stretch, and a table at rest sits in that gap."""
     n = u_mm.size
     w = max(1, int(round(0.01 / max(float(np.median(np.diff(t_s))), 1e-9))))
-    v = np.gradient(np.convolve(np.pad(u_mm, (w // 2, w - 1 - w // 2), mode="edge"), np.ones(w) / w, mode="valid"), t_s)
+    u_smooth = np.convolve(np.pad(u_mm, (w // 2, w - 1 - w // 2), mode="edge"), np.ones(w) / w, mode="valid")
+    v = np.gradient(u_smooth, t_s)
     vmax = float(np.max(np.abs(v))) if n else 0.0
     d = x_mm - u_mm
     pos, neg = d[v > 0.3 * vmax], d[v < -0.3 * vmax]
@@ -182,7 +184,8 @@ def prepare_round_trip(run: Run, axis_spec, split: str) -> RoundTrip:
         file=run.spec.file, axis=a, split=split, t_s=t, u_mm=u, x_mm=x,
         temperature_c=float(run.spec.temperature_c), feed_mm_min=float(run.spec.feed_mm_min),
         acceleration_mm_s2=run.spec.acceleration_mm_s2, side0=_first_direction(u), fit_idx=idx,
-        command_mm=None if cmd is None else np.asarray(cmd, float), start=start, rest_lead_mm=rest_lead_mm(t, u, x),
+        command_mm=None if cmd is None else np.asarray(cmd, float), start=start,
+        rest_lead_mm=rest_lead_mm(t, u, x),
     )
 
 

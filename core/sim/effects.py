@@ -106,6 +106,9 @@ class Friction:
         object.__setattr__(self, "viscous_n_s_per_mm", _nonneg(o, "viscous_n_s_per_mm", self.viscous_n_s_per_mm))
         if self.model not in FRICTION_MODELS:
             raise InputError(f"friction.model (={self.model!r}) must be one of {FRICTION_MODELS}")
+        if self.model != "stribeck" and self.stick_band_mm_s > 0:
+            raise InputError(f"friction.stick_band_mm_s (={self.stick_band_mm_s}) is for the 'stribeck' model only "
+                             f"(LuGre's bristles stick without a band)")  # fmt: skip
         object.__setattr__(
             self,
             "bristle_stiffness_n_per_um",

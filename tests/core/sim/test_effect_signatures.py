@@ -205,3 +205,5 @@ def test_a_stick_band_keeps_a_chain_stick_slipping_at_speeds_where_it_would_slid
     assert spread_um(2.0, 200.0) == pytest.approx(spread_um(0.0, 200.0), rel=0.05)
     with pytest.raises(InputError):
         Friction(coulomb_n=100.0, stick_band_mm_s=-1.0)
+    with pytest.raises(InputError, match="stribeck"):
+        Friction(coulomb_n=100.0, model="lugre", stick_band_mm_s=1.0)
