@@ -136,31 +136,38 @@ REST_MOVE_MM = 2e-3  # the motor at rest: within 2 µm of its first sample
 REST_SAMPLES = 10
 
 
+def _lead_and_half_mm(d: np.ndarray, v: np.ndarray, n0: int) -> tuple[float, float] | None:
+    """From ``d = x - u`` (table minus nut travel) and a velocity ``v`` of the same run:
+    the nut's lead on the table over the first ``n0`` samples, ``c - mean(d[:n0])``, and
+    the apparent half backlash, ``c`` and the half taken from the medians of ``d`` over
+    the samples moving each way at over 0.3 of the top speed. None when the run does not
+    move both ways (20 samples each at least)."""
+    vmax = float(np.max(np.abs(v))) if v.size else 0.0
+    pos, neg = d[v > 0.3 * vmax], d[v < -0.3 * vmax]
+    if vmax <= 0 or pos.size < 20 or neg.size < 20:
+        return None
+    c = 0.5 * (float(np.median(neg)) + float(np.median(pos)))
+    return c - float(np.mean(d[:n0])), 0.5 * (float(np.median(neg)) - float(np.median(pos)))
+
+
 def rest_lead_mm(t_s: np.ndarray, u_mm: np.ndarray, x_mm: np.ndarray) -> float | None:
     """The nut's lead on the table at the first sample, measured on the encoders, in mm.
 
     ``d = x - u`` is ``c - h`` while the nut drives in + and ``c + h`` in - (``h`` the
-    apparent half backlash, Coulomb stretch included), so the lead is ``c - d0``, with
-    ``c`` the midpoint of the medians of ``d`` over the samples moving each way at over
-    0.3 of the top speed and ``d0`` the mean over the first samples at rest (at most
-    ``REST_SAMPLES``, the motor within ``REST_MOVE_MM`` of its start; a run that starts in
-    motion: its first sample). None when the run does not move both ways. The principle
-    of the contours' measured start (:func:`_measured_side`), in mm instead of a fraction
-    of the apparent backlash: a chain model's contact gap is narrower than the apparent
-    backlash by the Coulomb stretch, and a table at rest sits in that gap."""
-    n = u_mm.size
+    apparent half backlash, Coulomb stretch included), so the lead is ``c - d0``
+    (:func:`_lead_and_half_mm`, moving each way by the motor's speed), ``d0`` the mean over
+    the first samples at rest (at most ``REST_SAMPLES``, the motor within ``REST_MOVE_MM``
+    of its start; a run that starts in motion: its first sample). None when the run does
+    not move both ways. The principle of the contours' measured start
+    (:func:`_measured_side`), in mm instead of a fraction of the apparent backlash: a
+    chain model's contact gap is narrower than the apparent backlash by the Coulomb
+    stretch, and a table at rest sits in that gap."""
     w = max(1, int(round(0.01 / max(float(np.median(np.diff(t_s))), 1e-9))))
     u_smooth = np.convolve(np.pad(u_mm, (w // 2, w - 1 - w // 2), mode="edge"), np.ones(w) / w, mode="valid")
-    v = np.gradient(u_smooth, t_s)
-    vmax = float(np.max(np.abs(v))) if n else 0.0
-    d = x_mm - u_mm
-    pos, neg = d[v > 0.3 * vmax], d[v < -0.3 * vmax]
-    if vmax <= 0 or pos.size < 20 or neg.size < 20:
-        return None
     moved = np.flatnonzero(np.abs(u_mm - u_mm[0]) > REST_MOVE_MM)
-    n0 = max(1, min(REST_SAMPLES, int(moved[0]) if moved.size else n))
-    c = 0.5 * (float(np.median(neg)) + float(np.median(pos)))
-    return c - float(np.mean(d[:n0]))
+    n0 = max(1, min(REST_SAMPLES, int(moved[0]) if moved.size else u_mm.size))
+    found = _lead_and_half_mm(x_mm - u_mm, np.gradient(u_smooth, t_s), n0)
+    return None if found is None else found[0]
 
 
 def prepare_round_trip(run: Run, axis_spec, split: str) -> RoundTrip:
@@ -307,18 +314,11 @@ def _measured_side(run: Run, axis: str, ka_mm: float, natural: str):
     x = np.asarray(run.table_mm(axis), float)
     d = x - ka_mm * np.asarray(run.motor_rev(axis), float)
     cmd = np.asarray(run.command_mm(axis), float)
-    v = np.gradient(cmd, t)
-    vmax = float(np.max(np.abs(v))) if v.size else 0.0
-    pos, neg = d[v > 0.3 * vmax], d[v < -0.3 * vmax]
-    if vmax <= 0 or pos.size < 20 or neg.size < 20:
-        return natural
-    hb = 0.5 * (float(np.median(neg)) - float(np.median(pos)))
-    if hb < 1e-3:
-        return natural
-    c = 0.5 * (float(np.median(neg)) + float(np.median(pos)))
     n0 = max(1, min(10, int(np.argmax(np.abs(cmd - cmd[0]) > 1e-4)) or 1))  # samples still at rest
-    f = (c - float(np.mean(d[:n0]))) / hb
-    return float(np.clip(f, -1.0, 1.0))
+    found = _lead_and_half_mm(d, np.gradient(cmd, t), n0)
+    if found is None or found[1] < 1e-3:
+        return natural
+    return float(np.clip(found[0] / found[1], -1.0, 1.0))
 
 
 def _data_arc_mask(run: Run, cmd: np.ndarray) -> tuple[np.ndarray, dict]:
