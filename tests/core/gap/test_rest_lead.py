@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 
 from core.dataset import AxisSpec
-from core.gap.candidates import compose, friction_chain_stage, sim_piece
+from core.gap.candidates import GUIDE_DAMPING_PER_S, compose, friction_chain_stage, sim_piece, smooth_u
 from core.gap.data import RoundTrip, rest_lead_mm
+from core.gap.play import play_inertia
 from core.gap.plant.drive import DriveParams, constant_lut, simulate_axis
 from core.gap.plant.program import round_trip_program
 
@@ -52,8 +53,9 @@ def test_a_run_that_never_comes_back_has_no_measured_place():
 
 def test_a_chain_model_crosses_the_measured_gap_before_its_table_moves():
     """From the far flank the chain form's table stays until the motor has crossed the gap
-    and wound the chain up to the static friction; from the assumed driving flank only the
-    winding up."""
+    and wound the chain up to the static friction; from the driving flank only the
+    winding up. The form chooses the place per run on the run itself (the measured one or
+    either flank), so a wrong measured place (here: the driving flank) does not stand."""
     rt = _round_trip(-1)
     fn, mu, ex = 40.0, 1000.0, 2000.0
     w2 = (2 * np.pi * fn) ** 2
@@ -61,14 +63,22 @@ def test_a_chain_model_crosses_the_measured_gap_before_its_table_moves():
     model = compose([friction_chain_stage()], b_app, {})
     theta = np.array([b_app, fn, 0.1, mu, ex, 0.3])
     wind_um = 1e3 * (mu + ex) / w2
+    half_gap_mm = 0.5e-3 * b_app - mu / w2
 
-    def travel_before_motion_um(run):
-        x = model.predict(theta, run)
+    def travel_before_motion_um(run, x=None):
+        x = model.predict(theta, run) if x is None else x
         k = int(np.argmax(np.abs(x - x[0]) > 1e-4))
         return (run.u_mm[k] - run.u_mm[0]) * 1e3
 
     assert travel_before_motion_um(rt) == pytest.approx(B_UM + wind_um, abs=3.0)
-    assert travel_before_motion_um(dataclasses.replace(rt, rest_lead_mm=None)) == pytest.approx(wind_um, abs=3.0)
+    wrong = dataclasses.replace(rt, rest_lead_mm=half_gap_mm)
+    assert travel_before_motion_um(wrong) == pytest.approx(B_UM + wind_um, abs=3.0)
+    # the measured place alone would have started it on the driving flank
+    us, vs = smooth_u(wrong, {})
+    hb = np.full(rt.u_mm.size, half_gap_mm)
+    x = play_inertia(us, vs, rt.t_s, hb, w2, 2 * 0.1 * np.sqrt(w2), GUIDE_DAMPING_PER_S, mu, 40,
+                     wrong.start_table_mm(half_gap_mm), mu + ex, 0.3)  # fmt: skip
+    assert travel_before_motion_um(wrong, x) == pytest.approx(wind_um, abs=3.0)
 
 
 def test_the_contour_form_of_the_chain_carries_the_round_trips_stick_band():
