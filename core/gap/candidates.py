@@ -468,7 +468,7 @@ def _free_start(sim: Callable[[float], np.ndarray], run: RoundTrip, half_gap_mm:
         cost = float(np.sum(residual_env_um(x, run) ** 2))
         if cost < best_cost:
             best, best_cost = x, cost
-    return best if best is not None else sim(starts[0])
+    return best if best is not None else x  # every start diverged: a bad fit, not simulated again
 
 
 def stage_starts(stages: Sequence[Stage], base_theta: np.ndarray) -> list[np.ndarray]:
