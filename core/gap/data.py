@@ -53,6 +53,9 @@ class RoundTrip:
     # the nut's lead on the table, +: the nut against the flank that drives a + move (see
     # :func:`rest_lead_mm`); None: not measurable, the nut assumed on the driving flank
     rest_lead_mm: float | None = None
+    # what depends on the record alone, computed once per run (the measured envelope split,
+    # :func:`core.gap.roundtrip.residual_env_um`); a fresh one for every copy
+    memo: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def dt_s(self) -> float:

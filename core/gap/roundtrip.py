@@ -112,11 +112,13 @@ def residual_env_um(pred: np.ndarray, run: RoundTrip, idx: np.ndarray | None = N
     ``stacked``: (d, e) one after the other (the same sum of squares, smooth to fit).
     ``window_s``: the split's window (50 ms unless a train score asks for another)."""
     n = int(round(window_s / run.dt_s))
-    m = (run.x_mm[run.start :] - run.u_mm[run.start :]) * 1e3
-    if n < 3 or m.size < 2 * n:
+    if n < 3 or run.x_mm.size - run.start < 2 * n:
         return residual_um(pred, run, idx)
+    measured = run.memo.get(("envelope", n))
+    if measured is None:  # the record's split does not change between a fit's evaluations
+        measured = run.memo[("envelope", n)] = slow_and_envelope((run.x_mm[run.start :] - run.u_mm[run.start :]) * 1e3, n)
+    lm, em = measured
     s = (pred[run.start :] - run.u_mm[run.start :]) * 1e3
-    lm, em = slow_and_envelope(m, n)
     ls, es = slow_and_envelope(s, n)
     d, e = lm - ls, em - es
     if idx is not None:
