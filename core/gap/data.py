@@ -54,12 +54,18 @@ class RoundTrip:
     # :func:`rest_lead_mm`); None: not measurable, the nut assumed on the driving flank
     rest_lead_mm: float | None = None
     # what depends on the record alone, computed once per run (the measured envelope split,
-    # :func:`core.gap.roundtrip.residual_env_um`); a fresh one for every copy
+    # :func:`core.gap.roundtrip.residual_env_um`; the sample step, :attr:`dt_s`); a fresh one
+    # for every copy
     memo: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def dt_s(self) -> float:
-        return float(np.median(np.diff(self.t_s)))
+        """The median sample step (s), kept in ``memo``: every model evaluation asks for it
+        (a kernel's sub-steps, each envelope window) and the run's times do not change."""
+        dt = self.memo.get("dt_s")
+        if dt is None:
+            dt = self.memo["dt_s"] = float(np.median(np.diff(self.t_s)))
+        return dt
 
     def start_table_mm(self, half_gap_mm: float) -> float:
         """The table at the first sample for a model whose nut-table contact opens

@@ -4,6 +4,7 @@ a slow stick-slip with the right amplitude and rate but another phase is judged 
 than it does on the 50 ms score alone; white noise keeps its RMS."""
 
 import numpy as np
+import pytest
 
 from core.gap.data import RoundTrip
 from core.gap.roundtrip import residual_env_um, residual_train_env_um, rms
@@ -39,3 +40,20 @@ def test_white_noise_keeps_its_rms_in_the_train_score():
     run = _run(u + 1e-3 * rng.normal(size=t.size), u)
     plain = rms(residual_train_env_um(u, run, run.fit_idx))
     assert 0.8 < plain < 1.2
+
+
+def test_a_copy_of_a_run_keeps_nothing_of_the_original_memo():
+    """What a run computes once (its sample step, the record's envelope split) is kept per
+    run: a copy with other times or another record computes its own."""
+    import dataclasses
+
+    t = np.arange(int(2.0 * RATE_HZ)) / RATE_HZ
+    u = 10.0 * t
+    run = _run(u + 0.002 * np.sin(2 * np.pi * 40.0 * t), u)
+    assert run.dt_s == pytest.approx(1.0 / RATE_HZ)
+    first = residual_env_um(u, run)
+    faster = dataclasses.replace(run, t_s=t / 2.0)  # the same samples at twice the rate
+    assert faster.dt_s == pytest.approx(0.5 / RATE_HZ) and run.dt_s == pytest.approx(1.0 / RATE_HZ)
+    quiet = dataclasses.replace(run, x_mm=u.copy())  # the same times, no ripple recorded
+    assert rms(residual_env_um(u, quiet)) < 1e-9 < 0.5 * rms(first)
+    np.testing.assert_array_equal(residual_env_um(u, run), first)
