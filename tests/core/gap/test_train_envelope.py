@@ -3,6 +3,8 @@ a slow stick-slip with the right amplitude and rate but another phase is judged 
 250 ms by its envelope as well, so a model that damps the motion out gains less over it
 than it does on the 50 ms score alone; white noise keeps its RMS."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -45,8 +47,6 @@ def test_white_noise_keeps_its_rms_in_the_train_score():
 def test_a_copy_of_a_run_keeps_nothing_of_the_original_memo():
     """What a run computes once (its sample step, the record's envelope split) is kept per
     run: a copy with other times or another record computes its own."""
-    import dataclasses
-
     t = np.arange(int(2.0 * RATE_HZ)) / RATE_HZ
     u = 10.0 * t
     run = _run(u + 0.002 * np.sin(2 * np.pi * 40.0 * t), u)
