@@ -14,7 +14,6 @@ ratio to the nominal play's.
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
 from pathlib import Path
 
@@ -22,7 +21,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from core.gap import GapSettings  # noqa: E402
+from core.gap import prepare_runs  # noqa: E402
 from core.gap import roundtrip as rt  # noqa: E402
 from core.gap.benchmark import CaseSize, make_plant_case  # noqa: E402
 from core.gap.candidates import compliance_stage, compose, friction_chain_stage, friction_stage  # noqa: E402
@@ -35,11 +34,11 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=15)
     args = ap.parse_args()
     ds, _ = make_plant_case("independent", ("friction",), np.random.default_rng(args.seed), CaseSize(), True)
-    diag = importlib.import_module("core.gap.diagnose")._Diagnosis(ds, GapSettings(keep_curves=False))
-    axis = diag.rt_axes[0]
-    runs = diag.train_rt[axis]
+    rts, _ = prepare_runs(ds)
+    axis = min(r.axis for r in rts)
+    runs = [r for r in rts if r.axis == axis and r.split == "train"]
     b_um = rt.estimate_backlash_um(runs)
-    gain = diag.axes[axis].position_gain_per_s
+    gain = ds.machine.axes[axis].position_gain_per_s
     forms = {"nominal play": (), "friction lost motion": (friction_stage(),),
              "friction chain": (friction_chain_stage(),), "compliance": (compliance_stage(gain),)}  # fmt: skip
     print(f"axis {axis}: {len(runs)} train round trips, median {int(np.median([r.t_s.size for r in runs]))} samples")

@@ -7,11 +7,11 @@ effect is withheld. See docs/gap-diagnosis.md for the method and its thresholds.
 """
 
 from core.gap.benchmark import LABELS, BenchmarkResult, CaseSize, make_case, run_benchmark
-from core.gap.data import GapError, Split, choose_split
+from core.gap.data import GapError, Split, choose_split, prepare_runs
 from core.gap.diagnose import EFFECTS, GapSettings, diagnose
 from core.gap.report import FORMAT, Candidate, GapReport, Where
 
 __all__ = [
     "EFFECTS", "FORMAT", "LABELS", "BenchmarkResult", "Candidate", "CaseSize", "GapError", "GapReport",
-    "GapSettings", "Split", "Where", "choose_split", "diagnose", "make_case", "run_benchmark",
+    "GapSettings", "Split", "Where", "choose_split", "diagnose", "make_case", "prepare_runs", "run_benchmark",
 ]

@@ -454,3 +454,20 @@ def choose_split(dataset: Dataset) -> Split:
         raise GapError("cannot hold out a run: every kind of run has a single run (need two of a kind)")
     train = tuple(r.spec.file for r in runs if r.spec.file not in test)
     return Split(train, tuple(test), "held out by the diagnosis: " + "; ".join(reasons))
+
+
+def prepare_runs(dataset: Dataset, split: Split | None = None) -> tuple[list[RoundTrip], list[Contour]]:
+    """Every run of ``dataset`` prepared as the diagnosis fits and scores it: its round
+    trips and its contours, in the dataset's order, each marked ``"train"`` or ``"test"``
+    by ``split`` (default: :func:`choose_split`)."""
+    split = choose_split(dataset) if split is None else split
+    axes = dataset.machine.axes
+    rts: list[RoundTrip] = []
+    cts: list[Contour] = []
+    for run in dataset.runs:
+        sp = "test" if run.spec.file in split.test else "train"
+        if run.spec.kind == "round_trip":
+            rts.append(prepare_round_trip(run, axes[run.spec.axes[0]], sp))
+        else:
+            cts.append(prepare_contour(run, sp, axes))
+    return rts, cts

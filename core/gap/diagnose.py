@@ -43,7 +43,7 @@ from core.gap import contour as ct
 from core.gap import roundtrip as rt
 from core.gap.candidates import ASSUMED_MASS_KG, ASSUMED_STIFFNESS_N_PER_UM, EFFECTS, FRICTION_CHAIN_MIN_MM_S2, REGISTRY, SERVO_LOWER, SERVO_NAMES, SERVO_UPPER, compose, derived, servo_piece
 from core.gap.candidates import sim_piece, stage_starts, train_residuals
-from core.gap.data import Contour, GapError, RoundTrip, choose_split, prepare_contour, prepare_round_trip
+from core.gap.data import GapError, choose_split, prepare_runs
 from core.gap.report import Candidate, GapReport
 from core.gap.where import locate, rattle_sentence, rattles
 from core.sim import AxisModel, Effects, Friction
@@ -166,16 +166,8 @@ class _Diagnosis:
         self.workers = workers  # threads for the independent parts of one candidate's fit
         self.axes = dataset.machine.axes
         self.memo = ct.SimMemo()
-        split = choose_split(dataset)
-        self.split = split
-        self.rts: list[RoundTrip] = []
-        self.cts: list[Contour] = []
-        for run in dataset.runs:
-            sp = "test" if run.spec.file in split.test else "train"
-            if run.spec.kind == "round_trip":
-                self.rts.append(prepare_round_trip(run, self.axes[run.spec.axes[0]], sp))
-            else:
-                self.cts.append(prepare_contour(run, sp, self.axes))
+        self.split = choose_split(dataset)
+        self.rts, self.cts = prepare_runs(dataset, self.split)
         self.rt_axes = sorted({r.axis for r in self.rts})
         self.train_rt = {a: [r for r in self.rts if r.axis == a and r.split == "train"] for a in self.rt_axes}
         for r in self.rts:

@@ -7,7 +7,7 @@ import pytest
 
 from core.dataset import Dataset, MachineSpec
 from core.errors import InputError
-from core.gap import GapError, choose_split, diagnose
+from core.gap import GapError, Split, choose_split, diagnose, prepare_runs
 from core.sim import AxisModel, Encoders, round_trip, simulate
 
 AXIS = AxisModel(name="y", backlash_um=50.0, encoders=Encoders(table_noise_um=0.2))
@@ -62,6 +62,17 @@ def test_split_without_fields_falls_back_to_the_extreme_feed():
     runs = tuple(_rt(f"r{i}.csv", feed=f) for i, f in enumerate((800.0, 1000.0, 1200.0, 3000.0)))
     sp = choose_split(Dataset(MACHINE, runs))
     assert sp.test == ("r3.csv",) and "feed" in sp.how
+
+
+def test_prepare_runs_marks_each_run_by_the_split_it_is_given_or_chooses():
+    runs = tuple(_rt(f"r{i}.csv", feed=f) for i, f in enumerate((800.0, 1000.0, 1200.0, 3000.0)))
+    ds = Dataset(MACHINE, runs)
+    rts, cts = prepare_runs(ds)
+    assert cts == [] and [r.file for r in rts] == [f"r{i}.csv" for i in range(4)]
+    assert [r.split for r in rts] == ["train", "train", "train", "test"]  # choose_split's: the extreme feed
+    assert {r.axis for r in rts} == {"y"}
+    rts, _ = prepare_runs(ds, Split(("r1.csv", "r2.csv", "r3.csv"), ("r0.csv",), "given"))
+    assert [r.split for r in rts] == ["test", "train", "train", "train"]
 
 
 def test_pure_noise_dataset_is_none_and_the_json_follows_the_contract():
