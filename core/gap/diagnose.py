@@ -45,7 +45,7 @@ from core.gap.candidates import ASSUMED_MASS_KG, ASSUMED_STIFFNESS_N_PER_UM, EFF
 from core.gap.candidates import sim_piece, stage_starts, train_residuals
 from core.gap.data import GapError, choose_split, prepare_runs
 from core.gap.report import Candidate, GapReport
-from core.gap.where import locate, rattle_sentence, rattles
+from core.gap.where import breakaway_sentence, breakaways, locate, rattle_sentence, rattles
 from core.sim import AxisModel, Effects, Friction
 
 NOT_IDENTIFIABLE = "not identifiable"
@@ -74,6 +74,15 @@ class GapSettings:
     # compliance) is named if it cuts the test gap at all (as `_took_something`), and the
     # decision says that most of the gap stays unexplained (stop 40).
     rattle_names_chain: bool = True
+    # When the table breaks away at rest (where.breakaways: the command still, the table
+    # held for 30 ms, then a jump of 5 µm or more within 10 ms, on two still stretches or
+    # more), static friction above the Coulomb level is there by that observation, which
+    # no other family shows: on a gap above noise_factor x the noise floor, an answer of
+    # `none` becomes friction (whatever its fit cuts, said so), and an answer of compliance
+    # (the chain without static friction) becomes friction where friction's fit cuts the
+    # test gap at all (as `_took_something`); the second-effect step then runs on top of
+    # friction (stop 47).
+    breakaway_names_friction: bool = True
 
 
 def noise_floor_um(resid: list[np.ndarray]) -> float:
@@ -588,6 +597,30 @@ def _took_something(f: Fitted, gap_before: float) -> bool:
     return bool(f.rt_fits or f.servo) or f.gap_after_um < TOOK_FRACTION * gap_before
 
 
+def friction_by_breakaway(effect: str, best: Fitted, fits: Mapping[str, Fitted], gap_before: float, n_found: int,
+                          min_reduction: float) -> tuple[Fitted, str] | None:
+    """Friction's fit and the decision's sentence where a table that breaks away at rest on
+    ``n_found`` round trips (:func:`core.gap.where.breakaways`) names friction instead of
+    ``effect`` (``GapSettings.breakaway_names_friction``): instead of `none`, whatever
+    friction's fit cuts (the sentence says so), and instead of compliance, the chain without
+    static friction, where friction's fit cuts the test gap at all (below ``TOOK_FRACTION``
+    of the gap before). None where the answer stands (any other effect, or friction)."""
+    fric = fits["friction"]
+    seen = (f"the table breaks away at rest on {n_found} round trip(s) (the command still, the table held, then a "
+            "jump): static friction above the Coulomb level")  # fmt: skip
+    if effect == "none":
+        cut = 1 - fric.gap_after_um / gap_before
+        fit = (f"its fit cuts the test gap by {cut * 100:.0f} % only" if cut > 0 else
+               f"its fit does not cut the test gap ({fric.gap_after_um:.2f} µm)")  # fmt: skip
+        return fric, (f"No candidate cuts the test gap by {min_reduction * 100:.0f} %, but {seen}: friction. The "
+                      f"friction forms do not follow it: {fit}, and most of the gap stays unexplained.")  # fmt: skip
+    if effect == "compliance" and fric.gap_after_um < TOOK_FRACTION * gap_before:
+        return fric, (f"compliance fits best ({best.gap_after_um:.2f} µm), but {seen}, which a chain without it does "
+                      f"not show: friction (it cuts the test gap by {(1 - fric.gap_after_um / gap_before) * 100:.0f} %, "
+                      f"to {fric.gap_after_um:.2f} µm).")  # fmt: skip
+    return None
+
+
 def close_rivals(fits: Mapping[str, Fitted], named: Sequence[str], best: Fitted | None, gap_before: float,
                  min_reduction: float) -> list[Fitted]:
     """Single candidates outside the answer that the test runs do not tell apart from it,
@@ -709,6 +742,18 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: 
                            f"{s.min_reduction * 100:.0f} %)." if on_top else
                            "No second effect found (no other candidate took anything on its own).")  # fmt: skip
         joint = True  # the second-effect step below has been done
+    broke = breakaways(d.rts)
+    named = (friction_by_breakaway(effect, best, fits, gap_before, len(broke), s.min_reduction)
+             if s.breakaway_names_friction and broke and gap_before > s.noise_factor * noise else None)  # fmt: skip
+    if named is not None:
+        if effect == "none":
+            if s.second_effect:
+                second_text = ("No second effect found (no pair of candidates cuts the gap by "
+                               f"{s.min_reduction * 100:.0f} %).")  # fmt: skip
+            joint = True  # the pairs were tried in the two-together step
+        else:
+            second, second_text, joint = None, "", False  # the second-effect step runs on top of friction
+        (best, decision), effect = named, "friction"
     found = rattles(d.rts)
     if effect == "none" and s.rattle_names_chain and found and gap_before > s.noise_factor * noise:
         chain = min((fits[e] for e in CHAIN_EFFECTS), key=lambda f: f.score(s.penalty_per_param))
@@ -756,8 +801,8 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: 
         {a: v.screw_lead_mm for a, v in d.axes.items()}, {a: v.transmission_mm_per_rev for a, v in d.axes.items()},
         all_runs,
     )  # fmt: skip
-    where = replace(where, details={**where.details, "rattle": found})
-    observations = (rattle_sentence(found),) if found else ()
+    where = replace(where, details={**where.details, "rattle": found, "breakaway": broke})
+    observations = tuple(o for o in (rattle_sentence(found), breakaway_sentence(broke)) if o)
     quantity = {}
     if d.test_rt:
         quantity["round_trip"] = ("table position given the motor position (per-run offset fitted; sample by sample below 20 Hz, "
@@ -798,7 +843,7 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: 
         decision=decision,
         thresholds={"penalty_per_param": s.penalty_per_param, "min_reduction": s.min_reduction,
                     "min_first_reduction": s.min_first_reduction, "noise_factor": s.noise_factor,
-                    "rattle_names_chain": s.rattle_names_chain},  # fmt: skip
+                    "rattle_names_chain": s.rattle_names_chain, "breakaway_names_friction": s.breakaway_names_friction},  # fmt: skip
         curves=curves,
         effects=tuple(effects_list),
         second_effect=second_text,
