@@ -33,22 +33,22 @@ RATTLE_MIN_FRACTION = 0.2
 RATTLE_MIN_TONALITY = 0.5
 RATTLE_HARMONICS = 5
 # A table that breaks away at rest: while the command stands still (from BREAKAWAY_SETTLE_S
-# after it stopped, when the stop's servo and chain transients have passed), the table
-# stays put for BREAKAWAY_STUCK_S (the range of its BREAKAWAY_HOLD_MEAN_S moving mean within a
-# quarter of the jump threshold) and then moves by at least that threshold within
-# BREAKAWAY_JUMP_S. The threshold is BREAKAWAY_MIN_UM or
+# after it stopped), the table stays put for BREAKAWAY_STUCK_S (the range of its
+# BREAKAWAY_HOLD_MEAN_S moving mean within a quarter of the jump threshold) and then moves
+# by at least that threshold within BREAKAWAY_JUMP_S. The threshold is BREAKAWAY_MIN_UM or
 # BREAKAWAY_NOISE_FACTOR times the robust spread of the table's 10 ms steps at rest, the
-# larger. That is static friction above the Coulomb level: with the position loop closed
-# on the table scale, the motor keeps creeping toward a table held short of its target,
+# larger. That is static friction above the Coulomb level: with the position loop closed on
+# the table scale, the motor keeps creeping toward a table held short of its target,
 # winding the chain up until it gives, and the table slips (stick-slip at standstill). A
 # chain without static friction (a two-mass chain on rolling guides) follows the creeping
-# motor smoothly; a chain hunting across its backlash does so within the settling time.
-# A finding needs BREAKAWAY_MIN_EVENTS still stretches with a break-away over the round
-# trips: a machine's friction repeats. Set on the used seeds (independent 3547, 4172, 4234,
-# 4818, 8647, 9433; twin 3547, 4234, 9433; stop 47): found on 18 of the independent plant's
-# 49 friction cases there (mixed ones included) and on none of its 239 others, nor on any of
-# the twin's 144 (its chains do not break away at rest). A loop closed on the motor encoder does not creep, so no break-away
-# shows there: the observation can name friction, its absence says nothing.
+# motor smoothly; the stop's own transients (the servo settling, a chain ringing or hunting
+# across its backlash) fell within the settling time on the seeds below. A finding needs
+# BREAKAWAY_MIN_EVENTS still stretches with a break-away over the round trips: a machine's
+# friction repeats. Set on the used seeds (independent 3547, 4172, 4234, 4818, 8647, 9433;
+# twin 3547, 4234, 9433; stop 47): found on 18 of the independent plant's 49 friction cases
+# there (mixed ones included), on none of its 239 others and on none of the twin's 144 (its
+# chains do not break away at rest). A loop closed on the motor encoder does not creep, so
+# no break-away shows there: the observation can name friction, its absence says nothing.
 BREAKAWAY_SETTLE_S = 0.2
 BREAKAWAY_STUCK_S = 0.03
 BREAKAWAY_JUMP_S = 0.01
