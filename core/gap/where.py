@@ -140,12 +140,18 @@ def rattles(rts: Sequence[RoundTrip]) -> list[dict]:
     return out
 
 
+def _stroke_label(f: Mapping) -> str:
+    """A finding's round trip as the observations name it, up to its feed: "rt_x_00.csv (axis x,
+    train, 600 mm/min" (the caller adds what was seen and closes the parenthesis)."""
+    return f"{f['file']} (axis {f['axis']}, {f['split']}, {f['feed_mm_min']:.0f} mm/min"
+
+
 def rattle_sentence(found: Sequence[Mapping]) -> str:
     """One sentence on :func:`rattles`' findings (empty when there are none)."""
     if not found:
         return ""
-    parts = [f"{f['file']} (axis {f['axis']}, {f['split']}, {f['feed_mm_min']:.0f} mm/min: {f['rms_um']:.1f} µm RMS "
-             f"at {f['frequency_hz']:.0f} Hz over {f['fraction_of_stroke'] * 100:.0f} % of the stroke)" for f in found]
+    parts = [f"{_stroke_label(f)}: {f['rms_um']:.1f} µm RMS at {f['frequency_hz']:.0f} Hz over "
+             f"{f['fraction_of_stroke'] * 100:.0f} % of the stroke)" for f in found]
     return (f"The table rattles against the nut on {len(found)} round trip(s): {'; '.join(parts)}. That is stick-slip "
             "or a chain hunting across its backlash (friction or compliance), whose cycle a model driven by the "
             "recorded motor may not follow.")
@@ -198,8 +204,7 @@ def breakaway_sentence(found: Sequence[Mapping]) -> str:
     """One sentence on :func:`breakaways`' findings (empty when there are none)."""
     if not found:
         return ""
-    parts = [f"{f['file']} (axis {f['axis']}, {f['split']}, {f['feed_mm_min']:.0f} mm/min: {f['events']} time(s), "
-             f"up to {f['jump_um']:.1f} µm)" for f in found]
+    parts = [f"{_stroke_label(f)}: {f['events']} time(s), up to {f['jump_um']:.1f} µm)" for f in found]
     return (f"The table breaks away at rest on {len(found)} round trip(s): {'; '.join(parts)}. While the command "
             "stands still, the table stays put and then jumps within 10 ms: static friction above the Coulomb level, "
             "the position loop winding the chain up until it gives (stick-slip at standstill).")
