@@ -3,9 +3,8 @@ stands still, stays put and then jumps (static friction giving way to a chain th
 loop winds up) is found; a table that follows a creeping motor, settles after the stop,
 jumps once only or is only noisy is not; and the rule that names friction on it."""
 
-from dataclasses import replace
-
 import importlib
+from dataclasses import replace
 
 import numpy as np
 import pytest
