@@ -5,8 +5,11 @@ from __future__ import annotations
 
 import importlib
 
+import numpy as np
 import pytest
 
+from core.gap import GapSettings, diagnose
+from core.gap.plant import SMALL_PLANT, make_plant_case
 from core.gap.report import Candidate, GapReport, Where
 
 dg = importlib.import_module("core.gap.diagnose")  # the module (core.gap.diagnose is also the function)
@@ -51,3 +54,74 @@ def test_the_report_says_what_it_does_not_tell_apart():
     assert "friction alone (10.00 µm) does not cut theirs by another 25 %" in line
     quiet = _report(())
     assert quiet.to_dict()["close_alternatives"] == [] and "Not told apart" not in quiet.text()
+
+
+def _pair(first, second, gap):
+    return dg.Fitted((first, second), gap_after_um=gap)
+
+
+def test_a_rival_whose_second_effect_explains_the_rest_replaces_the_answer():
+    # seed 3878 case 35 (twin), a wear profile seen through a skewed latch: compliance 11.62 µm alone
+    # and 3.05 with the profile on top; the skew, 12.57 alone, not told apart, leaves 0.39 with it
+    fits = _fits(compliance=11.62, sampling_skew=12.57)
+    best, rival = fits["compliance"], fits["sampling_skew"]
+    second = _pair("compliance", "backlash_profile", 3.05)
+    rpairs = [_pair("sampling_skew", "backlash_profile", 0.39), _pair("sampling_skew", "thermal", 15.3)]
+    text = dg.rival_second_effect("compliance", best, second, rival, rpairs, 66.77, 0.25)
+    assert text is not None
+    assert "sampling_skew with backlash_profile on top cuts the test gap to 0.39 µm" in text
+    assert "87 % below compliance+backlash_profile (3.05 µm)" in text and "by 99 %" in text
+    # without a second effect of its own the answer is compared alone
+    text = dg.rival_second_effect("compliance", best, None, rival, rpairs, 66.77, 0.25)
+    assert text is not None and "below compliance (11.62 µm)" in text
+
+
+@pytest.mark.parametrize(("rival_pair_gap", "answer_pair_gap"), [
+    (3.0, 3.05),   # the rival's pair no better than the answer's: the answer stands
+    (2.5, 3.05),   # better, but not by another 25 % (2.5 > 0.75 * 3.05)
+    (9.8, None),   # cuts the answer alone (11.62) by 16 % only
+])  # fmt: skip
+def test_the_answer_stands_unless_the_rival_pair_cuts_it_by_another_quarter(rival_pair_gap, answer_pair_gap):
+    fits = _fits(compliance=11.62, sampling_skew=12.57)
+    second = None if answer_pair_gap is None else _pair("compliance", "backlash_profile", answer_pair_gap)
+    rpairs = [_pair("sampling_skew", "backlash_profile", rival_pair_gap)]
+    assert dg.rival_second_effect("compliance", fits["compliance"], second, fits["sampling_skew"], rpairs, 66.77,
+                                  0.25) is None  # fmt: skip
+
+
+def test_the_rival_tried_with_a_second_effect_is_not_the_answers_other_chain_family():
+    # compliance named; friction (the other chain form) is the closest rival, the skew the next
+    fits = _fits(compliance=22.57, friction=22.77, sampling_skew=26.0, thermal=37.0)
+    assert [f.effects[0] for f in dg.close_rivals(fits, ["compliance"], fits["compliance"], 40.0, 0.25)] == [
+        "friction", "sampling_skew"]
+    assert dg.rival_to_pair(fits, "compliance", fits["compliance"], 40.0, 0.25) is fits["sampling_skew"]
+    fits = _fits(friction=22.57, compliance=22.77, thermal=37.0)  # only the chain sibling: no rival to try
+    assert dg.rival_to_pair(fits, "friction", fits["friction"], 40.0, 0.25) is None
+    fits = _fits(sampling_skew=11.62, compliance=12.57, friction=13.0)  # a skew answer: the chain is a rival
+    assert dg.rival_to_pair(fits, "sampling_skew", fits["sampling_skew"], 66.77, 0.25) is fits["compliance"]
+
+
+def test_the_rival_pair_needs_its_second_effect():
+    # the rival's pair beats the answer by a quarter but its second effect takes little from the rival
+    # itself (8.0 against 9.0 alone): the pair is the rival, not a rival with a second effect
+    fits = _fits(compliance=11.0, sampling_skew=9.0)
+    rpairs = [_pair("sampling_skew", "thermal", 8.0)]
+    assert dg.rival_second_effect("compliance", fits["compliance"], None, fits["sampling_skew"], rpairs, 40.0,
+                                  0.25) is None  # fmt: skip
+    assert dg.rival_second_effect("compliance", fits["compliance"], None, fits["sampling_skew"], [], 40.0, 0.25) is None
+
+
+def test_a_skewed_latch_over_a_wear_profile_is_named_by_the_rival_with_its_second_effect():
+    """An independent-plant dataset with a drifting latch skew and wear bumps (seed [48, 4],
+    found by searching seeds [48, 0..4]): compliance alone fits best and the skew is not told
+    apart from it; with a second effect on top, the skew explains the rest and compliance
+    does not, so the skew is named (an injected effect), with its second effect."""
+    ds = make_plant_case(("backlash_profile", "sampling_skew"), np.random.default_rng([48, 4]), SMALL_PLANT).dataset
+    rep = diagnose(ds, GapSettings(keep_curves=False), workers=1)
+    assert rep.effect == "sampling_skew" and len(rep.effects) == 2, rep.text()
+    assert rep.decision.startswith("compliance alone fits best"), rep.decision
+    assert "sampling_skew is not told apart from it" in rep.decision
+    assert rep.second_effect.startswith(f"A second effect remains: {rep.effects[1]}")
+    assert rep.gap_after_um <= 0.75 * min(c.gap_after_um for c in rep.candidates if c.effect == "compliance")
+    assert any(p.effect == "+".join(rep.effects) and p.gap_after_um == pytest.approx(rep.gap_after_um) for p in rep.pairs)
+    assert rep.to_dict()["thresholds"]["rival_second_effect"] is True
