@@ -193,7 +193,7 @@ def stroke_lost_motion(time_s, travel_mm, dev_mm, strokes, start_mm: float, end_
         by = {d: [rows[i][2] for i in g if rows[i][0] == d] for d in (1, -1)}
         if not by[1] or not by[-1]:
             continue
-        diff = (np.nanmean(by[-1], axis=0) - np.nanmean(by[1], axis=0)) * 1e3
+        diff = (_bin_means(by[-1]) - _bin_means(by[1])) * 1e3
         diff = diff[np.isfinite(diff)]
         if diff.size < 2:
             continue
@@ -201,6 +201,15 @@ def stroke_lost_motion(time_s, travel_mm, dev_mm, strokes, start_mm: float, end_
         lost.append(float(diff.mean()))
         unc.append(float(diff.std(ddof=1) / math.sqrt(diff.size)))
     return np.array(feeds), np.array(lost), np.array(unc)
+
+
+def _bin_means(rows: list[np.ndarray]) -> np.ndarray:
+    """Per bin, the mean over the strokes that have samples there; NaN for a bin none has
+    (a hole in the trace), which the caller leaves out (np.nanmean would warn there)."""
+    a = np.asarray(rows, dtype=float)
+    n = np.count_nonzero(np.isfinite(a), axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.nansum(a, axis=0) / n
 
 
 def lost_motion(position_mm, backlash_um, *, start_mm: float, end_mm: float,

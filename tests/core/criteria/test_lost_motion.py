@@ -1,10 +1,13 @@
 """ISO 230-2 reversal values and the clearance behind them (issue 16, item 5), on the twin."""
 
+import warnings
+
 import numpy as np
 import pytest
 
 from core.criteria import analyze_round_trip
-from core.criteria.lost_motion import clearance_from_feeds, reversal_targets_mm
+from core.criteria.lost_motion import clearance_from_feeds, reversal_targets_mm, stroke_lost_motion
+from core.criteria.segmentation import Stroke
 from core.errors import InputError
 from core.sim import AxisModel, Compliance, Effects, Friction, round_trip, simulate
 
@@ -88,3 +91,29 @@ def test_clearance_fit_from_a_history_with_temperature():
 def test_reversal_targets_follow_iso_230_2_counts():
     assert reversal_targets_mm(0, 100).size == 11
     assert reversal_targets_mm(0, 3000).size == 16  # 5 per metre
+
+
+def test_a_hole_in_the_trace_leaves_its_bins_out_of_the_stroke_lost_motion_without_a_warning():
+    """Two strokes each way over 0..100 mm at 1000 mm/min, the negative ones 20 µm behind;
+    the second positive stroke lost its samples over 20..40 mm and the first positive one
+    over 0..40 mm, so the bins there have no positive samples at all: they are left out
+    (np.nanmean warned on them), and every other bin gives the 20 µm."""
+    t = np.arange(6001) * 1e-3  # 1 kHz, 6 s: four strokes of 1.5 s, 100 mm each
+    travel = np.concatenate([np.linspace(0, 100, 1501), np.linspace(100, 0, 1501)[1:],
+                             np.linspace(0, 100, 1501)[1:], np.linspace(100, 0, 1501)[1:]])
+    strokes = [Stroke(1, 0, 0, 1500), Stroke(-1, 1500, 1501, 3000), Stroke(1, 3000, 3001, 4500),
+               Stroke(-1, 4500, 4501, 6000)]
+    dev = np.zeros(t.size)
+    for s in strokes:
+        if s.direction < 0:
+            dev[s.engaged : s.end + 1] = 0.020
+    hole = np.zeros(t.size, bool)
+    hole[:601] = True  # first positive stroke: 0..40 mm
+    hole[3301:3601] = True  # second: 20..40 mm
+    for a in (travel, dev):
+        a[hole] = np.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        feeds, lost, unc = stroke_lost_motion(t, travel, dev, strokes, 0.0, 100.0, 1, n_bins=10)
+    assert feeds == pytest.approx([4000.0], rel=1e-3)
+    assert lost == pytest.approx([20.0], abs=1e-9) and unc == pytest.approx([0.0], abs=1e-9)
