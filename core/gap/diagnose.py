@@ -15,7 +15,10 @@
    the gap by min_reduction and the gap is above noise_factor times the noise.
 6. Second effect: every other candidate on top of the best, fitted on the train runs;
    accepted if it cuts the best's test gap by another min_reduction while that gap is
-   still above the noise floor.
+   still above the noise floor. The closest rival the test runs do not tell apart from
+   the best (not its other chain family) gets the same step; the rival with its second
+   effect replaces the answer if that pair cuts the answer's gap by another
+   min_reduction (``rival_second_effect``).
 7. Two together: when no single candidate cuts a gap above the noise by min_reduction,
    the two best single candidates are each tried as a base with every other on top, and
    every other pair of candidates that took something once, from the better of the two
