@@ -77,6 +77,11 @@ class GapSettings:
     # compliance) is named if it cuts the test gap at all (as `_took_something`), and the
     # decision says that most of the gap stays unexplained (stop 40).
     rattle_names_chain: bool = True
+    # ... and the rattle's sides choose the family (chain_by_rattle): both stroke directions
+    # on every round trip that rattles, stick-slip, so friction; one direction only on any,
+    # a hunting chain, so compliance; where the family pointed at cuts nothing, the better
+    # one that does. Off: the better-scoring family, as stop 40 (stop 49; docs/gap-diagnosis.md).
+    rattle_sides_name_family: bool = True
     # When the table breaks away at rest (where.breakaways: the command still, the table
     # held for 30 ms, then a jump of 5 µm or more within 10 ms, on two still stretches or
     # more), static friction above the Coulomb level is there by that observation, which
@@ -632,6 +637,34 @@ def friction_by_breakaway(effect: str, best: Fitted, fits: Mapping[str, Fitted],
     return None
 
 
+def chain_by_rattle(fits: Mapping[str, Fitted], found: Sequence[Mapping], gap_before: float, penalty_per_param: float,
+                    by_sides: bool = True) -> tuple[Fitted, str] | None:
+    """The chain family a rattling table names where no candidate passes
+    (``GapSettings.rattle_names_chain``), and what the rattle says of it; None where
+    neither chain family cuts the test gap at all (below ``TOOK_FRACTION`` of the gap
+    before). ``found``: :func:`core.gap.where.rattles`' findings.
+
+    With ``by_sides`` (``GapSettings.rattle_sides_name_family``) the rattle's sides choose:
+    a table that rattles in both stroke directions on every round trip that rattles
+    stick-slips (a symmetric friction below its critical speed makes every slow stroke
+    stick and slip, out and back), so friction; one that rattles in one direction only on
+    any of them hunts (a self-excited cycle that a stroke falls into or not, depending on how
+    it began), so compliance. The family pointed at is named where its fit cuts the test gap
+    at all; otherwise, and without ``by_sides``, the better-scoring family that does."""
+    took = {e: fits[e] for e in CHAIN_EFFECTS if fits[e].gap_after_um < TOOK_FRACTION * gap_before}
+    if not took:
+        return None
+    both = all(f.get("both_directions", False) for f in found)
+    pointed = "friction" if both else "compliance"
+    if by_sides and pointed in took:
+        how = (" in both stroke directions on each: stick-slip" if both else
+               " in one stroke direction only on some: a hunting chain")  # fmt: skip
+        return took[pointed], f"{how}, so {pointed}"
+    chain = min(took.values(), key=lambda f: f.score(penalty_per_param))
+    return chain, (" (stick-slip or a hunting chain): a chain effect. Of the chain families, "
+                   f"{chain.effects[0]} fits best")
+
+
 def close_rivals(fits: Mapping[str, Fitted], named: Sequence[str], best: Fitted | None, gap_before: float,
                  min_reduction: float) -> list[Fitted]:
     """Single candidates outside the answer that the test runs do not tell apart from it,
@@ -804,13 +837,11 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: 
         (best, decision), effect = named, "friction"
     found = rattles(d.rts)
     if effect == "none" and s.rattle_names_chain and found and gap_before > s.noise_factor * noise:
-        chain = min((fits[e] for e in CHAIN_EFFECTS), key=lambda f: f.score(s.penalty_per_param))
-        if chain.gap_after_um < TOOK_FRACTION * gap_before:
-            best = chain
-            effect = best.effects[0]
+        chain = chain_by_rattle(fits, found, gap_before, s.penalty_per_param, s.rattle_sides_name_family)
+        if chain is not None:
+            (best, why), effect = chain, chain[0].effects[0]
             decision = (f"No candidate cuts the test gap by {s.min_reduction * 100:.0f} %, but the table rattles against "
-                        f"the nut on {len(found)} round trip(s) (stick-slip or a hunting chain): a chain effect. Of the "
-                        f"chain families, {effect} fits best; it cuts the test gap by "
+                        f"the nut on {len(found)} round trip(s){why}; it cuts the test gap by "
                         f"{(1 - best.gap_after_um / gap_before) * 100:.0f} % only: most of the gap stays unexplained.")  # fmt: skip
             if s.second_effect:
                 second_text = ("No second effect found (no pair of candidates cuts the gap by "
@@ -904,7 +935,8 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: 
         decision=decision,
         thresholds={"penalty_per_param": s.penalty_per_param, "min_reduction": s.min_reduction,
                     "min_first_reduction": s.min_first_reduction, "noise_factor": s.noise_factor,
-                    "rattle_names_chain": s.rattle_names_chain, "breakaway_names_friction": s.breakaway_names_friction,
+                    "rattle_names_chain": s.rattle_names_chain, "rattle_sides_name_family": s.rattle_sides_name_family,
+                    "breakaway_names_friction": s.breakaway_names_friction,
                     "rival_second_effect": s.rival_second_effect},  # fmt: skip
         curves=curves,
         effects=tuple(effects_list),

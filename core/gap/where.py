@@ -100,7 +100,8 @@ def rattles(rts: Sequence[RoundTrip]) -> list[dict]:
     so a technician is told where it is even when no candidate explains it. Per round
     trip that rattles: its file, axis, split and feed, the fraction of its moving samples
     that rattle, the median moving RMS there (µm), and the dominant frequency (Hz) and
-    tonality (``RATTLE_MIN_TONALITY``) of the longest rattling stretch. The threshold is
+    tonality (``RATTLE_MIN_TONALITY``) of the longest rattling stretch, and whether it rattles
+    in both stroke directions (:func:`_both_directions`). The threshold is
     ``RATTLE_MIN_UM``, not a multiple of the noise floor: a rattle at tens of Hz inflates
     that estimate itself, to 5.5 µm on seed 3547 case 31, whose strokes all stick-slip."""
     out = []
@@ -111,7 +112,7 @@ def rattles(rts: Sequence[RoundTrip]) -> list[dict]:
             continue
         low, mrms = slow_and_envelope(m, n)
         hp = m - low
-        mov, _ = moving_mask(r.u_mm[r.start :], r.t_s[r.start :])
+        mov, v = moving_mask(r.u_mm[r.start :], r.t_s[r.start :])
         hot = mov & (mrms > RATTLE_MIN_UM)
         if not mov.any() or hot.sum() < RATTLE_MIN_FRACTION * mov.sum():
             continue
@@ -136,7 +137,20 @@ def rattles(rts: Sequence[RoundTrip]) -> list[dict]:
         out.append({"file": r.file, "axis": r.axis, "split": r.split, "feed_mm_min": round(float(r.feed_mm_min), 1),
                     "fraction_of_stroke": round(float(hot.sum() / mov.sum()), 3),
                     "rms_um": round(float(np.median(mrms[hot])), 2), "frequency_hz": round(freq, 1),
-                    "tonality": round(tonality, 3)})  # fmt: skip
+                    "tonality": round(tonality, 3), "both_directions": _both_directions(hot, mov, v)})  # fmt: skip
+    return out
+
+
+def _both_directions(hot: np.ndarray, mov: np.ndarray, v: np.ndarray) -> bool:
+    """Whether a round trip rattles in both of its stroke directions: at least
+    ``RATTLE_MIN_FRACTION`` of the moving samples of each direction. Stick-slip is a forced
+    relaxation cycle of a symmetric friction below its critical speed, so every slow stroke
+    sticks and slips, out and back alike; a chain that hunts is a self-excited cycle that a
+    stroke falls into or not depending on how it began, often in one direction only."""
+    out = True
+    for side in (v > 0, v < 0):
+        m = mov & side
+        out &= bool(m.any()) and float(hot[m].sum()) >= RATTLE_MIN_FRACTION * float(m.sum())
     return out
 
 
@@ -150,8 +164,10 @@ def rattle_sentence(found: Sequence[Mapping]) -> str:
     """One sentence on :func:`rattles`' findings (empty when there are none)."""
     if not found:
         return ""
+    sides = {True: ", out and back", False: ", one direction only"}
     parts = [f"{_stroke_label(f)}: {f['rms_um']:.1f} µm RMS at {f['frequency_hz']:.0f} Hz over "
-             f"{f['fraction_of_stroke'] * 100:.0f} % of the stroke)" for f in found]
+             f"{f['fraction_of_stroke'] * 100:.0f} % of the stroke{sides.get(f.get('both_directions'), '')})"
+             for f in found]  # fmt: skip
     return (f"The table rattles against the nut on {len(found)} round trip(s): {'; '.join(parts)}. That is stick-slip "
             "or a chain hunting across its backlash (friction or compliance), whose cycle a model driven by the "
             "recorded motor may not follow.")

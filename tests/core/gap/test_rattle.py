@@ -2,6 +2,8 @@
 against the nut through a stroke is found, with its frequency and size; reversals, noise
 and the other effects' slow residuals are not taken for one."""
 
+import importlib
+
 import numpy as np
 import pytest
 
@@ -10,6 +12,8 @@ from core.gap.data import RoundTrip
 from core.gap.plant import SMALL_PLANT, make_plant_case
 from core.gap.play import play
 from core.gap.where import RATTLE_MIN_UM, rattle_sentence, rattles
+
+dg = importlib.import_module("core.gap.diagnose")  # the module (core.gap.diagnose is also the function)
 
 RATE_HZ = 1000.0
 
@@ -39,7 +43,7 @@ def test_a_table_rattling_through_its_strokes_is_found_with_its_frequency_and_si
     assert f["rms_um"] == pytest.approx(40.0 / np.sqrt(2), rel=0.1)  # a sine's RMS
     assert f["fraction_of_stroke"] > 0.9
     text = rattle_sentence([f])
-    assert "rt_x_00.csv" in text and "60 Hz" in text and "1200 mm/min" in text
+    assert "rt_x_00.csv" in text and "60 Hz" in text and "1200 mm/min" in text and "out and back)" in text
 
 
 @pytest.mark.parametrize("kw", [{}, {"noise_um": 1.0}, {"ripple_um": 6.0}, {"rattle_um": 0.5 * RATTLE_MIN_UM},
@@ -58,6 +62,51 @@ def test_a_rattle_in_one_direction_only_counts_when_it_fills_a_fifth_of_the_stro
     (f,) = rattles([RoundTrip(s.file, "x", "test", s.t_s, s.u_mm, x, 20.0, 1200.0, None, 1, s.fit_idx)])
     assert 0.4 < f["fraction_of_stroke"] < 0.6 and f["split"] == "test"
     assert f["frequency_hz"] == pytest.approx(40.0, abs=1.0)
+    assert f["both_directions"] is False  # the way back only: one side
+    assert "one direction only)" in rattle_sentence([f])
+
+
+def test_a_rattle_through_both_directions_is_said_to_be_two_sided():
+    (f,) = rattles([_stroke(rattle_um=40.0, freq_hz=60.0)])
+    assert f["both_directions"] is True
+    s = _stroke()
+    back = np.arange(s.t_s.size) > np.argmax(s.u_mm)
+    # the outward stroke rattles throughout, the way back over a tenth of it only: under
+    # the fifth that makes a direction rattle
+    stretch = back & (s.u_mm > 180.0)
+    x = s.x_mm + 1e-3 * 30.0 * np.sin(2 * np.pi * 40.0 * s.t_s) * ((~back & (s.u_mm > 0)) | stretch)
+    (f,) = rattles([RoundTrip(s.file, "x", "test", s.t_s, s.u_mm, x, 20.0, 1200.0, None, 1, s.fit_idx)])
+    assert f["both_directions"] is False and 0.5 < f["fraction_of_stroke"] < 0.65
+
+
+def _chain_fits(friction, compliance, n_friction=6, n_compliance=4):
+    return {"friction": dg.Fitted(("friction",), gap_after_um=friction, n_params=n_friction),
+            "compliance": dg.Fitted(("compliance",), gap_after_um=compliance, n_params=n_compliance)}
+
+
+def test_the_rattles_sides_choose_the_chain_family():
+    two, one = {"both_directions": True}, {"both_directions": False}
+    # friction leaves 22.54 µm, compliance 22.92 of 28.35 (seed 5261 case 5, Karnopp friction):
+    # compliance scores better by its fewer parameters (22.92 x 1.04 < 22.54 x 1.06)
+    fits = _chain_fits(22.54, 22.92)
+    (f, why) = dg.chain_by_rattle(fits, [two, two], 28.35, 0.01)
+    assert f.effects == ("friction",) and "both stroke directions" in why and "stick-slip" in why
+    (f, why) = dg.chain_by_rattle(fits, [two, two], 28.35, 0.01, by_sides=False)
+    assert f.effects == ("compliance",) and "fits best" in why
+    # one round trip rattling in one direction only: a hunting chain
+    (f, why) = dg.chain_by_rattle(_chain_fits(9.0, 9.5), [two, one], 10.6, 0.01)
+    assert f.effects == ("compliance",) and "one stroke direction only" in why and "hunting" in why
+
+
+def test_a_family_pointed_at_that_cuts_nothing_gives_way_to_the_other():
+    two = {"both_directions": True}
+    # friction's fit leaves more than the gap before (26.8 against 23.28 µm): compliance, which cuts
+    (f, why) = dg.chain_by_rattle(_chain_fits(26.8, 21.0), [two], 23.28, 0.01)
+    assert f.effects == ("compliance",) and "fits best" in why
+    # neither cuts 2 %: nothing named
+    assert dg.chain_by_rattle(_chain_fits(23.0, 23.5), [two], 23.28, 0.01) is None
+    # a finding without the sides (an older caller's dict) counts as one-sided: compliance
+    assert dg.chain_by_rattle(_chain_fits(9.0, 9.5), [{}], 10.6, 0.01)[0].effects == ("compliance",)
 
 
 def test_a_rattle_names_the_better_chain_family_where_no_candidate_passes():
@@ -73,3 +122,6 @@ def test_a_rattle_names_the_better_chain_family_where_no_candidate_passes():
     assert on.gap_after_um < 0.98 * on.gap_before_um and on.gap_before_um == pytest.approx(off.gap_before_um)
     assert "rattles against the nut" in on.decision and "most of the gap stays unexplained" in on.decision
     assert on.to_dict()["thresholds"]["rattle_names_chain"] is True
+    assert on.to_dict()["thresholds"]["rattle_sides_name_family"] is True
+    assert all(f["both_directions"] for f in on.where.details["rattle"])  # stick-slip: out and back
+    assert "both stroke directions" in on.decision
