@@ -860,8 +860,9 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: 
             else:
                 second_text = "No second effect found (no other candidate on top cuts the remaining gap by " \
                               f"{s.min_reduction * 100:.0f} %)."
-        rival = rival_to_pair(fits, effect, best, gap_before, s.min_reduction)
-        if s.rival_second_effect and named is None and rival is not None and best.gap_after_um > s.noise_factor * noise:
+        rival = (rival_to_pair(fits, effect, best, gap_before, s.min_reduction)
+                 if s.rival_second_effect and named is None else None)  # fmt: skip
+        if rival is not None and best.gap_after_um > s.noise_factor * noise:
             # two singles that the test runs do not tell apart: the one whose second effect
             # explains the rest is the likelier answer
             rpairs = _fit_all(d, [((rival.effects[0], e2), rival) for e2 in EFFECTS
