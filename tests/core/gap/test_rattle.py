@@ -125,3 +125,50 @@ def test_a_rattle_names_the_better_chain_family_where_no_candidate_passes():
     assert on.to_dict()["thresholds"]["rattle_sides_name_family"] is True
     assert all(f["both_directions"] for f in on.where.details["rattle"])  # stick-slip: out and back
     assert "both stroke directions" in on.decision
+
+
+def test_a_one_sided_rattle_names_compliance_where_friction_and_compliance_fit_alike():
+    two, one = {"both_directions": True}, {"both_directions": False}
+    # friction leaves 7.59 µm, compliance 8.11 of 13.9 (used seed 6529 case 46, a two-mass chain):
+    # friction does not cut compliance's gap by another 25 % (7.59 > 6.08), so they are not told apart
+    fits = _chain_fits(7.59, 8.11)
+    fits["backlash_profile"] = dg.Fitted(("backlash_profile",), gap_after_um=9.49, n_params=9)
+    got = dg.compliance_by_hunting("friction", fits["friction"], fits, [two, one], 13.9, 0.25)
+    assert got is not None
+    f, why = got
+    assert f.effects == ("compliance",)
+    assert "one stroke direction only on 1 round trip(s)" in why and "cuts the test gap by 42 %" in why
+
+
+@pytest.mark.parametrize("case", ["every_rattle_two_sided", "no_rattle", "compliance_told_apart", "answer_not_friction"])
+def test_the_friction_answer_stands_without_a_hunting_chain_or_a_close_compliance(case):
+    two, one = {"both_directions": True}, {"both_directions": False}
+    fits = _chain_fits(7.59, 8.11)
+    effect, found = "friction", [two, one]
+    if case == "every_rattle_two_sided":
+        found = [two, two]
+    elif case == "no_rattle":
+        found = []
+    elif case == "compliance_told_apart":
+        fits = _chain_fits(4.0, 8.11)  # friction cuts compliance's gap by half
+    else:
+        effect = "backlash_profile"
+        fits["backlash_profile"] = dg.Fitted(("backlash_profile",), gap_after_um=7.0, n_params=9)
+    assert dg.compliance_by_hunting(effect, fits[effect], fits, found, 13.9, 0.25) is None
+
+
+@pytest.mark.slow
+def test_a_hunting_two_mass_chain_that_friction_fits_alike_is_named_compliance():
+    """Used seed 8647 case 48 of the independent plant (a two-mass chain; answered friction
+    before the rule): friction fits best, compliance is not told apart, and three round
+    trips rattle in one stroke direction only."""
+    from core.gap.benchmark import benchmark_case
+
+    labels, ds, _ = benchmark_case("independent", 48, 8647, 47)
+    assert labels == ("compliance",)
+    rep = diagnose(ds, GapSettings(keep_curves=False), workers=2)
+    assert rep.effect == "compliance", rep.text()
+    assert rep.decision.startswith("friction fits best") and "a hunting chain" in rep.decision
+    assert any(not f["both_directions"] for f in rep.where.details["rattle"])
+    assert "friction" in [e for e, _ in rep.close_alternatives]
+    assert rep.to_dict()["thresholds"]["hunting_names_compliance"] is True
