@@ -28,6 +28,13 @@
 8. Otherwise the answer is none; with min_first_reduction set (off by default), the best
    single candidate is still named if it cuts the gap by that weaker fraction (the
    decision says that most of the gap stays unexplained).
+9. Observations of the chain, whatever the fits say (:mod:`core.gap.where`): a table
+   that breaks away at rest names friction instead of none or compliance
+   (``breakaway_names_friction``); a rattle in one stroke direction only names compliance
+   where friction is named and compliance is not told apart (``hunting_names_compliance``);
+   where the answer is still none, a rattle names the chain family its sides point at,
+   out and back friction, one-sided compliance (``rattle_names_chain``,
+   ``rattle_sides_name_family``).
 """
 
 from __future__ import annotations
