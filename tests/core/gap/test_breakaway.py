@@ -121,3 +121,62 @@ def test_a_breakaway_names_friction_instead_of_compliance_only_where_friction_cu
 def test_a_breakaway_leaves_other_answers_alone(effect):
     fits = _fits(friction=7.0, compliance=5.0, thermal=4.0, servo_dynamics=4.0)
     assert dg.friction_by_breakaway(effect, fits[effect], fits, 10.0, 2, 0.25) is None
+
+
+def test_a_breakaway_with_stick_slip_out_and_back_names_friction_where_its_fit_cuts_nothing():
+    """Used seed 7457 case 36 (Karnopp friction on a compliant chain): compliance's form cuts
+    47 %, friction's fit leaves more than the gap before; the table breaks away at rest on
+    four round trips and rattles out and back on the three that rattle."""
+    two = {"both_directions": True}
+    fits = _fits(friction=36.57, compliance=17.62)
+    fit, text = dg.friction_by_stick_slip("compliance", fits["compliance"], fits, [two, two, two], 33.32, 4)
+    assert fit is fits["friction"]
+    assert text.startswith("compliance fits best (17.62 µm, a 47 % cut)")
+    assert "breaks away at rest on 4 round trip(s)" in text and "both stroke directions on each of the 3" in text
+    assert "does not cut the test gap (36.57 µm)" in text and "stays unexplained" in text
+
+
+@pytest.mark.parametrize("case", ["one_sided_rattle", "no_rattle", "no_breakaway", "answer_not_compliance"])
+def test_stick_slip_needs_both_observations_and_a_compliance_answer(case):
+    two, one = {"both_directions": True}, {"both_directions": False}
+    fits = _fits(friction=36.57, compliance=17.62, thermal=20.0)
+    effect, found, n_broke = "compliance", [two, two], 4
+    if case == "one_sided_rattle":  # a hunting chain can also wind up and jump at rest
+        found = [two, one]
+    elif case == "no_rattle":
+        found = []
+    elif case == "no_breakaway":
+        n_broke = 0
+    else:
+        effect = "thermal"
+    assert dg.friction_by_stick_slip(effect, fits[effect], fits, found, 33.32, n_broke) is None
+
+
+@pytest.mark.slow
+def test_a_chain_that_breaks_away_and_stick_slips_out_and_back_is_named_friction():
+    """Used seed 7457 case 36 of the independent plant (Karnopp friction on a compliant
+    chain; answered compliance by a 47 % cut before the rule): friction's fit cuts nothing,
+    but the table breaks away at rest and stick-slips out and back."""
+    from core.gap.benchmark import benchmark_case
+
+    labels, ds, _ = benchmark_case("independent", 48, 7457, 35)
+    assert labels == ("friction",)
+    rep = diagnose(ds, GapSettings(keep_curves=False), workers=2)
+    assert rep.effect == "friction" and rep.effects == ("friction",), rep.text()
+    assert rep.decision.startswith("compliance fits best") and "does not cut the test gap" in rep.decision
+    assert rep.where.details["breakaway"] and all(f["both_directions"] for f in rep.where.details["rattle"])
+    assert rep.second_effect.startswith("No second effect looked for")
+    assert rep.to_dict()["thresholds"]["stick_slip_names_friction"] is True
+
+
+def test_the_second_effect_is_looked_for_on_top_of_the_answer_only():
+    """A break-away that names friction over a compliance + cyclic-error pair of the
+    two-together step (used seed 4234 case 15): that pair, still the best of the pairs,
+    is not friction's second effect."""
+    best = dg.Fitted(("friction",), gap_after_um=27.42)
+    pairs = [dg.Fitted(("compliance", "cyclic_error"), gap_after_um=17.17),
+             dg.Fitted(("friction", "thermal"), gap_after_um=25.0),
+             dg.Fitted(("friction", "cyclic_error"), gap_after_um=19.0)]
+    assert dg.second_on_top("friction", best, pairs, 0.25) is None  # 25.0 is not 25 % below 27.42
+    pairs[1] = dg.Fitted(("friction", "thermal"), gap_after_um=18.0)
+    assert dg.second_on_top("friction", best, pairs, 0.25).effects == ("friction", "thermal")
