@@ -17,6 +17,7 @@ import importlib
 import logging
 import multiprocessing
 import os
+import signal
 import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -32,6 +33,10 @@ IDLE_END_S = 1.0
 
 def _worker_init(parent_pid: int, nice: int, what: str, imports: tuple[str, ...] = (),
                  log_level: int | None = None) -> None:
+    # Ctrl-C in a terminal signals the whole process group: the service stops its pools
+    # (end_pool), and a worker that took the interrupt itself printed a KeyboardInterrupt
+    # traceback per process at every Ctrl-C of `make run`
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     if log_level is not None:  # the service's log lines, from this process too (on stderr, like the service's)
         logging.basicConfig(level=log_level, format=f"%(asctime)s %(levelname)s %(name)s [{what} process]: %(message)s")
     for name in imports:  # warm: the first task does not pay the imports

@@ -7,6 +7,7 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
+import signal
 import threading
 import time
 from dataclasses import replace
@@ -195,6 +196,20 @@ def test_a_process_that_ends_within_the_grace_is_not_reported_or_terminated(capl
     reaper.join(5)
     # it ended by itself, not terminated, whichever thread reaped it
     assert (reaped and os.WIFEXITED(reaped[0]) and os.WEXITSTATUS(reaped[0]) == 0) or proc.exitcode == 0
+
+
+def test_a_ctrl_c_is_left_to_the_service_not_taken_by_its_workers():
+    """Ctrl-C signals the terminal's whole process group; the service ends its pools
+    itself (end_pool). A worker that took SIGINT printed a KeyboardInterrupt traceback and
+    died; it now ignores it and goes on working."""
+    pool = spawn_pool(what="test", workers=1)
+    try:
+        pid = pool.submit(_pid).result(timeout=60)
+        os.kill(pid, signal.SIGINT)
+        time.sleep(0.5)
+        assert pool.submit(_pid).result(timeout=60) == pid  # the same process, alive, still working
+    finally:
+        end_pool(pool, grace_s=5.0, what="test")
 
 
 def test_a_process_reaped_by_another_thread_counts_as_ended():
