@@ -57,7 +57,7 @@ from core.gap.candidates import ASSUMED_MASS_KG, ASSUMED_STIFFNESS_N_PER_UM, EFF
 from core.gap.candidates import sim_piece, stage_starts, train_residuals
 from core.gap.data import GapError, choose_split, prepare_runs
 from core.gap.report import Candidate, GapReport
-from core.gap.where import breakaway_sentence, breakaways, locate, rattle_sentence, rattles
+from core.gap.where import breakaway_sentence, breakaways, locate, rattle_sentence, rattles, stick_slips
 from core.sim import AxisModel, Effects, Friction
 
 NOT_IDENTIFIABLE = "not identifiable"
@@ -91,11 +91,13 @@ class GapSettings:
     # a hunting chain, so compliance; where the family pointed at cuts nothing, the better
     # one that does. Off: the better-scoring family, as stop 40 (stop 49; docs/gap-diagnosis.md).
     rattle_sides_name_family: bool = True
-    # When friction is named (alone or first) and no break-away named it, but the table
-    # rattles in one stroke direction only on some round trip (a hunting chain: stick-slip
-    # sticks and slips out and back) and compliance's fit is not told apart from friction's
-    # (close_rivals), compliance is named instead and the second-effect step runs on top of
-    # it (compliance_by_hunting; stop 49, set on used seeds only, not yet on a fresh one).
+    # When friction is named (alone or first), the table does not break away at rest, but
+    # it rattles in one stroke direction only on some round trip (a hunting chain:
+    # stick-slip sticks and slips out and back) and compliance's fit is not told apart from
+    # friction's (close_rivals), compliance is named instead and the second-effect step runs
+    # on top of it (compliance_by_hunting; stop 49, set on used seeds; fired wrongly on the
+    # fresh seed 8311, case 16, which broke away at rest: stop 51 leaves a break-away's
+    # friction alone).
     hunting_names_compliance: bool = True
     # When the table breaks away at rest (where.breakaways: the command still, the table
     # held for 30 ms, then a jump of 5 µm or more within 10 ms, on two still stretches or
@@ -671,7 +673,7 @@ def friction_by_stick_slip(effect: str, best: Fitted, fits: Mapping[str, Fitted]
     named although its forms do not follow the chain, as the break-away names it over
     `none`, and the sentence says what compliance's form cut. None where the answer stands
     (another effect, no break-away, no rattle, or a one-sided rattle)."""
-    if effect != "compliance" or n_broke <= 0 or not found or not all(f.get("both_directions", False) for f in found):
+    if effect != "compliance" or n_broke <= 0 or not stick_slips(found):
         return None
     fric = fits["friction"]
     return fric, (f"compliance fits best ({best.gap_after_um:.2f} µm, a {(1 - best.gap_after_um / gap_before) * 100:.0f} % "
@@ -683,7 +685,7 @@ def friction_by_stick_slip(effect: str, best: Fitted, fits: Mapping[str, Fitted]
 
 
 def compliance_by_hunting(effect: str, best: Fitted, fits: Mapping[str, Fitted], found: Sequence[Mapping],
-                          gap_before: float, min_reduction: float) -> tuple[Fitted, str] | None:
+                          gap_before: float, n_broke: int, min_reduction: float) -> tuple[Fitted, str] | None:
     """Compliance's fit and the decision's sentence where a hunting chain names compliance
     instead of friction (``GapSettings.hunting_names_compliance``): the table rattles in one
     stroke direction only on some round trip (:func:`core.gap.where.rattles`; stick-slip
@@ -691,8 +693,12 @@ def compliance_by_hunting(effect: str, best: Fitted, fits: Mapping[str, Fitted],
     not told apart from friction's (:func:`close_rivals`: it cuts the test gap by
     ``min_reduction`` itself, and friction does not cut compliance's gap by
     ``min_reduction`` again). None where the answer stands (any other effect, no one-sided
-    rattle, or compliance told apart)."""
-    if effect != "friction" or not found or all(f.get("both_directions", False) for f in found):
+    rattle, compliance told apart, or a table that breaks away at rest on ``n_broke`` > 0
+    round trips, :func:`core.gap.where.breakaways`: static friction, which a chain without
+    it does not show, so friction's own evidence; seen on used seed 8311 case 16, a wear
+    bump + friction whose friction chain rattled one-sided on one round trip of three and
+    broke away on five, which the rule named compliance)."""
+    if effect != "friction" or n_broke > 0 or not found or stick_slips(found):
         return None
     comp = fits["compliance"]
     if not any(r is comp for r in close_rivals(fits, [effect], best, gap_before, min_reduction)):
@@ -721,7 +727,7 @@ def chain_by_rattle(fits: Mapping[str, Fitted], found: Sequence[Mapping], gap_be
     took = {e: fits[e] for e in CHAIN_EFFECTS if fits[e].gap_after_um < TOOK_FRACTION * gap_before}
     if not took:
         return None
-    both = all(f.get("both_directions", False) for f in found)
+    both = stick_slips(found)
     pointed = "friction" if both else "compliance"
     if by_sides and pointed in took:
         how = (" in both stroke directions on each: stick-slip" if both else
@@ -925,7 +931,7 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: 
                 second_text = (f"No second effect looked for: the friction forms do not follow the gap (their fit "
                                f"leaves {best.gap_after_um:.2f} µm).")  # fmt: skip
             joint = True
-    hunted = (compliance_by_hunting(effect, best, fits, found, gap_before, s.min_reduction)
+    hunted = (compliance_by_hunting(effect, best, fits, found, gap_before, len(broke), s.min_reduction)
               if s.hunting_names_compliance and named is None and gap_before > s.noise_factor * noise else None)  # fmt: skip
     if hunted is not None:
         second, second_text, joint = None, "", False  # the second-effect step runs on top of compliance

@@ -154,6 +154,13 @@ def _both_directions(hot: np.ndarray, mov: np.ndarray, v: np.ndarray) -> bool:
     return out
 
 
+def stick_slips(found: Sequence[Mapping]) -> bool:
+    """Whether :func:`rattles`' findings are stick-slip's: some round trip rattles, and every
+    one that rattles does so in both stroke directions (:func:`_both_directions`). False for
+    no rattle, and for a chain that hunts in one direction only on any round trip."""
+    return bool(found) and all(f.get("both_directions", False) for f in found)
+
+
 def _stroke_label(f: Mapping) -> str:
     """A finding's round trip as the observations name it, up to its feed: "rt_x_00.csv (axis x,
     train, 600 mm/min" (the caller adds what was seen and closes the parenthesis)."""
