@@ -1,6 +1,8 @@
 """Datasets the diagnosis cannot work on end in a clear GapError."""
 
+import re
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -96,3 +98,21 @@ def test_pure_noise_dataset_is_none_and_the_json_follows_the_contract():
     assert servo["identifiable"] is False and "not identifiable from round trips" in servo["notes"]
     assert abs(rep.gap_before_um - rep.noise_floor_um) < 0.5 * rep.noise_floor_um
     assert "Diagnosis: none" in rep.text()
+    _every_added_key_is_documented(d)
+
+
+SPEC_KEYS = {"format", "effect", "where", "gap_before_um", "gap_after_um", "split", "candidates"}
+
+
+def _every_added_key_is_documented(d: dict) -> None:
+    """The keys the JSON adds to the spec's required ones are named in docs/gap-diagnosis.md
+    §7 (the shared spec is read-only here and lists none of them)."""
+    doc = (Path(__file__).resolve().parents[3] / "docs" / "gap-diagnosis.md").read_text(encoding="utf-8")
+    m = re.search(r"^## 7\. The JSON.*?(?=^## )", doc, re.M | re.S)
+    assert m, "docs/gap-diagnosis.md has no section '## 7. The JSON'"
+    named = set(re.findall(r"`([a-z_]+)`", m.group(0)))
+    added = (set(d) - SPEC_KEYS) | {"how"} | {"details"} | set(d["where"]["details"]) | set(d["thresholds"])
+    added |= {k for c in d["candidates"] + d["pairs"] for k in c} - {"effect", "gap_after_um", "params"}
+    added |= {k for f in d["where"]["details"]["rattle"] + d["where"]["details"]["breakaway"] for k in f}
+    assert set(d["split"]) == {"train", "test", "how"} and {"rattle", "breakaway"} <= set(d["where"]["details"])
+    assert not added - named, f"keys of the gap JSON not in docs/gap-diagnosis.md §7: {sorted(added - named)}"
