@@ -112,7 +112,13 @@ class CycleScheduler:
         self.executor = executor
         self.factory = factory
         self.workers: dict[int, AxisWorker] = {}
-        self.clock = BackgroundScheduler(timezone=timezone.utc)
+        # A job that starts late (a busy host, a long pause of the process) still runs, once:
+        # APScheduler's default misfire grace of 1 s would skip it with a "was missed"
+        # warning, which for the one-shot verification of a repair (maintenance) means it
+        # never runs, and for the spool retry that held readings wait another period.
+        self.clock = BackgroundScheduler(
+            timezone=timezone.utc, job_defaults={"coalesce": True, "max_instances": 1, "misfire_grace_time": None}
+        )
         self._lock = threading.Lock()
         self._started = False
 

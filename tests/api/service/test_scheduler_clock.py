@@ -1,0 +1,40 @@
+"""The service's clock runs a job that starts late, once, instead of skipping it."""
+
+import threading
+from datetime import datetime, timedelta, timezone
+
+from api.service.scheduler import CycleScheduler
+
+
+def test_a_one_shot_job_due_seconds_ago_still_runs():
+    """A verification cycle's date job (api.service.maintenance) that the clock reaches 5 s
+    late, as on a busy host: APScheduler's default 1 s misfire grace would skip it for good."""
+    sch = CycleScheduler(None, None)
+    ran = threading.Event()
+    sch.clock.start()
+    try:
+        sch.clock.add_job(ran.set, "date", run_date=datetime.now(timezone.utc) - timedelta(seconds=5), id="late")
+        assert ran.wait(10.0), "a job due 5 s ago was skipped as missed"
+    finally:
+        sch.clock.shutdown(wait=False)
+
+
+def test_an_interval_job_that_fell_behind_runs_once_not_once_per_missed_period():
+    sch = CycleScheduler(None, None)
+    runs = []
+    done = threading.Event()
+
+    def job():
+        runs.append(datetime.now(timezone.utc))
+        done.set()
+
+    sch.clock.start()
+    try:
+        # first due 10 periods ago: coalesced into one run now
+        sch.clock.add_job(job, "interval", seconds=1, id="behind",
+                          next_run_time=datetime.now(timezone.utc) - timedelta(seconds=10))
+        assert done.wait(10.0), "an interval job 10 s behind was skipped as missed"
+        ran_now = len(runs)
+    finally:
+        sch.clock.shutdown(wait=False)
+    assert ran_now == 1
