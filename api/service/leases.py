@@ -251,6 +251,11 @@ class FleetScheduler(CycleScheduler):
         try:
             with session_scope(self.factory) as s:
                 still = leases.heartbeat(s, self.id, self.lease_s)
+                # a lease found expired is dropped before the commit makes this worker live
+                # again: no reader sees it live and holding an axis another worker took over
+                expired = self.held - still
+                if expired:
+                    self._drop(expired)
                 self._last_renewed = time.monotonic()
                 leases.ensure_lease_rows(s)
                 axes = {a.id: a for a in config_repo.list_axes(s)}
@@ -266,7 +271,7 @@ class FleetScheduler(CycleScheduler):
         self._axes = axes
         for a in axes.values():
             self.executor.remember(a)
-        lost = (self.held - still) | {a for a in self.held if a not in axes}
+        lost = expired | {a for a in self.held if a not in axes}
         if lost:
             log.warning("worker %r: lease lost on axis(es) %s (expired: another worker may run them)",
                         self.name, sorted(lost))
