@@ -21,6 +21,7 @@ from api.rest import create_app
 from api.service.config import ConfigError, MtconnectSettings, parse_settings
 from storage.db import config_repo, session_scope
 from tests.api.rest.conftest import FakeRunner, hdr, make_settings
+from tests.waiting import until
 
 SCHEMAS = Path(__file__).resolve().parents[4] / "shared" / "mtconnect-schemas"
 EXTENSION = Path(__file__).resolve().parents[3] / "api" / "mtconnect" / "mebm_streams_2.4.xsd"
@@ -91,19 +92,8 @@ def _measure(svc, axis_id, agent, seen_before: int):
     sub = agent.subscription
     svc.scheduler.request(axis_id, "manual")
     assert svc.scheduler.idle(30)
-    _until(lambda: sub.pending == 0 and sub.delivered > seen_before, "the agent got the events")
+    until(lambda: sub.pending == 0 and sub.delivered > seen_before, "the agent got the events")
     assert sub.failed == 0
-
-
-def _until(pred, what: str, limit_s: float = 30.0):
-    import time
-
-    end = time.monotonic() + limit_s
-    while time.monotonic() < end:
-        if pred():
-            return
-        time.sleep(0.02)
-    raise AssertionError(f"{what} did not happen within {limit_s:g} s")
 
 
 def _header(doc) -> dict:
@@ -298,7 +288,7 @@ class _Server:
         self.server = uvicorn.Server(uvicorn.Config(app, log_level="warning"))
         self.thread = threading.Thread(target=self.server.run, kwargs={"sockets": [self.sock]}, daemon=True)
         self.thread.start()
-        _until(lambda: self.server.started, "uvicorn started")
+        until(lambda: self.server.started, "uvicorn started")
 
     def stop(self):
         self.server.should_exit = True
@@ -483,7 +473,7 @@ def test_tasks_changed_through_the_api_change_the_device_model_at_once(tmp_path,
         def probed():
             return tbe_names(etree.fromstring(client.get("/mtconnect/probe").content))
 
-        _until(lambda: probed() == ["line 30deg", "circle R50"], "the new tasks in the probe")
+        until(lambda: probed() == ["line 30deg", "circle R50"], "the new tasks in the probe")
         after = schemas.devices_ok(client.get("/mtconnect/probe").content)
         assert after.find("d:Header", NS).get("deviceModelChangeTime") > changed_at
         cur = schemas.streams_ok(client.get("/mtconnect/current").content)

@@ -27,7 +27,7 @@ from api.rest import create_app
 from api.service.config import DEFAULT_OPCUA_ENDPOINT, ConfigError, OpcuaSettings, load_settings, parse_settings
 from storage.db import config_repo, session_scope
 from tests.api.rest.conftest import FakeRunner, hdr, make_settings
-from tests.api.rest.test_interfaces import _until
+from tests.waiting import until
 from tests.api.rest.test_prognosis import _bulk_history
 
 LOOPBACK = "opc.tcp://127.0.0.1:0/mebm/"
@@ -53,7 +53,7 @@ def _measure(env):
     before = env["ua"].updates
     env["svc"].scheduler.request(env["axis_id"], "manual")
     assert env["svc"].scheduler.idle(30)
-    _until(lambda: env["ua"].updates > before, "the OPC UA update")
+    until(lambda: env["ua"].updates > before, "the OPC UA update")
 
 
 async def _browse_to_axis(c: Client):

@@ -20,7 +20,7 @@ from api.service.service import Service
 from api.service.worker_process import end_pool, spawn_pool, still_running
 from storage.db import AxisRecord, config_repo, results_repo, session_scope
 from tests.api.rest.conftest import make_settings
-from tests.api.rest.test_service import wait_for
+from tests.waiting import poll
 from tests.storage.db import factories as f
 
 
@@ -36,11 +36,11 @@ def test_a_free_process_runs_the_call_a_busy_one_sends_it_back_at_once():
     procs = CycleProcesses(1)
     procs.start()
     try:
-        assert wait_for(lambda: started(procs), 60)
+        assert poll(lambda: started(procs), 60)
         assert procs.run(_pid) != os.getpid()  # in the worker process
         busy = threading.Thread(target=procs.run, args=(time.sleep, 1.5))
         busy.start()
-        assert wait_for(lambda: procs._free == 0, 5)
+        assert poll(lambda: procs._free == 0, 5)
         t = time.perf_counter()
         with pytest.raises(NoFreeProcess):
             procs.run(_pid)
@@ -67,7 +67,7 @@ def test_closing_ends_the_processes_and_the_pool_thread_a_stuck_cycle_included(m
     monkeypatch.setattr("api.service.runner.CLOSE_GRACE_S", 0.5)
     procs = CycleProcesses(1)
     procs.start()
-    assert wait_for(lambda: started(procs), 60)
+    assert poll(lambda: started(procs), 60)
     pool = procs._pool
     workers = list(pool._processes.values())
     manager = pool._executor_manager_thread
@@ -81,7 +81,7 @@ def test_closing_ends_the_processes_and_the_pool_thread_a_stuck_cycle_included(m
 
     busy = threading.Thread(target=stuck)
     busy.start()
-    assert wait_for(lambda: (tmp_path / "running").exists(), 10)
+    assert poll(lambda: (tmp_path / "running").exists(), 10)
     t = time.perf_counter()
     procs.close()
     # the grace, then terminate (end_pool waits at most grace + 9 s), not the 60 s the cycle wanted
@@ -132,7 +132,7 @@ def test_the_service_measures_in_a_worker_process_and_survives_its_death(tmp_pat
         procs = svc.runner.processes
         with session_scope(svc.factory) as s:
             axis_id = config_repo.list_axes(s)[0].id
-        assert wait_for(lambda: started(procs), 60) and svc.scheduler.idle(120)  # (a fresh sim axis measures at start)
+        assert poll(lambda: started(procs), 60) and svc.scheduler.idle(120)  # (a fresh sim axis measures at start)
         before = {c.id for c in _cycles(svc, axis_id)}
         # the start-up cycle ran inline or in the process, as the process was up or not by then
         in_process, inline = procs.in_process, procs.inline
@@ -149,7 +149,7 @@ def test_the_service_measures_in_a_worker_process_and_survives_its_death(tmp_pat
         victims = list(procs._pool._processes.values())
         n = sim_axis.cycles_started
         svc.trigger(axis_id, "test")
-        assert wait_for(lambda: sim_axis.cycles_started == n + 1, 30)
+        assert poll(lambda: sim_axis.cycles_started == n + 1, 30)
         for p in victims:
             p.kill()
         assert svc.scheduler.idle(120)
@@ -157,7 +157,7 @@ def test_the_service_measures_in_a_worker_process_and_survives_its_death(tmp_pat
         (second,) = [c for c in _cycles(svc, axis_id) if c.id not in before]
         assert second.status == "failed" and "CycleProcessDied" in second.failure_reason
         assert procs.crashes == 1
-        assert wait_for(lambda: started(procs), 60)
+        assert poll(lambda: started(procs), 60)
         svc.trigger(axis_id, "test")
         assert svc.scheduler.idle(120)
         third = _cycles(svc, axis_id)[0]

@@ -6,7 +6,6 @@ backlash is raised past the 236 µm limit and cleared when it is lowered, and an
 
 from __future__ import annotations
 
-import time
 from dataclasses import replace
 
 import pytest
@@ -17,19 +16,10 @@ from api.service.config import AxisConfig, Settings, SimulatorSettings, demo_axi
 from core.dataset import AxisSpec
 from storage.db import Schedule, config_repo, integrity_problems, session_scope
 from storage.dataset import read_dataset
+from tests.waiting import poll
 
 V1 = "/api/v1"
 pytestmark = pytest.mark.slow
-
-
-def wait_for(pred, timeout_s=40.0):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        v = pred()
-        if v:
-            return v
-        time.sleep(0.1)
-    return pred()
 
 
 @pytest.fixture
@@ -58,14 +48,14 @@ def test_scheduler_simulator_database_status_trend_alert(live):
         page = client.get(f"{V1}/axes/{axis_id}/measurements?status=ok", headers=read).json()
         return page["total"]
 
-    assert wait_for(lambda: ok_count() >= 1), client.get(f"{V1}/axes/{axis_id}/measurements", headers=read).json()
+    assert poll(lambda: ok_count() >= 1), client.get(f"{V1}/axes/{axis_id}/measurements", headers=read).json()
     # the status is published just after the cycle's commit (StatusCache.prepare): a list read
     # in between sees the cycle before the status does (seen on a loaded machine)
     def measured_status():
         body = client.get(f"{V1}/axes/{axis_id}/status", headers=read).json()
         return body if body["measurement_id"] is not None else None
 
-    st = wait_for(measured_status, 5.0)
+    st = poll(measured_status, 5.0)
     assert st["backlash_mean_um"] == pytest.approx(226.0, abs=4.0)
     assert st["state"] == "WARNING" and st["temperature_c"] == pytest.approx(20.0, abs=0.05)
     assert st["backlash_limit_um"] == pytest.approx(236.0, abs=0.1)
@@ -75,7 +65,7 @@ def test_scheduler_simulator_database_status_trend_alert(live):
 
     sim.twin.backlash_offset_um = 30.0  # wear the chain past the limit
     n = ok_count()
-    assert wait_for(lambda: client.get(f"{V1}/alerts", headers=read).json()["total"] == 1)
+    assert poll(lambda: client.get(f"{V1}/alerts", headers=read).json()["total"] == 1)
     (alert,) = client.get(f"{V1}/alerts", headers=read).json()["items"]
     assert alert["backlash_um"] == pytest.approx(256.0, abs=4.0) and alert["tbe_um"] > 45.0
     st = client.get(f"{V1}/axes/{axis_id}/status", headers=read).json()
@@ -83,7 +73,7 @@ def test_scheduler_simulator_database_status_trend_alert(live):
     assert st["backlash_reduction_needed_um"] == pytest.approx(20.0, abs=4.0)
 
     sim.twin.backlash_offset_um = -40.0  # the maintenance team re-preloads the nut
-    assert wait_for(lambda: client.get(f"{V1}/alerts?state=cleared", headers=read).json()["total"] == 1)
+    assert poll(lambda: client.get(f"{V1}/alerts?state=cleared", headers=read).json()["total"] == 1)
     assert client.get(f"{V1}/alerts?state=active", headers=read).json()["total"] == 0
     assert client.get(f"{V1}/axes/{axis_id}/status", headers=read).json()["state"] == "OK"
 

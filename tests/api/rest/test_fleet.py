@@ -41,7 +41,8 @@ from storage.db import (
 from storage.db.leases import WorkerConflictError
 from storage.db.models import AxisLease, Cycle
 from tests.api.rest.conftest import FakeRunner
-from tests.api.rest.test_kill_restart import Server, poll
+from tests.api.rest.test_kill_restart import Server
+from tests.waiting import poll
 from tests.storage.db import factories as f
 from tests.storage.db.backends import make_database, truncate_all
 

@@ -28,6 +28,7 @@ from api.service.config import ConfigError, MqttSettings, WebhookSettings, parse
 from api.service.events import Event, EventHub
 from storage.db import config_repo, session_scope, utcnow
 from tests.api.rest.conftest import FakeRunner, hdr, make_settings
+from tests.waiting import until
 
 MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
 needs_mosquitto = pytest.mark.skipif(not (shutil.which("mosquitto_sub") and shutil.which(MOSQUITTO)),
@@ -41,23 +42,12 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _until(pred, what: str, limit_s: float = 30.0):
-    """Wait for ``pred()`` (a deadline for a hang, not a performance bound)."""
-    end = time.monotonic() + limit_s
-    while time.monotonic() < end:
-        v = pred()
-        if v:
-            return v
-        time.sleep(0.05)
-    raise AssertionError(f"{what} did not happen within {limit_s:g} s")
-
-
 class Broker:
     def __init__(self, port: int, tmp_path):
         conf = tmp_path / f"mosquitto-{port}.conf"
         conf.write_text(f"listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n")
         self.proc = subprocess.Popen([MOSQUITTO, "-c", str(conf)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        _until(lambda: self._listening(port), f"mosquitto on port {port}")
+        until(lambda: self._listening(port), f"mosquitto on port {port}")
 
     @staticmethod
     def _listening(port: int) -> bool:
@@ -106,7 +96,7 @@ def test_an_mqtt_subscriber_receives_the_retained_status_the_birth_and_each_aler
             assert _sub(port, f"{prefix}/vmc-850/online", 1) == [(f"{prefix}/vmc-850/online", b"online")]
             _measure(svc, axis_id)
             rest = client.get(f"/api/v1/axes/{axis_id}/status", headers=hdr(read)).json()
-            (topic, payload), = _until(lambda: _sub(port, f"{prefix}/+/+/status", 1), "the retained status")
+            (topic, payload), = until(lambda: _sub(port, f"{prefix}/+/+/status", 1), "the retained status")
             assert topic == f"{prefix}/vmc-850/y/status"
             body = json.loads(payload)
             assert body["axis_id"] == axis_id and body["state"] == rest["state"]
@@ -121,10 +111,10 @@ def test_an_mqtt_subscriber_receives_the_retained_status_the_birth_and_each_aler
             sub.connect("127.0.0.1", port)
             sub.loop_start()
             try:
-                _until(subscribed.is_set, "the alert subscription")
+                until(subscribed.is_set, "the alert subscription")
                 runner.backlash_um = 400.0
                 _measure(svc, axis_id)
-                _until(lambda: got, "the alert message")
+                until(lambda: got, "the alert message")
             finally:
                 sub.loop_stop()
                 sub.disconnect()
@@ -138,11 +128,11 @@ def test_an_mqtt_subscriber_receives_the_retained_status_the_birth_and_each_aler
                 (_, p), = _sub(port, f"{prefix}/vmc-850/y/status", 1)
                 return (json.loads(p).get("work_order") or {}).get("state")
 
-            _until(lambda: retained_order_state() == "open", "the order in the retained status")
+            until(lambda: retained_order_state() == "open", "the order in the retained status")
             order_id = client.get(f"/api/v1/axes/{axis_id}/status", headers=hdr(read)).json()["work_order"]["id"]
             r = client.post(f"/api/v1/maintenance/orders/{order_id}/ack", headers=hdr(admin))
             assert r.status_code == 200, r.text
-            _until(lambda: retained_order_state() == "acknowledged", "the acknowledged order in the retained status")
+            until(lambda: retained_order_state() == "acknowledged", "the acknowledged order in the retained status")
             info = client.get("/api/v1/interfaces", headers=hdr(read)).json()
             assert info["mqtt"]["connected"] == {"vmc-850": True}
             assert info["event_consumers"]["mqtt"]["failed"] == 0
@@ -171,7 +161,7 @@ def test_a_broker_outage_loses_no_measurement_and_the_status_is_published_when_i
         assert app.state.mqtt.connections() == {"vmc-850": False}
         broker = Broker(port, tmp_path)
         try:
-            _until(lambda: app.state.mqtt.connections() == {"vmc-850": True}, "the reconnection", 90)
+            until(lambda: app.state.mqtt.connections() == {"vmc-850": True}, "the reconnection", 90)
             (topic, payload), = _sub(port, f"{prefix}/+/+/status", 1)
             assert topic == f"{prefix}/vmc-850/y/status"
             assert json.loads(payload)["backlash_mean_um"] == pytest.approx(180.0, abs=2.0)
@@ -217,7 +207,7 @@ def test_a_webhook_receiver_verifies_the_signature_of_each_alert_change_after_a_
             _measure(svc, axis_id)  # raises the alert
             runner.backlash_um = 150.0
             _measure(svc, axis_id)  # clears it
-            _until(lambda: len(Receiver.received) >= 4, "four webhook requests")
+            until(lambda: len(Receiver.received) >= 4, "four webhook requests")
             log = client.get("/api/v1/webhooks/deliveries", headers=hdr(admin)).json()
     finally:
         server.shutdown()
@@ -270,7 +260,7 @@ def test_webhook_messages_pending_when_the_service_stops_are_sent_after_the_rest
         svc = app.state.service
         _, admin, axis_id = _keys_and_axis(svc)
         _measure(svc, axis_id)  # raises the alert and opens a work order: two messages
-        _until(lambda: _messages(client, admin)["counts"]["pending"] == 2
+        until(lambda: _messages(client, admin)["counts"]["pending"] == 2
                and _messages(client, admin)["items"][-1]["attempts"] >= 1, "a refused first attempt")
         pending = _messages(client, admin, "pending")["items"]
         assert [m["type"] for m in pending] == ["work_order.open", "alert.raised"]  # newest first
@@ -280,8 +270,8 @@ def test_webhook_messages_pending_when_the_service_stops_are_sent_after_the_rest
     try:
         app = _app(tmp_path, runner, webhooks=hooks)
         with TestClient(app) as client:
-            _until(lambda: len(Accept.received) == 2, "the two messages after the restart", 60)
-            _until(lambda: _messages(client, admin)["counts"] == {"pending": 0, "delivered": 2, "failed": 0},
+            until(lambda: len(Accept.received) == 2, "the two messages after the restart", 60)
+            until(lambda: _messages(client, admin)["counts"] == {"pending": 0, "delivered": 2, "failed": 0},
                    "both messages marked delivered")
     finally:
         server.shutdown()
@@ -297,7 +287,7 @@ def test_a_webhook_message_that_used_every_attempt_is_kept_and_sent_again_when_a
         svc = app.state.service
         read, admin, axis_id = _keys_and_axis(svc)
         _measure(svc, axis_id)
-        _until(lambda: _messages(client, admin)["counts"]["failed"] == 2, "both messages failed", 60)
+        until(lambda: _messages(client, admin)["counts"]["failed"] == 2, "both messages failed", 60)
         failed = _messages(client, admin, "failed")["items"]
         assert [m["attempts"] for m in failed] == [2, 2]
         hw = client.get("/api/v1/interfaces", headers=hdr(read)).json()["webhooks"]
@@ -306,7 +296,7 @@ def test_a_webhook_message_that_used_every_attempt_is_kept_and_sent_again_when_a
         server = _serve_later(port)
         try:
             assert client.post("/api/v1/webhooks/messages/retry", headers=hdr(admin)).json() == {"requeued": 2}
-            _until(lambda: _messages(client, admin)["counts"]["delivered"] == 2, "the re-queued messages", 30)
+            until(lambda: _messages(client, admin)["counts"]["delivered"] == 2, "the re-queued messages", 30)
         finally:
             server.shutdown()
         assert Accept.received == [(m["webhook_id"], m["type"]) for m in reversed(failed)]
@@ -333,17 +323,17 @@ def test_webhook_messages_wait_in_memory_while_the_database_is_unreachable_and_a
                             task_name="circle", tbe_um=50.0, tolerance_um=45.0, backlash_um=300.0,
                             backlash_limit_um=200.0, message="ALARM")
         svc.events.publish(Event("alert_changed", 1, "m", "y", utcnow(), alert=alert))
-        _until(lambda: sender.unstored == 1, "the message held in memory")
+        until(lambda: sender.unstored == 1, "the message held in memory")
         time.sleep(0.5)
         assert Accept.received == [] and sender.unstored == 1  # nothing sent, nothing lost
         svc.factory = make_session_factory(up)  # the database answers again
-        _until(lambda: len(Accept.received) == 1, "the message sent once stored", 30)
+        until(lambda: len(Accept.received) == 1, "the message sent once stored", 30)
         assert Accept.received[0][1] == "alert.raised" and sender.unstored == 0
         def delivered():
             with session_scope(svc.factory) as s:
                 return webhooks_repo.counts(s)["delivered"] == 1
 
-        _until(delivered, "the message marked delivered")
+        until(delivered, "the message marked delivered")
     finally:
         sender.close()
         svc.events.close()
@@ -358,12 +348,12 @@ def test_a_slow_consumer_never_delays_a_cycle_and_a_full_queue_drops_its_oldest(
     sub = hub.subscribe("slow", lambda ev: (busy.set(), gate.wait(30), seen.append(ev.axis_id)), maxsize=2)
     fast = hub.subscribe("fast", lambda ev: seen.append(-ev.axis_id))
     hub.publish(Event("measurement_stored", 1, "m", "y", utcnow()))
-    _until(busy.is_set, "the slow consumer taking event 1")
+    until(busy.is_set, "the slow consumer taking event 1")
     for i in range(2, 6):
         hub.publish(Event("measurement_stored", i, "m", "y", utcnow()))  # returns at once
-    _until(lambda: sorted(x for x in seen if x < 0) == [-5, -4, -3, -2, -1], "the fast consumer's five events")
+    until(lambda: sorted(x for x in seen if x < 0) == [-5, -4, -3, -2, -1], "the fast consumer's five events")
     gate.set()
-    _until(lambda: len([x for x in seen if x > 0]) == 3, "the slow consumer's events")
+    until(lambda: len([x for x in seen if x > 0]) == 3, "the slow consumer's events")
     assert [x for x in seen if x > 0] == [1, 4, 5]  # 1 was being handled; 2 and 3 dropped for 4 and 5
     assert sub.dropped == 2 and fast.dropped == 0
     hub.close()

@@ -18,6 +18,7 @@ import pytest
 
 from storage.db import integrity_problems, make_session_factory, results_repo, session_scope
 from storage.db.models import Cycle
+from tests.waiting import poll
 
 pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parents[3]
@@ -92,16 +93,6 @@ class Server:
             except subprocess.TimeoutExpired:
                 self.kill()
         return self.proc.returncode
-
-
-def poll(pred, timeout_s=60.0, interval_s=0.05):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        v = pred()
-        if v:
-            return v
-        time.sleep(interval_s)
-    return None
 
 
 def test_sigkill_mid_cycle_then_restart(engine, db_url, tmp_path):  # noqa: ARG001 - engine empties the DB

@@ -19,7 +19,7 @@ from api.rest import create_app
 from api.service.config import AxisConfig, MaintenanceSettings, Settings, SimulatorSettings, demo_axis
 from core.dataset import AxisSpec
 from storage.db import Schedule, integrity_problems, maintenance_repo, results_repo, session_scope
-from tests.api.rest.test_kill_restart import poll as wait_for
+from tests.waiting import poll
 
 V1 = "/api/v1"
 pytestmark = pytest.mark.slow
@@ -70,7 +70,7 @@ def test_wear_alarm_order_repair_verification_verified(live):
         n = sum(1 for m in measurements() if m["status"] in ("ok", "failed"))
         if trigger == "manual":
             assert client.post(f"{V1}/axes/{axis_id}/measurements", headers=operate).status_code == 202
-        assert wait_for(lambda: sum(1 for m in measurements() if m["status"] in ("ok", "failed")) > n)
+        assert poll(lambda: sum(1 for m in measurements() if m["status"] in ("ok", "failed")) > n)
         m = measurements()[0]
         assert m["status"] == "ok", m
         return m
@@ -79,7 +79,7 @@ def test_wear_alarm_order_repair_verification_verified(live):
         return client.get(f"{V1}/maintenance/orders?state={state}", headers=read).json()["items"]
 
     # new chain: OK, no order (the start-up catch-up measurement may come first)
-    wait_for(lambda: measurements() and measurements()[-1]["status"] in ("ok", "failed"))
+    poll(lambda: measurements() and measurements()[-1]["status"] in ("ok", "failed"))
     def status():
         return client.get(f"{V1}/axes/{axis_id}/status", headers=read).json()
 
@@ -91,7 +91,7 @@ def test_wear_alarm_order_repair_verification_verified(live):
     clock.t = 6.0
     alarm_m = measure()
     assert alarm_m["state"] == "ALARM"
-    (order,) = wait_for(lambda: orders("active"))
+    (order,) = poll(lambda: orders("active"))
     assert order["kind"] == "corrective" and order["state"] == "open"
     assert order["opened_by_measurement_id"] == alarm_m["id"] and order["alert_id"] is not None
     assert order["backlash_um"] == pytest.approx(250.0, abs=5.0) and order["tbe_um"] > order["tolerance_um"]
@@ -119,7 +119,7 @@ def test_wear_alarm_order_repair_verification_verified(live):
     r = client.post(f"{V1}/axes/{axis_id}/repairs", json=body, headers=operate)
     assert r.status_code == 201, r.text
     assert r.json()["order"]["state"] == "repaired" and r.json()["repair"]["before_measurement_id"] > alarm_m["id"]
-    back = wait_for(lambda: [o for o in orders("open") if o["verification"]])
+    back = poll(lambda: [o for o in orders("open") if o["verification"]])
     assert back, orders()
     failed = back[0]
     assert failed["verification"]["passed"] is False and failed["transitions"][-1]["figures"]["after"]
@@ -130,7 +130,7 @@ def test_wear_alarm_order_repair_verification_verified(live):
     r = client.post(f"{V1}/axes/{axis_id}/repairs", headers=operate,
                     json={"kind": "preload_adjusted", "note": "nut preload restored, 2 shims"})
     assert r.status_code == 201, r.text
-    done = wait_for(lambda: orders("verified"))
+    done = poll(lambda: orders("verified"))
     assert done, orders()
     v = done[0]["verification"]
     assert v["passed"] is True and v["against"] == "measured backlash"
@@ -162,7 +162,7 @@ def test_wear_alarm_order_repair_verification_verified(live):
     assert after.trigger == "verification" and after.backlash_mean_um < 200 and after.state == "OK"
     assert o.verification["before"]["measurement_id"] == before.id
     # every step went out on the internal event source, which MQTT, webhooks and MTConnect consume
-    assert wait_for(lambda: len(events) >= 6)
+    assert poll(lambda: len(events) >= 6)
     assert [ev.order.state for ev in events] == ["open", "acknowledged", "repaired", "open", "repaired", "verified"]
     svc.events.unsubscribe(sub)
     assert integrity_problems(svc.engine) == []

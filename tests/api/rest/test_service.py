@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import threading
-import time
 from dataclasses import replace
 from datetime import datetime, timedelta, timezone
 
@@ -24,15 +23,7 @@ from storage.db import (
 )
 from tests.api.rest.conftest import FakeRunner, make_settings
 from tests.storage.db import factories as f
-
-
-def wait_for(pred, timeout_s=20.0):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if pred():
-            return True
-        time.sleep(0.05)
-    return pred()
+from tests.waiting import poll
 
 
 @pytest.fixture
@@ -71,9 +62,9 @@ def test_interval_schedule_runs_and_a_failure_does_not_stop_it(service):
     with session_scope(svc.factory) as s:
         axis = config_repo.set_schedule(s, svc.test_axis.id, Schedule(interval_s=1.0))
     svc.axis_changed(axis)
-    assert wait_for(lambda: len(cycles(svc, status="failed")) >= 2)
+    assert poll(lambda: len(cycles(svc, status="failed")) >= 2)
     runner.fail = None
-    assert wait_for(lambda: len(cycles(svc, status="ok")) >= 1)
+    assert poll(lambda: len(cycles(svc, status="ok")) >= 1)
     failed = cycles(svc, status="failed")[0]
     assert failed.trigger == "schedule" and "refused" in failed.failure_reason
 

@@ -5,15 +5,7 @@ import time
 from datetime import datetime, timedelta, timezone
 
 from api.service.scheduler import CycleScheduler
-
-
-def _until(cond, timeout_s=10.0) -> bool:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if cond():
-            return True
-        time.sleep(0.02)
-    return False
+from tests.waiting import poll
 
 
 def test_a_one_shot_job_due_seconds_ago_still_runs():
@@ -27,7 +19,7 @@ def test_a_one_shot_job_due_seconds_ago_still_runs():
         assert ran.wait(10.0), "a job due 5 s ago was skipped as missed"
         # the clock's own thread removes the spent job after handing it out: let it, so the
         # shutdown below does not race it
-        assert _until(lambda: sch.clock.get_job("late") is None)
+        assert poll(lambda: sch.clock.get_job("late") is None)
     finally:
         sch.clock.shutdown(wait=True)
 
@@ -47,7 +39,7 @@ def test_an_interval_job_that_fell_behind_runs_once_not_once_per_missed_period()
         t0 = datetime.now(timezone.utc)
         sch.clock.add_job(job, "interval", seconds=60, id="behind", next_run_time=t0 - timedelta(seconds=600))
         assert done.wait(10.0), "an interval job 10 periods behind was skipped as missed"
-        assert _until(lambda: sch.clock.get_job("behind").next_run_time > t0)  # rescheduled by the clock
+        assert poll(lambda: sch.clock.get_job("behind").next_run_time > t0)  # rescheduled by the clock
         time.sleep(0.5)
         sch.clock.remove_job("behind")
     finally:

@@ -11,13 +11,13 @@ import shutil
 import socket
 import tempfile
 import threading
-import time
 from pathlib import Path
 
 import pytest
 
 from storage.db import config_repo, session_scope
 from tests.api.rest.conftest import FakeRunner, make_settings
+from tests.waiting import poll
 
 CHROMIUM = os.environ.get("MEBM_TEST_CHROMIUM", "/usr/bin/chromium")
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -28,16 +28,6 @@ CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic
 SCREENSHOTS = (Path(__file__).resolve().parents[3] / "docs" / "screenshots"
                if os.environ.get("MEBM_UPDATE_SCREENSHOTS") == "1"
                else Path(tempfile.gettempdir()) / f"mebm-screenshots-{os.getpid()}")
-
-
-def wait_for(pred, timeout_s: float = 60.0, every_s: float = 0.05):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        v = pred()
-        if v:
-            return v
-        time.sleep(every_s)
-    return pred()
 
 
 class FakeClock:
@@ -72,7 +62,7 @@ class UiServer:
         self.server = uvicorn.Server(uvicorn.Config(self.app, log_level="warning", access_log=False))
         self.thread = threading.Thread(target=self.server.run, kwargs={"sockets": [self.sock]}, daemon=True)
         self.thread.start()
-        assert wait_for(lambda: self.server.started, 60.0), "the server did not start"
+        assert poll(lambda: self.server.started, 60.0), "the server did not start"
         self.svc = self.app.state.service
         self.clock = FakeClock()
         self.app.state.ui.sessions.clock = self.clock

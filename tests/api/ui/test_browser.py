@@ -11,7 +11,8 @@ from core.gap import make_case
 from core.gap.benchmark import SMALL
 from storage.dataset import write_dataset
 from storage.db import config_repo, results_repo, session_scope
-from tests.api.ui.conftest import SCREENSHOTS, wait_for
+from tests.api.ui.conftest import SCREENSHOTS
+from tests.waiting import poll
 
 
 def sign_in(page, srv, role: str) -> None:
@@ -101,7 +102,7 @@ def test_axis_page_renders_its_charts(page, ui_server, alarm):
     for i in range(imgs.count()):
         img = imgs.nth(i)
         img.scroll_into_view_if_needed()
-        wait_for(lambda: img.evaluate("e => e.complete"), 30.0)
+        poll(lambda: img.evaluate("e => e.complete"), 30.0)
         assert img.evaluate("e => e.naturalWidth") > 100, img.get_attribute("src")
     # the figures are not the "nothing to draw" placeholder: a real plot has many colours
     png = page.request.get(f"{ui_server.url}/ui/axes/{ui_server.axis_id}/plots/backlash_profile.png").body()
@@ -184,7 +185,7 @@ def test_gap_diagnosis_runs_in_the_background_and_arrives(page, ui_server):
     for i in range(imgs.count()):
         img = imgs.nth(i)
         img.scroll_into_view_if_needed()
-        wait_for(lambda: img.evaluate("e => e.complete"), 60.0)
+        poll(lambda: img.evaluate("e => e.complete"), 60.0)
         assert img.evaluate("e => e.naturalWidth") > 100, img.get_attribute("src")
     assert "→" in page.locator(".residuals figcaption").first.inner_text()
     page.evaluate("window.scrollTo(0, 0)")

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import httpx
 
-from tests.api.ui.conftest import wait_for
+from tests.waiting import poll
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -27,13 +27,13 @@ def test_banner_link_signs_in_once(tmp_path):
                                 stderr=subprocess.STDOUT, start_new_session=True)
     try:
         pattern = re.compile(r"sign-in link for the demo read key, valid 10 min: (http://\S+/ui/sign-in/[\w-]+)\)")
-        m = wait_for(lambda: pattern.search(log.read_text()) or proc.poll() is not None, 120.0, 0.2)
+        m = poll(lambda: pattern.search(log.read_text()) or proc.poll() is not None, 120.0, 0.2)
         assert m and m is not True, log.read_text()
         link = m.group(1)
         read_key = re.search(r"read \(MES\):\s+(\S+)", log.read_text()).group(1)
         assert read_key not in link  # a token, never the key
         base = link.split("/ui/")[0]
-        assert wait_for(lambda: httpx.get(f"{base}/healthz").status_code == 200, 60.0, 0.2)
+        assert poll(lambda: httpx.get(f"{base}/healthz").status_code == 200, 60.0, 0.2)
         with httpx.Client() as browser:
             opened = browser.get(link)  # the page with the button (a GET spends nothing)
             assert opened.status_code == 200, opened.text
