@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 from pathlib import Path
@@ -10,7 +11,7 @@ from pathlib import Path
 from api.cli.output import _clean
 from core.gap import LABELS, CaseSize, diagnose, run_benchmark
 from core.errors import InputError
-from core.gap.benchmark import SMALL, benchmark_case
+from core.gap.benchmark import SMALL
 from storage.dataset import read_dataset, write_dataset
 
 
@@ -93,6 +94,14 @@ def _only(text: str | None, n_cases: int) -> list[int] | None:
     return [n - 1 for n in nums]
 
 
+def _keep_dataset(root: Path, plant: str, seed: int, n_cases: int, i: int, labs: tuple[str, ...], ds, truth: dict) -> None:
+    """``--write-datasets``: case ``i``'s dataset and the plant's truth, written where the
+    benchmark generated them (a module-level function: it goes to the worker processes)."""
+    folder = write_dataset(root / f"{plant}-seed{seed}-case{i + 1:03d}", ds)
+    _write_json({"plant": plant, "seed": seed, "cases": n_cases, "case": i + 1, "labels": list(labs), "truth": truth},
+                str(folder / "truth.json"))  # fmt: skip
+
+
 def run_benchmark_cmd(a: argparse.Namespace) -> int:
     if a.cases < 1:
         raise InputError(f"--cases (={a.cases}) must be >= 1")
@@ -101,20 +110,16 @@ def run_benchmark_cmd(a: argparse.Namespace) -> int:
     plants = ("twin", "independent") if a.plant == "both" else (a.plant,)
     results = []
     for plant in plants:
-        if a.write_datasets:
-            for i in range(a.cases) if only is None else only:
-                labs, ds, truth = benchmark_case(plant, a.cases, a.seed, i, size)
-                folder = write_dataset(Path(a.write_datasets) / f"{plant}-seed{a.seed}-case{i + 1:03d}", ds)
-                _write_json({"plant": plant, "seed": a.seed, "cases": a.cases, "case": i + 1,
-                             "labels": list(labs), "truth": truth}, str(folder / "truth.json"))  # fmt: skip
-
         def progress(c, plant=plant):
             got = "+".join(c.diagnosed_effects) or c.diagnosed
             print(f"{plant} case {c.index + 1:3d}/{a.cases}: {c.label:34s} -> {got:34s} gap {c.gap_before_um:7.2f} -> "
                   f"{c.gap_after_um:6.2f} µm (noise {c.noise_floor_um:.2f}) {c.seconds:5.1f} s"
                   f"{'' if c.split_given else ' [no split field]'}", flush=True)  # fmt: skip
 
-        res = run_benchmark(a.cases, a.seed, size, progress=progress, plant=plant, jobs=a.jobs, only=only)
+        keep = (functools.partial(_keep_dataset, Path(a.write_datasets), plant, a.seed, a.cases)
+                if a.write_datasets else None)  # fmt: skip
+        res = run_benchmark(a.cases, a.seed, size, progress=progress, plant=plant, jobs=a.jobs, only=only,
+                            keep_dataset=keep)  # fmt: skip
         print()
         if only is not None:
             print(f"only cases {', '.join(str(i + 1) for i in only)} of the {a.cases} drawn from seed {a.seed}: "

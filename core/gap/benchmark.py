@@ -432,8 +432,10 @@ def benchmark_case(plant: str, n_cases: int, seed: int, index: int,
 def _one_case(args) -> CaseResult:
     from core.gap.diagnose import GapSettings, diagnose
 
-    i, labs, seed, size, plant, with_split = args
-    ds, split_given = make_plant_case(plant, labs, np.random.default_rng([seed, i]), size, with_split)
+    i, labs, seed, size, plant, with_split, *keep = args
+    ds, split_given, truth = _plant_case(plant, labs, np.random.default_rng([seed, i]), size, with_split)
+    if keep and keep[0] is not None:
+        keep[0](i, labs, ds, truth)
     t0 = time.perf_counter()
     try:
         rep = diagnose(ds, GapSettings(keep_curves=False))
@@ -449,19 +451,23 @@ def _one_case(args) -> CaseResult:
 
 def run_benchmark(n_cases: int, seed: int, size: CaseSize = CaseSize(),
                   progress: Callable[[CaseResult], None] | None = None, plant: str = "twin",
-                  jobs: int = 1, only: Collection[int] | None = None) -> BenchmarkResult:
+                  jobs: int = 1, only: Collection[int] | None = None,
+                  keep_dataset: Callable[[int, tuple[str, ...], Dataset, dict], None] | None = None) -> BenchmarkResult:
     """Generate ``n_cases`` datasets of ``plant`` (balanced labels, a quarter mixed, a third
     without split fields) and diagnose each without its label, in ``jobs`` processes.
     Each case's data depend only on (seed, index), so the result does not depend on jobs.
     ``only``: diagnose just these cases (0-based indexes) of the same draw, with the same
-    data as in the whole run (to look again at a case of an evaluation)."""
+    data as in the whole run (to look again at a case of an evaluation). ``keep_dataset``:
+    called with each case's index, labels, dataset and the plant's truth before its
+    diagnosis, in the process that generated it (picklable when ``jobs`` > 1), to store
+    the dataset without generating it twice."""
     if plant not in PLANTS:
         raise ValueError(f"plant (={plant!r}) must be one of {PLANTS}")
     if jobs < 1:
         raise ValueError(f"jobs (={jobs}) must be >= 1")
     if only is not None and not all(0 <= i < n_cases for i in only):
         raise ValueError(f"only (={sorted(only)}) must hold case indexes in 0..{n_cases - 1}")
-    work = [(i, labs, seed, size, plant, with_split) for i, (labs, with_split) in enumerate(_draw(n_cases, seed))
+    work = [(i, labs, seed, size, plant, with_split, keep_dataset) for i, (labs, with_split) in enumerate(_draw(n_cases, seed))
             if only is None or i in only]  # fmt: skip
     out = []
     if jobs == 1:

@@ -137,12 +137,13 @@ def test_a_case_whose_diagnosis_raises_is_scored_wrong_not_a_stopped_benchmark(m
 def test_one_case_of_a_benchmark_again_and_its_dataset_written(tmp_path, capsys):
     """--only re-runs a case of a draw with the data of the whole run (case 3 of seed 4's
     three is a `none` case: a quick diagnosis); --write-datasets leaves it as a dataset
-    folder that `mebm gap diagnose` reads, with truth.json beside it."""
+    folder that `mebm gap diagnose` reads, with truth.json beside it, written by the worker
+    process that generated it (--jobs 2)."""
     from core.gap.benchmark import SMALL, benchmark_case, run_benchmark
 
     out = tmp_path / "bench.json"
     assert main(["gap", "benchmark", "--cases", "3", "--seed", "4", "--small", "--plant", "twin", "--only", "3",
-                 "--write-datasets", str(tmp_path / "cases"), "--json", str(out)]) == 0
+                 "--write-datasets", str(tmp_path / "cases"), "--json", str(out), "--jobs", "2"]) == 0
     text = capsys.readouterr().out
     assert [line.split(":")[0] for line in text.splitlines() if line.startswith("twin case")] == ["twin case   3/3"]
     assert "only cases 3 of the 3 drawn from seed 4" in text
@@ -180,6 +181,24 @@ def test_one_case_of_a_benchmark_again_and_its_dataset_written(tmp_path, capsys)
     # a case outside the draw is refused by run_benchmark itself too, not only by the CLI
     with pytest.raises(ValueError, match="only"):
         run_benchmark(3, 4, SMALL, only=[3])
+
+
+def test_a_kept_dataset_is_the_one_diagnosed_and_generated_once(monkeypatch):
+    import importlib
+
+    bm = importlib.import_module("core.gap.benchmark")
+    made, kept = [], []
+    real = bm._plant_case
+
+    def counted(*a, **k):
+        out = real(*a, **k)
+        made.append(out[0])
+        return out
+
+    monkeypatch.setattr(bm, "_plant_case", counted)
+    res = bm.run_benchmark(3, 4, bm.SMALL, only=[2], keep_dataset=lambda i, labs, ds, truth: kept.append((i, labs, ds)))
+    assert len(made) == 1 and [(i, labs) for i, labs, _ in kept] == [(2, ())]
+    assert kept[0][2] is made[0] and res.cases[0].index == 2
 
 
 @pytest.mark.parametrize("only", ["0", "4", "x", ","])
