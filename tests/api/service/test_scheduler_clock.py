@@ -1,7 +1,6 @@
 """The service's clock runs a job that starts late, once, instead of skipping it."""
 
 import threading
-import time
 from datetime import datetime, timedelta, timezone
 
 from api.service.scheduler import CycleScheduler
@@ -23,25 +22,3 @@ def test_a_one_shot_job_due_seconds_ago_still_runs():
     finally:
         sch.clock.shutdown(wait=True)
 
-
-def test_an_interval_job_that_fell_behind_runs_once_not_once_per_missed_period():
-    sch = CycleScheduler(None, None)
-    runs = []
-    done = threading.Event()
-
-    def job():
-        runs.append(datetime.now(timezone.utc))
-        done.set()
-
-    sch.clock.start()
-    try:
-        # first due 10 periods ago: coalesced into one run now, then every 60 s
-        t0 = datetime.now(timezone.utc)
-        sch.clock.add_job(job, "interval", seconds=60, id="behind", next_run_time=t0 - timedelta(seconds=600))
-        assert done.wait(10.0), "an interval job 10 periods behind was skipped as missed"
-        assert poll(lambda: sch.clock.get_job("behind").next_run_time > t0)  # rescheduled by the clock
-        time.sleep(0.5)
-        sch.clock.remove_job("behind")
-    finally:
-        sch.clock.shutdown(wait=True)
-    assert len(runs) == 1
