@@ -1,0 +1,81 @@
+"""The noise floor is the RMS a test gap of white noise alone would have: the decision
+compares the (RMS) test gap against it. Round-trip axes, whose encoders differ, each count
+with their own level; contours with the level of every run pooled."""
+
+import importlib
+
+import numpy as np
+import pytest
+
+dg = importlib.import_module("core.gap.diagnose")  # core.gap.diagnose is also the function
+
+
+def _rms(runs) -> float:
+    return float(np.sqrt(np.mean(np.concatenate(runs) ** 2)))
+
+
+def test_one_noise_level_is_read_as_it_is():
+    rng = np.random.default_rng(3)
+    runs = [0.3 * rng.standard_normal(20000) for _ in range(3)]
+    assert dg.noise_floor_um(runs) == pytest.approx(0.3, rel=0.03)
+    assert dg.noise_floor_um(runs, ["x", "x", None]) == pytest.approx(0.3, rel=0.03)
+
+
+def test_axes_of_different_noise_give_the_rms_of_the_noise_not_the_quieter_axis():
+    """x's encoders 0.40 µm, y's 0.08 µm (the independent plant's seed 8311, case 48): the
+    level of the pooled differences reads near y's, half the RMS of the noise."""
+    rng = np.random.default_rng(4)
+    x, y = 0.40 * rng.standard_normal(30000), 0.08 * rng.standard_normal(30000)
+    circle = 0.1 * rng.standard_normal(2000)
+    floor = dg.noise_floor_um([x, y, circle], ["x", "y", None])
+    assert floor == pytest.approx(_rms([x, y, circle]), rel=0.05)
+    pooled = dg.noise_floor_um([x, y, circle])
+    assert pooled < 0.7 * floor  # the floor before stop 52: a gap of noise alone at 2x it
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_white_noise_of_any_levels_per_axis_stays_at_its_floor(seed):
+    rng = np.random.default_rng(seed)
+    level = {"x": rng.uniform(0.05, 0.6), "y": rng.uniform(0.05, 0.6), "z": rng.uniform(0.05, 0.6)}
+    axes = [str(a) for a in rng.choice(list(level), int(rng.integers(2, 9)))]
+    runs = [level[a] * rng.standard_normal(int(rng.integers(1500, 30000))) for a in axes]
+    assert 0.95 < _rms(runs) / dg.noise_floor_um(runs, axes) < 1.05
+
+
+def test_one_run_that_moves_fast_does_not_raise_its_axis_level():
+    """A round trip that stick-slips through its whole stroke, beside three quiet ones of its
+    axis: the axis' level comes from their differences pooled, not from each run's (a
+    median: a quarter of the samples moving raises it by a third, a third by a half)."""
+    rng = np.random.default_rng(7)
+    quiet = [0.2 * rng.standard_normal(20000) for _ in range(3)]
+    t = np.arange(20000) / 2000.0
+    rattling = 0.2 * rng.standard_normal(t.size) + 15.0 * np.sin(2 * np.pi * 60.0 * t)
+    assert dg.noise_floor_um([rattling]) > 5 * 0.2  # a level of that run's own
+    assert dg.noise_floor_um([*quiet, rattling], ["x"] * 4) < 1.4 * 0.2
+
+
+def test_contours_that_move_fast_keep_the_pooled_level():
+    """A contour sampled sparsely whose radial error stick-slips all along it: its own
+    differences read the motion; the contours take the level of every run pooled."""
+    rng = np.random.default_rng(8)
+    rt = [0.25 * rng.standard_normal(29000), 0.11 * rng.standard_normal(29000)]
+    circle = 0.1 * rng.standard_normal(1500) + 10.0 * np.sin(np.arange(1500) * 1.3)
+    floor = dg.noise_floor_um([*rt, circle], ["x", "y", None])
+    assert floor < 0.3
+    assert dg.noise_floor_um([circle]) > 3.0  # what a level of the contour's own would read
+
+
+def test_slow_motion_and_steps_do_not_raise_it():
+    rng = np.random.default_rng(5)
+    t = np.linspace(0.0, 10.0, 20000)
+    r = 0.2 * rng.standard_normal(t.size) + 30.0 * np.sin(0.5 * t) + np.where(t > 5.0, 50.0, 0.0)
+    assert dg.noise_floor_um([r]) == pytest.approx(0.2, rel=0.05)
+    assert dg.noise_floor_um([r], ["x"]) == pytest.approx(0.2, rel=0.05)
+
+
+def test_runs_too_short_to_difference_are_left_out():
+    assert dg.noise_floor_um([]) == 0.0
+    assert dg.noise_floor_um([np.array([1.0, 2.0])], ["x"]) == 0.0
+    rng = np.random.default_rng(6)
+    runs = [np.array([5.0, -5.0]), 0.1 * rng.standard_normal(5000)]
+    assert dg.noise_floor_um(runs, ["x", "y"]) == pytest.approx(0.1, rel=0.05)
