@@ -125,40 +125,53 @@ class GapSettings:
     stick_slip_names_friction: bool = True
 
 
-def _mad_noise_um(d: np.ndarray) -> float:
-    """White-noise level from first differences ``d``: their MAD / (0.6745 sqrt 2)."""
-    if d.size == 0:
+NOISE_DIFF_ORDER = 3  # the differences the white-noise level is read from (see noise_floor_um)
+
+
+def white_level_um(resid: Sequence[np.ndarray], order: int = NOISE_DIFF_ORDER) -> float:
+    """White-noise level of residuals: the MAD of their ``order``-th differences, pooled, /
+    (0.6745 sqrt C(2k, k)) (for white noise of level s a k-th difference has the deviation
+    s sqrt(C(2k, k)): sqrt 2 for first differences, sqrt 20 for third)."""
+    k = int(order)
+    parts = [np.diff(r, k) for r in resid if r.size > k + 1]
+    if not parts:
         return 0.0
-    return float(np.median(np.abs(d - np.median(d))) / 0.6745 / math.sqrt(2))
+    d = np.concatenate(parts)
+    return float(np.median(np.abs(d - np.median(d))) / 0.6745 / math.sqrt(math.comb(2 * k, k)))
 
 
 def noise_floor_um(resid: Sequence[np.ndarray], groups: Sequence[str | None] | None = None) -> float:
-    """The white-noise level of residuals, as the RMS that a gap of white noise alone would
-    have: the MAD of first differences / (0.6745 sqrt 2), robust to steps, to anything
-    slower than the sampling and to a minority of samples that move fast.
+    """The white-noise level of residuals (:func:`white_level_um`), as the RMS that a gap of
+    white noise alone would have.
 
     ``groups``: one key per residual, or None. Residuals that share a key share their
     encoders (a round-trip axis: its table and motor encoders) and get one level, from
-    their pooled differences; the others (key None, or no ``groups``) get the level of every
-    residual's differences pooled. The floor is the root mean square of the levels
+    their pooled differences; the others (key None, or no ``groups``) get the level of
+    every residual's differences pooled. The floor is the root mean square of the levels
     weighted by the samples, the way the test gap pools them. Without groups it is the
-    pooled level alone (as before stop 52). Why: two axes' encoders differ in noise, and
-    one median over both follows the quieter majority of samples while the RMS gap
-    carries the noisier axis in full (independent plant, seed 8311, case 48, a `none`
-    case: x's round-trip noise 0.40 µm, y's 0.08 µm; the pooled level read 0.16 µm, the
-    gap of 0.34 µm, white noise alone, stood at 2.15x it, and friction was named; with the
-    axes apart the floor is 0.29 µm, 1.17x). Contours keep the pooled level: sampled
-    sparser, their differences carry the contour's own fast motion (stick-slip spikes),
-    and a level of their own read 5-17 µm on friction and compliance cases of that seed
-    where the encoders' was 0.1-0.8 µm."""
-    runs = [(r, None if groups is None else g) for r, g in zip(resid, groups or [None] * len(resid)) if r.size > 2]
+    pooled level alone.
+
+    Why (stop 52): two axes' encoders differ in noise, and one median over both follows
+    the quieter majority of samples while the RMS gap carries the noisier axis in full
+    (independent plant, seed 8311, case 48, a `none` case: x's round-trip noise 0.40 µm,
+    y's 0.08 µm; the pooled level read 0.16 µm, the gap of 0.34 µm, white noise alone,
+    stood at 2.15x it, and friction was named; with the axes apart the floor is 0.29 µm,
+    1.17x). Third differences, not first: a chain that stick-slips or rings through a
+    whole stroke moves smoothly between samples, which first differences read as noise
+    (6060 case 28, friction: x's level 7.17 µm from first differences, 0.36 µm from
+    third, the encoders' 0.33 µm; 8311 case 39, compliance: y 0.82 -> 0.32 µm, encoders
+    0.32 µm; contours of 8311 cases 39 and 40: 13.8 and 7.7 µm -> 0.60 and 0.51 µm), while
+    on white noise all orders read the same (a sharp slip is a few samples: the median
+    passes it). Contours keep the pooled level: sampled sparser, their differences still
+    carry more of the contour's own motion."""
+    runs = [(r, None if groups is None else g) for r, g in zip(resid, groups or [None] * len(resid))
+            if r.size > NOISE_DIFF_ORDER + 1]  # fmt: skip
     if not runs:
         return 0.0
-    pooled = _mad_noise_um(np.concatenate([np.diff(r) for r, _ in runs]))
+    pooled = white_level_um([r for r, _ in runs])
     if groups is None:
         return pooled
-    level = {g: _mad_noise_um(np.concatenate([np.diff(r) for r, k in runs if k == g]))
-             for g in {k for _, k in runs if k is not None}}  # fmt: skip
+    level = {g: white_level_um([r for r, k in runs if k == g]) for g in {k for _, k in runs if k is not None}}
     n = np.array([r.size for r, _ in runs], dtype=float)
     s = np.array([pooled if g is None else level[g] for _, g in runs])
     return float(np.sqrt(np.sum(n * s * s) / np.sum(n)))
@@ -334,7 +347,8 @@ class _Diagnosis:
                  if a in c.axes and c.fit_idx.size > 2]  # fmt: skip
         if not parts:
             return False
-        return rt.rms(np.concatenate(parts)) > CONTOUR_SIGNAL_FACTOR * noise_floor_um(parts)
+        # first differences, as this gate was set on (stop 52 moved the decision's floor alone)
+        return rt.rms(np.concatenate(parts)) > CONTOUR_SIGNAL_FACTOR * white_level_um(parts, order=1)
 
     def _ct_train_rss(self, sims: Mapping[str, dict]) -> float:
         return sum(float(np.sum(ct.tracking_envelope_residual_um(c, sims[c.file]) ** 2)) for c in self.train_ct)
