@@ -432,10 +432,10 @@ def benchmark_case(plant: str, n_cases: int, seed: int, index: int,
 def _one_case(args) -> CaseResult:
     from core.gap.diagnose import GapSettings, diagnose
 
-    i, labs, seed, size, plant, with_split, *keep = args
+    i, labs, seed, size, plant, with_split, keep_dataset = args
     ds, split_given, truth = _plant_case(plant, labs, np.random.default_rng([seed, i]), size, with_split)
-    if keep and keep[0] is not None:
-        keep[0](i, labs, ds, truth)
+    if keep_dataset is not None:
+        keep_dataset(i, labs, ds, truth)
     t0 = time.perf_counter()
     try:
         rep = diagnose(ds, GapSettings(keep_curves=False))

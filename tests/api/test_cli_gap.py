@@ -130,7 +130,7 @@ def test_a_case_whose_diagnosis_raises_is_scored_wrong_not_a_stopped_benchmark(m
         raise ValueError("array must not contain infs or NaNs")
 
     monkeypatch.setattr(dg, "diagnose", boom)
-    res = _one_case((0, ("thermal",), 5, SMALL, "twin", True))
+    res = _one_case((0, ("thermal",), 5, SMALL, "twin", True, None))
     assert res.diagnosed == "error" and not res.correct and "infs or NaNs" in res.axis
 
 
