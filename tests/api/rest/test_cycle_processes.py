@@ -17,7 +17,7 @@ import pytest
 from api.service.config import ConfigError, default_settings, parse_settings
 from api.service.runner import CycleProcessDied, CycleProcesses, DriverRunner, NoFreeProcess
 from api.service.service import Service
-from api.service.worker_process import end_pool, spawn_pool, still_running
+from api.service.worker_process import end_pool, spawn_pool, still_running, wait_for_sentinels
 from storage.db import AxisRecord, config_repo, results_repo, session_scope
 from tests.api.rest.conftest import make_settings
 from tests.waiting import poll
@@ -32,20 +32,29 @@ def _pid() -> int:
     return os.getpid()
 
 
-def test_a_free_process_runs_the_call_a_busy_one_sends_it_back_at_once():
+def _wait_for_file(path: str) -> None:
+    """Runs in the worker process until the test creates ``path``: a call the test holds."""
+    while not os.path.exists(path):
+        time.sleep(0.01)
+
+
+def test_a_free_process_runs_the_call_a_busy_one_sends_it_back_at_once(tmp_path):
     procs = CycleProcesses(1)
     procs.start()
+    release = tmp_path / "release"
     try:
         assert poll(lambda: started(procs), 60)
         assert procs.run(_pid) != os.getpid()  # in the worker process
-        busy = threading.Thread(target=procs.run, args=(time.sleep, 1.5))
+        busy = threading.Thread(target=procs.run, args=(_wait_for_file, str(release)))
         busy.start()
-        assert poll(lambda: procs._free == 0, 5)
-        t = time.perf_counter()
+        assert poll(lambda: procs._free == 0, 60)
         with pytest.raises(NoFreeProcess):
             procs.run(_pid)
-        assert time.perf_counter() - t < 0.1  # refused at once: the caller runs it itself
-        busy.join()
+        # refused at once, not after waiting for the busy call: that call is still held
+        assert busy.is_alive()
+        release.touch()
+        busy.join(60)
+        assert not busy.is_alive()
         assert procs.run(abs, -3) == 3
         assert (procs.in_process, procs.inline, procs.crashes) == (3, 1, 0)
     finally:
@@ -75,17 +84,18 @@ def test_closing_ends_the_processes_and_the_pool_thread_a_stuck_cycle_included(m
 
     def stuck():
         try:
-            procs.run(_mark_then_sleep, str(tmp_path / "running"), 60)
+            procs.run(_mark_then_sleep, str(tmp_path / "running"), 3600)
         except CycleProcessDied as exc:
             outcome.append(exc)
 
     busy = threading.Thread(target=stuck)
     busy.start()
-    assert poll(lambda: (tmp_path / "running").exists(), 10)
-    t = time.perf_counter()
-    procs.close()
-    # the grace, then terminate (end_pool waits at most grace + 9 s), not the 60 s the cycle wanted
-    assert time.perf_counter() - t < 30
+    assert poll(lambda: (tmp_path / "running").exists(), 60)
+    # the grace, then terminate: close returns although the cycle wanted an hour
+    closing = threading.Thread(target=procs.close)
+    closing.start()
+    closing.join(120)
+    assert not closing.is_alive()
     assert workers and not any(p.is_alive() for p in workers)
     assert not manager.is_alive()
     busy.join(10)
@@ -188,11 +198,13 @@ def test_a_process_that_ends_within_the_grace_is_not_reported_or_terminated(capl
 
     reaper = threading.Thread(target=reap, daemon=True)
     reaper.start()
-    t = time.perf_counter()
     with caplog.at_level(logging.WARNING, logger="api.service.worker_process"):
-        end_pool(pool, grace_s=10.0, what="test")
+        # a grace of an hour: end_pool returning at all shows the grace was not used up
+        ending = threading.Thread(target=end_pool, args=(pool,), kwargs={"grace_s": 3600.0, "what": "test"})
+        ending.start()
+        ending.join(120)
+        assert not ending.is_alive()
     assert "did not end" not in caplog.text
-    assert time.perf_counter() - t < 10.0  # it ended on the stop: the grace was not used up
     reaper.join(5)
     # it ended by itself, not terminated, whichever thread reaped it
     assert (reaped and os.WIFEXITED(reaped[0]) and os.WEXITSTATUS(reaped[0]) == 0) or proc.exitcode == 0
@@ -220,18 +232,28 @@ def test_a_process_reaped_by_another_thread_counts_as_ended():
     proc.start()
     _, status = os.waitpid(proc.pid, 0)  # this thread reaps it, not the Process object
     assert os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0
-    t = time.perf_counter()
-    assert still_running([proc], 10.0) == []
-    assert time.perf_counter() - t < 5.0  # at once, not after the timeout
+    found = []
+    # a timeout of an hour: an answer at all is an answer at once, not after the timeout
+    asking = threading.Thread(target=lambda: found.append(still_running([proc], 3600.0)))
+    asking.start()
+    asking.join(120)
+    assert not asking.is_alive() and found == [[]]
 
 
-def test_a_process_still_running_is_returned_after_the_timeout():
+def test_a_process_still_running_is_returned_after_the_timeout(monkeypatch):
     proc = multiprocessing.get_context("spawn").Process(target=time.sleep, args=(60,))
     proc.start()
+    waited = []
+
+    def wait_and_record(sentinels, timeout):
+        waited.append(timeout)
+        return wait_for_sentinels(sentinels, timeout)
+
+    monkeypatch.setattr("api.service.worker_process.wait_for_sentinels", wait_and_record)
     try:
-        t = time.perf_counter()
         assert still_running([proc], 0.5) == [proc]
-        assert 0.5 <= time.perf_counter() - t < 5.0
+        # it waited on the sentinel with the timeout, not without one
+        assert waited and all(0.0 <= w <= 0.5 for w in waited) and waited[0] > 0.0
     finally:
         proc.kill()
         proc.join(5)
