@@ -108,10 +108,9 @@ class ProfileModbusDriver(ModbusDriver):
         (passive), the flag is read first: it reads set only once the round trip has started,
         so the positions read after it in the same poll belong to the round trip. Read the
         other way round, a start between the two reads paired the rest position with the set
-        flag, and the round trip was measured from the wrong start (stop 26's CI failure).
-        Otherwise the motor position's read comes first, as planned. (I suspected flag-first
-        of the RTU test's outlier failures on a loaded host; that test then failed with
-        motor-first too, so the suspicion was wrong and the order was left as it was.)"""
+        flag, and the round trip was measured from the wrong start.
+        Otherwise the motor position's read comes first. (The read order does not cause the
+        RTU test's outliers on a loaded host: they occur with motor-first too.)"""
         order = list(range(len(self.profile.reads)))
         if self.trigger == "passive" and self.running_flag:
             order.sort(key=lambda i: 0 if "running" in self.profile.reads[i].values else 1)

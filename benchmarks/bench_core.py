@@ -2,8 +2,8 @@
 
 Prints the median wall time of `analyze_round_trip` over repeats and its ratio to
 one `numpy.interp` over the same number of samples (a floor for any O(n) pass).
-Goal (issue 2): under 0.3 s on the 2-core machine and under 15x that baseline, with
-the interpolation onto the grid and the outlier rejection on (issue 16): the trace
+Goal: under 0.3 s on the 2-core machine and under 15x that baseline, with
+the interpolation onto the grid and the outlier rejection on: the trace
 carries 20 glitches of 5 mm on the motor and table encoders.
 
     .venv/bin/python benchmarks/bench_core.py [--samples N] [--repeats R]

@@ -1,4 +1,4 @@
-"""A fleet under load (issue 13): N ``mebm serve`` workers on one PostgreSQL database,
+"""A fleet under load: N ``mebm serve`` workers on one PostgreSQL database,
 M axes on short schedules, one worker killed with SIGKILL part-way.
 
 Run:

@@ -1,5 +1,5 @@
 """A year of one axis under condition-based maintenance, and the figure of its history
-with the repairs marked (docs/maintenance-history.png, issue 20).
+with the repairs marked (docs/maintenance-history.png).
 
 The demo axis (the seed paper's Y axis and its circle task, tolerance 45 µm) measured
 once a day (06:00 UTC); its backlash follows the simulator's model: b̄ = b_0 + γ·(utility days

@@ -1,4 +1,4 @@
-"""A bidirectional compensation table from a measured round trip (issue 17, item 5).
+"""A bidirectional compensation table from a measured round trip.
 
 Sign convention, used everywhere in mebm's compensation code
 ------------------------------------------------------------

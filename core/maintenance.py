@@ -1,4 +1,4 @@
-"""The maintenance loop's own logic (issue 20): the work order's state machine, the
+"""The maintenance loop's own logic: the work order's state machine, the
 comparison that verifies a repair, and the managers' counts against a fixed interval.
 
 Terms are those of EN 13306: an order opened on ALARM is *corrective* maintenance (the

@@ -1,4 +1,4 @@
-"""Prognosis of an axis' backlash from its history (issue 16, item 6).
+"""Prognosis of an axis' backlash from its history.
 
 The seed paper found b̄ follows temperature (r = 0.935), not wear (r = 0.24). A
 maintenance planner still wants two answers: at which shop temperature the tolerance

@@ -1,4 +1,4 @@
-"""Wear of a simulated axis, and its repair (issue 20: a maintenance loop you can watch).
+"""Wear of a simulated axis, and its repair (a maintenance loop you can watch).
 
 The backlash grows by ``wear_um_per_day`` per utility day; the simulated clock counts
 ``utility_days_per_s`` utility days per second of its own clock (a high rate: weeks of

@@ -1,5 +1,5 @@
 """``mebm maintenance orders|show|ack|cancel|repair|verify|summary``: the maintenance loop
-(issue 20) through a running service's REST API.
+through a running service's REST API.
 
 The service must run (it queues the verification measurement of a repair). The key is
 ``--key``, else ``MEBM_API_KEY``, else the demo's operate key kept in

@@ -1,4 +1,4 @@
-"""MQTT: the status and the alerts, published to a broker (issue 17; paho-mqtt 2.x).
+"""MQTT: the status and the alerts, published to a broker (paho-mqtt 2.x).
 
 Topics, per machine ``M`` and axis ``A`` (names with ``/ + #`` or blanks get ``_``):
 

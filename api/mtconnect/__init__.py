@@ -1,5 +1,5 @@
 """MTConnect: an agent-compatible, read-only HTTP interface (MTConnect 2.4) under
-``/mtconnect`` on the API's port (issue 17).
+``/mtconnect`` on the API's port.
 
 Each machine is a ``Device``, each axis a ``Linear`` component carrying b̄ and its
 uncertainty, the backlash limit, the TBE of each machining task, the temperature, the

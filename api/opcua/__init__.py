@@ -1,5 +1,5 @@
-"""OPC UA: the axes' backlash, limit, state and TBE as a read-only OPC UA server (issue 17;
-asyncua 2.x).
+"""OPC UA: the axes' backlash, limit, state and TBE as a read-only OPC UA server
+(asyncua 2.x).
 
 Address space (namespace ``urn:mebm``)::
 

@@ -52,7 +52,7 @@ acknowledge alerts), `admin` (configure machines, axes, tasks, schedules, keys).
 
 
 def _start_interfaces(app: FastAPI, svc: Service, settings: Settings) -> list:
-    """The event consumers the configuration turns on (issue 17): MQTT, webhooks."""
+    """The event consumers the configuration turns on: MQTT, webhooks."""
     app.state.mqtt = app.state.webhooks = None
     started = []
     if settings.mqtt.url:
@@ -132,9 +132,9 @@ def create_app(settings: Settings, *, service: Service | None = None, runner: Cy
         api.include_router(module.router)
     app.include_router(api)
     app.include_router(health.router, responses={k: v for k, v in ERROR_RESPONSES.items() if k in (401, 403, 503)})
-    install_ui(app)  # the dashboard under /ui/ (issue 12); app.state.ui issues sign-in links
+    install_ui(app)  # the dashboard under /ui/; app.state.ui issues sign-in links
     app.state.mtconnect = None
-    if settings.mtconnect.enabled:  # an MTConnect agent on the same port (issue 17); it imports no REST
+    if settings.mtconnect.enabled:  # an MTConnect agent on the same port; it imports no REST
         from api.mtconnect import MTConnectAgent, make_router
 
         app.state.mtconnect = MTConnectAgent(svc, settings.mtconnect)

@@ -88,7 +88,7 @@ def status(s: AxisStatus, now: datetime, next_run: datetime | None) -> sc.AxisSt
 
 
 def _active_order(o) -> dict | None:
-    """The status' summary of the axis' active work order (issue 20), for an MES that polls
+    """The status' summary of the axis' active work order, for an MES that polls
     the status rather than the maintenance endpoints."""
     if o is None:
         return None

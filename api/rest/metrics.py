@@ -75,7 +75,7 @@ class ServiceCollector:
         yield from self._fleet()
 
     def _fleet(self):
-        """Issue 13: leases held and takeovers per worker, lateness of scheduled cycles."""
+        """Leases held and takeovers per worker, lateness of scheduled cycles."""
         try:
             workers = workers_overview(self.service)
             late_rows = []

@@ -46,7 +46,7 @@ class SimulatorSettings:
     temperature_amplitude_c: float = 6.0
     temperature_period_s: float = 900.0
     cyclic_error_um: float = 4.0
-    # wear (issue 20): b̄ grows by wear_um_per_day per utility day, the simulated clock
+    # wear: b̄ grows by wear_um_per_day per utility day, the simulated clock
     # making utility_days_per_s of them each second; a recorded repair restores it
     wear_um_per_day: float = 0.0
     utility_days_per_s: float = 1.0 / 86400.0
@@ -214,7 +214,7 @@ def demo_axis() -> AxisConfig:
     ))
 
 
-# `make run`'s demo chain wears (issue 20): b̄ starts OK near 192 µm (190 µm at 20 °C, the shop 21 ± 2 °C), grows
+# `make run`'s demo chain wears: b̄ starts OK near 192 µm (190 µm at 20 °C, the shop 21 ± 2 °C), grows
 # 4 µm per utility day with a utility day every 15 s, so the axis is WARNING after about a minute and ALARM
 # (about 239 µm) after about three; `mebm maintenance repair` restores it (docs/maintenance.md)
 DEMO_SIMULATOR = SimulatorSettings(backlash_um_at_20c=190.0, temperature_amplitude_c=2.0, wear_um_per_day=4.0,

@@ -46,7 +46,7 @@ class DriftingTwin:
         self.clock = clock
         self.t0 = clock()
         self.backlash_offset_um = 0.0
-        self.wear = Wear(sim.wear_um_per_day, sim.utility_days_per_s, clock=clock)  # issue 20: use wears the chain
+        self.wear = Wear(sim.wear_um_per_day, sim.utility_days_per_s, clock=clock)  # use wears the chain
         self._lock = threading.Lock()
         effects = Effects(
             thermal=Thermal(lead_error_um_per_m=DEMO_LEAD_ERROR_UM_PER_M,

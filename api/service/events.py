@@ -1,4 +1,4 @@
-"""The service's one internal event source, fanned out to every interface (issue 17).
+"""The service's one internal event source, fanned out to every interface.
 
 The cycle executor calls the service when a cycle is saved; the service turns that into
 :class:`Event` objects (``measurement_stored``, ``cycle_failed``, ``alert_changed``, ``work_order_changed``) and
@@ -22,7 +22,7 @@ from storage.db import AlertRecord, CycleRecord, WorkOrderRecord, utcnow
 
 log = logging.getLogger("mebm.events")
 
-# axis_changed: created or reconfigured; work_order_changed: a maintenance order opened or moved (issue 20)
+# axis_changed: created or reconfigured; work_order_changed: a maintenance order opened or moved
 KINDS = ("measurement_stored", "cycle_failed", "alert_changed", "axis_changed", "work_order_changed")
 
 
@@ -139,7 +139,7 @@ def events_of_saved_cycle(axis_id: int, machine: str, axis: str, cycle: CycleRec
 
 
 def order_document(ev: Event) -> dict:
-    """A work-order step (issue 20) as the MQTT and webhook outputs carry it."""
+    """A work-order step as the MQTT and webhook outputs carry it."""
     o = ev.order
     last = o.transitions[-1] if o.transitions else None
     return {

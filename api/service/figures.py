@@ -114,7 +114,7 @@ def _repairs(s, axis_id: int, since: datetime | None) -> list[tuple[datetime, st
 
 
 def prognosis_png(st, title: str, draw: Callable[..., bytes] | None = None) -> bytes:
-    """Fig. 10 with the forecast of b̄ at the worst-case temperature and its band (issue 16)."""
+    """Fig. 10 with the forecast of b̄ at the worst-case temperature and its band."""
     draw = draw or _here
     h = st.history
     if h is None or h.rows_used == 0:

@@ -2,7 +2,7 @@
 
 A diagnosis (core.gap) takes 5-60 s on a 2-core machine, and several minutes on a
 dataset whose visible gap no single candidate explains (the two-together search: up to
-620 s seen in stop 39's benchmark, two diagnoses at a time), longer than an MES should
+620 s seen in the independent plant's benchmark, two diagnoses at a time), longer than an MES should
 hold a request open, and it is pure Python/numpy/numba that holds the interpreter lock
 while it runs.
 Run on a thread of the service, it slowed every other request (a status poll waited

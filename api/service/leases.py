@@ -1,4 +1,4 @@
-"""The fleet scheduler (issue 13): several ``mebm serve`` workers on one PostgreSQL database.
+"""The fleet scheduler: several ``mebm serve`` workers on one PostgreSQL database.
 
 Each worker runs one loop, every ``WorkerSettings.period_s`` (2 s by default):
 
@@ -409,7 +409,7 @@ class FleetScheduler(CycleScheduler):
     def request(self, axis_id: int, trigger: str, requested_by: str | None = None) -> CycleRecord | CycleRequest | None:
         """Queue a cycle. On the axis' owner, as a single worker does (runs here). Elsewhere
         a manual trigger is only stored as queued (refused atomically if one waits already)
-        and the owner runs it, and so is a repair's verification (issue 20: the repair may be
+        and the owner runs it, and so is a repair's verification (the repair may be
         recorded through any worker's API); a scheduled one is not this worker's to queue (None)."""
         if self.active and axis_id in self.held:
             rec = super().request(axis_id, trigger, requested_by)

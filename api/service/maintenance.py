@@ -1,4 +1,4 @@
-"""The maintenance loop in the service (issue 20): orders opened by the measured error,
+"""The maintenance loop in the service: orders opened by the measured error,
 repairs recorded by people, and the measurement that verifies them.
 
 - After each stored ok measurement (:meth:`MaintenanceLoop.after_cycle`, called by the

@@ -1,4 +1,4 @@
-"""What a person sends to the maintenance loop (issue 20), validated once for every
+"""What a person sends to the maintenance loop, validated once for every
 writer: the REST API's request bodies (``api.rest.routers.maintenance``) and the
 dashboard's forms (``api.ui.maintenance``) both read into these models, so a value
 refused by one is refused by the other with the same message. Also the managers'

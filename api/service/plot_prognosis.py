@@ -1,4 +1,4 @@
-"""The ``prognosis`` figure (issue 16 item 6): the seed paper's Fig. 10 extended with the
+"""The ``prognosis`` figure: the seed paper's Fig. 10 extended with the
 forecast of b̄ at the worst-case temperature and its confidence band.
 
 A module of its own beside ``plots`` (whose helpers it uses): each render owns its

@@ -194,7 +194,7 @@ def _thin(values, *others, max_points: int = SCREEN_POINTS):
 
 
 def mark_repairs(ax, repairs: Sequence[tuple[datetime, str]]) -> None:
-    """Each repair (issue 20) as a vertical line labelled with its kind: the history on
+    """Each repair as a vertical line labelled with its kind: the history on
     either side belongs to a different chain."""
     for i, (when, kind) in enumerate(repairs):
         ax.axvline(when, color="#2ca02c", ls=":", lw=1.6, label="repair" if i == 0 else None)

@@ -34,7 +34,7 @@ class HistoryAnswers:
     computed_at: datetime
     # the history the plot draws: (measured_at_s, temperature_c, utility_day, backlash_mean_um)
     series: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
-    fitted_since: datetime | None = None  # the last repair: the fit uses only what came after (issue 20)
+    fitted_since: datetime | None = None  # the last repair: the fit uses only what came after
 
 
 def _key(axis: AxisRecord, latest: ResultRecord | None, history_n: int, since: datetime | None = None) -> tuple:
@@ -113,7 +113,7 @@ def _history_fit(s, axis_id: int, history_n: int, since: datetime | None, memo) 
     every new measurement. Past that, the history is thinned to every k-th row anyway, so
     it is redone once k more measurements have come (k the thinning step): reading and
     thinning a year of rows took 0.47 s on the 2-core machine, and the status is
-    recomputed after every cycle (issue 21). The newest measurement's own figures (its
+    recomputed after every cycle. The newest measurement's own figures (its
     b̄'s uncertainty, its utility day) enter the prognosis at once; only the fitted
     history lags, by fewer than k measurements."""
     last = memo.last(axis_id, "fit") if memo is not None else None

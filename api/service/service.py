@@ -112,12 +112,12 @@ class Service:
         return sim
 
     def _on_saved(self, axis_id, cycle, alerts) -> None:
-        # (the executor has published the axis' new status: computed with the cycle, issue 21)
+        # (the executor has published the axis' new status: computed with the cycle)
         axis = self.executor.known_axis(axis_id) if self.executor is not None else None
         machine, name = (axis.machine_name, axis.name) if axis is not None else ("?", "?")
         for ev in events_of_saved_cycle(axis_id, machine, name, cycle, alerts):
             self.events.publish(ev)
-        self.maintenance.after_cycle(axis_id, cycle, alerts)  # opens or verifies a work order (issue 20)
+        self.maintenance.after_cycle(axis_id, cycle, alerts)  # opens or verifies a work order
 
     def status_document(self, axis_id: int) -> bytes | None:
         """The status body as REST serves it (``render_status``, set by the REST app), for

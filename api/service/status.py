@@ -35,7 +35,7 @@ class AxisStatus:
     last_raw_run_lost: str | None = None  # why the last finished cycle's raw run was lost
     history: HistoryAnswers | None = None  # prognosis and history clearance (api.service.prognosis)
     history_error: str | None = None
-    work_order: WorkOrderRecord | None = None  # the axis' active maintenance order (issue 20)
+    work_order: WorkOrderRecord | None = None  # the axis' active maintenance order
 
 
 def compute_status(s, axis_id: int, history_memo: HistoryMemo | None = None) -> AxisStatus:
@@ -161,7 +161,7 @@ class StatusCache:
 
     def prepare(self, s, axis_id: int):
         """The status of ``axis_id`` computed in the transaction ``s`` that stores a cycle, so
-        that no poller has to recompute it after the commit (issue 21: the first poll after
+        that no poller has to recompute it after the commit (the first poll after
         each cycle paid for the recomputation). Computed before the commit, it already
         contains the new measurement. Returns the function the caller calls once the
         commit is done, which publishes it. Until then pollers get the cached status, as

@@ -1,4 +1,4 @@
-"""The dashboard (issue 12): server-rendered pages under ``/ui/`` in the API's process.
+"""The dashboard: server-rendered pages under ``/ui/`` in the API's process.
 
 Jinja2 templates; the figures are the service's matplotlib PNGs (api/service/figures.py),
 so nothing is fetched from a CDN and no build chain is needed. Data comes through the

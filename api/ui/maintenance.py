@@ -1,4 +1,4 @@
-"""The maintenance loop on the dashboard (issue 20): the axis page's work-order panel
+"""The maintenance loop on the dashboard: the axis page's work-order panel
 (registered in api/ui/panels.py), its forms (acknowledge, record a repair, cancel) and
 the fleet's maintenance page with the managers' summary.
 

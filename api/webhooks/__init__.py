@@ -1,5 +1,5 @@
 """Webhooks: alert changes POSTed to configured URLs, signed per Standard Webhooks
-(https://www.standardwebhooks.com, issue 17), for MES systems that only take HTTP.
+(https://www.standardwebhooks.com), for MES systems that only take HTTP.
 
 Each delivery is a JSON body ``{"type": "alert.raised" | "alert.cleared" | "work_order.<state>", "timestamp",
 "data": {...}}`` with the headers ``webhook-id`` (``msg_<uuid>``, the same on every
@@ -100,7 +100,7 @@ class WebhookSender:
     # -- the event hub's consumer: store, never send --------------------------------------
     def handle(self, ev: Event) -> None:
         if ev.kind == "work_order_changed":
-            doc = {"type": f"work_order.{ev.order.state}",  # a work-order step (issue 20)
+            doc = {"type": f"work_order.{ev.order.state}",  # a work-order step
                    "timestamp": _iso(ev.at), "data": order_document(ev)}
         elif ev.kind == "alert_changed":
             a = ev.alert

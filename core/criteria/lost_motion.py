@@ -1,4 +1,4 @@
-"""Lost motion of the chain in ISO 230-2 terms, and the clearance behind it (issue 16, item 5).
+"""Lost motion of the chain in ISO 230-2 terms, and the clearance behind it.
 
 The round trip compares the table (linear encoder) with the motor's nominal travel
 l_0 = k_a x_m. The difference between the two approach directions at a target P_i is

@@ -69,7 +69,7 @@ FRICTION_CHAIN_MIN_MM_S2 = 0.05 * 9810.0
 LOOP_STABILITY_WEIGHT = 1e4
 # Savitzky-Golay windows (order 2) of the motor record driving a chain kernel. 16 ms keeps
 # 99 % of 25 Hz but cuts above ~60 Hz, where the chains ring: a rattle the motor record
-# carries is then not started in the model (stop 36: seed 4172, JSON index 22, true parameters:
+# carries is then not started in the model (seed 4172, JSON index 22, true parameters:
 # 18.4 µm test gap at 16/30 ms, 1.2 µm at 5/9 ms). Lighter windows did not name more of
 # the tuning cases (33 -> 33 of 50; docs/gap-diagnosis.md, "A hunting chain").
 SMOOTH_POSITION_S = 0.016
@@ -144,7 +144,7 @@ def profile_stage(runs: Sequence[RoundTrip], axis: AxisSpec) -> Stage:
     (7 to 31 over the characterised travel) with a weak smoothness prior: one or several
     wear bumps down to about 50 mm wide (a nut's length: a screw wears where the nut
     works), a ramp. Seven knots (the first version, travel / 6 apart) missed the narrow
-    bumps of the independent plant. Test gaps left by the candidate on tuning seeds
+    bumps of the independent plant. Test gaps left by the candidate on the tuning data, seeds
     (``default_rng([s, 0])``), 7 knots -> knots 40 mm apart: independent 3302, 3303,
     3305: 8.5 -> 4.1, 9.2 -> 0.8, 4.0 -> 0.5 µm (of 13.3, 5.6, 9.6); twin 3101-3105: 0.96
     -> 0.54, 0.69 -> 0.63, 1.62 -> 0.55, 0.65 -> 0.57, 0.58 -> 0.41 µm. (30 mm did better
@@ -254,7 +254,7 @@ def friction_chain_stage() -> Stage:
     least ``FRICTION_CHAIN_MIN_MM_S2`` (0.05 g): a chain held by less is a compliant chain
     with its normal rolling-guide friction (the compliance family), which this form would
     otherwise also fit, by its static part, better than compliance's own form (seen on
-    the independent plant's two-mass chains, tuning seeds 3202 and 3204). Its damping is
+    the independent plant's two-mass chains, seeds 3202 and 3204). Its damping is
     not held above the position loop's linear stability floor (:func:`loop_damping_floor`,
     which the compliance form keeps): Coulomb and static friction bound a chain's
     oscillation, so a linearly unstable loop with them is a bounded hunting cycle, and the
@@ -453,7 +453,7 @@ def _free_start(sim: Callable[[float], np.ndarray], run: RoundTrip, half_gap_mm:
     flank. Chosen per run on the run's own envelope residual, as the run's offset is: the
     place is not observed to the micrometre (the medians put it several µm off on a
     stroke that stick-slips one way), and a Karnopp chain is bistable in it (stick-slip
-    or sliding through a whole stroke, flipping with a micrometre of start: tuning seed
+    or sliding through a whole stroke, flipping with a micrometre of start: seed
     4234, case 41)."""
     u0 = float(run.u_mm[0])
     starts = [run.start_table_mm(half_gap_mm)]
@@ -512,7 +512,7 @@ def sim_piece(effect: str, params: Mapping[str, float], info: Mapping, axis: Axi
         mu, ex = p["coulomb_per_mass_mm_s2"], p["static_excess_per_mass_mm_s2"]
         comp = Compliance(stiffness_n_per_um=w * w * m * 1e-6, table_mass_kg=m, damping_ratio=p["chain_damping_ratio"],
                           guide_damping_n_s_per_mm=GUIDE_DAMPING_PER_S * m * 1e-3)  # fmt: skip
-        # the round trips' stick band too: one parameter set for both (issue 15)
+        # the round trips' stick band too: one parameter set for both
         fr = Friction(coulomb_n=mu * m * 1e-3, static_n=(mu + ex) * m * 1e-3, stribeck_velocity_mm_s=0.1,
                       stick_band_mm_s=p.get("stick_band_mm_s", 0.0))  # fmt: skip
         return [("compliance", comp), ("friction", fr)], 2e3 * mu / (w * w)

@@ -41,7 +41,7 @@ SIM_STEP_S = 5e-4  # command grid of the diagnosis' simulations: chord error < 0
 # 0.5-2 µm pre-sliding length at 2-4 µm Coulomb lost motion) and 0.012 µm RMS (0.10 µm
 # peak) for the stiffest bristles fitted (8 µm Coulomb over 0.5 µm), against noise floors
 # of 0.2-1 µm, and halves the time of the pre-sliding simulations, which took half of a
-# diagnosis (stop 39, bench_gap's independent wear-bump dataset: 51 of 110 s on one thread).
+# diagnosis (bench_gap's independent wear-bump dataset: 51 of 110 s on one thread).
 SIM_STEPS_PER_RADIAN = 10.0
 
 

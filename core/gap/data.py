@@ -74,7 +74,7 @@ class RoundTrip:
         time of the first engagement depends on it (and it is not scored); a table with
         mass behind a compliant chain meets the nut at speed after crossing the gap, which
         sets off ringing and can start stick-slip where a start on the flank slides (the
-        independent plant's Karnopp axes are bistable so: tuning seed 4234, case 41)."""
+        independent plant's Karnopp axes are bistable so: seed 4234, case 41)."""
         lead = self.side0 * half_gap_mm if self.rest_lead_mm is None else self.rest_lead_mm
         return float(self.u_mm[0] - min(max(lead, -half_gap_mm), half_gap_mm))
 

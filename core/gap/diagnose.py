@@ -65,8 +65,8 @@ NOT_IDENTIFIABLE = "not identifiable"
 
 @dataclass(frozen=True)
 class GapSettings:
-    """Decision thresholds (tuned on generated data: seeds 101-130 in earlier versions,
-    901, 211-213 and the plant-form test seed 31 in this one; see docs/gap-diagnosis.md)."""
+    """Decision thresholds, set on generated data (the twin's seeds 101-130, 211-213 and
+    901, and the plant-form test's seed 31; see docs/gap-diagnosis.md)."""
 
     penalty_per_param: float = 0.01
     min_reduction: float = 0.25  # best candidate must cut the test gap by at least this fraction
@@ -75,29 +75,29 @@ class GapSettings:
     keep_curves: bool = True
     # When neither a single candidate nor a pair cuts the gap by min_reduction, the best
     # single one is still named (a weak cut, said so) if it cuts at least this fraction.
-    # Off (None) by default: set at 0.15 on the used evaluation seeds, where it named 15
-    # cases of 26 and all rightly, it named 3 cases of the fresh seed 9433 (both plants),
-    # all wrongly (stop 38, docs/gap-diagnosis.md "Ranking").
+    # Off (None) by default: at 0.15, set on the benchmark seeds it was tuned on (15 cases
+    # of 26 named, all rightly), it named 3 cases of the unseen seed 9433 (both plants),
+    # all wrongly (docs/gap-diagnosis.md "Ranking").
     min_first_reduction: float | None = None
     # When the answer would be `none` on a gap above noise_factor x the noise floor, but the
     # table rattles against the nut on a round trip (where.rattles: a tonal cycle of 5 µm
     # or more through a fifth of a stroke, stick-slip or a hunting chain), a chain effect
     # is there by that observation: the better of the chain families (friction,
     # compliance) is named if it cuts the test gap at all (as `_took_something`), and the
-    # decision says that most of the gap stays unexplained (stop 40).
+    # decision says that most of the gap stays unexplained.
     rattle_names_chain: bool = True
     # ... and the rattle's sides choose the family (chain_by_rattle): both stroke directions
     # on every round trip that rattles, stick-slip, so friction; one direction only on any,
     # a hunting chain, so compliance; where the family pointed at cuts nothing, the better
-    # one that does. Off: the better-scoring family, as stop 40 (stop 49; docs/gap-diagnosis.md).
+    # one that does. Off: the better-scoring family (docs/gap-diagnosis.md).
     rattle_sides_name_family: bool = True
     # When friction is named (alone or first), the table does not break away at rest, but
     # it rattles in one stroke direction only on some round trip (a hunting chain:
     # stick-slip sticks and slips out and back) and compliance's fit is not told apart from
     # friction's (close_rivals), compliance is named instead and the second-effect step runs
-    # on top of it (compliance_by_hunting; stop 49, set on used seeds; fired wrongly on the
-    # fresh seed 8311, case 16, which broke away at rest: stop 51 leaves a break-away's
-    # friction alone).
+    # on top of it (compliance_by_hunting; set on the benchmark seeds it was tuned on). A
+    # table that breaks away at rest keeps friction: the rule fired wrongly on the unseen
+    # seed 8311, case 16, which broke away at rest.
     hunting_names_compliance: bool = True
     # When the table breaks away at rest (where.breakaways: the command still, the table
     # held for 30 ms, then a jump of 5 µm or more within 10 ms, on two still stretches or
@@ -106,7 +106,7 @@ class GapSettings:
     # `none` becomes friction (whatever its fit cuts, said so), and an answer of compliance
     # (the chain without static friction) becomes friction where friction's fit cuts the
     # test gap at all (as `_took_something`); the second-effect step then runs on top of
-    # friction (stop 47).
+    # friction.
     breakaway_names_friction: bool = True
     # When a single effect is named and another single candidate is not told apart from it
     # (close_rivals: it cuts the test gap by min_reduction itself, and the named one alone
@@ -114,14 +114,14 @@ class GapSettings:
     # of that rival; where the rival with its second effect cuts the answer's test gap
     # (with the answer's own second effect, if any) by min_reduction again, the rival and
     # its second effect are named instead: two singles that the test runs do not tell apart
-    # are told apart by which of them, with a second effect, explains the rest (stop 48).
+    # are told apart by which of them, with a second effect, explains the rest.
     rival_second_effect: bool = True
     # When the table breaks away at rest (as above) and also rattles against the nut out
     # and back on every round trip that rattles (stick-slip, :func:`chain_by_rattle`), two
     # observations of static friction agree: an answer of compliance becomes friction even
     # where friction's fit cuts nothing (its forms do not follow that chain; said so, with
-    # what compliance's form cut). The break-away alone gives way to a fit there (stop 50;
-    # set on used seeds only).
+    # what compliance's form cut). The break-away alone gives way to a fit there (set on
+    # the benchmark seeds the decision was tuned on only).
     stick_slip_names_friction: bool = True
 
 
@@ -151,7 +151,7 @@ def noise_floor_um(resid: Sequence[np.ndarray], groups: Sequence[str | None] | N
     weighted by the samples, the way the test gap pools them. Without groups it is the
     pooled level alone.
 
-    Why (stop 52): two axes' encoders differ in noise, and one median over both follows
+    Why: two axes' encoders differ in noise, and one median over both follows
     the quieter majority of samples while the RMS gap carries the noisier axis in full
     (independent plant, seed 8311, case 48, a `none` case: x's round-trip noise 0.40 µm,
     y's 0.08 µm; the pooled level read 0.16 µm, the gap of 0.34 µm, white noise alone,
@@ -347,7 +347,7 @@ class _Diagnosis:
                  if a in c.axes and c.fit_idx.size > 2]  # fmt: skip
         if not parts:
             return False
-        # first differences, as this gate was set on (stop 52 moved the decision's floor alone)
+        # first differences, the level this gate was set on (only the decision's floor reads third ones)
         return rt.rms(np.concatenate(parts)) > CONTOUR_SIGNAL_FACTOR * white_level_um(parts, order=1)
 
     def _ct_train_rss(self, sims: Mapping[str, dict]) -> float:
@@ -601,7 +601,7 @@ class _Diagnosis:
           sliding, as Dahl's and LuGre's bristles do). After a reversal of a contour the
           table creeps back through lp while the force turns over, instead of sticking and
           breaking away: on the twin's LuGre friction (lp 5-60 µm) the Karnopp form left
-          the contours' gap as it was (1.44 -> 1.36 µm on tuning seed 3101) where the
+          the contours' gap as it was (1.44 -> 1.36 µm on the twin's seed 3101) where the
           pre-sliding form with the true values leaves 0.40 µm. Round trips do not show
           lp (the lost motion between the motor and the table is the chain's 2 F_c / k;
           the bristles deflect between the table and the guide).
@@ -807,7 +807,7 @@ def rival_to_pair(fits: Mapping[str, Fitted], effect: str, best: Fitted, gap_bef
     answer's other chain family. Friction and compliance are two forms of one chain's
     dynamics (never composed with each other); which of them takes a second effect better
     says which form fits that chain, not which effect acts, and on the used seeds it chose
-    wrongly (4234 case 42, stop 48): the chain observations (break-away, rattle) choose
+    wrongly (4234 case 42): the chain observations (break-away, rattle) choose
     between them instead. None where there is none."""
     for r in close_rivals(fits, [effect], best, gap_before, min_reduction):
         if not (effect in CHAIN_EFFECTS and r.effects[0] in CHAIN_EFFECTS):
@@ -842,8 +842,8 @@ def second_on_top(effect: str, best: Fitted, pairs: Sequence[Fitted], min_reduct
     answer ``effect`` and which cuts the answer's test gap (``best``) by ``min_reduction``
     again; None where there is none. ``pairs`` also holds the two-together step's pairs
     when an observation replaced the pair it found (a break-away naming friction over
-    compliance + cyclic error: used seed 4234 case 15, whose report named friction with
-    that pair's effects before stop 50), and those are not on top of the answer."""
+    compliance + cyclic error: used seed 4234 case 15, which would otherwise be named
+    friction with that pair's effects), and those are not on top of the answer."""
     own = [p for p in pairs if p.effects[0] == effect]
     if own and own[0].gap_after_um <= (1 - min_reduction) * best.gap_after_um:
         return own[0]

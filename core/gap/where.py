@@ -45,7 +45,7 @@ RATTLE_HARMONICS = 5
 # across its backlash) fell within the settling time on the seeds below. A finding needs
 # BREAKAWAY_MIN_EVENTS still stretches with a break-away over the round trips: a machine's
 # friction repeats. Set on the used seeds (independent 3547, 4172, 4234, 4818, 8647, 9433;
-# twin 3547, 4234, 9433; stop 47): found on 18 of the independent plant's 49 friction cases
+# twin 3547, 4234, 9433): found on 18 of the independent plant's 49 friction cases
 # there (mixed ones included), on none of its 239 others and on none of the twin's 144 (its
 # chains do not break away at rest). A loop closed on the motor encoder does not creep, so
 # no break-away shows there: the observation can name friction, its absence says nothing.

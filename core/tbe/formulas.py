@@ -116,7 +116,7 @@ def circle_backlash_domain_um(radius_mm: float, feed_mm_min: float, gain_per_s: 
             raise ModelDomainError("could not bound the validity domain of Eq. 8")
     edge = brentq(excess, 0.0, hi, xtol=1e-9, rtol=1e-12)
     # brentq's root may land a few ulps past ωT = π/2, where tbe_circle_um refuses;
-    # step back onto the valid side so the edge itself can be evaluated (issue 16).
+    # step back onto the valid side so the edge itself can be evaluated.
     step = np.spacing(edge)
     while excess(edge) > 0.0:
         edge -= step

@@ -1,4 +1,4 @@
-"""Fleet coordination in the database (issue 13): workers, per-axis leases, cycle claims.
+"""Fleet coordination in the database: workers, per-axis leases, cycle claims.
 
 Several ``mebm serve`` workers share one PostgreSQL database. Each axis has one row in
 ``axis_leases``: the worker that owns it and until when (``expires_at``, *database*

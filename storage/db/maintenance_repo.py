@@ -1,4 +1,4 @@
-"""Repository: maintenance orders, their transitions, and repairs (issue 20).
+"""Repository: maintenance orders, their transitions, and repairs.
 
 The state machine is :mod:`core.maintenance`'s; this module stores it. "At most one
 active order per axis" is the partial unique index ``uq_work_orders_one_active``: an

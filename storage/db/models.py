@@ -124,7 +124,7 @@ class Cycle(Base):
     uncertainty_um: Mapped[float | None] = mapped_column(Float, nullable=True)
     run_file: Mapped[str | None] = mapped_column(String(200), nullable=True)
     raw_run_lost: Mapped[str | None] = mapped_column(Text, nullable=True)  # why the raw run was not kept
-    # fleet (issue 13): the worker that ran it (workers.id) and, for a scheduled one, when it was due
+    # fleet: the worker that ran it (workers.id) and, for a scheduled one, when it was due
     worker: Mapped[str | None] = mapped_column(String(36), nullable=True)
     due_at: Mapped[datetime | None] = mapped_column(UtcDateTime, nullable=True)
 
@@ -156,14 +156,14 @@ class Result(Base):
     binding_task: Mapped[str | None] = mapped_column(String(100), nullable=True)
     backlash_limit_um: Mapped[float | None] = mapped_column(Float, nullable=True)
     message: Mapped[str | None] = mapped_column(Text, nullable=True)
-    # issue 16: metrology of the result (NULL on results stored before migration 0002)
+    # metrology of the result (NULL on results stored before migration 0002)
     backlash_mean_uncertainty_um: Mapped[float | None] = mapped_column(Float, nullable=True)  # expanded, k = 2
     outliers_removed: Mapped[int | None] = mapped_column(Integer, nullable=True)
     grid_step_mm: Mapped[float | None] = mapped_column(Float, nullable=True)
     noise_um: Mapped[float | None] = mapped_column(Float, nullable=True)
     uncertainty_budget: Mapped[str | None] = mapped_column(Text, nullable=True)  # JSON: the GUM budgets
     decision_rule: Mapped[str | None] = mapped_column(String(10), nullable=True)
-    # ISO 230-2 lost motion (issue 16 item 5): B̄, B, and JSON of B_i and the clearance estimate
+    # ISO 230-2 lost motion: B̄, B, and JSON of B_i and the clearance estimate
     reversal_mean_um: Mapped[float | None] = mapped_column(Float, nullable=True)
     reversal_max_um: Mapped[float | None] = mapped_column(Float, nullable=True)
     lost_motion: Mapped[str | None] = mapped_column(Text, nullable=True)
@@ -255,7 +255,7 @@ class Alert(Base):
 
 
 class TrendRollup(Base):
-    """One hour of an axis' ok measurements, summarised (issue 21: a trend whose cost does
+    """One hour of an axis' ok measurements, summarised (a trend whose cost does
     not grow with history): the count, the measurements with the smallest and the largest
     b̄ (their cycle ids: what a min/max downsampling to the screen keeps), and the moment sums of every
     trend criterion against temperature and utility day (core.history.MomentSums, packed),
@@ -290,7 +290,7 @@ class ApiKey(Base):
     revoked_at: Mapped[datetime | None] = mapped_column(UtcDateTime, nullable=True)
 
 
-# -- maintenance (issue 20) -------------------------------------------------------------------
+# -- maintenance -------------------------------------------------------------------
 ONE_ACTIVE_ORDER = "state IN ('open', 'acknowledged', 'repaired')"
 
 
@@ -386,7 +386,7 @@ class UiSession(Base):
 
 
 class Worker(Base):
-    """A ``mebm serve`` process that runs cycles (issue 13): one row per process start.
+    """A ``mebm serve`` process that runs cycles: one row per process start.
     Live while ``heartbeat_at`` is younger than its lease time."""
 
     __tablename__ = "workers"
@@ -417,8 +417,8 @@ class AxisLease(Base):
 
 
 class WebhookMessage(Base):
-    """One webhook message to one receiver URL, kept until it is delivered (issue 17's
-    webhooks made durable): a message survives a restart, a receiver outage longer than
+    """One webhook message to one receiver URL, kept until it is delivered (durable
+    webhooks): a message survives a restart, a receiver outage longer than
     the retries, and a worker that died while sending it (another live worker takes it
     once ``claimed_until`` has passed). ``state``: ``pending`` (to send at ``next_at``),
     ``delivered`` or ``failed`` (every attempt used; kept for an admin to re-queue)."""

@@ -16,7 +16,7 @@ from core.errors import InputError
 from core.tbe import AxisDecision, MachiningTask
 
 CYCLE_STATES = ("queued", "running", "ok", "failed", "interrupted", "cancelled")
-TRIGGERS = ("schedule", "manual", "catch_up", "recovered", "verification")  # verification: after a repair (issue 20)
+TRIGGERS = ("schedule", "manual", "catch_up", "recovered", "verification")  # verification: after a repair
 ROLES = ("read", "operate", "admin")
 
 

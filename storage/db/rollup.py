@@ -1,5 +1,5 @@
 """Hourly rollups of an axis' trend, so that /trend, the trend plot and the status cost
-the same after a year of one-minute cycles as after a day (issue 21).
+the same after a year of one-minute cycles as after a day.
 
 Each stored result rebuilds the rollup of its hour from that hour's rows
 (:func:`refresh`); a migration or a bulk load rebuilds them all (:func:`rebuild`).

@@ -1,5 +1,5 @@
 """/webhooks/deliveries, /webhooks/messages and /interfaces: what the publishers and the OPC UA
-server did (issue 17)."""
+server did."""
 
 from __future__ import annotations
 

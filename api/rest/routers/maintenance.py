@@ -1,4 +1,4 @@
-"""/maintenance and /axes/{id}/repairs: work orders, repairs and the managers' summary (issue 20).
+"""/maintenance and /axes/{id}/repairs: work orders, repairs and the managers' summary.
 
 Orders are opened by the service (ALARM: corrective; WARNING with the prognosis' date
 within the horizon: condition-based, EN 13306). People acknowledge, repair and cancel

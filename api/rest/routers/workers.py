@@ -1,4 +1,4 @@
-"""/workers: the workers of the fleet (issue 13), their axes and last heartbeat."""
+"""/workers: the workers of the fleet, their axes and last heartbeat."""
 
 from __future__ import annotations
 

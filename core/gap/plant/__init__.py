@@ -1,6 +1,6 @@
 """An independent feed-drive plant: benchmark datasets whose model forms the diagnosis does not share.
 
-Written from scratch (issue 15, item 7): it imports neither ``core.sim`` nor the rest of
+Written from scratch: it imports neither ``core.sim`` nor the rest of
 ``core.gap``, integrates its own continuous-time state model with its own fixed-step
 scheme (:mod:`.drive`), and carries each effect in a form other than the twin's
 (:mod:`.effects` documents every equation and range). :func:`make_plant_case` builds a

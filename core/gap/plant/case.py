@@ -3,7 +3,7 @@
 The case structure mirrors ``core.gap.benchmark.make_case``: per axis ``rt_train`` + ``rt_test``
 round trips, then ``circles_train`` + ``circles_test`` circles; test runs lie outside the
 train conditions (8-12 or 28-32 degC against 17-24 degC, other feeds and/or accelerations,
-other radii, strokes anywhere on the travel). Beyond it, as issue 15 requires:
+other radii, strokes anywhere on the travel). Beyond it, so that the diagnosis meets what a real machine records:
 
 - circles are recorded with a feed-in arc and a lead-out of random length (0-180 deg, a
   quarter of them exactly 0: starting at rest on the data arc / stopping at its end),

@@ -1,4 +1,4 @@
-"""metrology of results (issue 16): uncertainty, outliers, grid, decision rule
+"""metrology of results: uncertainty, outliers, grid, decision rule
 
 Revision ID: 0002
 Revises: 0001

@@ -1,4 +1,4 @@
-"""issue 21: cycles.raw_run_lost (why a raw run could not be kept; NULL: kept), and at
+"""cycles.raw_run_lost (why a raw run could not be kept; NULL: kept), and at
 most one waiting manual cycle per axis (a partial unique index: the rule is atomic)
 
 Revision ID: 0003

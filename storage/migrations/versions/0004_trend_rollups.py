@@ -1,4 +1,4 @@
-"""issue 21: hourly trend rollups (a trend whose cost does not grow with history),
+"""hourly trend rollups (a trend whose cost does not grow with history),
 built from the results already stored
 
 Revision ID: 0004

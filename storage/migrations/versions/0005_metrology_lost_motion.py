@@ -1,4 +1,4 @@
-"""metrology, issue 16 items 5-6: ISO 230-2 lost motion of each result, and each axis'
+"""metrology: ISO 230-2 lost motion of each result, and each axis'
 worst-case temperature for the prognosis
 
 Revision ID: 0005

@@ -1,4 +1,4 @@
-"""maintenance loop, issue 20: work orders (at most one active per axis: a partial unique
+"""maintenance loop: work orders (at most one active per axis: a partial unique
 index), their transitions, and repairs
 
 Revision ID: 0006

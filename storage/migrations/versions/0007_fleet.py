@@ -1,4 +1,4 @@
-"""fleet, issue 13: workers, per-axis leases, and which worker ran a cycle and when it was due
+"""fleet: workers, per-axis leases, and which worker ran a cycle and when it was due
 
 Revision ID: 0007
 Revises: 0005

@@ -1,4 +1,4 @@
-"""dashboard sessions and one-time sign-in links in the database (issue 12): they
+"""dashboard sessions and one-time sign-in links in the database: they
 survive a restart and work across several ``serve`` processes on one database
 
 Revision ID: 0008
