@@ -1,4 +1,4 @@
-"""The `mebm-dataset/1` data model (../shared/spec/dataset-format.md), pure and validated.
+"""The `mebm-dataset/1` data model (docs/dataset-format.md), pure and validated.
 
 Files are read and written by ``storage.dataset``; this module holds the frozen
 types and the checks that need no file system, so the simulator, the drivers and
