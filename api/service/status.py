@@ -161,11 +161,10 @@ class StatusCache:
 
     def prepare(self, s, axis_id: int):
         """The status of ``axis_id`` computed in the transaction ``s`` that stores a cycle, so
-        that no poller has to recompute it after the commit (the first poll after
-        each cycle paid for the recomputation). Computed before the commit, it already
+        that no poller has to recompute it after the commit (otherwise the first poll after
+        each cycle would pay for the recomputation). Computed before the commit, it already
         contains the new measurement. Returns the function the caller calls once the
-        commit is done, which publishes it. Until then pollers get the cached status, as
-        they did before this existed (the old code invalidated after the commit): the
+        commit is done, which publishes it. Until then pollers get the cached status: the
         window in which a client may see the new measurement elsewhere but not yet in the
         status is the few statements between the commit and the publication, not a
         recomputation. If the transaction rolls back, the function is not called and

@@ -143,7 +143,7 @@ def profile_stage(runs: Sequence[RoundTrip], axis: AxisSpec) -> Stage:
     """Backlash width along the travel, piecewise linear on knots at most 40 mm apart
     (7 to 31 over the characterised travel) with a weak smoothness prior: one or several
     wear bumps down to about 50 mm wide (a nut's length: a screw wears where the nut
-    works), a ramp. Seven knots (the first version, travel / 6 apart) missed the narrow
+    works), a ramp. Seven knots (travel / 6 apart) miss the narrow
     bumps of the independent plant. Test gaps left by the candidate on the tuning data, seeds
     (``default_rng([s, 0])``), 7 knots -> knots 40 mm apart: independent 3302, 3303,
     3305: 8.5 -> 4.1, 9.2 -> 0.8, 4.0 -> 0.5 µm (of 13.3, 5.6, 9.6); twin 3101-3105: 0.96

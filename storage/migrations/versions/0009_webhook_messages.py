@@ -1,5 +1,5 @@
 """webhook messages kept in the database until delivered: a restart, a receiver outage
-longer than the retries, or a worker that dies while sending no longer loses one
+longer than the retries, or a worker that dies while sending loses none
 
 Revision ID: 0009
 Revises: 0008
