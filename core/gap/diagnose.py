@@ -65,8 +65,8 @@ NOT_IDENTIFIABLE = "not identifiable"
 
 @dataclass(frozen=True)
 class GapSettings:
-    """Decision thresholds, set on generated data (the twin's seeds 101-130, 211-213 and
-    901, and the plant-form test's seed 31; see docs/gap-diagnosis.md)."""
+    """Decision thresholds, set on generated data (seeds 101-130, 211-213 and 901, and the
+    plant-form test's seed 31; see docs/gap-diagnosis.md §5 for the data of each rule)."""
 
     penalty_per_param: float = 0.01
     min_reduction: float = 0.25  # best candidate must cut the test gap by at least this fraction
@@ -75,27 +75,29 @@ class GapSettings:
     keep_curves: bool = True
     # When neither a single candidate nor a pair cuts the gap by min_reduction, the best
     # single one is still named (a weak cut, said so) if it cuts at least this fraction.
-    # Off (None) by default: at 0.15, set on the benchmark seeds it was tuned on (15 cases
-    # of 26 named, all rightly), it named 3 cases of the unseen seed 9433 (both plants),
-    # all wrongly (docs/gap-diagnosis.md "Ranking").
+    # Off (None) by default: at 0.15, set on 26 cases of seeds 4172, 6060, 7043, 7919, 8123,
+    # 8647 and 9401 (15 named, all rightly), it named 3 cases of the unseen seed 9433 (both
+    # plants), all wrongly (docs/gap-diagnosis.md §5).
     min_first_reduction: float | None = None
     # When the answer would be `none` on a gap above noise_factor x the noise floor, but the
     # table rattles against the nut on a round trip (where.rattles: a tonal cycle of 5 µm
     # or more through a fifth of a stroke, stick-slip or a hunting chain), a chain effect
     # is there by that observation: the better of the chain families (friction,
     # compliance) is named if it cuts the test gap at all (as `_took_something`), and the
-    # decision says that most of the gap stays unexplained.
+    # decision says that most of the gap stays unexplained (set on seeds 3547 and 9433, where
+    # only the independent plant's friction and compliance cases rattle).
     rattle_names_chain: bool = True
     # ... and the rattle's sides choose the family (chain_by_rattle): both stroke directions
     # on every round trip that rattles, stick-slip, so friction; one direction only on any,
     # a hunting chain, so compliance; where the family pointed at cuts nothing, the better
-    # one that does. Off: the better-scoring family (docs/gap-diagnosis.md).
+    # one that does. Off: the better-scoring family (set on seeds 3547, 9433, 3878, 5261 and
+    # the tuning draws [49, k, ...]; docs/gap-diagnosis.md §5).
     rattle_sides_name_family: bool = True
     # When friction is named (alone or first), the table does not break away at rest, but
     # it rattles in one stroke direction only on some round trip (a hunting chain:
     # stick-slip sticks and slips out and back) and compliance's fit is not told apart from
     # friction's (close_rivals), compliance is named instead and the second-effect step runs
-    # on top of it (compliance_by_hunting; set on the benchmark seeds it was tuned on). A
+    # on top of it (compliance_by_hunting; set on the independent plant's seeds 6529 and 8647). A
     # table that breaks away at rest keeps friction: the rule fired wrongly on the unseen
     # seed 8311, case 16, which broke away at rest.
     hunting_names_compliance: bool = True
@@ -106,7 +108,7 @@ class GapSettings:
     # `none` becomes friction (whatever its fit cuts, said so), and an answer of compliance
     # (the chain without static friction) becomes friction where friction's fit cuts the
     # test gap at all (as `_took_something`); the second-effect step then runs on top of
-    # friction.
+    # friction (set on the independent plant's seeds 3547, 4172, 4234, 4818, 8647, 9433).
     breakaway_names_friction: bool = True
     # When a single effect is named and another single candidate is not told apart from it
     # (close_rivals: it cuts the test gap by min_reduction itself, and the named one alone
@@ -114,14 +116,15 @@ class GapSettings:
     # of that rival; where the rival with its second effect cuts the answer's test gap
     # (with the answer's own second effect, if any) by min_reduction again, the rival and
     # its second effect are named instead: two singles that the test runs do not tell apart
-    # are told apart by which of them, with a second effect, explains the rest.
+    # are told apart by which of them, with a second effect, explains the rest (set on seeds
+    # 3878 and 4234 and the small wear-plus-skew datasets [48, 0..4]).
     rival_second_effect: bool = True
     # When the table breaks away at rest (as above) and also rattles against the nut out
     # and back on every round trip that rattles (stick-slip, :func:`chain_by_rattle`), two
     # observations of static friction agree: an answer of compliance becomes friction even
     # where friction's fit cuts nothing (its forms do not follow that chain; said so, with
     # what compliance's form cut). The break-away alone gives way to a fit there (set on
-    # the benchmark seeds the decision was tuned on only).
+    # the independent plant's seed 7457, case 36).
     stick_slip_names_friction: bool = True
 
 
