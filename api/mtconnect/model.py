@@ -124,7 +124,7 @@ def component_for(st: AxisStatus) -> Component:
         DataItem(f"{a}_cycle_status", "EVENT", "x:LAST_CYCLE_STATUS", "x:LastCycleStatus", name="last_cycle_status",
                  description="ok, failed, interrupted, queued or running"),
         DataItem(f"{a}_work_order", "EVENT", "x:MAINTENANCE_ORDER", "x:MaintenanceOrder", name="work_order",
-                 description="the active work order as STATE:ID:KIND, or NONE (issue 20)"),
+                 description="the active work order as STATE:ID:KIND, or NONE"),
         DataItem(f"{a}_backlash_cond", "CONDITION", "DISPLACEMENT", "", name="maintenance",
                  description="the maintenance state: Normal (OK), Warning, Fault (ALARM), Unavailable (UNKNOWN)"),
     ]
