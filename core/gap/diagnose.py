@@ -685,6 +685,31 @@ def _took_something(f: Fitted, gap_before: float) -> bool:
     return bool(f.rt_fits or f.servo) or f.gap_after_um < TOOK_FRACTION * gap_before
 
 
+def pair_jobs(ranked: Sequence[Fitted], fits: Mapping[str, Fitted], gap_before: float) -> list:
+    """The pairs to fit where no single candidate explains the gap, as (effects, base):
+    the two best single candidates as a base with every other candidate on top, then the
+    other pairs of candidates that took something, once each, from the better of the two
+    (two effects that each alone extrapolate badly rank last by test gap). A candidate
+    that took nothing (:func:`_took_something`) is in no pair."""
+    took = [f for f in ranked if _took_something(f, gap_before)]
+    jobs = [((base.effects[0], e2), base) for base in took[:2]
+            for e2 in EFFECTS if e2 != base.effects[0] and _took_something(fits[e2], gap_before)]
+    tried = {frozenset(j[0]) for j in jobs}
+    jobs += [((a.effects[0], b.effects[0]), a) for i, a in enumerate(took) for b in took[i + 1:]
+             if frozenset((a.effects[0], b.effects[0])) not in tried]
+    return jobs
+
+
+def joint_pair(pairs: Sequence[Fitted], fits: Mapping[str, Fitted], gap_before: float,
+               min_reduction: float) -> Fitted | None:
+    """The best of ``pairs`` (ranked) that cuts the gap before by ``min_reduction`` and
+    whose second effect cuts its base's gap by ``min_reduction`` too (each effect is
+    needed), or None."""
+    ok = [f for f in pairs if f.gap_after_um <= (1 - min_reduction) * gap_before
+          and f.gap_after_um <= (1 - min_reduction) * fits[f.effects[0]].gap_after_um]  # fmt: skip
+    return ok[0] if ok else None
+
+
 def friction_by_breakaway(effect: str, best: Fitted, fits: Mapping[str, Fitted], gap_before: float, n_found: int,
                           min_reduction: float) -> tuple[Fitted, str] | None:
     """Friction's fit and the decision's sentence where a table that breaks away at rest on
@@ -922,20 +947,11 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: 
         # single candidates as a base with every other candidate on top; name a pair only
         # if it cuts the gap before by min_reduction and its second effect cuts its
         # base's gap by min_reduction too (each effect is needed).
-        took = [f for f in ranked if _took_something(f, gap_before)]
-        jobs = [((base.effects[0], e2), base) for base in took[:2]
-                for e2 in EFFECTS if e2 != base.effects[0] and _took_something(fits[e2], gap_before)]
-        # the other pairs of candidates that took something, once each, from the better of
-        # the two: two effects that each alone extrapolate badly rank last by test gap
-        tried = {frozenset(j[0]) for j in jobs}
-        jobs += [((a.effects[0], b.effects[0]), a) for i, a in enumerate(took) for b in took[i + 1:]
-                 if frozenset((a.effects[0], b.effects[0])) not in tried]
-        pairs = _fit_all(d, jobs, workers)
+        pairs = _fit_all(d, pair_jobs(ranked, fits, gap_before), workers)
         pairs.sort(key=lambda f: f.score(s.penalty_per_param))
-        ok = [f for f in pairs if f.gap_after_um <= (1 - s.min_reduction) * gap_before
-              and f.gap_after_um <= (1 - s.min_reduction) * fits[f.effects[0]].gap_after_um]  # fmt: skip
-        if ok:
-            second, best, joint = ok[0], fits[ok[0].effects[0]], True
+        together = joint_pair(pairs, fits, gap_before, s.min_reduction)
+        if together is not None:
+            second, best, joint = together, fits[together.effects[0]], True
             effect = best.effects[0]
             decision = (f"No single candidate cuts the test gap by {s.min_reduction * 100:.0f} %, but "
                         f"{effect} and {second.effects[1]} together cut it by "

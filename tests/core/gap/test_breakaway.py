@@ -9,9 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from core.gap import GapSettings, diagnose
-from core.gap.data import RoundTrip, prepare_runs
-from core.gap.plant import SMALL_PLANT, make_plant_case
+from core.gap.data import RoundTrip
 from core.gap.where import BREAKAWAY_MIN_UM, BREAKAWAY_SETTLE_S, breakaway_sentence, breakaways
 
 RATE_HZ = 1000.0
@@ -77,24 +75,6 @@ def test_a_jump_without_a_hold_before_it_is_not_a_breakaway():
     assert breakaways([replace(s, x_mm=x)]) == []
 
 
-def test_a_breakaway_at_rest_names_friction_where_no_candidate_passes():
-    """An independent-plant Karnopp dataset whose x axis breaks away at rest (40 µm, on all
-    three round trips): with a decision no candidate can pass (a 99 % cut) and the rattle
-    rule off, the answer is `none` without the break-away rule and friction with it."""
-    size = replace(SMALL_PLANT, rt_rate_hz=1000.0)
-    ds = make_plant_case(("friction",), np.random.default_rng([47, 6]), size).dataset
-    assert sum(f["events"] for f in breakaways(prepare_runs(ds)[0])) >= 2
-    strict = {"keep_curves": False, "second_effect": False, "min_reduction": 0.99, "rattle_names_chain": False}
-    off = diagnose(ds, GapSettings(**strict, breakaway_names_friction=False))
-    assert off.effect == "none" and off.where.details["breakaway"], off.text()
-    assert any("breaks away at rest" in o for o in off.observations)
-    on = diagnose(ds, GapSettings(**strict))
-    assert on.effect == "friction" and on.effects == ("friction",), on.text()
-    assert "breaks away at rest" in on.decision and "most of the gap stays unexplained" in on.decision
-    assert on.gap_before_um == pytest.approx(off.gap_before_um)
-    assert on.to_dict()["thresholds"]["breakaway_names_friction"] is True
-
-
 def _fits(**gaps):
     return {e: dg.Fitted((e,), gap_after_um=g) for e, g in gaps.items()}
 
@@ -150,23 +130,6 @@ def test_stick_slip_needs_both_observations_and_a_compliance_answer(case):
     else:
         effect = "thermal"
     assert dg.friction_by_stick_slip(effect, fits[effect], fits, found, 33.32, n_broke) is None
-
-
-@pytest.mark.slow
-def test_a_chain_that_breaks_away_and_stick_slips_out_and_back_is_named_friction():
-    """Used seed 7457 case 36 of the independent plant (Karnopp friction on a compliant
-    chain; answered compliance by a 47 % cut before the rule): friction's fit cuts nothing,
-    but the table breaks away at rest and stick-slips out and back."""
-    from core.gap.benchmark import benchmark_case
-
-    labels, ds, _ = benchmark_case("independent", 48, 7457, 35)
-    assert labels == ("friction",)
-    rep = diagnose(ds, GapSettings(keep_curves=False), workers=2)
-    assert rep.effect == "friction" and rep.effects == ("friction",), rep.text()
-    assert rep.decision.startswith("compliance fits best") and "does not cut the test gap" in rep.decision
-    assert rep.where.details["breakaway"] and all(f["both_directions"] for f in rep.where.details["rattle"])
-    assert rep.second_effect.startswith("No second effect looked for")
-    assert rep.to_dict()["thresholds"]["stick_slip_names_friction"] is True
 
 
 def test_the_second_effect_is_looked_for_on_top_of_the_answer_only():

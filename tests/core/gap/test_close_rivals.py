@@ -5,11 +5,8 @@ from __future__ import annotations
 
 import importlib
 
-import numpy as np
 import pytest
 
-from core.gap import GapSettings, diagnose
-from core.gap.plant import SMALL_PLANT, make_plant_case
 from core.gap.report import Candidate, GapReport, Where
 
 dg = importlib.import_module("core.gap.diagnose")  # the module (core.gap.diagnose is also the function)
@@ -109,19 +106,3 @@ def test_the_rival_pair_needs_its_second_effect():
     assert dg.rival_second_effect("compliance", fits["compliance"], None, fits["sampling_skew"], rpairs, 40.0,
                                   0.25) is None  # fmt: skip
     assert dg.rival_second_effect("compliance", fits["compliance"], None, fits["sampling_skew"], [], 40.0, 0.25) is None
-
-
-def test_a_skewed_latch_over_a_wear_profile_is_named_by_the_rival_with_its_second_effect():
-    """An independent-plant dataset with a drifting latch skew and wear bumps (seed [48, 4],
-    found by searching seeds [48, 0..4]): compliance alone fits best and the skew is not told
-    apart from it; with a second effect on top, the skew explains the rest and compliance
-    does not, so the skew is named (an injected effect), with its second effect."""
-    ds = make_plant_case(("backlash_profile", "sampling_skew"), np.random.default_rng([48, 4]), SMALL_PLANT).dataset
-    rep = diagnose(ds, GapSettings(keep_curves=False), workers=1)
-    assert rep.effect == "sampling_skew" and len(rep.effects) == 2, rep.text()
-    assert rep.decision.startswith("compliance alone fits best"), rep.decision
-    assert "sampling_skew is not told apart from it" in rep.decision
-    assert rep.second_effect.startswith(f"A second effect remains: {rep.effects[1]}")
-    assert rep.gap_after_um <= 0.75 * min(c.gap_after_um for c in rep.candidates if c.effect == "compliance")
-    assert any(p.effect == "+".join(rep.effects) and p.gap_after_um == pytest.approx(rep.gap_after_um) for p in rep.pairs)
-    assert rep.to_dict()["thresholds"]["rival_second_effect"] is True

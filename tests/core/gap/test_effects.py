@@ -76,6 +76,16 @@ def test_round_trip_effect_is_named_and_its_gap_halved(effect):
     assert rep.where.kind == "round_trip" and rep.where.axis == "y"
 
 
+def test_the_fits_in_threads_give_the_report_of_the_fits_in_turn():
+    """The candidates, and the second effects on top of the answer, fitted in threads:
+    the same report as fitted one after the other."""
+    ds = _round_trips(EFFECTS["friction"], np.random.default_rng(7))
+    settings = GapSettings(keep_curves=False, noise_factor=1.0)  # a second effect is looked for above the floor
+    rep = diagnose(ds, settings, workers=3)
+    assert rep.pairs, rep.text()  # the second-effect step ran (its fits in threads too)
+    assert diagnose(ds, settings, workers=1).to_dict() == rep.to_dict()
+
+
 def test_servo_dynamics_is_named_from_circles_and_its_gap_halved():
     x = AxisModel(name="x", backlash_um=40.0, encoders=ENC,
                   effects=Effects(servo_dynamics=ServoDynamics(velocity_lag_s=0.008, dead_time_s=0.0015)))

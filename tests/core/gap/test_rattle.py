@@ -7,9 +7,7 @@ import importlib
 import numpy as np
 import pytest
 
-from core.gap import GapSettings, diagnose
 from core.gap.data import RoundTrip
-from core.gap.plant import SMALL_PLANT, make_plant_case
 from core.gap.play import play
 from core.gap.where import RATTLE_MIN_UM, rattle_sentence, rattles, stick_slips
 
@@ -109,24 +107,6 @@ def test_a_family_pointed_at_that_cuts_nothing_gives_way_to_the_other():
     assert dg.chain_by_rattle(_chain_fits(9.0, 9.5), [{}], 10.6, 0.01)[0].effects == ("compliance",)
 
 
-def test_a_rattle_names_the_better_chain_family_where_no_candidate_passes():
-    """The plant-form test's Karnopp dataset (its slowest x stroke stick-slips): with a
-    decision no candidate can pass (a 99 % cut), the answer is `none` without the rattle
-    rule, and friction with it, said to leave most of the gap unexplained."""
-    ds = make_plant_case(("friction",), np.random.default_rng([31, len("friction")]), SMALL_PLANT).dataset
-    strict = {"keep_curves": False, "second_effect": False, "min_reduction": 0.99}
-    off = diagnose(ds, GapSettings(**strict, rattle_names_chain=False))
-    assert off.effect == "none" and off.where.details["rattle"], off.text()
-    on = diagnose(ds, GapSettings(**strict))
-    assert on.effect == "friction" and on.effects == ("friction",), on.text()
-    assert on.gap_after_um < 0.98 * on.gap_before_um and on.gap_before_um == pytest.approx(off.gap_before_um)
-    assert "rattles against the nut" in on.decision and "most of the gap stays unexplained" in on.decision
-    assert on.to_dict()["thresholds"]["rattle_names_chain"] is True
-    assert on.to_dict()["thresholds"]["rattle_sides_name_family"] is True
-    assert all(f["both_directions"] for f in on.where.details["rattle"])  # stick-slip: out and back
-    assert "both stroke directions" in on.decision
-
-
 @pytest.mark.parametrize(("sides", "expected"), [((True, True), True), ((True, False), False), ((), False)])
 def test_stick_slip_is_every_rattling_round_trip_rattling_out_and_back(sides, expected):
     assert stick_slips([{"both_directions": b} for b in sides]) is expected
@@ -165,20 +145,3 @@ def test_the_friction_answer_stands_without_a_hunting_chain_or_a_close_complianc
         effect = "backlash_profile"
         fits["backlash_profile"] = dg.Fitted(("backlash_profile",), gap_after_um=7.0, n_params=9)
     assert dg.compliance_by_hunting(effect, fits[effect], fits, found, 13.9, n_broke, 0.25) is None
-
-
-@pytest.mark.slow
-def test_a_hunting_two_mass_chain_that_friction_fits_alike_is_named_compliance():
-    """Used seed 8647 case 48 of the independent plant (a two-mass chain; answered friction
-    before the rule): friction fits best, compliance is not told apart, and three round
-    trips rattle in one stroke direction only."""
-    from core.gap.benchmark import benchmark_case
-
-    labels, ds, _ = benchmark_case("independent", 48, 8647, 47)
-    assert labels == ("compliance",)
-    rep = diagnose(ds, GapSettings(keep_curves=False), workers=2)
-    assert rep.effect == "compliance", rep.text()
-    assert rep.decision.startswith("friction fits best") and "a hunting chain" in rep.decision
-    assert any(not f["both_directions"] for f in rep.where.details["rattle"])
-    assert "friction" in [e for e, _ in rep.close_alternatives]
-    assert rep.to_dict()["thresholds"]["hunting_names_compliance"] is True

@@ -102,42 +102,9 @@ def test_a_second_effect_is_named_when_it_remains():
             runs.append(tr.to_run(f"rt_{a}{i}.csv", split="test" if i == 3 else "train"))
     ds = _circles(axes, 90.0, rng)
     ds = Dataset(ds.machine, tuple(runs) + ds.runs)
-    rep = diagnose(ds, workers=3)
-    assert diagnose(ds, workers=1).to_dict() == rep.to_dict()  # the fits in threads: the same answer
+    rep = diagnose(ds, workers=2)
     assert set(rep.effects) == {"cyclic_error", "servo_dynamics"}, rep.text()
     assert rep.effect == rep.effects[0]
     assert rep.second_effect.startswith("A second effect remains: " + rep.effects[1])
     assert rep.to_dict()["pairs"][0]["effect"] == "+".join(rep.effects)
     assert rep.gap_after_um < 0.5 * rep.gap_before_um
-
-
-def test_two_effects_that_no_single_candidate_explains_are_named_together():
-    """A wear bump where the test stroke runs and a backlash that grows with temperature:
-    the train strokes confound the two, so neither candidate alone cuts the test gap by
-    25 % (thermal even worsens it), and the diagnosis tries them as a pair."""
-    from core.sim import BacklashProfile, Effects, Thermal, round_trip
-
-    pos = np.linspace(0.0, 800.0, 17)
-    widths = 60.0 * (1 + 0.6 * np.exp(-0.5 * ((pos - 420.0) / 60.0) ** 2))
-    fx = Effects(thermal=Thermal(lead_error_um_per_m=0.0, lead_growth_ppm_per_k=8.0, backlash_um_per_k=2.5,
-                                 fixed_end_mm=0.0),
-                 backlash_profile=BacklashProfile(tuple(pos), tuple(widths)))  # fmt: skip
-    m = AxisModel(name="x", transmission_mm_per_rev=8.0, screw_lead_mm=16.0, position_gain_per_s=20.0,
-                  backlash_um=60.0, encoders=ENC, effects=fx)  # fmt: skip
-    rng = np.random.default_rng(1)
-    runs = []
-    strokes = ((40, 300, 800, 22.0), (280, 540, 1000, 17.0), (500, 760, 1200, 20.0), (300, 560, 1000, 30.0))
-    for i, (lo, hi, feed, temp) in enumerate(strokes):
-        tr = simulate({"x": m}, round_trip(lo, hi, feed, 600.0, 0.3, axis="x"), temperature_c=temp, rate_hz=250.0,
-                      rng=rng)  # fmt: skip
-        runs.append(tr.to_run(f"rt_{i}.csv", split="test" if i == 3 else "train"))
-    ds = Dataset(MachineSpec("m", {"x": m.to_axis_spec((0.0, 800.0))}), tuple(runs))
-    rep = diagnose(ds, workers=2)
-    assert diagnose(ds, workers=1).to_dict() == rep.to_dict()  # the pairs in threads: the same answer
-    singles = {c.effect: c.gap_after_um for c in rep.candidates}
-    assert min(v for k, v in singles.items() if k != "none") > 0.75 * rep.gap_before_um  # no single one suffices
-    assert set(rep.effects) == {"backlash_profile", "thermal"}, rep.text()
-    assert rep.effect == rep.effects[0] and rep.candidates[0].effect == rep.effect
-    assert rep.decision.startswith("No single candidate cuts the test gap by 25 %, but ")
-    assert rep.second_effect.startswith("A second effect remains: " + rep.effects[1])
-    assert rep.gap_after_um < 0.25 * rep.gap_before_um
