@@ -1,7 +1,7 @@
 """mebm listen-only beside a CNC master that is another process, over real sockets, each
 party in its own network namespace with its own address (``netns_canopen_listen.py``).
 
-Asserts issue 19's done-means for CANopen: the same twin round trip measured in
+Asserts, for CANopen: the same twin round trip measured in
 listen-only gives b̄ within 1 µm of the Modbus trace-mode result, and a capture of the
 bus shows mebm sent no frame, while the same capture does see the frames of every
 namespace that sends, mebm's included once it sends a probe. Runs in CI by default;

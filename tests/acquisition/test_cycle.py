@@ -108,7 +108,7 @@ def test_program_is_frozen():
 
 
 def test_one_glitch_is_dropped_online_and_in_the_analysis():
-    # issue 16: EncoderMonitor and the analysis share one outlier rule; one glitch is no fault
+    # EncoderMonitor and the analysis share one outlier rule; one glitch is no fault
     with modbus_peer(faults=["glitch:at=0.3,mm=5"]) as peer:
         r = run_cycle(peer.driver(timeout_s=3.0), AXIS, PROGRAM)  # a cold twin starts slowly
         assert r.ok, r.reason

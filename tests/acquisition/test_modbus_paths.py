@@ -1,4 +1,4 @@
-"""The same twin round trip through every Modbus path gives the same b̄ (issue 19, "Done means").
+"""The same twin round trip through every Modbus path gives the same b̄.
 
 Reference: ``mebm-modbus/1`` trace mode (every servo cycle, latched). Each other path must
 give b̄ within 1 µm of it, or within the skew uncertainty that an unlatched path reports:

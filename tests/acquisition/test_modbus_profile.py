@@ -1,5 +1,5 @@
 """Register profiles: decoding of every type and order, read planning, refusals that name
-the field, URLs (issue 19)."""
+the field, URLs."""
 
 from __future__ import annotations
 

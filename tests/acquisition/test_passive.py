@@ -225,11 +225,11 @@ def test_the_passive_trace_counts_lost_samples_only_in_the_controllers_own_trace
 
 # -- register profiles: a polled PLC the CNC drives ---------------------------------------------
 def test_a_start_between_the_flag_read_and_the_position_read_is_measured_from_its_true_start():
-    """Stop 26's CI failure, forced: the CNC starts the round trip right after the PLC served a
+    """A start between two reads, forced: the CNC starts the round trip right after the PLC served a
     position read. The running flag is read before the positions in every poll, so the poll
-    that saw the flag set also has positions of the round trip; read the other way round (as
-    before), it paired the rest position (0 mm) with the set flag and the round trip, which
-    starts at -2 mm, was refused as cut short."""
+    that saw the flag set also has positions of the round trip; read the other way round, it
+    would pair the rest position (0 mm) with the set flag and the round trip, which
+    starts at -2 mm, would be refused as cut short."""
     import time
 
     from acquisition.modbus_profile import load_profile

@@ -1,4 +1,4 @@
-"""The simulators' wear and repair (issue 20): the backlash grows at the configured rate
+"""The simulators' wear and repair: the backlash grows at the configured rate
 per utility day, the Modbus register / CANopen object (and `mebm sim-controller repair`)
 restore it, and a measurement through the real drivers sees both."""
 

@@ -25,7 +25,7 @@ def test_tbe_limit_gives_paper_236(capsys):
 
 
 def test_tbe_limit_answers_at_the_edge_of_eq_8(capsys):
-    # issue 16 item 7: the domain edge landed just past ωT = π/2 and the command refused
+    # the domain edge landed just past ωT = π/2 and the command refused
     code, out, err = run_cli(capsys, "tbe", "limit", "--tolerance-um", "10", "--radius-mm", "5",
                              "--feed-mm-min", "2226.5", "--gain-per-s", "5", "--json")
     assert (code, err) == (0, "")
@@ -93,7 +93,7 @@ def test_analyze_json_has_the_contract_keys(tmp_path, capsys):
         assert r["backlash_mean_um"] == pytest.approx(b, abs=0.5)
         assert set(r["strokes"]) == {"positive", "negative"}
         assert r["temperature_c"] == 21.5
-        # issue 16: the GUM budget's expanded (k = 2) figures
+        # the GUM budget's expanded (k = 2) figures
         assert 0 < r["backlash_mean_uncertainty_um"] < 0.5
         for key in ("e_p", "v_u", "v_300", "v_2pi"):
             assert r[f"{key}_uncertainty_um"] > 0
@@ -120,7 +120,7 @@ def test_analyze_reports_bad_run_by_name_and_keeps_the_good_one(tmp_path, capsys
 
 
 def test_analyze_sparse_trace_is_not_refused_and_reports_its_grid(tmp_path, capsys):
-    # issue 16: 8000 mm/min at 200 Hz (0.67 mm between samples) was refused
+    # 8000 mm/min at 200 Hz: 0.67 mm between samples is analysed, not refused
     s = round_trip(start_mm=-20.0, end_mm=320.0, feed_mm_min=8000, rate_hz=200.0, backlash_um=lambda u: 6 + 0 * u,
                    lead_error_um=lambda u: 3 * np.sin(2 * np.pi * u / 16), rng=np.random.default_rng(1))
     spec = RunSpec(file="sparse.csv", kind="round_trip", axes=("y",), feed_mm_min=8000, temperature_c=20.0)
@@ -149,7 +149,7 @@ def test_analyze_missing_folder(tmp_path, capsys):
 
 
 def test_analyze_reports_the_reversal_values_and_the_datasets_clearance(capsys, tmp_path):
-    # issue 16 item 5: two runs at different feeds on a twin with friction; the lost
+    # two runs at different feeds on a twin with friction; the lost
     # motion's feed-independent part is the clearance (20 µm) plus the Coulomb wind-up
     # 2 F_c / k = 2 x 1000 N / 200 N/µm = 10 µm
     out_dir = tmp_path / "ds"

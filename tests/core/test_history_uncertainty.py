@@ -1,4 +1,4 @@
-"""The history's components of b̄'s budget (issue 16, item 3): repeatability and the 20 °C normalisation."""
+"""The history's components of b̄'s budget: repeatability and the 20 °C normalisation."""
 
 import math
 

@@ -1,4 +1,4 @@
-"""Prognosis from history (issue 16, item 6): the Huber fit of b̄(T, d) and its answers."""
+"""Prognosis from history: the Huber fit of b̄(T, d) and its answers."""
 
 import math
 

@@ -1,4 +1,4 @@
-"""Issue 17: the MTConnect agent under /mtconnect, checked with parts we did not write:
+"""The MTConnect agent under /mtconnect, checked with parts we did not write:
 the official MTConnect 2.4 XSDs (../shared/mtconnect-schemas/: Devices and Error with
 xmlschema's XSD 1.1 validator, Streams and Error with libxml2 through lxml, as that
 folder's README says), and the pymtconnect client library over a real HTTP server.

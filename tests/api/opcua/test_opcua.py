@@ -1,4 +1,4 @@
-"""Issue 17: the OPC UA server, checked with a real asyncua client over TCP on loopback.
+"""The OPC UA server, checked with a real asyncua client over TCP on loopback.
 
 One service with its OPC UA server (port 0) per module: asyncua servers take seconds
 to start. The tests of this module share it and run in the order written (the value

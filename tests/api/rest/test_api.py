@@ -218,7 +218,7 @@ def test_backlash_outside_the_tbe_model_is_stored_without_a_decision(app_env, ru
 
 
 def test_status_carries_the_uncertainty_and_the_decision_rule(app_env, runner):
-    # issue 16: no more bare 'uncertainty_um: 0.0'; the rule that decided is named
+    # no more bare 'uncertainty_um: 0.0'; the rule that decided is named
     client, svc, keys, axis_id = app_env
     runner.backlash_um = 200.0
     run_cycle(client, svc, keys, axis_id)

@@ -1,4 +1,4 @@
-"""Several workers on one PostgreSQL database (issue 13): leases, takeover, pinning,
+"""Several workers on one PostgreSQL database: leases, takeover, pinning,
 manual triggers, and SQLite's one worker per file.
 
 In-process workers (two ``Service`` objects on one database, an injected runner that
@@ -525,7 +525,7 @@ def workers_live(factory) -> set[str]:
 
 
 def test_repair_verification_through_any_worker_runs_on_the_owner_and_survives_a_takeover(pg, tmp_path):
-    """Issue 20 on a fleet: a repair recorded through a worker that does not hold the axis
+    """The maintenance loop on a fleet: a repair recorded through a worker that does not hold the axis
     queues its verification in the database; the owner runs it. A takeover cancels the old
     owner's scheduled cycles but keeps a waiting verification, like a manual trigger."""
     url, factory = pg

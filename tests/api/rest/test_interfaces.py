@@ -1,4 +1,4 @@
-"""Issue 17: the service's events fanned out to MQTT and webhooks, checked with clients we
+"""The service's events fanned out to MQTT and webhooks, checked with clients we
 did not write (mosquitto's broker and mosquitto_sub) and a webhook receiver that verifies
 the Standard Webhooks signature by the specification's steps. SQLite only: the
 publishers do not touch the database."""
@@ -137,8 +137,8 @@ def test_an_mqtt_subscriber_receives_the_retained_status_the_birth_and_each_aler
             assert info["mqtt"]["connected"] == {"vmc-850": True}
             assert info["event_consumers"]["mqtt"]["failed"] == 0
             caplog.set_level(logging.INFO, logger="mebm.mqtt")
-        # the service's own stop is a clean disconnect, not a lost connection (it logged a
-        # WARNING "lost ... retrying" until stop 33), and the retained birth says offline
+        # the service's own stop is a clean disconnect, not a lost connection (no WARNING
+        # "lost ... retrying"), and the retained birth says offline
         mine = [r for r in caplog.records if r.name == "mebm.mqtt"]
         assert not [r for r in mine if r.levelno >= logging.WARNING], [r.getMessage() for r in mine]
         assert any("service stopping" in r.getMessage() for r in mine)
@@ -211,7 +211,7 @@ def test_a_webhook_receiver_verifies_the_signature_of_each_alert_change_after_a_
             log = client.get("/api/v1/webhooks/deliveries", headers=hdr(admin)).json()
     finally:
         server.shutdown()
-    # the ALARM also opened a work order (issue 20): its step is delivered the same way
+    # the ALARM also opened a work order: its step is delivered the same way
     (order,) = [r for r in Receiver.received if r[2]["type"].startswith("work_order.")]
     assert order[1] and order[2]["type"] == "work_order.open" and order[2]["data"]["kind"] == "corrective"
     log = [d for d in log if d["event_type"].startswith("alert.")]

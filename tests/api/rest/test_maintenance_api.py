@@ -1,4 +1,4 @@
-"""The maintenance REST API and `mebm maintenance` (issue 20), with the injected runner:
+"""The maintenance REST API and `mebm maintenance`, with the injected runner:
 keys and roles, a compensation verified against the compensated error, the summary of a
 generated year with known repairs (JSON and CSV), the events' documents, and the CLI
 against a real server."""

@@ -1,4 +1,4 @@
-"""The maintenance loop end to end on the built-in simulated Modbus controller (issue 20):
+"""The maintenance loop end to end on the built-in simulated Modbus controller:
 the chain wears (the simulator's wear, on its own clock), a measurement finds ALARM, the
 service opens a corrective order, a read key cannot record a repair, an operate key
 records one that does not restore the play (lubrication: the verification fails and the

@@ -1,4 +1,4 @@
-"""Issue 16 items 3, 5, 6 through the API: the prognosis endpoint, the status' prognosis
+"""The prognosis through the API: the prognosis endpoint, the status' prognosis
 and lost motion, the prognosis plot, and the history components of the stored budget."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Issue 21: the status is computed in the transaction that stores a cycle and published
+"""The status is computed in the transaction that stores a cycle and published
 after its commit, so the first poll after a cycle does not pay for the recomputation, and
 a client that saw the new measurement never gets a status without it. Past MAX_ROWS the
 history fit is redone once per thinning step, not after every cycle."""

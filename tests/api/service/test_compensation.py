@@ -1,5 +1,5 @@
 """Compensation tables of a twin round trip, read back as each controller reads them,
-reproduce the twin's known b(x) and lead error (issue 17, item 5)."""
+reproduce the twin's known b(x) and lead error."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""When the service opens an order (issue 20): ALARM always (corrective); WARNING only
+"""When the service opens an order: ALARM always (corrective); WARNING only
 when the prognosis dates the backlash limit within the configured horizon
 (condition-based, with the date as the order's due date); never a second one."""
 

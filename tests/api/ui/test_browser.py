@@ -1,4 +1,4 @@
-"""The dashboard in a real headless chromium (issue 12's "Done means")."""
+"""The dashboard in a real headless chromium."""
 
 from __future__ import annotations
 

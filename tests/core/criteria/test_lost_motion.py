@@ -1,4 +1,4 @@
-"""ISO 230-2 reversal values and the clearance behind them (issue 16, item 5), on the twin."""
+"""ISO 230-2 reversal values and the clearance behind them, on the twin."""
 
 import warnings
 

@@ -35,7 +35,7 @@ def _trip(**kw):
 @pytest.mark.parametrize("encoder", ["motor", "table"])
 @pytest.mark.parametrize("size_mm", [5.0, -5.0, 0.05])
 def test_one_glitch_is_dropped_and_counted(encoder, size_mm):
-    # issue 16: one 5 mm glitch of the motor encoder gave v_2π = 213 µm instead of 6 µm
+    # one 5 mm glitch of the motor encoder gave v_2π = 213 µm instead of 6 µm
     s = _trip()
     i = s.time_s.size // 3  # mid-stroke
     if encoder == "motor":

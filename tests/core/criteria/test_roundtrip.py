@@ -248,7 +248,7 @@ def test_text_in_a_trace_is_a_trace_error():
         analyze_round_trip(words, np.zeros(20), np.zeros(20), AXIS)
 
 
-# ---- any sampling density (issue 16, item 1) ----
+# ---- any sampling density ----
 
 AXIS_200 = AxisSpec("y", 6.857, 16.0, 10.0, (0.0, 200.0))
 TRUE_B_200, TRUE_POS_200, TRUE_NEG_200 = true_criteria(0.0, 200.0, backlash, lead_error)

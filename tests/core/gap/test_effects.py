@@ -138,8 +138,8 @@ def test_friction_with_pre_sliding_is_named_from_circles_and_its_length_found():
         runs.append(tr.to_run(f"c_{i}.csv", split="test" if i == 3 else "train"))
     m = MachineSpec("t", {a: ax.to_axis_spec((0.0, 200.0)) for a, ax in axes.items()})
     # noise factor 1.5: friction leaves 0.47 µm on a 0.25 µm floor, at the default 2x's edge
-    # (on the machine of stop 33 it fell under it, the second-effect step did not run and
-    # the last assertion had nothing to check); the fits do not depend on it
+    # (on a slower machine it can fall under it: the second-effect step would not run and
+    # the last assertion would have nothing to check); the fits do not depend on it
     rep = diagnose(Dataset(m, tuple(runs)), GapSettings(noise_factor=1.5))
     assert rep.effect == "friction", rep.text()
     assert rep.gap_after_um <= 0.5 * rep.gap_before_um, rep.text()
@@ -174,6 +174,6 @@ def test_a_weak_cut_is_named_as_such_and_below_the_weaker_threshold_none():
     none = diagnose(ds, GapSettings(keep_curves=False, second_effect=False, min_reduction=strict,
                                     min_first_reduction=cut + 0.05))  # fmt: skip
     assert none.effect == "none" and none.gap_after_um == none.gap_before_um, none.text()
-    # off by default (stop 38: on a fresh seed it named three cases, all wrongly)
+    # off by default (on a fresh benchmark seed it named three cases, all wrongly)
     off = diagnose(ds, GapSettings(keep_curves=False, second_effect=False, min_reduction=strict))
     assert off.effect == "none" and off.to_dict()["thresholds"]["min_first_reduction"] is None, off.text()

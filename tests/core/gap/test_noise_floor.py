@@ -31,7 +31,7 @@ def test_axes_of_different_noise_give_the_rms_of_the_noise_not_the_quieter_axis(
     floor = dg.noise_floor_um([x, y, circle], ["x", "y", None])
     assert floor == pytest.approx(_rms([x, y, circle]), rel=0.05)
     pooled = dg.noise_floor_um([x, y, circle])
-    assert pooled < 0.7 * floor  # the floor before stop 52: a gap of noise alone at 2x it
+    assert pooled < 0.7 * floor  # one median over all axes: a gap of noise alone at 2x it
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -46,7 +46,7 @@ def test_white_noise_of_any_levels_per_axis_stays_at_its_floor(seed):
 def test_a_stroke_that_stick_slips_throughout_does_not_raise_its_axis_level():
     """A chain that rattles through the whole test stroke, 15 µm at 60 Hz sampled at 2 kHz
     (smooth between samples), with a sharp slip of 20 µm every 0.5 s. First differences
-    read it as noise of µm (what the floor did before stop 52: 6060 case 28, 7.17 µm where
+    read it as noise of µm (on the independent plant's seed 6060 case 28: 7.17 µm where
     the encoders' was 0.33 µm); third differences leave the smooth motion out and pass the
     slips, a few samples each, through the median."""
     rng = np.random.default_rng(7)

@@ -1,6 +1,6 @@
 """The backlash-profile candidate resolves narrow wear bumps: knots at most 40 mm apart
 over the travel the train round trips cross (seven knots, travel / 6 apart, left most of
-such a gap: issue 15, the independent plant's several wear bumps)."""
+such a gap: the independent plant's several wear bumps)."""
 
 import numpy as np
 import pytest

@@ -83,7 +83,7 @@ def test_non_numbers_are_typed_input_errors(call):
         call()
 
 
-# ---- decision rules (issue 16, item 4) ----
+# ---- decision rules ----
 
 from scipy.optimize import brentq  # noqa: E402
 

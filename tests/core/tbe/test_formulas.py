@@ -101,7 +101,7 @@ def _circle_edge_um(r, f, k):
 
 @settings(max_examples=200, deadline=None)
 @given(circle_cases, st.floats(1e-4, 1.0))
-@example((5.0, 2226.5, 5.0), 1.0)  # the domain edge itself (issue 16, item 7)
+@example((5.0, 2226.5, 5.0), 1.0)  # the domain edge itself
 @example((500.0, 50.0, 5.0), 1.0)
 def test_limit_inverts_circle_tbe_over_whole_domain(case, fraction):
     # b is drawn as a fraction of the whole validity domain of Eq. 8, edge included,
@@ -118,7 +118,7 @@ def test_limit_inverts_circle_tbe_over_whole_domain(case, fraction):
 
 @settings(max_examples=200, deadline=None)
 @given(circle_cases, st.floats(0.01, 1000.0))
-@example((5.0, 2226.5, 5.0), 10.0)  # issue 16 item 7: refused with "outside Eq. 8"
+@example((5.0, 2226.5, 5.0), 10.0)  # refused with "outside Eq. 8"
 def test_limit_answers_every_circle_tolerance(case, tol):
     r, f, k = case
     edge = _circle_edge_um(r, f, k)
@@ -132,7 +132,7 @@ def test_limit_answers_every_circle_tolerance(case, tol):
     assert float(tbe_circle_um(got, r, f, k)) == pytest.approx(tol, rel=1e-9, abs=1e-9)
 
 
-def test_limit_of_issue_16_counterexample_answers():
+def test_limit_on_the_circle_where_the_tbe_peaks_near_the_tolerance():
     got = backlash_limit_um(10.0, feed_mm_min=2226.5, gain_per_s=5.0, radius_mm=5.0)
     assert float(tbe_circle_um(got, 5.0, 2226.5, 5.0)) == pytest.approx(10.0, rel=1e-9)
     assert got == pytest.approx(10.233, abs=0.001)

@@ -1,4 +1,4 @@
-"""Work orders and repairs on SQLite and PostgreSQL (issue 20): one active order per axis
+"""Work orders and repairs on SQLite and PostgreSQL: one active order per axis
 is the database's rule (two ALARMs at once still open one), every step is stored with
 its time, who and why, a repair moves the order and is found again."""
 

@@ -195,7 +195,7 @@ def test_schedule_validation():
 
 
 def test_metrology_of_a_result_is_stored_and_read_back(factory, axis_id):
-    # issue 16: the GUM budgets, outliers, grid, TBE uncertainty and the decision rule
+    # the GUM budgets, outliers, grid, TBE uncertainty and the decision rule
     from core.tbe import decide
 
     fc = f.finished(axis_id, 180.0, tasks=())

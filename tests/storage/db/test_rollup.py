@@ -1,4 +1,4 @@
-"""Hourly trend rollups (issue 21): the trend of a long history read from whole hours and
+"""Hourly trend rollups: the trend of a long history read from whole hours and
 the rows of the partial hours at the range's edges gives the correlations and the thermal
 model of every row, keeps every excursion of b̄ on the screen, follows each stored result,
 and is built by the migration for results stored before it. SQLite and PostgreSQL."""
@@ -169,7 +169,7 @@ def test_the_migration_builds_rollups_for_results_stored_before_it(backend, tmp_
 
 
 def test_history_rows_are_bounded_by_a_regular_thinning_that_keeps_the_newest(loaded):
-    # issue 16 item 6: the robust prognosis fit needs rows, not sums; a long history is thinned
+    # the robust prognosis fit needs rows, not sums; a long history is thinned
     factory, axis_id, (i, temp, b), _ = loaded
     with session_scope(factory) as s:
         rows = results_repo.history_rows(s, axis_id, max_rows=1000)
