@@ -176,11 +176,10 @@ def seed(url: str, days: int) -> str:
     engine = make_engine(url)
     upgrade(engine)
     factory = make_session_factory(engine)
-    demo = demo_axis()
     with session_scope(factory) as s:
         m = config_repo.create_machine(s, "bench-vmc", "benchmark")
         # the configured controller, not the built-in simulator: its thread would tax the server
-        axis = config_repo.create_axis(s, m.id, replace(demo.settings, controller_url="modbus://127.0.0.1:1"))
+        axis = config_repo.create_axis(s, m.id, demo_axis(controller_url="modbus://127.0.0.1:1").settings)
         _, key = config_repo.create_key(s, "bench-read", "read")
     rt0 = synthetic_round_trip(axis)
     t0 = datetime.now(timezone.utc) - timedelta(days=days)

@@ -20,7 +20,6 @@ import sys
 import tempfile
 import time
 import uuid
-from dataclasses import replace
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
@@ -42,10 +41,9 @@ def seed(url: str, minutes: int) -> tuple[int, str]:
     engine = make_engine(url)
     upgrade(engine)
     factory = make_session_factory(engine)
-    demo = demo_axis()
     with session_scope(factory) as s:
         m = config_repo.create_machine(s, "bench-vmc", "benchmark")
-        axis = config_repo.create_axis(s, m.id, replace(demo.settings, controller_url="modbus://127.0.0.1:1"))
+        axis = config_repo.create_axis(s, m.id, demo_axis(controller_url="modbus://127.0.0.1:1").settings)
         _, key = config_repo.create_key(s, "bench-read", "read")
     rng = np.random.default_rng(0)
     t0 = datetime.now(timezone.utc) - timedelta(minutes=minutes)

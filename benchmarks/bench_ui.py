@@ -47,13 +47,12 @@ def seed(url: str, n_axes: int, days: int) -> tuple[str, list[int]]:
     engine = make_engine(url)
     upgrade(engine)
     factory = make_session_factory(engine)
-    demo = demo_axis()
+    demo = demo_axis(controller_url="modbus://127.0.0.1:1")
     ids = []
     with session_scope(factory) as s:
         for i in range(n_axes):
             m = config_repo.find_machine(s, f"vmc-{i // 3 + 1}") or config_repo.create_machine(s, f"vmc-{i // 3 + 1}")
-            st = replace(demo.settings, spec=replace(demo.settings.spec, name="xyz"[i % 3]),
-                         controller_url="modbus://127.0.0.1:1")
+            st = replace(demo.settings, spec=replace(demo.settings.spec, name="xyz"[i % 3]))
             ids.append(config_repo.create_axis(s, m.id, st).id)
         s.commit()
         _, key = config_repo.create_key(s, "bench-admin", "admin")  # admin: the configuration pages too

@@ -204,13 +204,15 @@ DEMO_TASK = MachiningTask("circle R200 F200", "circle", feed_mm_min=200.0, gain_
                           radius_mm=200.0)
 
 
-def demo_axis() -> AxisConfig:
-    """The seed paper's Y axis (Table 1, Section 5) on the simulated controller."""
+def demo_axis(*, travel_mm: tuple[float, float] = (0.0, 1000.0), controller_url: str = SIM_CONTROLLER,
+              interval_s: float = 60.0) -> AxisConfig:
+    """The seed paper's Y axis (Table 1, Section 5), on the simulated controller unless
+    ``controller_url`` names another; a shorter ``travel_mm`` makes a shorter round trip."""
     spec = AxisSpec("y", transmission_mm_per_rev=6.857, screw_lead_mm=16.0, position_gain_per_s=10.0,
-                    travel_mm=(0.0, 1000.0))
+                    travel_mm=travel_mm)
     return AxisConfig(DEMO_MACHINE, AxisSettings(
-        spec=spec, controller_url=SIM_CONTROLLER, measure_feed_mm_min=3000.0, measure_acceleration_mm_s2=500.0,
-        warning_fraction=0.9, schedule=Schedule(interval_s=60.0), tasks=(DEMO_TASK,),
+        spec=spec, controller_url=controller_url, measure_feed_mm_min=3000.0, measure_acceleration_mm_s2=500.0,
+        warning_fraction=0.9, schedule=Schedule(interval_s=interval_s), tasks=(DEMO_TASK,),
     ))
 
 

@@ -6,15 +6,12 @@ backlash is raised past the 236 µm limit and cleared when it is lowered, and an
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import pytest
 from fastapi.testclient import TestClient
 
 from api.rest import create_app
-from api.service.config import AxisConfig, Settings, SimulatorSettings, demo_axis
-from core.dataset import AxisSpec
-from storage.db import Schedule, config_repo, integrity_problems, session_scope
+from api.service.config import Settings, SimulatorSettings, demo_axis
+from storage.db import config_repo, integrity_problems, session_scope
 from storage.dataset import read_dataset
 from tests.waiting import poll
 
@@ -24,12 +21,10 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture
 def live(engine, db_url, tmp_path):  # noqa: ARG001 - engine empties the database
-    demo = demo_axis()
-    spec = AxisSpec("y", 6.857, 16.0, 10.0, (0.0, 200.0))
-    axis = AxisConfig(demo.machine, replace(demo.settings, spec=spec, schedule=Schedule(interval_s=2.0)))
+    axis = demo_axis(travel_mm=(0.0, 200.0), interval_s=2.0)
     sim = SimulatorSettings(time_scale=20.0, temperature_mean_c=20.0, temperature_amplitude_c=0.0,
                             backlash_um_at_20c=226.0)
-    settings = Settings(data_dir=tmp_path, database_url=db_url, machines=((demo.machine, "loopback"),), axes=(axis,),
+    settings = Settings(data_dir=tmp_path, database_url=db_url, machines=((axis.machine, "loopback"),), axes=(axis,),
                         simulator=sim, demo_keys=True)
     app = create_app(settings)  # the production runner: Modbus driver + acquisition cycle
     with TestClient(app) as client:

@@ -9,16 +9,13 @@ transitions, both repairs and the measurements before and after them."""
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import pytest
 from fastapi.testclient import TestClient
 
 from acquisition.sim.wear import Wear
 from api.rest import create_app
-from api.service.config import AxisConfig, MaintenanceSettings, Settings, SimulatorSettings, demo_axis
-from core.dataset import AxisSpec
-from storage.db import Schedule, integrity_problems, maintenance_repo, results_repo, session_scope
+from api.service.config import MaintenanceSettings, Settings, SimulatorSettings, demo_axis
+from storage.db import integrity_problems, maintenance_repo, results_repo, session_scope
 from tests.waiting import poll
 
 V1 = "/api/v1"
@@ -36,15 +33,13 @@ class Clock:
 
 @pytest.fixture
 def live(engine, db_url, tmp_path):  # noqa: ARG001 - engine empties the database
-    demo = demo_axis()
-    spec = AxisSpec("y", 6.857, 16.0, 10.0, (0.0, 200.0))
-    axis = AxisConfig(demo.machine, replace(demo.settings, spec=spec, schedule=Schedule(interval_s=3600.0)))
+    axis = demo_axis(travel_mm=(0.0, 200.0), interval_s=3600.0)
     # no wear until the test installs its own, on a clock it steps: with the simulator's wear
     # on wall time (10 µm per second here), a start-up measurement that a loaded host delays
     # by 5 s finds ALARM and opens an order before the test begins (seen in stops 40 and 41)
     sim = SimulatorSettings(time_scale=20.0, temperature_mean_c=20.0, temperature_amplitude_c=0.0,
                             backlash_um_at_20c=190.0, wear_um_per_day=0.0, utility_days_per_s=1.0)
-    settings = Settings(data_dir=tmp_path, database_url=db_url, machines=((demo.machine, "loopback"),), axes=(axis,),
+    settings = Settings(data_dir=tmp_path, database_url=db_url, machines=((axis.machine, "loopback"),), axes=(axis,),
                         simulator=sim, demo_keys=True, catch_up_missed=False,
                         maintenance=MaintenanceSettings(verify_at="now"))
     app = create_app(settings)  # the production runner: Modbus driver + acquisition cycle
