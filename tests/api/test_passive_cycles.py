@@ -38,9 +38,9 @@ def controller():
     sim.stop_thread()
 
 
-def passive_service(db_url, tmp_path, url):  # noqa: F811 - db_url is a fixture's value here
+def passive_service(db_url, tmp_path, url, **axis_settings):  # noqa: F811 - db_url is a fixture's value here
     axis = AxisConfig("vmc-850", f.settings(spec=AXIS, controller_url=url, schedule=Schedule(interval_s=3600.0),
-                                            tasks=()))
+                                            tasks=(), **axis_settings))
     svc = Service(replace(make_settings(db_url, tmp_path), axes=(axis,)), runner=DriverRunner(timeout_s=1.0))
     svc.start()
     with session_scope(svc.factory) as s:
