@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from api.cli.output import print_json, print_table
-from core.criteria import RoundTripSettings, analyze_round_trip
+from core.criteria import CRITERION_NAMES, CRITERION_SYMBOLS, RoundTripSettings, analyze_round_trip
 from core.criteria.lost_motion import clearance_from_feeds
 from core.criteria.uncertainty import inputs_of_run
 from core.errors import MebmError, TraceError
@@ -78,6 +78,7 @@ def run(a: argparse.Namespace) -> int:
             else:
                 print(f"axis {axis_name}: clearance not separated: {c.reason}")
         print("B̄, B: ISO 230-2 reversal values (lost motion); the TBE uses the total lost motion b̄")
+        print("; ".join(f"{CRITERION_SYMBOLS[k]}: {name}" for k, name in CRITERION_NAMES.items()) + " (ISO 3408-3)")
         print("lead criteria of the positive stroke; --json gives both directions, the GUM budgets and "
               "U for each criterion; U: expanded uncertainty, k = 2")
     if skipped and not a.json:

@@ -14,7 +14,7 @@ import argparse
 import numpy as np
 
 from api.cli.output import print_json, print_table
-from core.criteria import analyze_round_trip
+from core.criteria import analyze_round_trip, criterion_label
 from core.sim import AxisModel, CyclicError, Effects, Encoders, round_trip, simulate
 from core.tbe import MachiningTask, decide
 from storage.dataset import append_runs, next_run_name
@@ -73,8 +73,9 @@ def run(a: argparse.Namespace) -> int:
         ["quantity", "value"],
         [["mean backlash b̄ (µm)", result.backlash.mean_um],
          ["backlash min..max (µm)", f"{result.backlash.min_um:.2f}..{result.backlash.max_um:.2f}"],
-         ["e_p (µm/1000 mm)", pos.e_p_um_per_1000mm],
-         ["v_u (µm)", pos.v_u_um], ["v_300 (µm)", pos.v_300_um], ["v_2π (µm)", pos.v_2pi_um]],
+         [f"{criterion_label('e_p')} (µm/1000 mm)", pos.e_p_um_per_1000mm],
+         [f"{criterion_label('v_u')} (µm)", pos.v_u_um], [f"{criterion_label('v_300')} (µm)", pos.v_300_um],
+         [f"{criterion_label('v_2pi')} (µm)", pos.v_2pi_um]],
     )
     print()
     for x in decision.assessments:

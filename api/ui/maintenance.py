@@ -25,6 +25,7 @@ from api.service.maintenance_input import NoteIn, RepairIn, summary_csv, summary
 from api.ui import panels
 from api.ui.config_forms import field_errors
 from api.ui.routes import Posted, Viewer, Who, axis_ctx, page
+from core.criteria import criterion_label
 from core.errors import InputError
 from core.maintenance import REPAIR_KINDS, TransitionError
 from storage.db import NotFoundError, config_repo, maintenance_repo, results_repo, session_scope
@@ -37,8 +38,9 @@ KIND_WORDS = {"corrective": "corrective", "condition_based": "condition-based"} 
 REPAIR_WORDS = {"preload_adjusted": "preload adjusted", "nut_replaced": "nut replaced",
                 "screw_replaced": "screw replaced", "compensation_loaded": "compensation table loaded",
                 "lubricated": "lubricated", "other": "other"}
-LEAD_WORDS = {"e_p_um_per_1000mm": ("Positioning error E_p", "µm/1000 mm"), "v_u_um": ("Reversal error v_u", "µm"),
-              "v_300_um": ("Periodic deviation v_300", "µm"), "v_2pi_um": ("Periodic deviation v_2π", "µm")}
+LEAD_WORDS = {key: (criterion_label(key)[:1].upper() + criterion_label(key)[1:], unit)  # ISO 3408-3's names
+              for key, unit in (("e_p_um_per_1000mm", "µm/1000 mm"), ("v_u_um", "µm"), ("v_300_um", "µm"),
+                                ("v_2pi_um", "µm"))}
 RECENT_REPAIRS = 5
 
 

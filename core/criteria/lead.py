@@ -16,6 +16,25 @@ from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
 from core.errors import InputError
 
+# ISO 3408-3's names of the criteria, for every place a person reads them (dashboard,
+# CLI, docs); the symbols stay the keys of results and JSON.
+CRITERION_NAMES = {
+    "e_p": "mean travel deviation",
+    "v_u": "travel variation over the useful travel",
+    "v_300": "travel variation within 300 mm",
+    "v_2pi": "travel variation within one revolution (2π rad)",
+}
+CRITERION_SYMBOLS = {"e_p": "e_p", "v_u": "v_u", "v_300": "v_300", "v_2pi": "v_2π"}
+
+
+def criterion_label(key: str) -> str:
+    """The name and symbol of a lead criterion (``"v_u"`` or ``"v_u_um"``), e.g.
+    "travel variation within 300 mm v_300"."""
+    base = next((k for k in sorted(CRITERION_NAMES, key=len, reverse=True) if key.startswith(k)), None)
+    if base is None:
+        raise KeyError(f"{key!r} is not a lead criterion (one of {', '.join(CRITERION_NAMES)})")
+    return f"{CRITERION_NAMES[base]} {CRITERION_SYMBOLS[base]}"
+
 
 @dataclass(frozen=True)
 class LeadCriteria:

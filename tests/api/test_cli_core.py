@@ -106,6 +106,8 @@ def test_analyze_table_output(tmp_path, capsys):
     code, out, _ = run_cli(capsys, "analyze", str(folder))
     assert code == 0
     assert "b̄ (µm)" in out and "rt_00.csv" in out and "120.0" in out
+    assert ("e_p: mean travel deviation; v_u: travel variation over the useful travel; "
+            "v_300: travel variation within 300 mm; v_2π: travel variation within one revolution (2π rad)") in out
 
 
 def test_analyze_reports_bad_run_by_name_and_keeps_the_good_one(tmp_path, capsys):

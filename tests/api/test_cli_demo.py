@@ -20,6 +20,7 @@ def test_demo_below_the_limit_is_ok_and_writes_a_dataset(tmp_path, capsys):
     assert main(["demo", "--backlash-um", "180", "--out", str(tmp_path / "ds")]) == 0
     out = capsys.readouterr().out
     assert out.strip().splitlines()[-1].startswith("OK: mean backlash 180.0 µm")
+    assert "travel variation within 300 mm v_300 (µm)" in out and "mean travel deviation e_p (µm/1000 mm)" in out
     ds = read_dataset(tmp_path / "ds")
     assert [r.spec.kind for r in ds.runs] == ["round_trip"]
     assert main(["analyze", str(tmp_path / "ds"), "--json"]) == 0

@@ -12,6 +12,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from api.rest import create_app
+from api.ui.maintenance import verification_rows
 from storage.db import config_repo, maintenance_repo, session_scope
 from tests.api.rest.conftest import FakeRunner, make_settings
 
@@ -160,3 +161,13 @@ def test_a_repair_recorded_on_the_form_is_the_apis_and_is_verified(env):
     assert csv.headers["content-type"].startswith("text/csv")
     api = c.get("/api/v1/maintenance/summary?format=csv", headers={"X-API-Key": keys["read"]})
     assert csv.text == api.text and csv.text.splitlines()[-1].startswith("(fleet),")
+
+
+def test_the_verification_table_labels_the_lead_criteria_with_iso_3408_3s_names():
+    changes = {k: {"before": 10.0, "after": 8.0, "change": -2.0}
+               for k in ("e_p_um_per_1000mm", "v_u_um", "v_300_um", "v_2pi_um")}
+    labels = {r["key"]: r["label"] for r in verification_rows({"changes": changes})}
+    assert labels == {"e_p_um_per_1000mm": "Mean travel deviation e_p",
+                      "v_u_um": "Travel variation over the useful travel v_u",
+                      "v_300_um": "Travel variation within 300 mm v_300",
+                      "v_2pi_um": "Travel variation within one revolution (2π rad) v_2π"}

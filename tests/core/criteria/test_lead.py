@@ -4,7 +4,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from core.criteria import lead_criteria, max_window_band
+from core.criteria import criterion_label, lead_criteria, max_window_band
 from core.errors import InputError
 
 
@@ -46,3 +46,10 @@ def test_short_travel_uses_whole_travel_for_v300():
 def test_rejects_non_uniform_grid():
     with pytest.raises(InputError, match="uniform"):
         lead_criteria(np.array([0.0, 1.0, 3.0]), np.zeros(3), direction="positive", screw_lead_mm=16.0)
+
+
+def test_criterion_labels_are_iso_3408_3s_names_and_refuse_other_keys():
+    assert criterion_label("v_300_um") == "travel variation within 300 mm v_300"
+    assert criterion_label("v_2pi") == "travel variation within one revolution (2π rad) v_2π"
+    with pytest.raises(KeyError, match="'b_um' is not a lead criterion"):
+        criterion_label("b_um")
