@@ -36,13 +36,21 @@ _RUN_FIELDS = [f.name for f in fields(RunSpec) if f.name != "extra"]
 _TUPLE_FIELDS = ("axes", "centre_mm", "start_mm")
 
 
+REWRITE_JSON = "the file is cut short or not JSON: restore it from a copy or write it again"
+
+
 def _load_json(path: Path) -> dict:
     if not path.is_file():
         raise DatasetError("dataset.json not found (is this a dataset folder?)", source=str(path))
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except json.JSONDecodeError as exc:
-        raise DatasetError(f"not valid JSON: {exc.msg} at line {exc.lineno}", source=str(path)) from exc
+        # json's messages end in "at" ("Unterminated string starting at") when the
+        # position they point at is where the problem starts, not where parsing stopped
+        what = exc.msg if exc.msg.endswith(" at") else f"{exc.msg} at"
+        raise DatasetError(f"{what} line {exc.lineno}, column {exc.colno}: {REWRITE_JSON}", source=str(path)) from exc
+    except UnicodeDecodeError as exc:
+        raise DatasetError(f"byte {exc.start} is not UTF-8 text: {REWRITE_JSON}", source=str(path)) from exc
     if not isinstance(doc, dict):
         raise DatasetError("top level must be a JSON object", source=str(path))
     return doc

@@ -119,6 +119,19 @@ def test_missing_dataset_json_and_wrong_format_are_named(tmp_path, folder):
     assert "'other/2'" in _error(folder)
 
 
+def test_a_truncated_dataset_json_names_the_file_the_position_and_what_to_do(folder):
+    text = (folder / "dataset.json").read_text()
+    quote = text.index('"kind"')
+    (folder / "dataset.json").write_text(text[:quote + 3])  # cut inside a string: it is never closed
+    line = text[:quote].count("\n") + 1
+    col = quote - text[:quote].rindex("\n")  # the string's opening quote, 1-based
+    with pytest.raises(DatasetError) as ei:
+        read_dataset(folder)
+    assert str(ei.value) == (f"{folder / 'dataset.json'}: Unterminated string starting at line {line}, column {col}: "
+                             "the file is cut short or not JSON: restore it from a copy or write it again")
+    assert "at at" not in str(ei.value)
+
+
 def test_appending_a_listed_file_or_a_different_axis_is_refused(folder):
     with pytest.raises(DatasetError, match="already in the dataset"):
         append_runs(folder, MACHINE, [_run()])
