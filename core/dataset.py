@@ -20,6 +20,14 @@ SPLITS = ("train", "test")
 AXIS_FIELDS = ("transmission_mm_per_rev", "screw_lead_mm", "position_gain_per_s", "travel_mm")
 
 
+def _shown(v) -> str:
+    """A value as a person reads it in a message: a number with :g (never numpy's
+    ``np.float64(...)`` repr), anything else as its repr."""
+    if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool):
+        return f"{float(v):g}"
+    return repr(v)
+
+
 @dataclass(frozen=True)
 class AxisSpec:
     """One axis of the machine: k_a (mm/rev), screw lead (mm), K (1/s), useful travel (mm)."""
@@ -35,10 +43,11 @@ class AxisSpec:
         for key in ("transmission_mm_per_rev", "screw_lead_mm", "position_gain_per_s"):
             v = getattr(self, key)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
-                raise DatasetError(f"axis {self.name!r}: {key} (={v!r}) must be a number > 0")
+                raise DatasetError(f"axis {self.name!r}: {key} (={_shown(v)}) must be a number > 0")
         t = self.travel_mm
         if len(t) != 2 or not all(np.isfinite(t)) or not t[1] > t[0]:
-            raise DatasetError(f"axis {self.name!r}: travel_mm (={list(t)!r}) must be [start, end] with end > start")
+            shown = ", ".join(_shown(x) for x in t)
+            raise DatasetError(f"axis {self.name!r}: travel_mm (=[{shown}]) must be [start, end] with end > start")
 
     @property
     def travel_length_mm(self) -> float:
@@ -132,9 +141,9 @@ def validate_run_spec(spec: RunSpec, machine: MachineSpec, *, source: str = "dat
     if len(spec.axes) != n_axes:
         raise DatasetError(f"{where}: a {spec.kind} run needs {n_axes} axis/axes, got {list(spec.axes)}")
     if not (np.isfinite(spec.feed_mm_min) and spec.feed_mm_min > 0):
-        raise DatasetError(f"{where}: feed_mm_min (={spec.feed_mm_min!r}) must be > 0")
+        raise DatasetError(f"{where}: feed_mm_min (={_shown(spec.feed_mm_min)}) must be > 0")
     if not np.isfinite(spec.temperature_c):
-        raise DatasetError(f"{where}: temperature_c (={spec.temperature_c!r}) must be finite")
+        raise DatasetError(f"{where}: temperature_c (={_shown(spec.temperature_c)}) must be finite")
     if spec.split is not None and spec.split not in SPLITS:
         raise DatasetError(f"{where}: split (={spec.split!r}) must be one of {SPLITS}")
     if spec.kind == "circle":
@@ -163,12 +172,14 @@ def validate_columns(spec: RunSpec, columns: Mapping[str, np.ndarray]) -> None:
         bad = ~np.isfinite(col)
         if bad.any():
             i = int(np.argmax(bad))
-            raise DatasetError(f"column {name!r} is {col[i]!r} (NaN or inf)", source=src, row=i + 1)
+            what = "is not a number (nan)" if np.isnan(col[i]) else f"is infinite ({col[i]:g})"
+            raise DatasetError(f"column {name} {what}: the sample was not read; remove the row or measure again",
+                               source=src, row=i + 1)
     step = np.diff(columns["time_s"])
     if np.any(step <= 0):
         i = int(np.argmax(step <= 0)) + 1
         raise DatasetError(
-            f"time_s not strictly increasing ({columns['time_s'][i - 1]!r} then {columns['time_s'][i]!r})",
+            f"time_s not strictly increasing ({columns['time_s'][i - 1]:g} s then {columns['time_s'][i]:g} s)",
             source=src,
             row=i + 1,
         )
