@@ -59,10 +59,36 @@ def _field(loc) -> str:
     return ".".join(parts) or ".".join(str(p) for p in loc)
 
 
+def _json_position(doc, pos: int) -> tuple[int, int]:
+    """Line and column (both from 1) of character ``pos`` of a request body, as json counts them."""
+    if isinstance(doc, (bytes, bytearray)):
+        doc = doc.decode("utf-8", "replace")
+    if not isinstance(doc, str):
+        return 1, pos + 1
+    line = doc.count("\n", 0, pos) + 1
+    return line, pos - (doc.rfind("\n", 0, pos) + 1) + 1
+
+
+def _error_entry(e: dict, body) -> dict:
+    """One entry of a 422's ``errors``. A body that is not JSON at all gets the position of
+    the fault (line, column and character offset) and json's reason in words, instead of
+    pydantic's location ``("body", <offset>)`` and "JSON decode error"."""
+    if e.get("type") != "json_invalid":
+        return {"field": _field(e.get("loc", ())), "message": e.get("msg", "invalid")}
+    loc = e.get("loc", ())
+    pos = loc[-1] if loc and isinstance(loc[-1], int) else 0
+    line, column = _json_position(body, pos)
+    reason = str((e.get("ctx") or {}).get("error", "not JSON")).rstrip()
+    where = reason if reason.endswith(" at") else f"{reason} at"  # json's "Unterminated string starting at"
+    message = (f"not valid JSON: {where} line {line}, column {column} (character {pos}): "
+               "the body is cut short or not JSON; send the whole JSON document")
+    return {"field": "body", "message": message, "line": line, "column": column, "position": pos}
+
+
 def install(app: FastAPI) -> None:
     @app.exception_handler(RequestValidationError)
     async def _validation(_req: Request, exc: RequestValidationError):
-        errors = [{"field": _field(e.get("loc", ())), "message": e.get("msg", "invalid")} for e in exc.errors()]
+        errors = [_error_entry(e, exc.body) for e in exc.errors()]
         msg = "; ".join(f"{e['field']}: {e['message']}" for e in errors) or "invalid request"
         return _body(422, msg, errors=errors)
 

@@ -231,3 +231,14 @@ def test_status_carries_the_uncertainty_and_the_decision_rule(app_env, runner):
     (task,) = st["tasks"]
     assert task["decision_rule"] == "guarded" and task["tbe_uncertainty_um"] > 0
     assert task["backlash_limit_uncertainty_um"] > 0
+
+
+def test_a_truncated_json_body_is_422_naming_the_position_and_the_fault(app_env):
+    client, svc, keys, axis_id = app_env
+    body = '{"name": "vmc-2",\n   "description": "second mill'  # cut short inside a string on line 2
+    r = client.post(f"{V1}/machines", content=body, headers={**hdr(keys["admin"]), "Content-Type": "application/json"})
+    assert r.status_code == 422
+    msg = ("not valid JSON: Unterminated string starting at line 2, column 19 (character 36): "
+           "the body is cut short or not JSON; send the whole JSON document")
+    assert r.json() == {"detail": f"body: {msg}",
+                        "errors": [{"field": "body", "message": msg, "line": 2, "column": 19, "position": 36}]}
