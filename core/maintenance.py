@@ -205,6 +205,24 @@ class AxisMaintenanceSummary:
     def days(self) -> float:
         return (self.end_s - self.start_s) / 86400.0
 
+    @property
+    def comparable(self) -> bool:
+        """Whether the history spans one whole period of the fixed plan: shorter, the plan
+        has made no repair yet, and any called repair would read as a repair lost."""
+        return self.days >= self.fixed_interval_days - 1e-9
+
+    @property
+    def repairs_saved(self) -> int | None:
+        """Repairs the error-driven plan saved against the fixed one; None until :attr:`comparable`."""
+        return self.fixed_interval_repairs - self.repairs_called if self.comparable else None
+
+    def repairs_saved_note(self) -> str | None:
+        """Why :attr:`repairs_saved` is empty, in words; None when it is not."""
+        if self.comparable:
+            return None
+        return (f"nothing to compare yet: {self.days:.1f} days of history, the comparison with the fixed plan "
+                f"needs at least {self.fixed_interval_days:g} (one period of it)")
+
     def to_dict(self) -> dict:
         iv, av = np.asarray(self.intervals_days, float), np.asarray(self.alarm_to_verified_days, float)
         return {
@@ -220,7 +238,7 @@ class AxisMaintenanceSummary:
             "alarm_to_verified_max_days": _r(float(av.max()), 3) if av.size else None,
             "fixed_interval_days": self.fixed_interval_days,
             "fixed_interval_repairs": self.fixed_interval_repairs,
-            "repairs_saved": self.fixed_interval_repairs - self.repairs_called,
+            "repairs_saved": self.repairs_saved, "repairs_saved_note": self.repairs_saved_note(),
         }
 
 
@@ -258,11 +276,20 @@ def fleet_totals(axes: Sequence[AxisMaintenanceSummary]) -> dict:
     av = np.asarray([x for a in axes for x in a.alarm_to_verified_days], float)
     called = sum(a.repairs_called for a in axes)
     fixed = sum(a.fixed_interval_repairs for a in axes)
+    compared = [a for a in axes if a.comparable]  # an axis with a short history has nothing to compare yet
+    short = len(axes) - len(compared)
+    if not compared:
+        saved, note = None, ("nothing to compare yet: no axis has a history of one fixed-plan period "
+                             f"({axes[0].fixed_interval_days:g} days)" if axes else "nothing to compare: no axis")
+    else:
+        saved = sum(a.repairs_saved for a in compared)
+        note = (f"over {len(compared)} of {len(axes)} axes: the others have less than one fixed-plan period "
+                f"({axes[0].fixed_interval_days:g} days) of history" if short else None)
     return {
         "axes": len(axes), "repairs_called_by_error": called, "repairs_other": sum(a.repairs_other for a in axes),
         "orders_opened": sum(a.orders_opened for a in axes), "orders_verified": sum(a.orders_verified for a in axes),
         "interval_mean_days": _r(float(iv.mean()), 2) if iv.size else None,
         "alarm_to_verified_mean_days": _r(float(av.mean()), 3) if av.size else None,
         "alarm_to_verified_max_days": _r(float(av.max()), 3) if av.size else None,
-        "fixed_interval_repairs": fixed, "repairs_saved": fixed - called,
+        "fixed_interval_repairs": fixed, "repairs_saved": saved, "repairs_saved_note": note,
     }

@@ -186,6 +186,10 @@ def _verify(a) -> int:
     return 0
 
 
+def _or_blank(v) -> object:
+    return "" if v is None else v
+
+
 def _summary(a) -> int:
     q = []
     if a.fixed_interval_days:
@@ -203,9 +207,15 @@ def _summary(a) -> int:
         print_json(d)
         return 0
     rows = [[f"{x['machine']}/{x['axis']}", x["history_days"], x["repairs_called_by_error"], x["interval_mean_days"] or "",
-             x["alarm_to_verified_mean_days"] or "", x["fixed_interval_repairs"], x["repairs_saved"]] for x in d["axes"]]
+             x["alarm_to_verified_mean_days"] or "", x["fixed_interval_repairs"], _or_blank(x["repairs_saved"])]
+            for x in d["axes"]]
     f = d["fleet"]
     rows.append(["fleet", "", f["repairs_called_by_error"], f["interval_mean_days"] or "",
-                 f["alarm_to_verified_mean_days"] or "", f["fixed_interval_repairs"], f["repairs_saved"]])
+                 f["alarm_to_verified_mean_days"] or "", f["fixed_interval_repairs"], _or_blank(f["repairs_saved"])])
     print_table(["axis", "days", "called", "interval d", "ALARM->verified d", "fixed plan", "saved"], rows)
+    for x in d["axes"]:
+        if x.get("repairs_saved_note"):
+            print(f"saved, {x['machine']}/{x['axis']}: {x['repairs_saved_note']}")
+    if f.get("repairs_saved_note"):
+        print(f"saved, fleet: {f['repairs_saved_note']}")
     return 0

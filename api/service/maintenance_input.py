@@ -44,7 +44,8 @@ class RepairIn(BaseModel):
 SUMMARY_COLUMNS = ("machine", "axis", "axis_id", "history_days", "repairs_called_by_error", "repairs_other",
                    "orders_opened", "orders_verified", "orders_corrective", "orders_condition_based",
                    "interval_mean_days", "interval_min_days", "alarm_to_verified_mean_days",
-                   "alarm_to_verified_max_days", "fixed_interval_days", "fixed_interval_repairs", "repairs_saved")
+                   "alarm_to_verified_max_days", "fixed_interval_days", "fixed_interval_repairs", "repairs_saved",
+                   "repairs_saved_note")
 
 
 def summary_rows(axes: list) -> list[dict]:

@@ -143,3 +143,25 @@ def test_fixed_interval_count_edges():
     assert fixed_interval_count(90.0, 90.0) == 1 and fixed_interval_count(89.9, 90.0) == 0
     with pytest.raises(InputError, match="fixed_interval_days"):
         fixed_interval_count(10.0, 0.0)
+
+
+def test_a_history_shorter_than_one_fixed_plan_period_has_nothing_to_compare():
+    start = 1_767_225_600.0
+    fresh = summarise_axis(1, start, start, called_repairs_s=[start], other_repairs=0,
+                           orders=[("corrective", start, start)], fixed_interval_days=90.0)
+    d = fresh.to_dict()
+    assert d["repairs_called_by_error"] == 1 and d["fixed_interval_repairs"] == 0
+    assert d["repairs_saved"] is None
+    assert d["repairs_saved_note"] == ("nothing to compare yet: 0.0 days of history, the comparison with the fixed "
+                                       "plan needs at least 90 (one period of it)")
+    fleet = fleet_totals([fresh])
+    assert fleet["repairs_saved"] is None
+    assert fleet["repairs_saved_note"] == ("nothing to compare yet: no axis has a history of one fixed-plan "
+                                           "period (90 days)")
+    year = summarise_axis(2, start - 365 * 86400.0, start, called_repairs_s=[], other_repairs=0, orders=[],
+                          fixed_interval_days=90.0)
+    assert year.to_dict()["repairs_saved_note"] is None
+    both = fleet_totals([fresh, year])
+    assert both["repairs_saved"] == 4
+    assert both["repairs_saved_note"] == ("over 1 of 2 axes: the others have less than one fixed-plan "
+                                          "period (90 days) of history")

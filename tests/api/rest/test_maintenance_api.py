@@ -163,6 +163,10 @@ def test_cli_records_a_repair_and_shows_the_order_verified(server, capsys, tmp_p
     assert main(["maintenance", "summary", "--url", url, "--key", keys["read"], "--csv"]) == 0
     rows = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
     assert rows[0]["repairs_called_by_error"] == "1" and rows[0]["orders_verified"] == "1"
+    assert rows[0]["repairs_saved"] == "" and rows[0]["repairs_saved_note"].startswith("nothing to compare yet: 0.0 days")
+    assert main(["maintenance", "summary", "--url", url, "--key", keys["read"]]) == 0
+    assert ("saved, fleet: nothing to compare yet: no axis has a history of one fixed-plan period (90 days)"
+            in capsys.readouterr().out)
     (tmp_path / "demo-keys.json").write_text(json.dumps({"operate": keys["operate"]}))
     assert main(["maintenance", "show", str(o["id"]), "--url", url, "--data-dir", str(tmp_path)]) == 0
     assert "new nut, preload class P2" in capsys.readouterr().out

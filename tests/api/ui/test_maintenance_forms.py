@@ -157,6 +157,12 @@ def test_a_repair_recorded_on_the_form_is_the_apis_and_is_verified(env):
     # the fleet page lists the axis, and its CSV is the API's, byte for byte
     page = c.get("/ui/maintenance").text
     assert re.search(r'<tr data-axis-id="%d">.*?<td class="num">1</td>' % axis_id, page, re.S)
+    # a history of minutes: no fixed-plan repair yet, so nothing saved or lost to show
+    assert re.search(r'<tr data-axis-id="%d">.*?<span class="muted" title="nothing to compare yet: 0.0 days of '
+                     r'history, the comparison with the fixed plan needs at least 90 \(one period of it\)">–</span>'
+                     % axis_id, page, re.S)
+    assert ('<p class="small muted" id="saved-note">Saved: nothing to compare yet: no axis has a history of one '
+            'fixed-plan period (90 days).</p>') in page
     csv = c.get("/ui/maintenance/summary.csv")
     assert csv.headers["content-type"].startswith("text/csv")
     api = c.get("/api/v1/maintenance/summary?format=csv", headers={"X-API-Key": keys["read"]})
