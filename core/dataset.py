@@ -30,11 +30,15 @@ def _shown(v) -> str:
 
 @dataclass(frozen=True)
 class AxisSpec:
-    """One axis of the machine: k_a (mm/rev), screw lead (mm), K (1/s), useful travel (mm)."""
+    """One axis of the machine: k_a (mm/rev), screw lead (mm), K (1/s), useful travel (mm).
+
+    ``screw_lead_mm`` may be None (not known, as for a trace imported from a controller
+    whose screw is not documented): it is the window of v_2π only, which is then not
+    computed; the simulator and the gap diagnosis need it."""
 
     name: str
     transmission_mm_per_rev: float
-    screw_lead_mm: float
+    screw_lead_mm: float | None
     position_gain_per_s: float
     travel_mm: tuple[float, float]
     extra: Mapping = field(default_factory=dict, compare=False)
@@ -42,6 +46,8 @@ class AxisSpec:
     def __post_init__(self) -> None:
         for key in ("transmission_mm_per_rev", "screw_lead_mm", "position_gain_per_s"):
             v = getattr(self, key)
+            if key == "screw_lead_mm" and v is None:
+                continue
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise DatasetError(f"axis {self.name!r}: {key} (={_shown(v)}) must be a number > 0")
         t = self.travel_mm

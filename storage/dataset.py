@@ -64,14 +64,14 @@ def _parse_machine(doc: dict, src: str) -> MachineSpec:
     for name, a in m["axes"].items():
         if not isinstance(a, dict):
             raise DatasetError(f"machine.axes.{name} must be an object", source=src)
-        missing = [k for k in AXIS_FIELDS if k not in a]
+        missing = [k for k in AXIS_FIELDS if k not in a and k != "screw_lead_mm"]  # the lead: v_2π only
         if missing:
             raise DatasetError(f"machine.axes.{name} lacks {missing}", source=src)
         try:
             axes[name] = AxisSpec(
                 name=name,
                 transmission_mm_per_rev=float(a["transmission_mm_per_rev"]),
-                screw_lead_mm=float(a["screw_lead_mm"]),
+                screw_lead_mm=float(a["screw_lead_mm"]) if a.get("screw_lead_mm") is not None else None,
                 position_gain_per_s=float(a["position_gain_per_s"]),
                 travel_mm=tuple(float(x) for x in a["travel_mm"]),
                 extra={k: v for k, v in a.items() if k not in AXIS_FIELDS},
@@ -211,7 +211,7 @@ def machine_to_json(machine: MachineSpec) -> dict:
     for name, a in machine.axes.items():
         axes[name] = {
             "transmission_mm_per_rev": a.transmission_mm_per_rev,
-            "screw_lead_mm": a.screw_lead_mm,
+            **({"screw_lead_mm": a.screw_lead_mm} if a.screw_lead_mm is not None else {}),
             "position_gain_per_s": a.position_gain_per_s,
             "travel_mm": list(a.travel_mm),
             **dict(a.extra),

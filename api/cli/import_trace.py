@@ -5,6 +5,13 @@ The profile (TOML) holds the machine's axes as dataset.json does (``[machine]``)
 each value is in the file and in which unit (``[csv]``, ``[columns]``: see
 acquisition.trace_import and docs/controllers.md) and the run's fields (``[run]``:
 kind, axes, feed, temperature, ...); options on the command line override ``[run]``.
+
+A round trip is analysed at once and its result printed. Two things a user importing a
+trace may not know are optional: an axis' ``screw_lead_mm`` (only v_2π's window; the
+rest is computed and the result says what needs it), and its ``travel_mm`` (the useful
+travel; by default what both strokes cover outside their reversal transients, so a
+trace recorded without overtravel is analysed, and the travel used is reported and
+kept in the dataset). ``--useful-travel-mm START END`` sets it instead.
 """
 
 from __future__ import annotations
@@ -15,11 +22,14 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
+from dataclasses import replace
 
 from acquisition.trace_import import TraceImportError, parse_profile, read_trace
+from core.criteria import CRITERION_NAMES, CRITERION_SYMBOLS, analyze_round_trip
+from core.criteria.roundtrip import COVERED
 from core.dataset import Run
-from core.errors import DatasetError
-from storage.dataset import append_runs, dataset_lock, next_run_name, parse_machine, parse_run_spec
+from core.errors import DatasetError, InputError
+from storage.dataset import append_runs, dataset_lock, next_run_name, parse_machine, parse_run_spec, read_dataset
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -34,6 +44,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="ambient temperature (overrides [run].temperature_c and the mean of a temperature column)")
     p.add_argument("--utility-day", type=float, help="days in service since the first measurement")
     p.add_argument("--split", choices=("train", "test"), help="for `mebm gap`: a train or a test run")
+    p.add_argument("--useful-travel-mm", type=float, nargs=2, metavar=("START", "END"),
+                   help="the round trip's useful travel in table mm (overrides the axis' travel_mm; default: "
+                        "travel_mm, else what both strokes cover outside the reversal transients)")
     p.set_defaults(func=run)
 
 
@@ -49,6 +62,11 @@ def _load_profile(path: Path) -> dict:
 def run(a: argparse.Namespace) -> int:
     src = str(a.profile)
     doc = _load_profile(Path(a.profile))
+    # an axis without travel_mm gets it from the trace (below); the profile is checked
+    # with the field there, so that every other field gets the dataset's checks
+    measure_travel = _axes_without_travel(doc)
+    if a.useful_travel_mm is not None:
+        measure_travel = set()
     machine = parse_machine(doc, src)
     run_doc = dict(doc.get("run") or {})
     if "axes" not in run_doc and len(machine.axes) == 1:
@@ -71,6 +89,29 @@ def run(a: argparse.Namespace) -> int:
             flag = "--" + key.replace("_", "-")
             raise TraceImportError(f"{src}: run.{key} is needed (or {flag} on the command line"
                                    + (", or a temperature_c column" if key == "temperature_c" else "") + ")")
+    result, not_analysed = None, None
+    if run_doc["kind"] == "round_trip" and len(axes) == 1:
+        axis = machine.axes[axes[0]]
+        if a.useful_travel_mm is not None:
+            axis = replace(axis, travel_mm=tuple(a.useful_travel_mm))
+        elif axes[0] in measure_travel and (Path(a.out) / "dataset.json").is_file():
+            known = read_dataset(a.out, load_runs=False).machine.axes.get(axes[0])
+            if known is not None:  # the dataset's axis keeps its travel: every run on one grid
+                axis = replace(axis, travel_mm=known.travel_mm)
+                measure_travel = measure_travel - {axes[0]}
+        try:
+            result = analyze_round_trip(cols["time_s"], cols[f"{axes[0]}_motor_rev"], cols[f"{axes[0]}_table_mm"],
+                                        axis, useful_travel_mm=COVERED if axes[0] in measure_travel else None)
+        except InputError as exc:
+            if axes[0] in measure_travel:  # the travel would come from this analysis: nothing to write
+                raise TraceImportError(f"{a.file}: the useful travel cannot be taken from the trace ({exc}); "
+                                       f"give travel_mm in the profile or --useful-travel-mm") from exc
+            not_analysed = str(exc)
+        else:
+            machine = replace(machine, axes={**machine.axes, axes[0]: replace(axis, travel_mm=result.useful_travel_mm)})
+    elif measure_travel & set(axes):
+        raise TraceImportError(f"{src}: machine.axes.{sorted(measure_travel & set(axes))[0]} lacks travel_mm "
+                               f"(measured from the trace for a round trip only; a {run_doc['kind']} run needs it)")
     out = Path(a.out)
     stem = re.sub(r"[^A-Za-z0-9_.-]+", "_", Path(a.file).stem).strip("._") or "trace"
     with dataset_lock(out):  # the name and the append under one lock: concurrent imports get their own names
@@ -90,5 +131,38 @@ def run(a: argparse.Namespace) -> int:
     for ax_name in spec.axes:
         m, tb = cols[f"{ax_name}_motor_rev"], cols[f"{ax_name}_table_mm"]
         print(f"  {ax_name}: motor {m.min():.4f}..{m.max():.4f} rev, table {tb.min():.4f}..{tb.max():.4f} mm")
+    if result is not None:
+        _print_result(result, measured=axes[0] in measure_travel)
+    elif not_analysed is not None:
+        print(f"  imported, but not analysed: {not_analysed}")
     print(f"next: mebm analyze {out}" + ("" if spec.kind == "round_trip" else f"   or   mebm gap diagnose {out}"))
     return 0
+
+
+def _axes_without_travel(doc: dict) -> set[str]:
+    """Names of the profile's axes that have no ``travel_mm``; each is given a placeholder
+    the round trip's covered travel replaces before anything is written."""
+    axes = (doc.get("machine") or {}).get("axes") if isinstance(doc.get("machine"), dict) else None
+    if not isinstance(axes, dict):
+        return set()
+    missing = {str(n).lower() for n, ax in axes.items() if isinstance(ax, dict) and "travel_mm" not in ax}
+    for n, ax in axes.items():
+        if str(n).lower() in missing:
+            ax["travel_mm"] = [0.0, 1.0]  # placeholder: see above
+    return missing
+
+
+def _print_result(res, *, measured: bool) -> None:
+    lo, hi = res.useful_travel_mm
+    how = ("what both strokes cover outside the reversal transients" if measured else "the axis' travel_mm")
+    print(f"  useful travel {lo:g}..{hi:g} mm ({hi - lo:g} mm): {how}")
+    print(f"  mean backlash b̄ {res.backlash_mean_um:.2f} ± {res.backlash_mean_uncertainty_um:.2f} µm (k = 2)")
+    pos = res.strokes["positive"]
+    for key in CRITERION_NAMES:
+        value = getattr(pos, f"{key}_um")
+        shown = f"{value:.2f} µm" if value is not None else "not computed"
+        print(f"  {CRITERION_SYMBOLS[key]} ({CRITERION_NAMES[key]}, positive stroke): {shown}")
+    missing = [CRITERION_SYMBOLS[k] for k in CRITERION_NAMES if getattr(pos, f"{k}_um") is None]
+    if missing:
+        print(f"  needs the screw lead: {', '.join(missing)} (its window is one lead; add screw_lead_mm to the "
+              "profile's axis and import again)")

@@ -32,6 +32,8 @@ def print_table(headers: Sequence[str], rows: Sequence[Sequence]) -> None:
 
 
 def _fmt(v) -> str:
+    if v is None:  # a value not computed (a criterion whose input is not known)
+        return "–"
     if isinstance(v, float):
         if math.isinf(v):
             return "none"

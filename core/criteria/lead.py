@@ -50,7 +50,7 @@ class LeadCriteria:
     e_p_um_per_1000mm: float
     v_u_um: float
     v_300_um: float
-    v_2pi_um: float
+    v_2pi_um: float | None  # None: the screw lead, its window, is not known
     n_strokes: int
 
     def to_dict(self) -> dict:
@@ -81,11 +81,12 @@ def lead_criteria(
     deviation_mm: np.ndarray,
     *,
     direction: str,
-    screw_lead_mm: float,
+    screw_lead_mm: float | None,
     n_strokes: int = 1,
     window_300_mm: float = 300.0,
 ) -> LeadCriteria:
-    """Criteria from l_a - l_0 (``deviation_mm``) sampled on a uniform grid ``position_mm``."""
+    """Criteria from l_a - l_0 (``deviation_mm``) sampled on a uniform grid ``position_mm``.
+    Without ``screw_lead_mm`` (None) v_2π, whose window it is, is None; the rest is computed."""
     x = np.asarray(position_mm, dtype=float)
     d = np.asarray(deviation_mm, dtype=float)
     if x.shape != d.shape or x.shape[0] < 3:
@@ -98,7 +99,7 @@ def lead_criteria(
     fit = intercept + slope * (x - x[0])
     residual_um = (d - fit) * 1e3  # l_a - l_m
     points_300 = int(round(min(window_300_mm, length) / step)) + 1
-    points_2pi = int(round(min(screw_lead_mm, length) / step)) + 1
+    points_2pi = int(round(min(screw_lead_mm, length) / step)) + 1 if screw_lead_mm is not None else None
     return LeadCriteria(
         direction=direction,
         position_mm=x,
@@ -108,6 +109,6 @@ def lead_criteria(
         e_p_um_per_1000mm=float(slope * 1e6),
         v_u_um=float(np.ptp(residual_um)),  # Eq. 1
         v_300_um=max_window_band(residual_um, points_300),  # Eq. 2
-        v_2pi_um=max_window_band(residual_um, points_2pi),  # Eq. 3
+        v_2pi_um=max_window_band(residual_um, points_2pi) if points_2pi is not None else None,  # Eq. 3
         n_strokes=n_strokes,
     )

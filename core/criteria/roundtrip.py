@@ -35,6 +35,9 @@ from core.errors import InputError, TraceError
 
 CRITERIA = ("e_p", "v_u", "v_300", "v_2pi")
 REDUCTION_BOUND_UM = 0.01  # see _budgets
+NEEDS_SCREW_LEAD = ("v_2π (travel variation within one revolution) is not computed: its window is one screw "
+                    "lead; give the axis' screw_lead_mm")
+COVERED = "covered"  # useful_travel_mm: what both strokes cover outside their reversal transients
 TBE_BASIS = ("the TBE uses the total lost motion b̄ (= B̄, clearance and friction wind-up together), "
              "as the seed paper's table does")
 
@@ -98,8 +101,10 @@ class RoundTripResult:
         return self.budgets["backlash_mean"].expanded_um
 
     def criterion_uncertainty_um(self, stroke: str, criterion: str) -> float:
-        """Expanded (k = 2) uncertainty of a lead criterion (e_p, v_u, v_300, v_2pi), µm."""
-        return self.budgets[f"{stroke}.{criterion}"].expanded_um
+        """Expanded (k = 2) uncertainty of a lead criterion (e_p, v_u, v_300, v_2pi), µm;
+        None for a criterion not computed (v_2pi without the screw lead)."""
+        budget = self.budgets.get(f"{stroke}.{criterion}")
+        return budget.expanded_um if budget is not None else None
 
     @property
     def backlash_mean_um(self) -> float:
@@ -131,6 +136,8 @@ class RoundTripResult:
             "v_2pi_um": pos.v_2pi_um,
             "strokes": {name: s.to_dict() for name, s in self.strokes.items()},
         }
+        if pos.v_2pi_um is None:
+            out["needs_screw_lead"] = {"v_2pi": NEEDS_SCREW_LEAD}
         if self.budgets:
             out["backlash_mean_uncertainty_um"] = self.backlash_mean_uncertainty_um
             for key in CRITERIA:
@@ -270,7 +277,7 @@ def analyze_round_trip(
     table_mm,
     axis: AxisSpec,
     *,
-    useful_travel_mm: tuple[float, float] | None = None,
+    useful_travel_mm: tuple[float, float] | str | None = None,
     settings: RoundTripSettings = RoundTripSettings(),
     uncertainty: UncertaintyInputs = UncertaintyInputs(),
 ) -> RoundTripResult:
@@ -278,15 +285,22 @@ def analyze_round_trip(
     its GUM uncertainty budget (``uncertainty`` gives what the samples cannot show).
 
     ``useful_travel_mm`` defaults to the axis' ``travel_mm`` and is in table
-    coordinates. Raises :class:`TraceError` for a trace that cannot be trusted.
+    coordinates; :data:`COVERED` takes what both directions' strokes cover outside their
+    reversal transients (a trace recorded without overtravel), reported in the result.
+    Without the axis' screw lead v_2π is None. Raises :class:`TraceError` for a trace
+    that cannot be trusted.
     """
     t, motor, table = _check_trace(time_s, motor_rev, table_mm)
-    start, end = useful_travel_mm if useful_travel_mm is not None else axis.travel_mm
+    covered = useful_travel_mm == COVERED
+    if isinstance(useful_travel_mm, str) and not covered:
+        raise InputError(f"useful_travel_mm (={useful_travel_mm!r}) must be [start, end] or {COVERED!r}")
+    start, end = axis.travel_mm if useful_travel_mm is None or covered else useful_travel_mm
     if not end > start:
         raise InputError(f"useful_travel_mm (={[start, end]}) must be [start, end] with end > start")
+    lead_mm = axis.screw_lead_mm
     step = settings.grid_step_mm
     if step is None:
-        step = min(0.25, axis.screw_lead_mm / 64.0)
+        step = min(0.25, lead_mm / 64.0) if lead_mm is not None else 0.25
     elif not step > 0:
         raise InputError(f"grid_step_mm (={settings.grid_step_mm}) must be > 0")
     n_samples = int(t.size)
@@ -337,7 +351,10 @@ def analyze_round_trip(
     noise_mm = float(np.median([noise_sigma_mm(dev[s.engaged : s.end + 1]) for s in strokes]))
     smoothing_mm = settings.smoothing_mm
     if smoothing_mm > 0:
-        smoothing_mm = max(smoothing_mm, min(settings.smoothing_samples * spacing, axis.screw_lead_mm / 4.0))
+        bridge_mm = settings.smoothing_samples * spacing
+        smoothing_mm = max(smoothing_mm, min(bridge_mm, lead_mm / 4.0) if lead_mm is not None else bridge_mm)
+    if covered:
+        start, end = _covered_travel_mm(travel, by_dir, step)
     n = int(round((end - start) / step)) + 1
     grid = start + step * np.arange(n)
     curves = {}
@@ -387,7 +404,7 @@ def analyze_round_trip(
             grid,
             curves[name],
             direction=name,
-            screw_lead_mm=axis.screw_lead_mm,
+            screw_lead_mm=lead_mm,
             n_strokes=len(by_dir[d]),
         )
         for d, name in ((1, "positive"), (-1, "negative"))
@@ -403,7 +420,7 @@ def analyze_round_trip(
     speed = np.abs(nominal[at + lag] - nominal[at]) / (t[at + lag] - t[at])
     budgets = _budgets(
         uncertainty, table=table, nominal=nominal, stride=stride, noise_mm=noise_mm, spacing_mm=spacing,
-        smoothing_mm=smoothing_mm, length_mm=float(end - start), screw_lead_mm=axis.screw_lead_mm,
+        smoothing_mm=smoothing_mm, length_mm=float(end - start), screw_lead_mm=lead_mm,
         n_dir={name: sum(int(np.count_nonzero((travel[s.engaged : s.end + 1] >= start)
                                                & (travel[s.engaged : s.end + 1] <= end))) for s in by_dir[d])
                for d, name in ((1, "positive"), (-1, "negative"))},
@@ -438,6 +455,23 @@ def _min_step_um(x: np.ndarray, stride: int) -> float:
     d = np.diff(sub)
     d = d[d > 0]
     return float(d.min() * 1e3) if d.size else 0.0
+
+
+def _covered_travel_mm(travel: np.ndarray, by_dir: dict, step_mm: float) -> tuple[float, float]:
+    """The travel (table coordinates, mm) that every direction covers outside its reversal
+    transients (from each stroke's engagement to its end), moved inward to whole grid steps
+    so that the first and last bins hold samples of both directions."""
+    lo, hi = -np.inf, np.inf
+    for d in (1, -1):
+        spans = [travel[s.engaged : s.end + 1] for s in by_dir[d]]
+        lo = max(lo, min(float(x.min()) for x in spans))
+        hi = min(hi, max(float(x.max()) for x in spans))
+    start = math.ceil(lo / step_mm) * step_mm + step_mm
+    end = math.floor(hi / step_mm) * step_mm - step_mm
+    if not end > start:
+        raise TraceError(f"the two directions' strokes share no travel outside their reversal transients "
+                         f"({lo:.2f}..{hi:.2f} mm)")
+    return float(start), float(end)
 
 
 def _budgets(inputs: UncertaintyInputs, *, table, nominal, stride, noise_mm, spacing_mm, smoothing_mm,
@@ -477,8 +511,10 @@ def _budgets(inputs: UncertaintyInputs, *, table, nominal, stride, noise_mm, spa
     for name, n in (("positive", n_pos), ("negative", n_neg)):
         slope = UncertaintyComponent("noise", sigma_um * math.sqrt(12.0 / n), f"least-squares slope over {n} samples")
         out[f"{name}.e_p"] = UncertaintyBudget(f"{name}.e_p", (res, slope, ka))
-        for key, window_mm in (("v_u", length_mm), ("v_300", min(300.0, length_mm)),
-                               ("v_2pi", min(screw_lead_mm, length_mm))):
+        windows = [("v_u", length_mm), ("v_300", min(300.0, length_mm))]
+        if screw_lead_mm is not None:
+            windows.append(("v_2pi", min(screw_lead_mm, length_mm)))
+        for key, window_mm in windows:
             # A band is a maximum minus a minimum: two smoothed points, two readings each.
             # Noise also widens it, as the extremes are picked from ~window/smoothing
             # independent points: the expected largest of N normals is σ √(2 ln N).

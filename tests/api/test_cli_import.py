@@ -7,6 +7,7 @@ Bad files and bad profiles end in one message naming the line and the column, or
 """
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -161,3 +162,30 @@ def test_the_shipped_counts_profile_reads_raw_encoder_counts(tmp_path, capsys, t
 
     doc = _load_profile(root / "examples/trace-profiles/scope-semicolon-decimal-comma.toml")
     assert {c.target for c in parse_profile(doc, ("y",), {"y": KA}).columns} >= {"time_s", "y_motor_rev", "y_table_mm"}
+
+
+def test_a_trace_without_overtravel_or_screw_lead_imports_and_analyses_in_one_command(tmp_path, capsys, twin_run):
+    # the profile knows neither the useful travel nor the screw lead; the trace reverses at
+    # 50 and 550 mm with no overtravel beyond what it measures
+    prof = _profile(tmp_path)
+    prof.write_text(prof.read_text(encoding="utf-8").replace("screw_lead_mm = 16.0\n", "")
+                    .replace("travel_mm = [60.0, 540.0]\n", ""), encoding="utf-8")
+    out = tmp_path / "ds"
+    code, text, err = _cli(capsys, "import", _vendor_csv(tmp_path / "t.csv", twin_run), "--profile", prof, "--out", out)
+    assert code == 0, err
+    m = re.search(r"useful travel ([\d.]+)\.\.([\d.]+) mm \([\d.]+ mm\): what both strokes cover outside the "
+                  r"reversal transients", text)
+    assert m and 50.0 < float(m[1]) < 60.0 and 540.0 < float(m[2]) < 550.0, text
+    b = float(re.search(r"mean backlash b̄ ([\d.]+) ±", text)[1])
+    assert abs(b - 180.0) < 2.0
+    assert "v_300 (travel variation within 300 mm, positive stroke): " in text
+    assert "v_2π (travel variation within one revolution (2π rad), positive stroke): not computed" in text
+    assert ("needs the screw lead: v_2π (its window is one lead; add screw_lead_mm to the profile's axis and "
+            "import again)") in text
+    axis = json.loads((out / "dataset.json").read_text())["machine"]["axes"]["y"]
+    assert "screw_lead_mm" not in axis and axis["travel_mm"] == [float(m[1]), float(m[2])]
+    code, text, err = _cli(capsys, "analyze", out, "--json")
+    assert code == 0, err
+    (r,) = json.loads(text)
+    assert r["v_2pi_um"] is None and r["v_300_um"] > 0 and r["backlash_mean_um"] == pytest.approx(b, abs=0.01)
+    assert r["needs_screw_lead"]["v_2pi"].endswith("its window is one screw lead; give the axis' screw_lead_mm")
