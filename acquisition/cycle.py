@@ -103,9 +103,12 @@ class CycleResult:
             out["result"] = self.result.to_dict()
             if self.decision is not None:
                 d = self.decision
+                target = d.repair_target
                 out["decision"] = {
                     "state": d.state.value, "binding_task": d.binding_task, "decision_rule": d.rule,
                     "backlash_limit_um": d.backlash_limit_um if math.isfinite(d.backlash_limit_um) else None,
+                    "restore_below_um": target.restore_below_um if target is not None else None,
+                    "restore_below_explanation": target.explanation if target is not None else None,
                     "message": d.message(),
                     "tasks": [{"name": a.task.name, "tbe_um": a.tbe_um, "tbe_uncertainty_um": a.tbe_uncertainty_um,
                                "tolerance_um": a.task.tolerance_um, "state": a.state.value,

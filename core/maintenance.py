@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from core.errors import InputError
-from core.tbe import MachiningTask, State, decide
+from core.tbe import MachiningTask, State, decide, repair_target
 
 ORDER_STATES = ("open", "acknowledged", "repaired", "verified", "cancelled")
 ACTIVE_STATES = ("open", "acknowledged", "repaired")
@@ -175,11 +175,10 @@ def verify_repair(before: Figures, after: Figures, tasks: Sequence[MachiningTask
 
 
 def restore_target_um(backlash_limit_um: float | None, warning_fraction: float) -> float | None:
-    """The backlash the chain must be restored below for the axis to be OK again: the
-    binding task's limit times the warning fraction (the WARNING threshold in backlash)."""
-    if backlash_limit_um is None or not math.isfinite(backlash_limit_um):
-        return None
-    return float(backlash_limit_um) * float(warning_fraction)
+    """The backlash the chain must be restored below for the axis to be OK again
+    (core.tbe.repair_target: the binding task's limit times the warning fraction)."""
+    target = repair_target(backlash_limit_um, warning_fraction)
+    return target.restore_below_um if target is not None else None
 
 
 # -- the managers' counts -----------------------------------------------------------------------

@@ -52,6 +52,7 @@ def run(a: argparse.Namespace) -> int:
     if a.out:
         name = next_run_name(a.out, "rt_y")
         append_runs(a.out, MachineSpec("demo-vmc", {"y": spec}), [trace.to_run(name)])
+    target = decision.repair_target
     if a.json:
         print_json({
             "simulated_backlash_um": a.backlash_um,
@@ -60,6 +61,8 @@ def run(a: argparse.Namespace) -> int:
                 "state": decision.state.value,
                 "binding_task": decision.binding_task,
                 "backlash_limit_um": decision.backlash_limit_um,
+                "restore_below_um": target.restore_below_um if target is not None else None,
+                "restore_below_explanation": target.explanation if target is not None else None,
                 "tasks": [{"task": x.task.name, "tbe_um": x.tbe_um, "tolerance_um": x.task.tolerance_um,
                            "state": x.state.value} for x in decision.assessments],
             },

@@ -9,6 +9,7 @@ these DataItems (lengths in MILLIMETER: MTConnect has no micrometre unit, 183.4 
 | ``a<N>_backlash`` | SAMPLE | DISPLACEMENT, statistic AVERAGE | b̄ (``backlash_mean_um``) |
 | ``a<N>_backlash_u`` | SAMPLE | x:BACKLASH_UNCERTAINTY | U(b̄), k = 2 (``backlash_mean_uncertainty_um``) |
 | ``a<N>_backlash_limit`` | SAMPLE | x:BACKLASH_LIMIT | ``backlash_limit_um`` |
+| ``a<N>_restore_below`` | SAMPLE | x:RESTORE_BELOW | the repair target ``restore_below_um`` |
 | ``a<N>_tbe_<task>`` | SAMPLE | x:TRANSIENT_BACKLASH_ERROR | ``tasks[].tbe_um`` |
 | ``a<N>_temp`` | SAMPLE | TEMPERATURE (CELSIUS) | ``temperature_c`` |
 | ``a<N>_cycle_time`` | EVENT | x:LAST_CYCLE_TIME | ``last_cycle_at`` |
@@ -106,6 +107,10 @@ def component_for(st: AxisStatus) -> Component:
                  description="expanded (k = 2) uncertainty of b̄"),
         DataItem(f"{a}_backlash_limit", "SAMPLE", "x:BACKLASH_LIMIT", "x:BacklashLimit", name="backlash_limit",
                  units="MILLIMETER", description="the backlash at which the binding task's TBE reaches its tolerance"),
+        DataItem(f"{a}_restore_below", "SAMPLE", "x:RESTORE_BELOW", "x:RestoreBelow", name="restore_below",
+                 units="MILLIMETER", description="the repair target: the warning level in backlash (the backlash "
+                                                 "limit times the warning fraction), so that the repaired axis does "
+                                                 "not warn again at once"),
     ]
     seen = set()
     for task in st.axis.tasks:
@@ -161,6 +166,9 @@ def values_for(st: AxisStatus, comp: Component, now: datetime) -> list[Value]:
             v = _mm(rt.backlash_mean_uncertainty_um) if rt is not None and rt.budgets else None
         elif suffix == "backlash_limit":
             v = _mm(d.backlash_limit_um) if d is not None else None
+        elif suffix == "restore_below":
+            target = d.repair_target if d is not None else None
+            v = _mm(target.restore_below_um) if target is not None else None
         elif suffix.startswith("tbe_"):
             v = _mm(tbe.get(di.name))
         elif suffix == "temp":

@@ -47,6 +47,7 @@ class AxisNodes:
     backlash: object
     uncertainty: object
     limit: object
+    restore_below: object
     state: object
     message: object
     measured_at: object
@@ -134,6 +135,10 @@ class AddressSpace:
                 limit=await self._variable(obj, f"{base}/BacklashLimit", "BacklashLimit", D,
                                            "largest b̄ at which every task's TBE stays within tolerance, µm",
                                            analog=True),
+                restore_below=await self._variable(
+                    obj, f"{base}/RestoreBelow", "RestoreBelow", D,
+                    "the b̄ a repair must restore the chain below: the warning level, BacklashLimit times the "
+                    "axis' warning fraction, so that the repaired axis does not warn again at once, µm", analog=True),
                 state=await self._variable(obj, f"{base}/State", "State", S, "OK, WARNING, ALARM or UNKNOWN"),
                 message=await self._variable(obj, f"{base}/Message", "Message", S, "the state, explained"),
                 measured_at=await self._variable(obj, f"{base}/MeasuredAt", "MeasuredAt", ua.VariantType.DateTime,
@@ -165,8 +170,8 @@ class AddressSpace:
                 await self.server.delete_nodes([m.entries.pop(v.axis_id)], recursive=True)
             return
         activity = ua.LocalizedText(
-            f"axis {v.axis}: restore the backlash below {v.backlash_limit_um:.1f} µm"
-            if v.backlash_limit_um is not None else f"axis {v.axis}: restore the backlash")
+            f"axis {v.axis}: restore the backlash below {v.restore_below_um:.1f} µm ({v.restore_below_explanation})"
+            if v.restore_below_um is not None else f"axis {v.axis}: restore the backlash")
         sid = f"Machines/{v.machine}/Notification/Prognoses/{v.axis_id}"
         props = (("PredictedTime", v.predicted_time, ua.VariantType.DateTime),  # as 40501's PrognosisType
                  ("Activity", activity, ua.VariantType.LocalizedText),  # as its MaintenancePrognosisType
@@ -186,6 +191,7 @@ class AddressSpace:
         await w(a.backlash.nodeid, _dv(v.backlash_mean_um, D, v.measured_at))
         await w(a.uncertainty.nodeid, _dv(v.backlash_mean_uncertainty_um, D, v.measured_at))
         await w(a.limit.nodeid, _dv(v.backlash_limit_um, D, v.measured_at))
+        await w(a.restore_below.nodeid, _dv(v.restore_below_um, D, v.measured_at))
         await w(a.state.nodeid, _dv(v.state, ua.VariantType.String))
         await w(a.message.nodeid, _dv(v.message, ua.VariantType.String))
         await w(a.measured_at.nodeid, _dv(v.measured_at, ua.VariantType.DateTime))

@@ -35,6 +35,8 @@ class AxisValues:
     backlash_mean_um: float | None  # backlash_mean_um
     backlash_mean_uncertainty_um: float | None  # backlash_mean_uncertainty_um (k = 2)
     backlash_limit_um: float | None  # backlash_limit_um
+    restore_below_um: float | None  # restore_below_um: the repair target
+    restore_below_explanation: str | None  # restore_below_explanation
     tasks: tuple[TaskValue, ...]  # tasks[].tbe_um per tasks[].name
     predicted_time: datetime | None  # prognosis.limit_date when there is one, else the active alert's raised_at
     prediction_source: str | None  # "prognosis" | "limit passed"
@@ -70,6 +72,7 @@ def axis_values(service, axis_id: int) -> AxisValues:
                   assessed[t.name].state.value if t.name in assessed else None)
         for t in st.axis.tasks
     )  # fmt: skip
+    target = d.repair_target if d is not None else None
     when, source = prognosis_time(st), "prognosis"
     if when is None and st.active_alert_id is not None:
         when, source = _limit_passed_at(service, axis_id), "limit passed"
@@ -79,5 +82,7 @@ def axis_values(service, axis_id: int) -> AxisValues:
         backlash_mean_um=_finite(rt.backlash.mean_um) if rt is not None else None,
         backlash_mean_uncertainty_um=_finite(rt.backlash_mean_uncertainty_um) if rt is not None and rt.budgets else None,
         backlash_limit_um=_finite(d.backlash_limit_um) if d is not None else None,
+        restore_below_um=target.restore_below_um if target is not None else None,
+        restore_below_explanation=target.explanation if target is not None else None,
         tasks=tasks, predicted_time=when, prediction_source=source if when is not None else None,
     )  # fmt: skip

@@ -12,6 +12,7 @@ from api.service.status import AxisStatus, state_and_message
 from core.criteria.roundtrip import TBE_BASIS
 from core.history import TemperatureModel
 from core.errors import MebmError
+from core.tbe import stored_repair_target
 from storage.db import AlertRecord, AxisRecord, CycleRecord, KeyRecord, MachineRecord, ResultRecord, TrendView
 
 
@@ -67,6 +68,7 @@ def status(s: AxisStatus, now: datetime, next_run: datetime | None) -> sc.AxisSt
     lm = _lost_motion(rt, s)
     b = latest.round_trip.backlash.mean_um if latest else None
     limit = sc.fin(d.backlash_limit_um) if d else None
+    target = d.repair_target if d else None
     state, message = state_and_message(s)
     return sc.AxisStatusOut(
         axis_id=a.id, machine_id=a.machine_id, machine_name=a.machine_name, axis_name=a.name, state=state,
@@ -79,6 +81,8 @@ def status(s: AxisStatus, now: datetime, next_run: datetime | None) -> sc.AxisSt
         **unc, outliers_removed=rt.outliers_removed if rt is not None and rt.budgets else None,
         decision_rule=d.rule if d else a.settings.decision_rule,
         backlash_limit_um=limit,
+        restore_below_um=target.restore_below_um if target is not None else None,
+        restore_below_explanation=target.explanation if target is not None else None,
         backlash_reduction_needed_um=max(b - limit, 0.0) if (b is not None and limit is not None) else None,
         binding_task=d.binding_task if d else None, tasks=tasks, active_alert_id=s.active_alert_id,
         last_cycle_status=s.last_cycle_status, last_cycle_at=s.last_cycle_at,
@@ -93,8 +97,10 @@ def _active_order(o) -> dict | None:
     if o is None:
         return None
     return {"id": o.id, "kind": o.kind, "state": o.state, "opened_at": o.opened_at, "due_at": o.due_at,
-            "restore_below_um": o.restore_below_um, "recommendation": o.recommendation,
-            "href": f"/api/v1/maintenance/orders/{o.id}"}
+            "restore_below_um": o.restore_below_um,
+            "restore_below_explanation": t.explanation if (t := stored_repair_target(o.restore_below_um,
+                                                                                   o.backlash_limit_um)) else None,
+            "recommendation": o.recommendation, "href": f"/api/v1/maintenance/orders/{o.id}"}
 
 
 def _lost_motion(rt, s: AxisStatus) -> dict:

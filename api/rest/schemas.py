@@ -127,6 +127,10 @@ class AxisStatusOut(BaseModel):
                           "the backlash limit, or why the history does not support the fit")
     decision_rule: Literal["simple", "guarded"] | None = None
     backlash_limit_um: float | None
+    restore_below_um: float | None = Field(
+        None, description="the mean backlash a repair must restore the chain below: the warning level in backlash "
+                          "(backlash limit × warning fraction); null: no task limits the backlash")
+    restore_below_explanation: str | None = Field(None, description="why the repair target is that figure")
     backlash_reduction_needed_um: float | None = Field(
         description="how much the mean backlash must be reduced to get below the limit (0 when below)")
     binding_task: str | None

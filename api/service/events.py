@@ -18,6 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import datetime
 
+from core.tbe import stored_repair_target
 from storage.db import AlertRecord, CycleRecord, WorkOrderRecord, utcnow
 
 log = logging.getLogger("mebm.events")
@@ -138,6 +139,11 @@ def events_of_saved_cycle(axis_id: int, machine: str, axis: str, cycle: CycleRec
     return out
 
 
+def _explanation(o) -> str | None:
+    target = stored_repair_target(o.restore_below_um, o.backlash_limit_um)
+    return target.explanation if target is not None else None
+
+
 def order_document(ev: Event) -> dict:
     """A work-order step as the MQTT and webhook outputs carry it."""
     o = ev.order
@@ -147,7 +153,8 @@ def order_document(ev: Event) -> dict:
         "state": o.state, "from": last.from_state if last else None, "at": last.at.isoformat() if last else None,
         "by": last.by if last else None, "note": last.note if last else "", "binding_task": o.binding_task,
         "tolerance_um": o.tolerance_um, "backlash_um": o.backlash_um, "tbe_um": o.tbe_um,
-        "restore_below_um": o.restore_below_um, "due_at": o.due_at.isoformat() if o.due_at else None,
+        "restore_below_um": o.restore_below_um, "restore_below_explanation": _explanation(o),
+        "due_at": o.due_at.isoformat() if o.due_at else None,
         "recommendation": o.recommendation,
         "verification": {k: o.verification.get(k) for k in ("passed", "against", "message")} if o.verification else None,
     }  # fmt: skip

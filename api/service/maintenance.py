@@ -24,7 +24,7 @@ from datetime import datetime, time as dtime, timedelta, timezone
 from api.service.config import SIM_CONTROLLER, MaintenanceSettings
 from api.service.events import Event
 from core.errors import MebmError
-from core.maintenance import restore_target_um, summarise_axis, verify_repair
+from core.maintenance import summarise_axis, verify_repair
 from core.tbe import State
 from storage.db import (
     AlertRecord,
@@ -106,7 +106,7 @@ class MaintenanceLoop:
             if maintenance_repo.active_order(s, axis_id) is not None:
                 return
         binding = next(a for a in d.assessments if a.task.name == d.binding_task)
-        target = restore_target_um(d.backlash_limit_um, st.axis.settings.warning_fraction)
+        target = d.repair_target
         u_b = d.backlash_uncertainty_um
         what = ("corrective maintenance: the machining error is out of tolerance" if kind == "corrective" else
                 f"condition-based maintenance: the prognosis dates the backlash limit on {due:%Y-%m-%d %H:%M} UTC, "
@@ -114,7 +114,7 @@ class MaintenanceLoop:
         rec = (f"{what}. Axis {st.axis.machine_name}/{st.axis.name}: task {d.binding_task!r} (tolerance "
                f"{binding.task.tolerance_um:g} µm), b̄ {d.backlash_um:.1f} ± {u_b:.1f} µm, TBE "
                f"{binding.tbe_um:.2f} ± {binding.tbe_uncertainty_um:.2f} µm (k = 2, {d.rule} rule)."
-               + (f" Restore the backlash below {target:.1f} µm." if target is not None else ""))
+               + (f" {target.sentence()[0].upper()}{target.sentence()[1:]}." if target is not None else ""))
         alert = next((a for a in alerts if a.active and a.kind == "tbe_exceeded"), None)
         req = OrderRequest(
             axis_id=axis_id, kind=kind, opened_at=cycle.finished_at or utcnow(), recommendation=rec,
@@ -122,7 +122,7 @@ class MaintenanceLoop:
             tolerance_um=binding.task.tolerance_um, backlash_um=d.backlash_um, backlash_uncertainty_um=u_b,
             tbe_um=binding.tbe_um, tbe_uncertainty_um=binding.tbe_uncertainty_um,
             backlash_limit_um=d.backlash_limit_um if math.isfinite(d.backlash_limit_um) else None,
-            restore_below_um=target, due_at=due,
+            restore_below_um=target.restore_below_um if target is not None else None, due_at=due,
         )
         with session_scope(self.service.factory) as s:
             order, created = maintenance_repo.open_order(s, req)

@@ -5,6 +5,8 @@ from __future__ import annotations
 import math
 from datetime import datetime
 
+from core.tbe import stored_repair_target
+
 
 def um(v: float | None, nd: int = 1) -> str:
     if v is None or not math.isfinite(v):
@@ -31,6 +33,12 @@ def age(s: float | None) -> str:
 
 def when(t: datetime | None) -> str:
     return "–" if t is None else t.strftime("%Y-%m-%d %H:%M UTC")
+
+
+def restore_below_explanation(order) -> str:
+    """Why a work order's repair target is below the backlash limit ("" when it names none)."""
+    target = stored_repair_target(order.restore_below_um, order.backlash_limit_um)
+    return target.explanation if target is not None else ""
 
 
 def state_class(state: str | None) -> str:

@@ -27,7 +27,7 @@ HERE = FsPath(__file__).parent
 templates = Jinja2Templates(directory=str(HERE / "templates"))
 templates.env.filters.update(um=fmt.um, age=fmt.age, when=fmt.when, pct=fmt.pct)
 templates.env.globals.update(due=fmt.due)
-templates.env.globals.update(state_class=fmt.state_class)
+templates.env.globals.update(state_class=fmt.state_class, restore_below_explanation=fmt.restore_below_explanation)
 router = APIRouter(prefix="/ui", include_in_schema=False)
 GAP_RUNS = 16
 POLL_S = 5

@@ -36,6 +36,8 @@ class AxisRow:
     active_alert_id: int | None
     last_cycle_status: str | None
     last_failure_reason: str | None
+    restore_below_um: float | None = None  # the repair target: the warning level in backlash
+    restore_below_explanation: str | None = None
 
     @property
     def utilisation(self) -> float:
@@ -55,6 +57,7 @@ def axis_row(st: AxisStatus, next_run_at: datetime | None, now: datetime) -> Axi
     rt = latest.round_trip if latest else None
     binding = next((a for a in d.assessments if a.task.name == d.binding_task), None) if d else None
     limit = d.backlash_limit_um if d is not None and math.isfinite(d.backlash_limit_um) else None
+    target = d.repair_target if d is not None else None
     return AxisRow(
         axis_id=st.axis.id, machine_name=st.axis.machine_name, axis_name=st.axis.name, state=state, message=message,
         backlash_mean_um=rt.backlash.mean_um if rt else None,
@@ -67,6 +70,8 @@ def axis_row(st: AxisStatus, next_run_at: datetime | None, now: datetime) -> Axi
         age_s=(now - latest.measured_at).total_seconds() if latest else None, next_run_at=next_run_at,
         active_alert_id=st.active_alert_id, last_cycle_status=st.last_cycle_status,
         last_failure_reason=st.last_failure_reason,
+        restore_below_um=target.restore_below_um if target is not None else None,
+        restore_below_explanation=target.explanation if target is not None else None,
     )
 
 

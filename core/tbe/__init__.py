@@ -9,6 +9,7 @@ from core.tbe.decision import (
     TaskAssessment,
     decide,
 )
+from core.tbe.repair import RepairTarget, repair_target, stored_repair_target
 from core.tbe.formulas import (
     backlash_limit_um,
     circle_delay_s,
@@ -18,6 +19,7 @@ from core.tbe.formulas import (
 )
 
 __all__ = [
-    "DECISION_RULES", "DEFAULT_RULE", "AxisDecision", "MachiningTask", "State", "TaskAssessment", "decide",
+    "DECISION_RULES", "DEFAULT_RULE", "AxisDecision", "MachiningTask", "RepairTarget", "State", "TaskAssessment",
+    "decide", "repair_target", "stored_repair_target",
     "backlash_limit_um", "circle_delay_s", "circle_steady_lag_um", "tbe_circle_um", "tbe_line_um",
 ]

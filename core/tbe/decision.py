@@ -24,6 +24,7 @@ from enum import Enum
 
 from core.errors import InputError, ModelDomainError, require_finite, require_positive
 from core.tbe.formulas import backlash_limit_um, circle_steady_lag_um, tbe_circle_um, tbe_line_um
+from core.tbe.repair import RepairTarget, repair_target
 
 
 class State(str, Enum):
@@ -194,6 +195,11 @@ class AxisDecision:
     backlash_uncertainty_um: float = 0.0  # expanded, k = 2
     rule: str = DEFAULT_RULE
 
+    @property
+    def repair_target(self) -> RepairTarget | None:
+        """What a repair must restore the backlash below (None: no task limits it)."""
+        return repair_target(self.backlash_limit_um, self.warning_fraction)
+
     def message(self) -> str:
         binding = next(a for a in self.assessments if a.task.name == self.binding_task)
         unc = f" ± {binding.tbe_uncertainty_um:.2f}" if binding.tbe_uncertainty_um > 0 else ""
@@ -205,7 +211,8 @@ class AxisDecision:
             + (f": {binding.reason}" if binding.reason == WITHIN_UNCERTAINTY else "") + ")"
         )
         if self.state is State.ALARM:
-            return head + f"; restore the chain to a backlash below {self.backlash_limit_um:.1f} µm"
+            target = self.repair_target
+            return head + (f"; {target.sentence()}" if target is not None else "; restore the backlash")
         if math.isinf(self.backlash_limit_um):
             return head + "; no task limits the backlash"
         return head + f"; backlash limit {self.backlash_limit_um:.1f} µm"

@@ -19,6 +19,7 @@ from api.rest.auth import OperateKey, ReadKey
 from api.rest.deps import AxisId, ServiceDep, SessionDep
 from api.service.maintenance_input import NoteIn, RepairIn, summary_csv, summary_rows, utc
 from core.maintenance import TransitionError
+from core.tbe import stored_repair_target
 from storage.db import ConflictError, RepairRecord, WorkOrderRecord, config_repo, maintenance_repo, session_scope
 
 router = APIRouter(tags=["maintenance"])
@@ -36,6 +37,12 @@ def repair_doc(r: RepairRecord) -> dict:
             "before_measurement_id": r.before_measurement_id}
 
 
+def restore_below_explanation(o: WorkOrderRecord) -> str | None:
+    """Why the order's target is below the backlash limit (None: the order names no target)."""
+    target = stored_repair_target(o.restore_below_um, o.backlash_limit_um)
+    return target.explanation if target is not None else None
+
+
 def order_doc(o: WorkOrderRecord) -> dict:
     return {
         "id": o.id, "axis_id": o.axis_id, "kind": o.kind, "state": o.state, "active": o.active,
@@ -44,8 +51,8 @@ def order_doc(o: WorkOrderRecord) -> dict:
         "binding_task": o.binding_task, "tolerance_um": o.tolerance_um, "backlash_um": o.backlash_um,
         "backlash_uncertainty_um": o.backlash_uncertainty_um, "tbe_um": o.tbe_um,
         "tbe_uncertainty_um": o.tbe_uncertainty_um, "backlash_limit_um": o.backlash_limit_um,
-        "restore_below_um": o.restore_below_um, "recommendation": o.recommendation,
-        "verification_measurement_id": o.verification_measurement_id, "verification": o.verification,
+        "restore_below_um": o.restore_below_um, "restore_below_explanation": restore_below_explanation(o),
+        "recommendation": o.recommendation, "verification_measurement_id": o.verification_measurement_id, "verification": o.verification,
         "verified_against": (o.verification or {}).get("against"),
         "transitions": [{"at": _iso(t.at), "from": t.from_state, "to": t.to_state, "by": t.by, "note": t.note,
                          "figures": t.figures} for t in o.transitions],

@@ -209,7 +209,7 @@ def test_current_is_right_after_a_restart(tmp_path, schemas):
 def test_errors_are_mtconnect_error_documents(tmp_path, schemas):
     app = _app(tmp_path, FakeRunner(), mtconnect=MtconnectSettings(buffer_size=4))
     with TestClient(app) as client:
-        cases = [("/mtconnect/sample?from=1", 400, "OUT_OF_RANGE"),  # 10 seeded observations, 4 kept: first is 7
+        cases = [("/mtconnect/sample?from=1", 400, "OUT_OF_RANGE"),  # 11 seeded observations, 4 kept: first is 8
                  ("/mtconnect/sample?from=99", 400, "OUT_OF_RANGE"),
                  ("/mtconnect/sample?count=0", 400, "OUT_OF_RANGE"),
                  ("/mtconnect/sample?count=5", 400, "OUT_OF_RANGE"),  # more than the buffer holds
@@ -225,11 +225,11 @@ def test_errors_are_mtconnect_error_documents(tmp_path, schemas):
             err = schemas.error_ok(r.content).find("e:Errors/e:Error", NS)
             assert err.get("errorCode") == code, (url, err.text)
         j = client.get("/mtconnect/sample?from=1", headers=JSON).json()["MTConnectError"]
-        assert j["Errors"]["Error"][0]["errorCode"] == "OUT_OF_RANGE" and "greater than or equal to 7" in \
+        assert j["Errors"]["Error"][0]["errorCode"] == "OUT_OF_RANGE" and "greater than or equal to 8" in \
             j["Errors"]["Error"][0]["value"]
         # the buffer keeps the newest 4; a device asked for by name or uuid
-        doc = schemas.streams_ok(client.get("/mtconnect/sample?from=7").content)
-        assert [int(o.get("sequence")) for o in _observations(doc)] == [7, 8, 9, 10]
+        doc = schemas.streams_ok(client.get("/mtconnect/sample?from=8").content)
+        assert [int(o.get("sequence")) for o in _observations(doc)] == [8, 9, 10, 11]
         uuid_ = schemas.devices_ok(client.get("/mtconnect/vmc-850").content).find(".//d:Device", NS).get("uuid")
         assert schemas.streams_ok(client.get(f"/mtconnect/{uuid_}/current").content).find(
             ".//m:DeviceStream", NS).get("name") == "vmc-850"

@@ -96,7 +96,7 @@ def test_axis_page_renders_its_charts(page, ui_server, alarm):
     sign_in(page, ui_server, "read")
     page.click(f"tr.axis-row[data-axis-id='{ui_server.axis_id}'] a.axis-link")
     page.wait_for_url(re.compile(rf"/ui/axes/{ui_server.axis_id}$"))
-    assert "restore the chain to a backlash below" in page.locator("#verdict").inner_text()
+    assert "restore the backlash below" in page.locator("#verdict").inner_text()
     imgs = page.locator(".chart img")
     assert imgs.count() == 6
     for i in range(imgs.count()):
@@ -112,7 +112,7 @@ def test_axis_page_renders_its_charts(page, ui_server, alarm):
     # both polled regions refresh from their fragments
     page.wait_for_selector("#axis-now[data-refreshed]", state="attached", timeout=30000)
     page.wait_for_selector("#axis-cycles[data-refreshed]", state="attached", timeout=30000)
-    assert "restore the chain" in page.locator("#verdict").inner_text()
+    assert "restore the backlash" in page.locator("#verdict").inner_text()
     page.evaluate("window.scrollTo(0, 0)")
     page.screenshot(path=str(SCREENSHOTS / "axis.png"))
     csv = page.request.get(f"{ui_server.url}/ui/axes/{ui_server.axis_id}/history.csv?range=all")

@@ -15,7 +15,7 @@ def test_paper_example_june_and_july_are_alarms_with_limit_236():
         assert d.state is State.ALARM
         assert d.binding_task == "ring"
         assert d.backlash_limit_um == pytest.approx(236.0, abs=0.1)
-        assert "restore the chain to a backlash below 236.0" in d.message()
+        assert "restore the backlash below 212.4 µm (below the warning level, 90 % of the largest permissible backlash 236.0 µm" in d.message()
 
 
 def test_states_follow_tolerance_and_warning_margin():
