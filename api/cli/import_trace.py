@@ -64,9 +64,8 @@ def run(a: argparse.Namespace) -> int:
     doc = _load_profile(Path(a.profile))
     # an axis without travel_mm gets it from the trace (below); the profile is checked
     # with the field there, so that every other field gets the dataset's checks
-    measure_travel = _axes_without_travel(doc)
-    if a.useful_travel_mm is not None:
-        measure_travel = set()
+    no_travel = _axes_without_travel(doc)
+    measure_travel = set() if a.useful_travel_mm is not None else set(no_travel)
     machine = parse_machine(doc, src)
     run_doc = dict(doc.get("run") or {})
     if "axes" not in run_doc and len(machine.axes) == 1:
@@ -109,9 +108,12 @@ def run(a: argparse.Namespace) -> int:
             not_analysed = str(exc)
         else:
             machine = replace(machine, axes={**machine.axes, axes[0]: replace(axis, travel_mm=result.useful_travel_mm)})
-    elif measure_travel & set(axes):
-        raise TraceImportError(f"{src}: machine.axes.{sorted(measure_travel & set(axes))[0]} lacks travel_mm "
+    elif no_travel & set(axes):
+        raise TraceImportError(f"{src}: machine.axes.{sorted(no_travel & set(axes))[0]} lacks travel_mm "
                                f"(measured from the trace for a round trip only; a {run_doc['kind']} run needs it)")
+    # a profile axis without travel that this run does not move is not written: its
+    # travel is unknown until a round trip of it is imported (a stored axis is kept)
+    machine = replace(machine, axes={n: ax for n, ax in machine.axes.items() if n not in no_travel - set(axes)})
     out = Path(a.out)
     stem = re.sub(r"[^A-Za-z0-9_.-]+", "_", Path(a.file).stem).strip("._") or "trace"
     with dataset_lock(out):  # the name and the append under one lock: concurrent imports get their own names
@@ -132,7 +134,7 @@ def run(a: argparse.Namespace) -> int:
         m, tb = cols[f"{ax_name}_motor_rev"], cols[f"{ax_name}_table_mm"]
         print(f"  {ax_name}: motor {m.min():.4f}..{m.max():.4f} rev, table {tb.min():.4f}..{tb.max():.4f} mm")
     if result is not None:
-        _print_result(result, measured=axes[0] in measure_travel)
+        _print_result(result, machine.axes[axes[0]], measured=axes[0] in measure_travel)
     elif not_analysed is not None:
         print(f"  imported, but not analysed: {not_analysed}")
     print(f"next: mebm analyze {out}" + ("" if spec.kind == "round_trip" else f"   or   mebm gap diagnose {out}"))
@@ -152,7 +154,7 @@ def _axes_without_travel(doc: dict) -> set[str]:
     return missing
 
 
-def _print_result(res, *, measured: bool) -> None:
+def _print_result(res, axis, *, measured: bool) -> None:
     lo, hi = res.useful_travel_mm
     how = ("what both strokes cover outside the reversal transients" if measured else "the axis' travel_mm")
     print(f"  useful travel {lo:g}..{hi:g} mm ({hi - lo:g} mm): {how}")
@@ -162,7 +164,6 @@ def _print_result(res, *, measured: bool) -> None:
         value = getattr(pos, f"{key}_um")
         shown = f"{value:.2f} µm" if value is not None else "not computed"
         print(f"  {CRITERION_SYMBOLS[key]} ({CRITERION_NAMES[key]}, positive stroke): {shown}")
-    missing = [CRITERION_SYMBOLS[k] for k in CRITERION_NAMES if getattr(pos, f"{k}_um") is None]
-    if missing:
-        print(f"  needs the screw lead: {', '.join(missing)} (its window is one lead; add screw_lead_mm to the "
-              "profile's axis and import again)")
+    if axis.screw_lead_mm is None:
+        print(f"  needs the screw lead: {CRITERION_SYMBOLS['v_2pi']} (its window is one lead; add screw_lead_mm "
+              "to the profile's axis and import again)")

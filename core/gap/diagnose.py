@@ -188,6 +188,10 @@ def _check(dataset: Dataset) -> None:
             if a not in dataset.machine.axes:
                 raise GapError(f"run {r.spec.file!r} uses axis {a!r}, which is not in machine.axes "
                                f"{sorted(dataset.machine.axes)}")  # fmt: skip
+            if dataset.machine.axes[a].screw_lead_mm is None:
+                raise GapError(f"axis {a!r} has no screw_lead_mm: the model's cyclic error and pitch "
+                               "periods are the screw's, so the gap diagnosis needs it; add the ball "
+                               f"screw's lead to machine.axes.{a} in dataset.json")  # fmt: skip
         for col in r.spec.columns_required():
             if col not in r.columns:
                 raise GapError(f"run {r.spec.file!r} lacks column {col!r}")
@@ -902,7 +906,8 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: 
     at most 4); the report does not depend on it.
 
     Raises :class:`GapError` for a dataset it cannot work on (fewer than two runs, no test
-    runs, an axis missing from ``machine.axes``, a test axis without train runs).
+    runs, an axis missing from ``machine.axes`` or without its screw lead, a test axis
+    without train runs).
     """
     workers = min(os.cpu_count() or 1, 4) if workers is None else int(workers)
     s = settings or GapSettings()

@@ -189,3 +189,17 @@ def test_a_trace_without_overtravel_or_screw_lead_imports_and_analyses_in_one_co
     (r,) = json.loads(text)
     assert r["v_2pi_um"] is None and r["v_300_um"] > 0 and r["backlash_mean_um"] == pytest.approx(b, abs=0.01)
     assert r["needs_screw_lead"]["v_2pi"].endswith("its window is one screw lead; give the axis' screw_lead_mm")
+
+
+def test_a_profile_axis_without_travel_that_the_run_does_not_move_is_not_written(tmp_path, capsys, twin_run):
+    # x has no travel_mm and the trace is of y: x's travel is unknown, so dataset.json
+    # holds y only, rather than a made-up travel for x
+    prof = _profile(tmp_path)
+    text = prof.read_text(encoding="utf-8").replace(
+        "[csv]", "[machine.axes.x]\ntransmission_mm_per_rev = 10.0\nposition_gain_per_s = 10.0\n\n[csv]")
+    prof.write_text(text.replace('kind = "round_trip"', 'kind = "round_trip"\naxes = ["y"]'), encoding="utf-8")
+    out = tmp_path / "ds"
+    code, _, err = _cli(capsys, "import", _vendor_csv(tmp_path / "t.csv", twin_run), "--profile", prof, "--out", out)
+    assert code == 0, err
+    axes = json.loads((out / "dataset.json").read_text())["machine"]["axes"]
+    assert sorted(axes) == ["y"] and axes["y"]["travel_mm"] == [60.0, 540.0]

@@ -43,6 +43,13 @@ def test_an_axis_missing_from_the_machine_is_refused():
         diagnose(Dataset(other, ds.runs))
 
 
+def test_an_axis_without_its_screw_lead_is_refused_with_the_field_to_add():
+    ds = Dataset(MACHINE, (_rt("a.csv", "train"), _rt("b.csv", "test")))
+    no_lead = MachineSpec(id="m", axes={"y": replace(MACHINE.axes["y"], screw_lead_mm=None)})
+    with pytest.raises(GapError, match=r"axis 'y' has no screw_lead_mm.*machine\.axes\.y in dataset\.json"):
+        diagnose(Dataset(no_lead, ds.runs))
+
+
 def test_a_test_axis_without_train_runs_is_refused():
     ax = AxisModel(name="x", backlash_um=30.0)
     m = MachineSpec(id="m", axes={"y": MACHINE.axes["y"], "x": ax.to_axis_spec((0.0, 200.0))})
