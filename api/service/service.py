@@ -16,7 +16,7 @@ import time
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
-from urllib.parse import parse_qsl, urlencode, urlsplit, urlunsplit
+from urllib.parse import parse_qsl, urlencode, urlsplit
 
 from sqlalchemy import text
 
@@ -458,4 +458,11 @@ def _redact(url: str) -> str:
         return urlencode([(k, "***" if any(w in k.lower() for w in _SECRET_WORDS) else v) for k, v in pairs],
                          safe="*")
 
-    return urlunsplit((parts.scheme, netloc, parts.path, clean(parts.query), clean(parts.fragment)))
+    # urlunsplit would drop the empty authority of sqlite:///path (sqlite://path names a host)
+    out = f"{parts.scheme}:" + ("//" + netloc if netloc or url[len(parts.scheme) + 1:].startswith("//") else "")
+    out += parts.path
+    if parts.query:
+        out += "?" + clean(parts.query)
+    if parts.fragment:
+        out += "#" + clean(parts.fragment)
+    return out

@@ -33,12 +33,19 @@ def test_a_url_without_secrets_is_left_as_it_is():
     assert _redact("postgresql://mebm@db:5432/mebm?sslmode=require") == "postgresql://mebm@db:5432/mebm?sslmode=require"
 
 
+@pytest.mark.parametrize("url", ["sqlite:////var/lib/mebm/mebm.sqlite3", "sqlite:///relative.sqlite3", "sqlite://"])
+def test_a_sqlite_url_is_shown_as_written_with_its_slashes(url):
+    # the banner's database line: one slash lost turns a path into a host name
+    assert _redact(url) == url
+
+
 def test_data_folder_is_0700_and_the_database_0600(tmp_path):
     data = tmp_path / "data"
     data.mkdir(mode=0o755)
     svc = Service(make_settings(f"sqlite:///{data}/mebm.sqlite3", data), runner=FakeRunner())
-    svc.start()
+    report = svc.start()
     try:
+        assert report.database == f"sqlite:///{data}/mebm.sqlite3"  # the banner's line, an absolute path
         assert data.stat().st_mode & 0o777 == 0o700
         assert (data / "mebm.sqlite3").stat().st_mode & 0o777 == 0o600
         wal = data / "mebm.sqlite3-wal"
