@@ -134,6 +134,35 @@ def _circle_command(prog: dict, dt_s: float) -> dict:
     return {"x": cx + r * np.cos(phi), "y": cy + r * np.sin(phi)}
 
 
+def _sub_step_s(rate_hz: float) -> float:
+    period_s = 1.0 / rate_hz
+    return period_s / int(np.ceil(period_s / SUB_STEP_S))
+
+
+def _commands(kind: str, axes: tuple, prog: dict, rate_hz: float) -> tuple[float, dict]:
+    """The run's sample rate and its set-points per axis on the sub-step grid (mm)."""
+    if kind == "round_trip":
+        return rate_hz, {axes[0]: _rt_command(prog, _sub_step_s(rate_hz))["x"]}
+    return rate_hz, _circle_command(prog, _sub_step_s(rate_hz))
+
+
+def _size_torque_limit(effect: dict, machine: dict, commands: list) -> None:
+    """Set each axis's force limit between the steady force at the fastest feed and the
+    nominal drive's largest peak force over the runs, so it cuts the hardest accelerations only."""
+    for a, q in effect["axes"].items():
+        ax = machine[a]
+        peaks, speeds = [], []
+        for rate, cmds in commands:
+            if a in cmds:
+                dt_s = _sub_step_s(rate)
+                peaks.append(drive.simulate_axis(cmds[a] * 1e-3, dt_s, axis_params(ax, {}, a), 1.0)[3])
+                speeds.append(np.abs(np.diff(cmds[a])).max() / dt_s)
+        steady_n = ax["coulomb_n"] + ax["viscous_n_s_per_m"] * max(speeds, default=0.0) * 1e-3
+        q["steady_force_n"] = float(steady_n)
+        q["nominal_peak_force_n"] = float(np.max(peaks)) if peaks else 2 * steady_n
+        q["f_max_n"] = steady_n + q["fraction"] * max(q["nominal_peak_force_n"] - steady_n, 0.0)
+
+
 def _latch(fine_mm: np.ndarray, dt_s: float, t_s: np.ndarray) -> np.ndarray:
     return np.interp(t_s, np.arange(fine_mm.shape[0]) * dt_s, fine_mm)
 
@@ -151,7 +180,7 @@ def _simulate_run(cmds: dict, rate_hz: float, machine: dict, params: dict, noise
     cols["time_s"] = t_s
     for a, cmd_fine_mm in cmds.items():
         ax = machine[a]
-        x_m, x_scale, _ = drive.simulate_axis(cmd_fine_mm * 1e-3, dt_s, params[a], sides[a])
+        x_m, x_scale, _, _ = drive.simulate_axis(cmd_fine_mm * 1e-3, dt_s, params[a], sides[a])
         cols[f"{a}_command_mm"] = cmd_fine_mm[::n_sub][:n]
         motor_mm = x_m[::n_sub][:n] * 1e3 + noise_rng.normal(0.0, ax["motor_noise_um"] * 1e-3, n)
         counts = ax["motor_counts_per_rev"]
@@ -190,11 +219,14 @@ def make_forms_case(labels: tuple[str, ...], rng: np.random.Generator, size: For
                 "motor_zero_rev": {a: float(nom_rng.integers(-5000, 5000)) for a in AXES}} for _ in runs_meta]
 
     all_rt = [p for a in AXES for p in rt_progs[a]]
-    ctx = {"duration_s": size.rt_duration_s, "rt_period_s": 1.0 / rt_rate, "max_accel_mm_s2": max_accel,
-           "max_feed_mm_s": max([p["feed_mm_min"] / 60 for p in all_rt + circ_progs], default=50.0),
+    ctx = {"duration_s": size.rt_duration_s, "rt_period_s": 1.0 / rt_rate,
            "mean_rt_feed_mm_s": float(np.mean([p["feed_mm_min"] / 60 for p in all_rt])) if all_rt else 50.0}
     effects = {lab: draw_effect(lab, np.random.default_rng(int(seeds[3 + LABELS.index(lab)])), machine, ctx)
                for lab in labels}
+    commands = [_commands(kind, axes, prog, rt_rate if kind == "round_trip" else circle_rate)
+                for kind, _, axes, prog, _ in runs_meta]
+    if effects.get("servo_dynamics", {}).get("form") == "torque_limit":
+        _size_torque_limit(effects["servo_dynamics"], machine, commands)
     params = {a: axis_params(machine[a], effects, a) for a in AXES}
     skew_s = effects["sampling_skew"]["delay_s"] if "sampling_skew" in effects else 0.0
 
@@ -205,15 +237,9 @@ def make_forms_case(labels: tuple[str, ...], rng: np.random.Generator, size: For
                               travel_mm=tuple(machine[a]["travel_mm"])) for a in AXES}
     spec_machine = MachineSpec(id=f"plant-forms-{int(seeds[0]) % 100000:05d}", axes=axis_specs)
     runs = []
-    for (kind, file, axes, prog, is_test), env in zip(runs_meta, run_env):
-        if kind == "round_trip":
-            rate = rt_rate
-            cmds = _rt_command(prog, 1.0 / rate / int(np.ceil(1.0 / rate / SUB_STEP_S)))
-            cmds = {axes[0]: cmds["x"]}
-            extra = {}
-        else:
-            rate = circle_rate
-            cmds = _circle_command(prog, 1.0 / rate / int(np.ceil(1.0 / rate / SUB_STEP_S)))
+    for (kind, file, axes, prog, is_test), env, (rate, cmds) in zip(runs_meta, run_env, commands):
+        extra = {}
+        if kind == "circle":
             extra = {"lead_in_deg": float(prog["lead_in_deg"]), "lead_out_deg": float(prog["lead_out_deg"])}
         cols = _simulate_run(cmds, rate, machine, params, noise_rng, skew_s, 3.0 / rt_rate,
                              env["sides"], env["motor_zero_rev"])

@@ -79,7 +79,8 @@ def simulate_axis(cmd_m, dt_s, p, side):
     """Integrate one axis driven by the command ``cmd_m`` (m, one value per sub-step).
 
     ``side`` (+1 or -1) is the flank of the nut in contact at rest at the start.
-    Returns (motor position, scale reading, true table position), each per sub-step (m).
+    Returns (motor position, scale reading, true table position), each per sub-step (m),
+    and the largest drive force |F_drive| (N).
     """
     n = cmd_m.shape[0]
     out_m = np.empty(n)
@@ -106,6 +107,7 @@ def simulate_axis(cmd_m, dt_s, p, side):
     theta_k = 0.0    # screw temperature rise (K)
     t_rest = 0.0     # time the table has been at rest (s)
     d_prev = 0.0
+    f_peak = 0.0
     for i in range(n):
         t = i * dt_s
         x_scale = x_t + _scale_error_m(p, x_t, t)
@@ -133,6 +135,7 @@ def simulate_axis(cmd_m, dt_s, p, side):
                 limited = True
         if not limited or e_v * f_drive < 0.0:
             z_v += dt_s * e_v
+        f_peak = max(f_peak, abs(f_drive))
 
         # Chain forces.
         f_coupling = k_c * (x_m - x_s) + c_c * (v_m - v_s)
@@ -203,7 +206,7 @@ def simulate_axis(cmd_m, dt_s, p, side):
         x_t += dt_s * v_t
         if th_form == TH_SCREW_GROWTH:
             theta_k += dt_s * (p[P_TH_G] * abs(v_s) - theta_k) / p[P_TH_TAU]
-    return out_m, out_scale, out_t
+    return out_m, out_scale, out_t, f_peak
 
 
 def empty_params() -> np.ndarray:
