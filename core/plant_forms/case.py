@@ -61,6 +61,12 @@ def _u(rng: np.random.Generator, lo: float, hi: float) -> float:
 
 
 def _check(labels: tuple[str, ...], size: FormsSize) -> tuple[str, ...]:
+    for key in ("rt_train_per_axis", "rt_test_per_axis", "circles_train", "circles_test"):
+        if getattr(size, key) < 0:
+            raise InputError(f"{key} (={getattr(size, key)}) must be >= 0")
+    for key in ("rt_rate_hz", "circle_rate_hz", "rt_duration_s"):
+        if not getattr(size, key) > 0:
+            raise InputError(f"{key} (={getattr(size, key)}) must be > 0")
     labels = tuple(labels)
     if labels in ((), ("none",)):
         return ()
@@ -69,12 +75,6 @@ def _check(labels: tuple[str, ...], size: FormsSize) -> tuple[str, ...]:
             raise InputError(f"label (={lab!r}) must be one of {LABELS[1:]} (or the labels () / ('none',))")
     if not 1 <= len(labels) <= 2 or len(set(labels)) != len(labels):
         raise InputError(f"labels (={labels!r}) must be 1 or 2 distinct effect labels")
-    for key in ("rt_train_per_axis", "rt_test_per_axis", "circles_train", "circles_test"):
-        if getattr(size, key) < 0:
-            raise InputError(f"{key} (={getattr(size, key)}) must be >= 0")
-    for key in ("rt_rate_hz", "circle_rate_hz", "rt_duration_s"):
-        if not getattr(size, key) > 0:
-            raise InputError(f"{key} (={getattr(size, key)}) must be > 0")
     return labels
 
 
@@ -170,8 +170,8 @@ def _latch(fine_mm: np.ndarray, dt_s: float, t_s: np.ndarray) -> np.ndarray:
 def _simulate_run(cmds: dict, rate_hz: float, machine: dict, params: dict, noise_rng, skew_s: float,
                   max_skew_s: float, sides: dict, motor_zero_rev: dict) -> dict:
     period_s = 1.0 / rate_hz
-    n_sub = int(np.ceil(period_s / SUB_STEP_S))
-    dt_s = period_s / n_sub
+    dt_s = _sub_step_s(rate_hz)
+    n_sub = int(round(period_s / dt_s))
     cols: dict = {}
     n_fine = min(c.shape[0] for c in cmds.values())
     # The sample count leaves room for the largest latch delay, so it does not depend on the skew.

@@ -134,3 +134,8 @@ def test_split_is_marked_in_about_two_thirds_of_the_datasets():
 def test_labels_outside_the_list_or_more_than_two_are_refused(labels):
     with pytest.raises(InputError, match="label"):
         _case(labels)
+
+
+def test_a_size_without_a_positive_rate_is_refused():
+    with pytest.raises(InputError, match="rt_rate_hz"):
+        _case((), size=FormsSize(1, 1, 1, 1, 0.0, 200.0, 8.0))
