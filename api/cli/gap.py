@@ -33,8 +33,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--small", action="store_true", help="small, fast datasets (for a smoke test)")
     b.add_argument("--jobs", type=int, default=1, help="cases diagnosed in parallel processes (default 1; the "
                    "per-case time is then measured under that load)")
-    b.add_argument("--plant", choices=("twin", "independent", "both"), default="twin",
-                   help="which plant generates the cases: the project's twin, the independent simulator, or both "
+    b.add_argument("--plant", choices=("twin", "independent", "forms", "both"), default="twin",
+                   help="which plant generates the cases: the project's twin, the independent simulator, the "
+                        "second independent simulator of other forms (core.plant_forms), or both of the first two "
                         "(default twin)")  # fmt: skip
     b.add_argument("--only", metavar="N[,N...]", help="diagnose only these cases, numbered from 1 as the case lines "
                    "print them, with the same data as in the whole run of --cases and --seed (to look at a case again)")

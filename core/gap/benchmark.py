@@ -1,9 +1,11 @@
 """Generated datasets whose effect is withheld, and the benchmark that scores the diagnosis.
 
-Two plants generate the cases: ``twin`` (:func:`make_case`, the project's own twin,
-``core.sim``) and ``independent`` (:mod:`core.gap.plant`, a feed-drive simulator
+Three plants generate the cases: ``twin`` (:func:`make_case`, the project's own twin,
+``core.sim``), ``independent`` (:mod:`core.gap.plant`, a feed-drive simulator
 written separately, with its own integration scheme and its own forms of each
-effect). In both, a case draws a two-axis machine (K 8-40 1/s), no effect, one effect,
+effect) and ``forms`` (:mod:`core.plant_forms`, written from the dataset format and a
+list of forms alone, without reading the diagnosis or either plant: forms neither of
+them has, held out for an evaluation of a decision that is no longer tuned). In both, a case draws a two-axis machine (K 8-40 1/s), no effect, one effect,
 or (a quarter of the cases) two effects, with random parameters over realistic ranges,
 and records round trips and circles; circles carry a feed-in arc and a lead-out of
 random length (0-180°), and a third of the datasets have no ``split`` field. Test runs
@@ -43,7 +45,7 @@ from core.sim import (
 from core.sim import CATEGORIES  # noqa: E402  (the one effect list)
 
 LABELS = ("none", *CATEGORIES)
-PLANTS = ("twin", "independent")
+PLANTS = ("twin", "independent", "forms")
 TRAVEL_MM = (0.0, 800.0)
 
 
@@ -404,6 +406,13 @@ def _plant_case(plant: str, labels: tuple[str, ...], rng: np.random.Generator, s
         psize = PlantSize(size.rt_train_per_axis, size.rt_test_per_axis, size.circles_train, size.circles_test,
                           size.rt_rate_hz, size.circle_rate_hz, size.rt_duration_s)  # fmt: skip
         case = make_independent(labels, rng, psize)
+        return case.dataset, any(r.spec.split is not None for r in case.dataset.runs), case.truth
+    if plant == "forms":
+        from core.plant_forms import FormsSize, make_forms_case
+
+        fsize = FormsSize(size.rt_train_per_axis, size.rt_test_per_axis, size.circles_train, size.circles_test,
+                          size.rt_rate_hz, size.circle_rate_hz, size.rt_duration_s)  # fmt: skip
+        case = make_forms_case(labels, rng, fsize)
         return case.dataset, any(r.spec.split is not None for r in case.dataset.runs), case.truth
     raise ValueError(f"plant (={plant!r}) must be one of {PLANTS}")
 

@@ -139,3 +139,14 @@ def test_labels_outside_the_list_or_more_than_two_are_refused(labels):
 def test_a_size_without_a_positive_rate_is_refused():
     with pytest.raises(InputError, match="rt_rate_hz"):
         _case((), size=FormsSize(1, 1, 1, 1, 0.0, 200.0, 8.0))
+
+
+def test_the_benchmark_draws_its_cases_from_the_plant_without_diagnosing_them():
+    # the plant is held out: the harness can generate its cases, and this test looks at
+    # no diagnosis of them
+    from core.gap.benchmark import PLANTS, SMALL, benchmark_case
+
+    assert "forms" in PLANTS
+    labs, ds, truth = benchmark_case("forms", 4, 7, 1, SMALL)
+    assert set(ds.machine.axes) == {"x", "y"} and ds.runs
+    assert tuple(truth["labels"]) == (labs or ("none",))
