@@ -67,6 +67,8 @@ class LimitSettings:
     """What one client can make the service do (``[limits]``)."""
 
     max_body_bytes: int = 1_000_000  # larger request bodies: 413 before they are read, key or no key
+    max_header_bytes: int = 65536  # a request line and header fields larger in all: 431, the rest unread
+    max_headers: int = 100  # more header fields: 431
     triggers_per_minute: float = 6.0  # manual measurements per key (a token bucket)...
     trigger_burst: int = 3  # ...of which this many at once
     auth_failures_per_minute: float = 10.0  # failed authentications per client address and key prefix...
@@ -705,7 +707,7 @@ def check_webhooks(w: WebhookSettings, where: str) -> None:
 
 
 def _limits(table: Mapping, base: LimitSettings) -> LimitSettings:
-    kinds = {"max_body_bytes": int, "triggers_per_minute": float, "trigger_burst": int,
+    kinds = {"max_body_bytes": int, "max_header_bytes": int, "max_headers": int, "triggers_per_minute": float, "trigger_burst": int,
              "auth_failures_per_minute": float, "auth_failure_burst": int,
              "auth_address_failures_per_minute": float, "auth_address_failure_burst": int,
              "allow_link_local_controllers": bool}

@@ -5,20 +5,13 @@ with ``mebm serve``'s configuration, and a real HTTP client)."""
 
 from __future__ import annotations
 
-import socket
-import threading
-from dataclasses import replace
-
 import httpx
 import pytest
 
-from api.cli.serve import uvicorn_config
-from api.rest import create_app
 from api.service.config import ConfigError, LimitSettings, parse_settings
 from api.service.throttle import AuthThrottle
 from storage.db import config_repo, session_scope
-from tests.api.rest.conftest import FakeRunner, hdr, make_settings
-from tests.waiting import poll
+from tests.api.rest.conftest import ServedApp, hdr
 
 V1 = "/api/v1"
 
@@ -68,32 +61,9 @@ def test_trusted_proxies_are_addresses_or_networks(value):
     assert parse_settings({}).trusted_proxies == ()
 
 
-class _Served:
-    """The app under uvicorn, configured as ``mebm serve`` configures it, on a free port."""
-
-    def __init__(self, tmp_path, **settings_kw):
-        import uvicorn
-
-        settings = make_settings(f"sqlite:///{tmp_path}/mebm.sqlite3", tmp_path, **settings_kw)
-        self.app = create_app(settings, runner=FakeRunner())
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM, socket.IPPROTO_TCP)
-        self.sock.bind(("127.0.0.1", 0))
-        self.sock.listen(64)
-        self.url = f"http://127.0.0.1:{self.sock.getsockname()[1]}"
-        self.server = uvicorn.Server(uvicorn_config(self.app, replace(settings, log_level="warning")))
-        self.thread = threading.Thread(target=self.server.run, kwargs={"sockets": [self.sock]}, daemon=True)
-        self.thread.start()
-        assert poll(lambda: self.server.started, 60.0), "the server did not start"
-
-    def close(self):
-        self.server.should_exit = True
-        self.thread.join(30)
-        self.sock.close()
-
-
 @pytest.fixture
 def served(tmp_path, request):
-    s = _Served(tmp_path, limits=LimitSettings(auth_failure_burst=1), **getattr(request, "param", {}))
+    s = ServedApp(tmp_path, limits=LimitSettings(auth_failure_burst=1), **getattr(request, "param", {}))
     yield s
     s.close()
 
