@@ -707,7 +707,8 @@ def check_webhooks(w: WebhookSettings, where: str) -> None:
 
 
 def _limits(table: Mapping, base: LimitSettings) -> LimitSettings:
-    kinds = {"max_body_bytes": int, "max_header_bytes": int, "max_headers": int, "triggers_per_minute": float, "trigger_burst": int,
+    kinds = {"max_body_bytes": int, "max_header_bytes": int, "max_headers": int,
+             "triggers_per_minute": float, "trigger_burst": int,
              "auth_failures_per_minute": float, "auth_failure_burst": int,
              "auth_address_failures_per_minute": float, "auth_address_failure_burst": int,
              "allow_link_local_controllers": bool}
