@@ -73,3 +73,16 @@ def test_a_large_body_is_not_counted_as_head(served):
             b"Content-Length: %d\r\nConnection: close\r\n\r\n" % len(body))
     got = _exchange(served.url, head, body)
     assert got.startswith(b"HTTP/1.1 422 ") and b"not JSON" in got, got[:200]  # the app read the whole body
+
+
+def test_the_bound_holds_for_each_request_of_a_kept_alive_connection(served):
+    host, port = served.url.removeprefix("http://").split(":")
+    with socket.create_connection((host, int(port)), timeout=30) as sock:
+        sock.sendall(b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n")
+        first = sock.recv(65536)
+        assert first.startswith(b"HTTP/1.1 ") and not first.startswith(b"HTTP/1.1 431 ")
+        sock.sendall(_get("/healthz", [b"X-Big: " + b"a" * 200_000]))
+        second = b""
+        while chunk := sock.recv(65536):
+            second += chunk
+    assert b"HTTP/1.1 431 " in second and second.count(b"HTTP/1.1 ") == 1  # (after any rest of the first)
