@@ -23,6 +23,8 @@ built-in default profile, served by its own wire with the trace ring
 from __future__ import annotations
 
 import math
+import os
+import stat
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -301,15 +303,37 @@ def parse_profile(doc: Mapping, *, source: str = "profile") -> RegisterProfile:
     return RegisterProfile(name, values, max_gap, period_ms / 1000.0, desc if isinstance(desc, str) else "")
 
 
+MAX_PROFILE_BYTES = 65536  # a profile is a few dozen lines; a larger file is not one
+
+
 def load_profile(path: str | Path) -> RegisterProfile:
-    """Read and validate a profile file; errors name the file and the field."""
+    """Read and validate a profile file; errors name the file and the field.
+
+    Only a regular file of at most ``MAX_PROFILE_BYTES`` is read, and never more than
+    that (a device such as /dev/zero, a FIFO or a huge file is refused at once). An error
+    never quotes the file's text or a parse position: the name may point at a file that is
+    not a profile at all."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        fd = os.open(p, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0))
     except OSError as exc:
         raise ProfileError(str(p), "file", f"cannot read it: {exc.strerror or exc}") from exc
     try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ProfileError(str(p), "file", f"not valid TOML: {exc}") from exc
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            raise ProfileError(str(p), "file", "not a regular file")
+        if info.st_size > MAX_PROFILE_BYTES:
+            raise ProfileError(str(p), "file", f"larger than {MAX_PROFILE_BYTES} bytes: not a register profile")
+        with os.fdopen(fd, "rb", closefd=False) as fh:
+            data = fh.read(MAX_PROFILE_BYTES + 1)
+    except OSError as exc:
+        raise ProfileError(str(p), "file", f"cannot read it: {exc.strerror or exc}") from exc
+    finally:
+        os.close(fd)
+    if len(data) > MAX_PROFILE_BYTES:
+        raise ProfileError(str(p), "file", f"larger than {MAX_PROFILE_BYTES} bytes: not a register profile")
+    try:
+        doc = tomllib.loads(data.decode("utf-8"))
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError):
+        raise ProfileError(str(p), "file", "not a valid TOML text in UTF-8") from None
     return parse_profile(doc, source=str(p))

@@ -121,6 +121,24 @@ def banner(settings, report, url: str, opcua=None, sign_in_url: str | None = Non
 SWITCH_INTERVAL_S = 0.001
 
 
+def uvicorn_config(app, settings):
+    """The uvicorn configuration ``mebm serve`` runs ``app`` with.
+
+    ``proxy_headers=False``: the app itself trusts ``X-Forwarded-For`` from
+    ``[server] trusted_proxies`` only (api.rest.proxies); uvicorn's own handling would
+    trust 127.0.0.1 and the ``FORWARDED_ALLOW_IPS`` environment, and hide the TCP peer.
+    The HTTP protocol bounds the request head: ``[limits] max_header_bytes`` and
+    ``max_headers`` (api.rest.header_limits)."""
+    import uvicorn
+
+    from api.rest.header_limits import bounded_head_protocol
+
+    lim = settings.limits
+    return uvicorn.Config(app, log_level=settings.log_level, access_log=False, timeout_graceful_shutdown=10,
+                          proxy_headers=False, forwarded_allow_ips=[],
+                          http=bounded_head_protocol(lim.max_header_bytes, lim.max_headers))
+
+
 def _serve(a: argparse.Namespace) -> int:
     import uvicorn
 
@@ -163,8 +181,7 @@ def _serve(a: argparse.Namespace) -> int:
         # the link carries a one-time token, never the key; the dashboard keeps the token in memory
         link = f"{url}/ui/sign-in/{app.state.ui.sessions.issue_link(read_key)}" if read_key else None
         print(banner(settings, report, url, opcua, sign_in_url=link), flush=True)
-        config = uvicorn.Config(app, log_level=settings.log_level, access_log=False, timeout_graceful_shutdown=10)
-        server = uvicorn.Server(config)
+        server = uvicorn.Server(uvicorn_config(app, settings))
         # uvicorn re-raises SIGTERM after its graceful shutdown, with the handler it found: the
         # default one would end the process before `finally` stops the service (a fleet worker
         # would keep its leases for lease_s and leave its cycles running); this one exits cleanly

@@ -25,6 +25,7 @@ from fastapi.responses import Response
 from api.mtconnect import documents as doc
 from api.mtconnect.agent import MTConnectAgent
 from api.mtconnect.buffer import OutOfRangeError
+from api.service.throttle import failed_authentication
 from storage.db import StorageError, config_repo, session_scope
 
 log = logging.getLogger(__name__)
@@ -100,20 +101,17 @@ def make_router(agent: MTConnectAgent) -> APIRouter:
         headers = {}
         try:
             if agent.settings.require_key:
-                # failed keys are throttled per client address with the REST API's bucket
-                # (app.state.auth_throttle, [limits] auth_failures_*): the same address guessing
-                # keys on either path is one budget
-                client = request.client.host if request.client else "unknown"
-                throttle = getattr(request.app.state, "auth_throttle", None)
-                wait_s = throttle.blocked(client) if throttle is not None else 0.0
-                if wait_s > 0:
-                    headers["Retry-After"] = str(max(1, round(wait_s)))
-                    raise MTConnectError("TOO_MANY_FAILURES", f"too many failed authentications from {client}; "
-                                         f"retry in {wait_s:.0f} s")
-                if not keys.check(agent.service.factory, _secret(request)):
-                    if throttle is not None:
-                        throttle.take(client)
-                    log.warning("failed authentication from %s: GET %s (MTConnect)", client, request.url.path)
+                # the key is looked up first (a valid key is always admitted); failures are
+                # throttled with the REST API's budget (app.state.auth_throttle, [limits]
+                # auth_*failure*): the same address guessing keys on either path is one budget
+                secret = _secret(request)
+                if not keys.check(agent.service.factory, secret):
+                    wait_s = failed_authentication(request, secret, "MTConnect", log)
+                    if wait_s > 0:
+                        client = request.client.host if request.client else "unknown"
+                        headers["Retry-After"] = str(max(1, round(wait_s)))
+                        raise MTConnectError("TOO_MANY_FAILURES", f"too many failed authentications from "
+                                             f"{client}; retry in {wait_s:.0f} s")
                     raise MTConnectError("UNAUTHORIZED", "a valid access key is required (X-API-Key header)")
             for name in UNSUPPORTED:
                 if name in request.query_params:

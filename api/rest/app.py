@@ -16,8 +16,9 @@ from api.rest import errors
 from api.rest.auth import KeyCache
 from api.rest.docs import install_docs
 from api.rest.headers import SecurityHeaders
-from api.rest.limits import BodyLimit, TokenBucket
+from api.rest.limits import AuthThrottle, BodyLimit, TokenBucket
 from api.rest.metrics import make_registry
+from api.rest.proxies import ForwardedFor
 from api.rest.routers import (alerts, axes, compensation, gap, health, interfaces, keys, machines, maintenance,
                               measurements, plots)
 from api.rest.routers import workers
@@ -124,9 +125,11 @@ def create_app(settings: Settings, *, service: Service | None = None, runner: Cy
     app.add_middleware(StatusFastPath, state=app.state)
     lim = settings.limits
     app.state.trigger_limit = TokenBucket(lim.triggers_per_minute, lim.trigger_burst)
-    app.state.auth_throttle = TokenBucket(lim.auth_failures_per_minute, lim.auth_failure_burst)
+    app.state.auth_throttle = AuthThrottle(lim.auth_failures_per_minute, lim.auth_failure_burst,
+                                           lim.auth_address_failures_per_minute, lim.auth_address_failure_burst)
     app.add_middleware(BodyLimit, max_bytes=lim.max_body_bytes)  # before anything reads the body
     app.add_middleware(SecurityHeaders)
+    app.add_middleware(ForwardedFor, trusted=settings.trusted_proxies)  # outermost: all see the client
     api = APIRouter(prefix=API_PREFIX, responses=ERROR_RESPONSES)
     for module in ROUTERS:
         api.include_router(module.router)

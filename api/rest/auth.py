@@ -14,6 +14,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.security import APIKeyHeader
 
 from api.rest.errors import AuthError, ForbiddenError, TooManyRequestsError
+from api.service.throttle import failed_authentication
 from storage.db import KeyRecord, config_repo, session_scope
 
 log = logging.getLogger("mebm.api")
@@ -56,40 +57,33 @@ async def current_key(request: Request, header_key: Annotated[str | None, Securi
     """The caller's key. Async with a cache fast path: a busy MES costs no thread hop
     and no database round trip per request; a miss looks the key up in a worker thread.
 
-    Failed authentication is logged (client address, method, path; never the key) and
-    throttled per client address: past the burst, 429 with Retry-After, and the key is
-    then not even looked up."""
+    The key is looked up first: a valid key is always admitted. Failed authentication is
+    logged (client address, peer and claimed X-Forwarded-For, method, path; never the
+    key) and throttled (:class:`api.service.throttle.AuthThrottle`): past the burst, 429 with
+    Retry-After instead of 401."""
     secret = header_key
     if not secret:
         auth = request.headers.get("authorization", "")
         if auth.lower().startswith("bearer "):
             secret = auth[7:].strip()
     state = request.app.state
-    client = request.client.host if request.client else "unknown"
-    throttle = getattr(state, "auth_throttle", None)
-    if throttle is not None:
-        wait_s = throttle.blocked(client)
-        if wait_s > 0:
-            raise TooManyRequestsError(f"too many failed authentications from {client}; retry later", wait_s)
     if not secret:
-        _failed(throttle, client, request, "no key")
+        _failed(request, secret, "no key")
         raise AuthError("an access key is required: send it in the X-API-Key header")
     found, rec = state.key_cache.cached(secret)
     if not found:
         rec = await run_in_threadpool(state.key_cache.lookup, state.service.factory, secret)
     if rec is None:
-        _failed(throttle, client, request, "unknown or revoked key")
+        _failed(request, secret, "unknown or revoked key")
         raise AuthError("unknown or revoked access key")
     return rec
 
 
-def _failed(throttle, client: str, request: Request, why: str) -> None:
-    wait_s = throttle.take(client) if throttle is not None else 0.0
-    if wait_s == 0.0 or throttle.blocked(client) == 0.0:
-        log.warning("failed authentication from %s: %s %s (%s)", client, request.method, request.url.path, why)
-    else:  # logged once when the address gets throttled, not once per attempt
-        log.warning("failed authentication from %s: %s %s (%s); throttled for %.0f s",
-                    client, request.method, request.url.path, why, wait_s)
+def _failed(request: Request, secret: str | None, why: str) -> None:
+    wait_s = failed_authentication(request, secret, why, log)
+    if wait_s > 0:
+        client = request.client.host if request.client else "unknown"
+        raise TooManyRequestsError(f"too many failed authentications from {client}; retry later", wait_s)
 
 
 def require(role: str):

@@ -3,19 +3,18 @@
 - :class:`BodyLimit` (pure ASGI middleware, outermost): a request body larger than
   ``max_body_bytes`` is answered 413 before it is read: at once when ``Content-Length``
   says so, after at most ``max_body_bytes`` when the body is chunked. Key or no key.
-- :class:`TokenBucket`: ``per_minute`` tokens per key, at most ``burst`` saved up; used
-  for manual triggers per key and for failed authentication per client address.
-  Bounded memory: at most ``max_keys`` buckets (the least recently used go first).
+- :class:`TokenBucket` (api.service.throttle): manual triggers per key.
+- :class:`AuthThrottle` (api.service.throttle): failed authentications, on every path
+  that takes a key (REST, dashboard sign-in, MTConnect).
 """
 
 from __future__ import annotations
 
 import json
-import threading
-import time
-from collections import OrderedDict
 
 from starlette.exceptions import HTTPException
+
+from api.service.throttle import AuthThrottle, TokenBucket  # noqa: F401 - the API's limits in one place
 
 
 class BodyTooLarge(HTTPException):
@@ -78,42 +77,3 @@ class BodyLimit:
             start, body = _json_response(413, exc.detail)
             await send(start)
             await send(body)
-
-
-class TokenBucket:
-    """``take(key)`` -> 0 when allowed (a token is used), else seconds until one is free.
-    ``blocked(key)`` tells the same without using a token. Thread-safe."""
-
-    def __init__(self, per_minute: float, burst: int, *, max_keys: int = 10000, clock=time.monotonic):
-        self.rate_per_s = per_minute / 60.0
-        self.burst = max(int(burst), 1)
-        self.max_keys = max_keys
-        self.clock = clock
-        self._buckets: OrderedDict[str, tuple[float, float]] = OrderedDict()  # key -> (tokens, at)
-        self._lock = threading.Lock()
-
-    def _level(self, key: str, now: float) -> float:
-        tokens, at = self._buckets.get(key, (float(self.burst), now))
-        return min(float(self.burst), tokens + (now - at) * self.rate_per_s)
-
-    def _wait_s(self, tokens: float) -> float:
-        return (1.0 - tokens) / self.rate_per_s if self.rate_per_s > 0 else 3600.0
-
-    def blocked(self, key: str) -> float:
-        with self._lock:
-            tokens = self._level(key, self.clock())
-            return 0.0 if tokens >= 1.0 else self._wait_s(tokens)
-
-    def take(self, key: str) -> float:
-        with self._lock:
-            now = self.clock()
-            tokens = self._level(key, now)
-            if tokens < 1.0:
-                self._buckets[key] = (tokens, now)
-                self._buckets.move_to_end(key)
-                return self._wait_s(tokens)
-            self._buckets[key] = (tokens - 1.0, now)
-            self._buckets.move_to_end(key)
-            while len(self._buckets) > self.max_keys:
-                self._buckets.popitem(last=False)
-            return 0.0

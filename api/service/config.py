@@ -67,10 +67,14 @@ class LimitSettings:
     """What one client can make the service do (``[limits]``)."""
 
     max_body_bytes: int = 1_000_000  # larger request bodies: 413 before they are read, key or no key
+    max_header_bytes: int = 65536  # a request line and header fields larger in all: 431, the rest unread
+    max_headers: int = 100  # more header fields: 431
     triggers_per_minute: float = 6.0  # manual measurements per key (a token bucket)...
     trigger_burst: int = 3  # ...of which this many at once
-    auth_failures_per_minute: float = 10.0  # failed authentications per client address...
-    auth_failure_burst: int = 20  # ...before it is answered 429 for a while
+    auth_failures_per_minute: float = 10.0  # failed authentications per client address and key prefix...
+    auth_failure_burst: int = 20  # ...before they are answered 429 for a while (a valid key never is)
+    auth_address_failures_per_minute: float = 60.0  # failed authentications per client address, any key...
+    auth_address_failure_burst: int = 100  # ...before that address' failures are answered 429 for a while
     allow_link_local_controllers: bool = False  # 169.254.x.x / fe80:: controllers (cloud metadata lives there)
 
 
@@ -188,6 +192,9 @@ class Settings:
     maintenance: MaintenanceSettings = field(default_factory=MaintenanceSettings)
     worker: WorkerSettings = field(default_factory=WorkerSettings)
     status_max_age_s: float = 30.0  # a status is recomputed at least this often (others' measurements)
+    # reverse proxies (addresses or CIDRs) whose X-Forwarded-For names the client; from any
+    # other peer the header is ignored
+    trusted_proxies: tuple[str, ...] = ()
 
     @property
     def db_url(self) -> str:
@@ -417,7 +424,7 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
     base = base or Settings()
     _unknown(doc, _TOP, "config")
     server = doc.get("server", {})
-    _unknown(server, {"host", "port", "status_max_age_s"}, "server")
+    _unknown(server, {"host", "port", "status_max_age_s", "trusted_proxies"}, "server")
     storage = doc.get("storage", {})
     _unknown(storage, {"data_dir", "database_url", "min_free_disk_mb"}, "storage")
     auth = doc.get("auth", {})
@@ -493,7 +500,26 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
         worker=_worker(doc.get("worker"), base.worker),
         status_max_age_s=_positive(_get(server, "status_max_age_s", float, "server", base.status_max_age_s),
                                    "server.status_max_age_s"),
+        trusted_proxies=_trusted_proxies(server, base.trusted_proxies),
     )
+
+
+def _trusted_proxies(server: Mapping, base: tuple[str, ...]) -> tuple[str, ...]:
+    if "trusted_proxies" not in server:
+        return base
+    value = server["trusted_proxies"]
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise ConfigError(f"server.trusted_proxies (={value!r}) must be a list of addresses or CIDRs, "
+                          "e.g. [\"127.0.0.1\", \"10.0.0.0/8\"]")
+    import ipaddress
+
+    for v in value:
+        try:
+            ipaddress.ip_network(v.strip(), strict=False)
+        except ValueError:
+            raise ConfigError(f"server.trusted_proxies: {v!r} is not an IP address or CIDR "
+                              "(host names and \"*\" are not accepted)") from None
+    return tuple(v.strip() for v in value)
 
 
 def _maintenance(table: Mapping | None, base: MaintenanceSettings) -> MaintenanceSettings:
@@ -681,8 +707,11 @@ def check_webhooks(w: WebhookSettings, where: str) -> None:
 
 
 def _limits(table: Mapping, base: LimitSettings) -> LimitSettings:
-    kinds = {"max_body_bytes": int, "triggers_per_minute": float, "trigger_burst": int,
-             "auth_failures_per_minute": float, "auth_failure_burst": int, "allow_link_local_controllers": bool}
+    kinds = {"max_body_bytes": int, "max_header_bytes": int, "max_headers": int,
+             "triggers_per_minute": float, "trigger_burst": int,
+             "auth_failures_per_minute": float, "auth_failure_burst": int,
+             "auth_address_failures_per_minute": float, "auth_address_failure_burst": int,
+             "allow_link_local_controllers": bool}
     _unknown(table, set(kinds), "limits")
     out = replace(base, **{k: _get(table, k, kinds[k], "limits") for k in table})
     for k in kinds:

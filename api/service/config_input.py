@@ -8,6 +8,8 @@ start-up with its own option names.
 
 from __future__ import annotations
 
+from urllib.parse import urlsplit
+
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -144,6 +146,24 @@ def schedule_of(body: ScheduleIn) -> Schedule:
     return sch
 
 
+def check_profile_name(url: str) -> None:
+    """A register profile named in a controller URL sent to the API (``profile=``) is a
+    plain file name: no folder, no absolute path, no ``..``; the file is then read as
+    :func:`acquisition.modbus_profile.load_profile` reads it (a regular file, 64 kB at
+    most). Absolute paths are for the configuration file (``modbus_profile``), which the
+    operator writes."""
+    from urllib.parse import parse_qs
+
+    from acquisition.modbus_profile import BUILTIN
+
+    for name in parse_qs(urlsplit(url).query).get("profile", []):
+        if name == BUILTIN:
+            continue
+        if not name or "/" in name or "\\" in name or name.startswith(".") or "\0" in name:
+            raise InputError(f"controller_url: profile (={name[:100]!r}) must be a file name, without a folder, "
+                             "an absolute path or '..'")
+
+
 def check_controller_url(url: str) -> None:
     """Refuse a controller URL whose options a cycle would refuse (unknown option, trigger,
     passive settings, device id, serial line, a register profile that does not load, a
@@ -151,6 +171,7 @@ def check_controller_url(url: str) -> None:
     cycle. Builds the driver without connecting (drivers connect when a cycle opens them)."""
     if url == "sim":  # the embedded simulator: no driver of its own
         return
+    check_profile_name(url)
     from acquisition.url import driver_from_url
 
     try:

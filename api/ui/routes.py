@@ -15,6 +15,7 @@ from fastapi.templating import Jinja2Templates
 
 from api.service import figures, plots
 from api.service.gap_jobs import RESIDUALS, DiagnosisCrashed, age_s, JobAbandoned, TooManyJobs, axis_job
+from api.service.throttle import failed_authentication
 from api.ui import format as fmt
 from api.ui import panels as axis_panels
 from api.ui import views
@@ -145,15 +146,14 @@ async def sign_in(request: Request, key: Annotated[str, Form(max_length=200)] = 
     if not _pre_csrf_ok(request, csrf):
         return _refused_pre_csrf(request)
     state = request.app.state
-    client = request.client.host if request.client else "unknown"
-    wait_s = state.auth_throttle.blocked(client)
-    if wait_s > 0:
-        return page(request, "error.html", 429, who=None, title="Too many attempts",
-                    message=f"too many failed sign-ins from this address; try again in {wait_s:.0f} s")
-    rec = await run_in_threadpool(state.key_cache.lookup, state.service.factory, key.strip()) if key.strip() else None
+    secret = key.strip()
+    # the key is looked up first: a valid key signs in even from a throttled address
+    rec = await run_in_threadpool(state.key_cache.lookup, state.service.factory, secret) if secret else None
     if rec is None:
-        state.auth_throttle.take(client)
-        log.warning("failed dashboard sign-in from %s", client)
+        wait_s = failed_authentication(request, secret, "dashboard sign-in", log)
+        if wait_s > 0:
+            return page(request, "error.html", 429, who=None, title="Too many attempts",
+                        message=f"too many failed sign-ins from this address; try again in {wait_s:.0f} s")
         return back("/ui/sign-in", "unknown or revoked key")
     return _signed_in(request, await run_in_threadpool(ui_state(request).sessions.open, rec))
 

@@ -230,3 +230,27 @@ def test_a_profile_without_start_refuses_an_active_measurement_and_moves_nothing
         r = run_cycle(ProfileModbusDriver("127.0.0.1", sim.port, profile=profile, timeout_s=2.0), AXIS, PROGRAM)
     assert not r.ok and "no start value" in r.reason and r.result is None
     assert axis.cycles_started == 0
+
+
+# -- reading a profile file: a regular file, bounded, errors that quote nothing ---------------
+def test_a_device_or_a_folder_is_refused_at_once_without_being_read(tmp_path):
+    for path in ("/dev/zero", tmp_path):
+        with pytest.raises(ProfileError, match="not a regular file"):
+            load_profile(path)
+
+
+def test_a_file_larger_than_a_profile_is_refused(tmp_path):
+    from acquisition.modbus_profile import MAX_PROFILE_BYTES
+
+    big = tmp_path / "big.toml"
+    big.write_text("# x\n" * (MAX_PROFILE_BYTES // 4 + 1))
+    with pytest.raises(ProfileError, match="larger than 65536 bytes"):
+        load_profile(big)
+
+
+def test_a_file_that_is_not_toml_is_refused_without_quoting_it(tmp_path):
+    secret = tmp_path / "secret.toml"
+    secret.write_text("root:$6$s3cr3t-hash:19000:0:99999:7:::\n")
+    with pytest.raises(ProfileError) as ei:
+        load_profile(secret)
+    assert "s3cr3t" not in str(ei.value) and "line" not in str(ei.value) and "column" not in str(ei.value)

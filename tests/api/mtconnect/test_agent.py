@@ -263,17 +263,19 @@ def test_failed_keys_are_throttled_per_address_with_the_rest_apis_budget(tmp_pat
     from api.service.config import LimitSettings
 
     settings_kw = dict(mtconnect=MtconnectSettings(require_key=True),
-                       limits=LimitSettings(auth_failures_per_minute=1.0, auth_failure_burst=3))
+                       limits=LimitSettings(auth_failures_per_minute=1.0, auth_failure_burst=3,
+                                            auth_address_failures_per_minute=1.0, auth_address_failure_burst=3))
     app = _app(tmp_path, FakeRunner(), **settings_kw)
     with TestClient(app) as client:
         with session_scope(app.state.service.factory) as s:
             key = config_repo.create_key(s, "mes", "read")[1]
         codes = [client.get("/mtconnect/current", headers={"X-API-Key": f"guess{i}"}).status_code for i in range(3)]
         assert codes == [401, 401, 401]
-        r = client.get("/mtconnect/current", headers=hdr(key))  # even a right key waits now
+        r = client.get("/mtconnect/current", headers={"X-API-Key": "guess3"})
         assert r.status_code == 429 and int(r.headers["retry-after"]) >= 1
         assert schemas.error_ok(r.content).find("e:Errors/e:Error", NS).get("errorCode") == "UNAUTHORIZED"
-        assert client.get("/api/v1/machines", headers=hdr(key)).status_code == 429  # one budget for both paths
+        assert client.get("/mtconnect/current", headers=hdr(key)).status_code == 200  # a right key always passes
+        assert client.get("/api/v1/machines", headers=hdr("guess4")).status_code == 429  # one budget for both paths
 
 
 class _Server:

@@ -3,6 +3,7 @@ runner (a synthetic round trip of a settable backlash), and one key per role."""
 
 from __future__ import annotations
 
+import socket
 import threading
 from dataclasses import replace
 from pathlib import Path
@@ -15,6 +16,7 @@ from api.service.config import AxisConfig, Settings
 from api.service.runner import CycleOutcome, analyse
 from storage.db import Schedule, config_repo, session_scope
 from tests.storage.db import factories as f
+from tests.waiting import poll
 from tests.storage.db.backends import db_url, engine  # noqa: F401 - fixtures
 
 
@@ -76,3 +78,28 @@ def client(app_env):
 
 def hdr(key: str) -> dict:
     return {"X-API-Key": key}
+
+
+class ServedApp:
+    """The app under uvicorn, configured as ``mebm serve`` configures it, on a free port."""
+
+    def __init__(self, tmp_path, **settings_kw):
+        import uvicorn
+
+        from api.cli.serve import uvicorn_config
+
+        settings = make_settings(f"sqlite:///{tmp_path}/mebm.sqlite3", tmp_path, **settings_kw)
+        self.app = create_app(settings, runner=FakeRunner())
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM, socket.IPPROTO_TCP)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen(64)
+        self.url = f"http://127.0.0.1:{self.sock.getsockname()[1]}"
+        self.server = uvicorn.Server(uvicorn_config(self.app, replace(settings, log_level="warning")))
+        self.thread = threading.Thread(target=self.server.run, kwargs={"sockets": [self.sock]}, daemon=True)
+        self.thread.start()
+        assert poll(lambda: self.server.started, 60.0), "the server did not start"
+
+    def close(self):
+        self.server.should_exit = True
+        self.thread.join(30)
+        self.sock.close()

@@ -16,6 +16,12 @@ FULL = """
 [server]
 host = "0.0.0.0"
 port = 9000
+trusted_proxies = ["10.0.0.2", "fd00::/8"]
+[limits]
+max_header_bytes = 32768
+max_headers = 50
+auth_address_failures_per_minute = 30
+auth_address_failure_burst = 40
 [storage]
 data_dir = "/var/lib/mebm"
 database_url = "postgresql://mebm@db/mebm"
@@ -84,6 +90,10 @@ def test_every_option_is_read(tmp_path):
     assert (s.host, s.port, s.data_dir, s.database_url) == ("0.0.0.0", 9000, Path("/var/lib/mebm"),
                                                           "postgresql://mebm@db/mebm")
     assert s.bootstrap_admin_key == "0123456789abcdef0123" and s.demo_keys is False
+    assert s.trusted_proxies == ("10.0.0.2", "fd00::/8")
+    lim = s.limits
+    assert (lim.max_header_bytes, lim.max_headers, lim.auth_address_failures_per_minute,
+            lim.auth_address_failure_burst) == (32768, 50, 30, 40)
     assert (s.catch_up_missed, s.spool_retry_s, s.log_level) == (False, 10, "warning")
     assert s.simulator.time_scale == 5 and s.simulator.temperature_period_s == 3600
     (axis,) = s.axes

@@ -33,7 +33,7 @@ def fuzz_schema(tmp_path_factory):
     runner = FakeRunner(backlash_um=250.0)
     # the fuzzer sends wrong keys and many triggers on purpose: limits that would answer
     # 429 to the rest of the run are raised (tests/api/rest/test_bounds.py checks them)
-    limits = LimitSettings(auth_failure_burst=10**6, trigger_burst=10**6)
+    limits = LimitSettings(auth_failure_burst=10**6, auth_address_failure_burst=10**6, trigger_burst=10**6)
     app = create_app(replace(make_settings(url, tmp), limits=limits), runner=runner)
     with TestClient(app):
         svc = app.state.service

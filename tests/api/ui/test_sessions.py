@@ -96,3 +96,16 @@ def test_an_idle_session_expires(tmp_path):
         later += timedelta(seconds=ui.idle_s + 1)  # then left idle past the expiry
         gone = c.get("/ui/", follow_redirects=False)
         assert gone.status_code == 303 and gone.headers["location"] == "/ui/sign-in"
+
+
+def test_a_valid_key_signs_in_after_many_failed_sign_ins_from_its_address(tmp_path):
+    app = app_on(f"sqlite:///{tmp_path}/mebm.sqlite3", tmp_path)
+    with TestClient(app) as c:
+        with session_scope(app.state.service.factory) as s:
+            _, secret = config_repo.create_key(s, "tablet", "read")
+        wrong = "wrong-key-000000000000"
+        codes = [c.post("/ui/sign-in", data={"key": wrong, "csrf": csrf_of(c.get("/ui/sign-in").text)},
+                        follow_redirects=False).status_code for _ in range(25)]
+        assert codes[:20] == [303] * 20 and codes[20:] == [429] * 5
+        signed = c.post("/ui/sign-in", data={"key": secret, "csrf": csrf_of(c.get("/ui/sign-in").text)})
+        assert signed.status_code == 200 and signed.cookies.get("mebm_session")

@@ -1,0 +1,34 @@
+"""A register profile named in a controller URL sent to the API is a plain file name: a
+device, an absolute path or a way out of the folder is refused with 422 at once, and the
+refusal quotes no file."""
+
+from __future__ import annotations
+
+import pytest
+
+from tests.api.rest.conftest import hdr
+
+V1 = "/api/v1"
+BODY = {"name": "p", "transmission_mm_per_rev": 10, "screw_lead_mm": 10, "position_gain_per_s": 20,
+        "travel_mm": [0, 500],
+        "tasks": [{"name": "c", "profile": "circle", "radius_mm": 50, "feed_mm_min": 1000, "tolerance_um": 20}]}
+
+
+@pytest.mark.parametrize("profile", ["/dev/zero", "/etc/passwd", "../x", "..%2Fx", "sub/x.toml", "%2Fdev%2Fzero"])
+def test_a_profile_path_is_refused(app_env, profile):
+    client, _, keys, _ = app_env
+    h = hdr(keys["admin"])
+    machine_id = client.get(f"{V1}/machines", headers=h).json()[0]["id"]
+    r = client.post(f"{V1}/machines/{machine_id}/axes", headers=h,
+                    json={**BODY, "controller_url": f"modbus://10.0.0.5:502?profile={profile}"})
+    assert r.status_code == 422 and "must be a file name" in r.json()["detail"], r.text
+    assert "root:" not in r.text
+
+
+def test_a_profile_name_that_is_not_there_is_refused_naming_it(app_env):
+    client, _, keys, _ = app_env
+    h = hdr(keys["admin"])
+    machine_id = client.get(f"{V1}/machines", headers=h).json()[0]["id"]
+    r = client.post(f"{V1}/machines/{machine_id}/axes", headers=h,
+                    json={**BODY, "controller_url": "modbus://10.0.0.5:502?profile=no-such-profile.toml"})
+    assert r.status_code == 422 and "no-such-profile.toml" in r.json()["detail"] and "cannot read" in r.text
