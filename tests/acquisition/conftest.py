@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import itertools
 import logging
+import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -29,6 +32,20 @@ _channels = itertools.count()
 # simulated axis runs on wall time, so a stall of this host (GIL, a busy machine) must not
 # overrun it in tests that are about something else. Overruns are tested with a tiny ring.
 RING_MAX = 10906
+
+
+@contextlib.contextmanager
+def realtime_rig():
+    """The network-namespace rigs run their simulated master and drive at real-time priority
+    (they stand for hardware); two rigs at once on a 2-core host starve each other's replies
+    out of the synchronous window. Rigs take turns: an exclusive lock on one file in the
+    temporary directory, held for the rig's run (each rig bounds its own run)."""
+    with open(Path(tempfile.gettempdir()) / "mebm-realtime-rig.lock", "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
 
 
 class Peer:

@@ -22,7 +22,7 @@ import pytest
 from acquisition.cycle import run_cycle
 from acquisition.sim.twin import KinematicTwin
 from tests.acquisition import netns_canopen_listen as hub  # the addresses, ids and twin the hub uses
-from tests.acquisition.conftest import AXIS, PROGRAM, modbus_peer
+from tests.acquisition.conftest import AXIS, PROGRAM, modbus_peer, realtime_rig
 
 SCRIPT = Path(hub.__file__)
 ROOT = Path(__file__).resolve().parents[2]
@@ -45,8 +45,9 @@ def run():
     if probe.returncode != 0:
         _unavailable(f"cannot create a network namespace with a bridge ({probe.stderr.strip()}): needs root")
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.run(["unshare", "-n", sys.executable, str(SCRIPT)], capture_output=True, text=True,
-                          timeout=300, env=env, cwd=ROOT)
+    with realtime_rig():
+        proc = subprocess.run(["unshare", "-n", sys.executable, str(SCRIPT)], capture_output=True, text=True,
+                              timeout=300, env=env, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(proc.stdout.strip().splitlines()[-1])
 

@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 
 from acquisition.sync_matcher import sync_counter_byte
+from tests.acquisition.conftest import realtime_rig
 
 SCRIPT = Path(__file__).with_name("netns_canopen.py")
 ROOT = Path(__file__).resolve().parents[2]
@@ -44,8 +45,9 @@ def run():
         _unavailable(f"cannot create a network namespace (unshare -n: {probe.stderr.strip()}); it needs root "
                      "or unprivileged user namespaces")
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.run(["unshare", "-n", sys.executable, str(SCRIPT)], capture_output=True, text=True,
-                          timeout=180, env=env, cwd=ROOT)
+    with realtime_rig():
+        proc = subprocess.run(["unshare", "-n", sys.executable, str(SCRIPT)], capture_output=True, text=True,
+                              timeout=180, env=env, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
