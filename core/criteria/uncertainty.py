@@ -93,6 +93,45 @@ class UncertaintyBudget:
 
 
 @dataclass(frozen=True)
+class Instruments:
+    """What an axis is measured with, for its budget: the linear scale's short-range
+    accuracy (± µm) and accuracy class (± µm per metre), the thermometer's IEC 60751
+    class, and the axis' thermal expansion coefficient (1/K). The defaults: a common
+    glass scale (±1 µm short-range, ±5 µm/m), a Pt100 of class B, steel."""
+
+    scale_accuracy_um: float = DEFAULT_SCALE_ACCURACY_UM
+    scale_accuracy_um_per_m: float = DEFAULT_SCALE_ACCURACY_UM_PER_M
+    thermometer_class: str = DEFAULT_THERMOMETER_CLASS
+    thermal_expansion_per_k: float = STEEL_EXPANSION_PER_K
+
+    def __post_init__(self) -> None:
+        for key in ("scale_accuracy_um", "scale_accuracy_um_per_m", "thermal_expansion_per_k"):
+            v = getattr(self, key)
+            if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0):
+                raise InputError(f"{key} (={v!r}) must be a finite number > 0: no instrument is exact")
+        if self.scale_accuracy_um > 1000.0 or self.scale_accuracy_um_per_m > 1000.0:
+            raise InputError(f"scale_accuracy_um (={self.scale_accuracy_um}) and scale_accuracy_um_per_m "
+                             f"(={self.scale_accuracy_um_per_m}) must be at most 1000 µm")
+        if self.thermal_expansion_per_k > 1e-4:
+            raise InputError(f"thermal_expansion_per_k (={self.thermal_expansion_per_k}) must be at most 1e-4 /K "
+                             "(steel: 11.5e-6, cast iron: 10.5e-6)")
+        if self.thermometer_class not in THERMOMETER_CLASSES:
+            raise InputError(f"thermometer_class (={self.thermometer_class!r}) must be one of "
+                             f"{', '.join(THERMOMETER_CLASSES)} (IEC 60751)")
+
+    def inputs(self, **kw) -> "UncertaintyInputs":
+        """The budget's inputs with these instruments (``kw``: the other inputs)."""
+        return UncertaintyInputs(scale_accuracy_um=self.scale_accuracy_um,
+                                 scale_accuracy_um_per_m=self.scale_accuracy_um_per_m,
+                                 thermometer_class=self.thermometer_class,
+                                 thermal_expansion_per_k=self.thermal_expansion_per_k, **kw)
+
+    def to_dict(self) -> dict:
+        return {"scale_accuracy_um": self.scale_accuracy_um, "scale_accuracy_um_per_m": self.scale_accuracy_um_per_m,
+                "thermometer_class": self.thermometer_class, "thermal_expansion_per_k": self.thermal_expansion_per_k}
+
+
+@dataclass(frozen=True)
 class UncertaintyInputs:
     """What the analysis cannot see in the samples. ``None`` resolutions are estimated
     from the data (the smallest step between readings). ``sampling_bound_um``: the
@@ -201,9 +240,24 @@ def history_components(inputs: UncertaintyInputs) -> tuple[UncertaintyComponent,
     return tuple(out)
 
 
-def inputs_of_run(extra: dict) -> UncertaintyInputs:
+def inputs_of_run(extra: dict, instruments: Instruments | None = None,
+                  temperature_c: float | None = None) -> UncertaintyInputs:
     """The inputs a stored round-trip run states in its ``extra`` fields: the sampling
     bound (``skew_uncertainty_um``, separate reads) and the time stamps' bound
-    (``clock_uncertainty_s``, polled samples)."""
-    return UncertaintyInputs(sampling_bound_um=float(extra.get("skew_uncertainty_um") or 0.0),
-                             clock_uncertainty_s=float(extra.get("clock_uncertainty_s") or 0.0))
+    (``clock_uncertainty_s``, polled samples); with ``instruments`` (None: those the run
+    states, ``instruments``, else :class:`Instruments`' defaults) and the run's measured
+    ``temperature_c`` (None: not measured)."""
+    t = temperature_c if temperature_c is not None and math.isfinite(temperature_c) else None
+    if instruments is None:
+        stated = extra.get("instruments")
+        instruments = Instruments(**stated) if isinstance(stated, dict) else Instruments()
+    return instruments.inputs(
+        sampling_bound_um=float(extra.get("skew_uncertainty_um") or 0.0),
+        clock_uncertainty_s=float(extra.get("clock_uncertainty_s") or 0.0), temperature_c=t)
+
+
+def inputs_of_spec(spec, instruments: Instruments | None = None) -> UncertaintyInputs:
+    """:func:`inputs_of_run` of a stored run's ``RunSpec``: its ``extra`` fields and its
+    temperature (unless the run says it was not measured, ``temperature_measured``)."""
+    measured = spec.extra.get("temperature_measured", True) is not False
+    return inputs_of_run(spec.extra, instruments, float(spec.temperature_c) if measured else None)
