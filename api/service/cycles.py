@@ -262,7 +262,10 @@ class CycleExecutor:
                 beta, u_beta = model.beta_um_per_k_, model.beta_uncertainty_um_per_k_
             except MebmError:
                 pass
-        comps = history_uncertainty(temperature_c, t, b, beta_um_per_k=beta, beta_uncertainty_um_per_k=u_beta or 0.0)
+        # the axis' thermometer at this temperature (rectangular), as in the b̄ budget's temperature component
+        u_t = axis.settings.instruments.inputs(temperature_c=temperature_c).thermometer_bound_c() / math.sqrt(3.0)
+        comps = history_uncertainty(temperature_c, t, b, beta_um_per_k=beta, beta_uncertainty_um_per_k=u_beta or 0.0,
+                                    thermometer_uncertainty_k=u_t)
         return with_history_uncertainty(rt, comps)
 
     def _save(self, fc: FinishedCycle, spool: Path | None) -> CycleRecord | None:

@@ -209,7 +209,7 @@ def scale_component(inputs: UncertaintyInputs, window_mm: float | None) -> Uncer
             a_short, f"short-range accuracy (window {window_mm:g} mm)")
     if bound == 0:
         return UncertaintyComponent("scale", 0.0, "0: the scale is stated to be exact")
-    return UncertaintyComponent("scale", bound / math.sqrt(3.0), f"linear scale {how} ±{bound:.3g} µm, rectangular")
+    return UncertaintyComponent("scale", bound / math.sqrt(3.0), f"linear scale {how}: ±{bound:.3g} µm, rectangular")
 
 
 def temperature_component(inputs: UncertaintyInputs, length_mm: float, what: str) -> UncertaintyComponent:

@@ -123,5 +123,5 @@ def test_the_demo_axis_budget_keeps_the_scale_and_the_thermometer_and_the_page_l
     table = html[html.index('data-quantity="backlash_mean"'):]
     table = table[:table.index("</table>")]
     assert '<tr data-component="scale"><td>scale</td><td class="num">0.577</td>' in table
-    assert "linear scale short-range accuracy ±1 µm, rectangular" in table
+    assert "linear scale short-range accuracy: ±1 µm, rectangular" in table
     assert 'data-component="temperature"' in table and "Pt100 class B" in table
