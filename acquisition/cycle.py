@@ -302,7 +302,8 @@ async def run_cycle_async(driver: ControllerDriver, axis: AxisSpec, program: Rou
     hole = sampling_hole(res, settings) if repeat_on_hole else None
     if hole is None:
         return res
-    return _repeated(res, hole, await _run_once_async(driver, axis, program, tasks, useful_travel_mm, settings, instruments))
+    again = await _run_once_async(driver, axis, program, tasks, useful_travel_mm, settings, instruments)
+    return _repeated(res, hole, again)
 
 
 async def _run_once_async(driver, axis, program, tasks, useful_travel_mm, settings, instruments) -> CycleResult:

@@ -22,7 +22,8 @@ def add_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--scale-accuracy-um", type=float, default=None, metavar="UM",
                    help=f"the linear scale's short-range accuracy, ± µm (default {DEFAULT_SCALE_ACCURACY_UM:g})")
     g.add_argument("--scale-accuracy-um-per-m", type=float, default=None, metavar="UM",
-                   help=f"the linear scale's accuracy class, ± µm per metre (default {DEFAULT_SCALE_ACCURACY_UM_PER_M:g})")
+                   help="the linear scale's accuracy class, ± µm per metre "
+                        f"(default {DEFAULT_SCALE_ACCURACY_UM_PER_M:g})")
     g.add_argument("--thermometer-class", choices=tuple(THERMOMETER_CLASSES), default=None,
                    help=f"IEC 60751 class of the Pt100 thermometer (default {DEFAULT_THERMOMETER_CLASS})")
     g.add_argument("--thermal-expansion-per-k", type=float, default=None, metavar="BETA",

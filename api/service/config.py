@@ -291,7 +291,8 @@ def _task(t: Mapping, gain: float, where: str) -> MachiningTask:
 
 
 def _axis(a: Mapping, machine: str, where: str, instruments: Instruments = Instruments()) -> AxisConfig:
-    allowed = set(INSTRUMENT_KEYS) | {"name", "transmission_mm_per_rev", "screw_lead_mm", "position_gain_per_s", "travel_mm",
+    allowed = set(INSTRUMENT_KEYS) | {
+               "name", "transmission_mm_per_rev", "screw_lead_mm", "position_gain_per_s", "travel_mm",
                "controller", "measure_feed_mm_min", "measure_acceleration_mm_s2", "warning_fraction",
                 "decision_rule", "worst_case_temperature_c", "schedule_interval_s", "schedule_cron", "schedule_enabled", "tasks",
                 "modbus_profile", "trigger", "passive", "canopen"}

@@ -514,7 +514,8 @@ def _budgets(inputs: UncertaintyInputs, *, table, nominal, stride, noise_mm, spa
     sigma_point = 1.5 * sigma_um / math.sqrt(per_window)
     ka = UncertaintyComponent("transmission", length_mm * 1e3 * inputs.transmission_rel_tolerance / math.sqrt(3.0),
                               f"k_a ±{inputs.transmission_rel_tolerance:.3g} relative over {length_mm:g} mm"
-                              if inputs.transmission_rel_tolerance > 0 else "0: k_a is taken as configured (no tolerance stated)")
+                              if inputs.transmission_rel_tolerance > 0
+                              else "0: k_a is taken as configured (no tolerance stated)")
     ep_scale = scale_component(inputs, length_mm)
     ep_temperature = temperature_component(inputs, length_mm, "the useful travel")
     for name, n in (("positive", n_pos), ("negative", n_neg)):
