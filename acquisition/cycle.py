@@ -26,7 +26,7 @@ from acquisition.driver import ControllerDriver
 from acquisition.errors import AcquisitionError, IncompleteTraceError
 from acquisition.types import AcquiredTrace, RoundTripProgram
 from core.criteria import RoundTripResult, RoundTripSettings, analyze_round_trip
-from core.criteria.uncertainty import UncertaintyInputs
+from core.criteria.uncertainty import Instruments
 from core.dataset import AxisSpec, Run, RunSpec
 from core.errors import MebmError, TraceError
 from core.tbe import AxisDecision, MachiningTask, decide
@@ -119,8 +119,10 @@ class CycleResult:
                 }
         return out
 
-    def to_run(self, file: str, *, utility_day: float | None = None) -> Run:
-        """The cycle as a ``mebm-dataset/1`` round-trip run; only valid measurements have one."""
+    def to_run(self, file: str, *, utility_day: float | None = None, instruments: Instruments | None = None) -> Run:
+        """The cycle as a ``mebm-dataset/1`` round-trip run; only valid measurements have one.
+        ``instruments``: the scale and thermometer the budget was built with, stated in the
+        run so that a re-analysis (``mebm analyze``) builds the same budget."""
         if not self.ok or self.trace is None:
             raise MebmError(f"cycle {self.status}: {self.reason}; a failed cycle is never stored as a measurement")
         t = self.trace
@@ -133,6 +135,8 @@ class CycleResult:
         }
         if self.repeated_after is not None:
             extra["repeated_after"] = self.repeated_after
+        if instruments is not None:
+            extra["instruments"] = instruments.to_dict()
         spec = RunSpec(file=file, kind="round_trip", axes=(self.axis,), feed_mm_min=self.program.feed_mm_min,
                        temperature_c=t.temperature_c if math.isfinite(t.temperature_c) else 20.0,
                        utility_day=utility_day, acceleration_mm_s2=self.program.acceleration_mm_s2, extra=extra)
@@ -192,14 +196,18 @@ def _failed(driver, axis, program, exc, t0, wall0, trace=None) -> CycleResult:
                        duration_s=time.monotonic() - t0, error=exc)
 
 
-def _evaluate(driver, axis, program, trace, tasks, useful_travel_mm, settings, t0, wall0) -> CycleResult:
+def _evaluate(driver, axis, program, trace, tasks, useful_travel_mm, settings, t0, wall0,
+              instruments: Instruments | None = None) -> CycleResult:
     program = trace.program  # passive mode: the round trip as observed (active: the one commanded)
     try:
         validate_trace(trace, program, axis, useful_travel_mm)
         result = analyze_round_trip(trace.time_s, trace.motor_rev, trace.table_mm, axis,
                                     useful_travel_mm=useful_travel_mm, settings=settings,
-                                    uncertainty=UncertaintyInputs(sampling_bound_um=trace.skew_uncertainty_um,
-                                                                  clock_uncertainty_s=trace.clock_uncertainty_s))
+                                    uncertainty=(instruments or Instruments()).inputs(
+                                        sampling_bound_um=trace.skew_uncertainty_um,
+                                        clock_uncertainty_s=trace.clock_uncertainty_s,
+                                        temperature_c=trace.temperature_c if math.isfinite(trace.temperature_c)
+                                        else None))
         decision = decide(result.backlash_mean_um, tasks,
                           backlash_uncertainty_um=result.backlash_mean_uncertainty_um) if tasks else None
     except MebmError as exc:
@@ -263,42 +271,45 @@ def _repeated(first: CycleResult, hole: str, second: CycleResult) -> CycleResult
 
 def run_cycle(driver: ControllerDriver, axis: AxisSpec, program: RoundTripProgram, *,
               tasks: Sequence[MachiningTask] = (), useful_travel_mm: tuple[float, float] | None = None,
-              settings: RoundTripSettings = RoundTripSettings(), repeat_on_hole: bool = True) -> CycleResult:
+              settings: RoundTripSettings = RoundTripSettings(), repeat_on_hole: bool = True,
+              instruments: Instruments | None = None) -> CycleResult:
     """One measurement cycle from a thread (runs its own event loop). Never raises for faults.
     ``repeat_on_hole``: run the round trip once more if its trace has a hole
-    (:func:`sampling_hole`)."""
-    res = _run_once(driver, axis, program, tasks, useful_travel_mm, settings)
+    (:func:`sampling_hole`). ``instruments``: the axis' linear scale and thermometer, for
+    the uncertainty budget (None: the defaults, a glass scale and a Pt100 of class B)."""
+    res = _run_once(driver, axis, program, tasks, useful_travel_mm, settings, instruments)
     hole = sampling_hole(res, settings) if repeat_on_hole else None
     if hole is None:
         return res
-    return _repeated(res, hole, _run_once(driver, axis, program, tasks, useful_travel_mm, settings))
+    return _repeated(res, hole, _run_once(driver, axis, program, tasks, useful_travel_mm, settings, instruments))
 
 
-def _run_once(driver, axis, program, tasks, useful_travel_mm, settings) -> CycleResult:
+def _run_once(driver, axis, program, tasks, useful_travel_mm, settings, instruments) -> CycleResult:
     t0, wall0 = time.monotonic(), time.time()
     try:
         trace = driver.acquire(program, axis)
     except MebmError as exc:
         return _failed(driver, axis, program, exc, t0, wall0)
-    return _evaluate(driver, axis, program, trace, tasks, useful_travel_mm, settings, t0, wall0)
+    return _evaluate(driver, axis, program, trace, tasks, useful_travel_mm, settings, t0, wall0, instruments)
 
 
 async def run_cycle_async(driver: ControllerDriver, axis: AxisSpec, program: RoundTripProgram, *,
                           tasks: Sequence[MachiningTask] = (), useful_travel_mm: tuple[float, float] | None = None,
                           settings: RoundTripSettings = RoundTripSettings(),
-                          repeat_on_hole: bool = True) -> CycleResult:
+                          repeat_on_hole: bool = True, instruments: Instruments | None = None) -> CycleResult:
     """:func:`run_cycle` for callers already inside an asyncio loop."""
-    res = await _run_once_async(driver, axis, program, tasks, useful_travel_mm, settings)
+    res = await _run_once_async(driver, axis, program, tasks, useful_travel_mm, settings, instruments)
     hole = sampling_hole(res, settings) if repeat_on_hole else None
     if hole is None:
         return res
-    return _repeated(res, hole, await _run_once_async(driver, axis, program, tasks, useful_travel_mm, settings))
+    again = await _run_once_async(driver, axis, program, tasks, useful_travel_mm, settings, instruments)
+    return _repeated(res, hole, again)
 
 
-async def _run_once_async(driver, axis, program, tasks, useful_travel_mm, settings) -> CycleResult:
+async def _run_once_async(driver, axis, program, tasks, useful_travel_mm, settings, instruments) -> CycleResult:
     t0, wall0 = time.monotonic(), time.time()
     try:
         trace = await driver.acquire_async(program, axis)
     except MebmError as exc:
         return _failed(driver, axis, program, exc, t0, wall0)
-    return _evaluate(driver, axis, program, trace, tasks, useful_travel_mm, settings, t0, wall0)
+    return _evaluate(driver, axis, program, trace, tasks, useful_travel_mm, settings, t0, wall0, instruments)

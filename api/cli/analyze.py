@@ -5,10 +5,11 @@ from __future__ import annotations
 import argparse
 import sys
 
+from api.cli.instruments import add_options, instruments_of
 from api.cli.output import print_json, print_table
 from core.criteria import CRITERION_NAMES, CRITERION_SYMBOLS, RoundTripSettings, analyze_round_trip
 from core.criteria.lost_motion import clearance_from_feeds
-from core.criteria.uncertainty import inputs_of_run
+from core.criteria.uncertainty import inputs_of_spec
 from core.errors import MebmError, TraceError
 from storage.dataset import read_dataset
 
@@ -28,12 +29,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--grid-step-mm", type=float, default=None,
                    help="resolution of b(x) and the lead curves (mm); default: chosen from the axis and reported")
+    add_options(p)
     p.set_defaults(func=run)
 
 
 def run(a: argparse.Namespace) -> int:
     ds = read_dataset(a.dataset)
     settings = RoundTripSettings(grid_step_mm=a.grid_step_mm)
+    instruments = instruments_of(a)
     results, failures, skipped = [], [], []
     for r in ds.runs:
         if r.spec.kind != "round_trip":
@@ -42,11 +45,12 @@ def run(a: argparse.Namespace) -> int:
         for axis_name in r.spec.axes:
             axis = ds.machine.axes[axis_name]
             try:
-                # a run measured with separate (unlatched) reads states its skew x speed, a polled one its clock
+                # a run measured with separate (unlatched) reads states its skew x speed, a polled one its clock;
+                # a run states its instruments (options override them)
                 res = analyze_round_trip(
                     r.time_s, r.motor_rev(axis_name), r.table_mm(axis_name), axis,
                     useful_travel_mm=tuple(a.useful_travel_mm) if a.useful_travel_mm else None,
-                    settings=settings, uncertainty=inputs_of_run(r.spec.extra),
+                    settings=settings, uncertainty=inputs_of_spec(r.spec, instruments),
                 )
             except MebmError as exc:
                 failures.append(f"{r.spec.file} (axis {axis_name}): {exc}")

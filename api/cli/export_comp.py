@@ -7,10 +7,11 @@ import argparse
 import sys
 from pathlib import Path
 
+from api.cli.instruments import add_options, instruments_of
 from api.service.compensation import COMP_TYPES, FORMATS, export, load_round_trip
 from core.compensation import LOOP_ENCODERS
 from core.criteria import analyze_round_trip
-from core.criteria.uncertainty import inputs_of_run
+from core.criteria.uncertainty import inputs_of_spec
 from core.errors import InputError
 
 
@@ -36,6 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="encoder that closes the axis' position loop; default: the dataset axis' loop_encoder, "
                         "else motor")
     p.add_argument("--out", default=None, metavar="FILE", help="write the table here (default: standard output)")
+    add_options(p)
     p.set_defaults(func=run)
 
 
@@ -46,7 +48,7 @@ def run(a: argparse.Namespace) -> int:
     result = analyze_round_trip(
         r.time_s, r.motor_rev(axis.name), r.table_mm(axis.name), axis,
         useful_travel_mm=tuple(a.useful_travel_mm) if a.useful_travel_mm else None,
-        uncertainty=inputs_of_run(r.spec.extra),
+        uncertainty=inputs_of_spec(r.spec, instruments_of(a)),
     )
     ex = export(result, a.format, step_mm=a.step_mm, comp_type=a.comp_type, joint=a.joint,
                 loop_encoder=loop, reference_mm=a.reference_mm, source=f"{folder.name}/{a.run}",

@@ -12,7 +12,9 @@ import logging
 import re
 from pathlib import Path
 
+from api.cli.instruments import add_options, instruments_of
 from api.cli.output import print_json
+from core.criteria.uncertainty import Instruments
 from core.dataset import AxisSpec, MachineSpec
 from core.errors import InputError, MebmError
 
@@ -50,6 +52,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--position-gain-per-s", type=float, default=10.0)
     p.add_argument("--task", action="append", default=[], metavar="circle:radius_mm=R,feed_mm_min=F,tolerance_um=T",
                    help="a machining task for the decision (circle or line:angle_deg=A,...); repeatable")
+    add_options(p)
     p.set_defaults(func=run)
 
 
@@ -94,7 +97,8 @@ def run(a: argparse.Namespace) -> int:
     driver = driver_from_url(a.controller, timeout_s=a.timeout_s, retries=a.retries, **extra)
     program = default_program(axis, a.feed_mm_min, acceleration_mm_s2=a.acceleration_mm_s2, dwell_s=a.dwell_s,
                               overtravel_mm=a.overtravel_mm)
-    result = run_cycle(driver, axis, program, tasks=tasks, useful_travel_mm=(start, end))
+    instruments = instruments_of(a)
+    result = run_cycle(driver, axis, program, tasks=tasks, useful_travel_mm=(start, end), instruments=instruments)
     if not result.ok:
         if a.json:
             print_json(result.to_dict())
@@ -102,7 +106,8 @@ def run(a: argparse.Namespace) -> int:
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     file = next_run_name(out, f"rt_{axis_name}")
-    append_runs(out, MachineSpec(a.machine_id, {axis_name: axis}), [result.to_run(file)])
+    append_runs(out, MachineSpec(a.machine_id, {axis_name: axis}),
+                [result.to_run(file, instruments=instruments or Instruments())])
     doc = {**result.to_dict(), "dataset": str(out), "file": file}
     if a.json:
         print_json(doc)

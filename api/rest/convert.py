@@ -38,7 +38,8 @@ def axis(a: AxisRecord, next_run: datetime | None = None) -> sc.AxisOut:
         position_gain_per_s=st.spec.position_gain_per_s, travel_mm=st.spec.travel_mm,
         controller_url=st.controller_url, measure_feed_mm_min=st.measure_feed_mm_min,
         measure_acceleration_mm_s2=st.measure_acceleration_mm_s2, warning_fraction=st.warning_fraction,
-        decision_rule=st.decision_rule, worst_case_temperature_c=st.worst_case_temperature_c, schedule=sc.ScheduleOut(interval_s=st.schedule.interval_s, cron=st.schedule.cron,
+        decision_rule=st.decision_rule, worst_case_temperature_c=st.worst_case_temperature_c,
+        **st.instruments.to_dict(), schedule=sc.ScheduleOut(interval_s=st.schedule.interval_s, cron=st.schedule.cron,
                                 enabled=st.schedule.enabled, next_run_at=next_run),
         tasks=[task(t) for t in st.tasks],
     )
@@ -62,7 +63,8 @@ def status(s: AxisStatus, now: datetime, next_run: datetime | None) -> sc.AxisSt
         unc["backlash_mean_uncertainty_um"] = rt.backlash_mean_uncertainty_um
         for key in ("e_p", "v_u", "v_300", "v_2pi"):
             unc[f"{key}_uncertainty_um"] = rt.criterion_uncertainty_um("positive", key)
-        unc["uncertainty_budget"] = {k: v.to_dict() for k, v in rt.budgets.items() if "." not in k}
+        unc["uncertainty_budget"] = {k: v.to_dict() for k, v in rt.budgets.items()
+                                     if "." not in k or k.startswith("positive.")}
         if "backlash_mean_20c" in rt.budgets:
             unc["backlash_mean_20c_uncertainty_um"] = rt.budgets["backlash_mean_20c"].expanded_um
     lm = _lost_motion(rt, s)

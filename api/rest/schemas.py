@@ -72,6 +72,10 @@ class AxisOut(BaseModel):
     warning_fraction: float
     decision_rule: str = "guarded"
     worst_case_temperature_c: float = 30.0
+    scale_accuracy_um: float = Field(1.0, description="the linear scale's short-range accuracy, ± µm (budget)")
+    scale_accuracy_um_per_m: float = Field(5.0, description="the linear scale's accuracy class, ± µm per metre")
+    thermometer_class: str = Field("B", description="IEC 60751 class of the Pt100 thermometer")
+    thermal_expansion_per_k: float = Field(11.5e-6, description="the axis' thermal expansion coefficient, 1/K")
     schedule: ScheduleOut
     tasks: list[TaskOut]
 
@@ -116,7 +120,9 @@ class AxisStatusOut(BaseModel):
     outliers_removed: int | None = None
     backlash_mean_20c_uncertainty_um: float | None = Field(
         None, description="expanded (k = 2) uncertainty of b̄ at 20 °C: b̄'s budget plus the normalisation (β, thermometer)")
-    uncertainty_budget: dict[str, Any] | None = Field(None, description="the GUM budget of b̄ (and of b̄ at 20 °C)")
+    uncertainty_budget: dict[str, Any] | None = Field(
+        None, description="the GUM budgets of b̄ (and of b̄ at 20 °C) and of the positive stroke's lead criteria "
+                          "(positive.e_p, ...): each component's standard_um and its note (why, also when 0)")
     reversal_mean_um: float | None = Field(None, description="ISO 230-2 mean reversal value B̄ (lost motion), µm")
     reversal_max_um: float | None = Field(None, description="ISO 230-2 reversal value B = max |B_i|, µm")
     lost_motion: dict[str, Any] | None = Field(

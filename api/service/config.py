@@ -18,6 +18,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from urllib.parse import urlencode, urlsplit
 
+from core.criteria.uncertainty import Instruments
 from core.dataset import AxisSpec
 from core.errors import InputError
 from core.tbe import MachiningTask
@@ -238,7 +239,21 @@ def default_settings() -> Settings:
 
 # -- parsing -----------------------------------------------------------------------------------
 _TOP = {"server", "storage", "auth", "scheduler", "simulator", "machines", "logging", "limits", "retention", "mqtt",
-        "webhooks", "opcua", "mtconnect", "maintenance", "worker"}
+        "webhooks", "opcua", "mtconnect", "maintenance", "worker", "uncertainty"}
+# the instruments of the uncertainty budget: [uncertainty] for every axis, the same keys in an
+# axis' table for that axis (core.criteria.uncertainty.Instruments)
+INSTRUMENT_KEYS = {"scale_accuracy_um": float, "scale_accuracy_um_per_m": float, "thermometer_class": str,
+                   "thermal_expansion_per_k": float}
+
+
+def _instruments(table: Mapping, base: Instruments, where: str) -> Instruments:
+    given = {k: _get(table, k, kind, where) for k, kind in INSTRUMENT_KEYS.items() if k in table}
+    if not given:
+        return base
+    try:
+        return replace(base, **given)
+    except InputError as exc:
+        raise ConfigError(f"{where}: {exc}") from exc
 
 
 def _get(table: Mapping, key: str, kind, where: str, default=None):
@@ -275,8 +290,9 @@ def _task(t: Mapping, gain: float, where: str) -> MachiningTask:
         raise ConfigError(f"{where}: {exc}") from exc
 
 
-def _axis(a: Mapping, machine: str, where: str) -> AxisConfig:
-    allowed = {"name", "transmission_mm_per_rev", "screw_lead_mm", "position_gain_per_s", "travel_mm",
+def _axis(a: Mapping, machine: str, where: str, instruments: Instruments = Instruments()) -> AxisConfig:
+    allowed = set(INSTRUMENT_KEYS) | {
+               "name", "transmission_mm_per_rev", "screw_lead_mm", "position_gain_per_s", "travel_mm",
                "controller", "measure_feed_mm_min", "measure_acceleration_mm_s2", "warning_fraction",
                 "decision_rule", "worst_case_temperature_c", "schedule_interval_s", "schedule_cron", "schedule_enabled", "tasks",
                 "modbus_profile", "trigger", "passive", "canopen"}
@@ -314,6 +330,7 @@ def _axis(a: Mapping, machine: str, where: str) -> AxisConfig:
         warning_fraction=_get(a, "warning_fraction", float, where, 0.9), schedule=schedule, tasks=tasks,
         decision_rule=_get(a, "decision_rule", str, where, "guarded"),
         worst_case_temperature_c=_get(a, "worst_case_temperature_c", float, where, 30.0),
+        instruments=_instruments(a, instruments, where),
     )
     if not -50.0 <= st.worst_case_temperature_c <= 100.0:
         raise ConfigError(f"{where}.worst_case_temperature_c (={st.worst_case_temperature_c}) must be within -50..100 °C")
@@ -461,7 +478,14 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
     for k in ("time_scale", "servo_rate_hz", "temperature_period_s", "utility_days_per_s"):
         if not getattr(simulator, k) > 0:
             raise ConfigError(f"simulator.{k} (={getattr(simulator, k)}) must be > 0")
+    unc = doc.get("uncertainty", {})
+    _unknown(unc, set(INSTRUMENT_KEYS), "uncertainty")
+    instruments = _instruments(unc, Instruments(), "uncertainty")
     machines, axes = base.machines, base.axes
+    if unc:
+        axes = tuple(replace(a, settings=replace(a.settings, instruments=_instruments(unc, a.settings.instruments,
+                                                                                      "uncertainty")))
+                     for a in axes)
     if "machines" in doc:
         machines, axes = [], []
         for i, m in enumerate(doc["machines"]):
@@ -472,7 +496,7 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
                 raise ConfigError(f"{where}.name must be given")
             machines.append((name, _get(m, "description", str, where, "")))
             for j, a in enumerate(m.get("axes", [])):
-                axes.append(_axis(a, name, f"{where}.axes[{j}]"))
+                axes.append(_axis(a, name, f"{where}.axes[{j}]", instruments))
         machines, axes = tuple(machines), tuple(axes)
     data_dir = _get(storage, "data_dir", str, "storage")
     min_free_disk_mb = _get(storage, "min_free_disk_mb", float, "storage", base.min_free_disk_mb)

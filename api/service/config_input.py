@@ -14,6 +14,13 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from core.criteria.uncertainty import (
+    DEFAULT_SCALE_ACCURACY_UM,
+    DEFAULT_SCALE_ACCURACY_UM_PER_M,
+    DEFAULT_THERMOMETER_CLASS,
+    STEEL_EXPANSION_PER_K,
+    Instruments,
+)
 from core.dataset import AxisSpec
 from core.errors import InputError, MebmError
 from core.tbe import MachiningTask
@@ -105,6 +112,14 @@ class AxisIn(In):
         "guarded", description="ISO 14253-1: 'guarded' needs TBE ± U clear of a threshold to call it")
     worst_case_temperature_c: float = Field(
         30.0, ge=-50, le=100, description="the shop temperature the prognosis' date is computed for")
+    scale_accuracy_um: float = Field(
+        DEFAULT_SCALE_ACCURACY_UM, gt=0, le=1000, description="the linear scale's short-range accuracy, ± µm")
+    scale_accuracy_um_per_m: float = Field(
+        DEFAULT_SCALE_ACCURACY_UM_PER_M, gt=0, le=1000, description="the linear scale's accuracy class, ± µm per metre")
+    thermometer_class: Literal["AA", "A", "B", "C"] = Field(
+        DEFAULT_THERMOMETER_CLASS, description="IEC 60751 class of the Pt100 thermometer")
+    thermal_expansion_per_k: float = Field(
+        STEEL_EXPANSION_PER_K, gt=0, le=1e-4, description="the axis' thermal expansion coefficient, 1/K")
     schedule: ScheduleIn = Field(default_factory=ScheduleIn)
     tasks: list[TaskIn] = Field(default_factory=list, max_length=50)
 
@@ -196,4 +211,8 @@ def axis_settings(body: AxisIn, *, allow_link_local: bool) -> AxisSettings:
         measure_acceleration_mm_s2=body.measure_acceleration_mm_s2, warning_fraction=body.warning_fraction,
         decision_rule=body.decision_rule, worst_case_temperature_c=body.worst_case_temperature_c,
         schedule=schedule_of(body.schedule), tasks=machining_tasks(body.tasks, body.position_gain_per_s),
+        instruments=Instruments(scale_accuracy_um=body.scale_accuracy_um,
+                                scale_accuracy_um_per_m=body.scale_accuracy_um_per_m,
+                                thermometer_class=body.thermometer_class,
+                                thermal_expansion_per_k=body.thermal_expansion_per_k),
     )

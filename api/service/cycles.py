@@ -37,7 +37,6 @@ from api.service.folders import dataset_folder_name, migrate_legacy_folders
 from api.service.runner import CycleOutcome, CycleRunner, analyse
 from core.dataset import MachineSpec, Run, RunSpec
 from core.criteria.roundtrip import with_history_uncertainty
-from core.criteria.uncertainty import UncertaintyInputs
 from core.errors import MebmError
 from core.history import TemperatureModel, history_uncertainty
 from core.tbe import AxisDecision, MachiningTask, decide
@@ -263,7 +262,10 @@ class CycleExecutor:
                 beta, u_beta = model.beta_um_per_k_, model.beta_uncertainty_um_per_k_
             except MebmError:
                 pass
-        comps = history_uncertainty(temperature_c, t, b, beta_um_per_k=beta, beta_uncertainty_um_per_k=u_beta or 0.0)
+        # the axis' thermometer at this temperature (rectangular), as in the b̄ budget's temperature component
+        u_t = axis.settings.instruments.inputs(temperature_c=temperature_c).thermometer_bound_c() / math.sqrt(3.0)
+        comps = history_uncertainty(temperature_c, t, b, beta_um_per_k=beta, beta_uncertainty_um_per_k=u_beta or 0.0,
+                                    thermometer_uncertainty_k=u_t)
         return with_history_uncertainty(rt, comps)
 
     def _save(self, fc: FinishedCycle, spool: Path | None) -> CycleRecord | None:
@@ -362,7 +364,8 @@ class CycleExecutor:
                    **({} if out.ok else {"failure_reason": out.reason or ""}),
                    **({"repeated_after": out.repeated_after} if out.repeated_after else {}),
                    # the bounds the run was analysed with, so a re-analysis of the file
-                   # (mebm analyze, inputs_of_run) states the same uncertainty
+                   # (mebm analyze, inputs_of_spec) states the same uncertainty
+                   "instruments": axis.settings.instruments.to_dict(),
                    **({"skew_uncertainty_um": _sampling_bound_um(out.round_trip),
                        "clock_uncertainty_s": out.round_trip.clock_uncertainty_s} if out.round_trip is not None else {})},
         )
@@ -481,9 +484,11 @@ class CycleExecutor:
         if status == "ok":
             try:
                 time_s, motor_rev, table_mm = self._spooled_trace(d)
-                rt = analyse(axis, time_s, motor_rev, table_mm, uncertainty=UncertaintyInputs(
+                temp = d.get("temperature_c")
+                rt = analyse(axis, time_s, motor_rev, table_mm, uncertainty=axis.settings.instruments.inputs(
                     sampling_bound_um=d.get("sampling_bound_um") or 0.0,
-                    clock_uncertainty_s=d.get("clock_uncertainty_s") or 0.0))
+                    clock_uncertainty_s=d.get("clock_uncertainty_s") or 0.0,
+                    temperature_c=temp if isinstance(temp, (int, float)) and math.isfinite(temp) else None))
                 tasks = [MachiningTask(**t) for t in d["tasks"]]
                 decision = make_decision(axis, tasks, rt.backlash.mean_um, _expanded(rt))
             except DatabaseUnavailableError:

@@ -87,12 +87,13 @@ def analyse(axis: AxisRecord, time_s, motor_rev, table_mm, *,
     A trace programmed with over-travel (``acquisition.cycle.default_program``) is
     analysed over the whole travel, like the live cycle, so a spooled run re-analysed
     after a database outage gives the same result; a shorter one over the inset
-    :func:`useful_travel_mm`."""
+    :func:`useful_travel_mm`. Without ``uncertainty``, the budget has the axis' instruments
+    (``AxisSettings.instruments``) and no sampling bound."""
     x = np.asarray(table_mm, dtype=float)
     lo, hi = axis.spec.travel_mm
     travel = (lo, hi) if x.size and x.min() < lo - 0.5 and x.max() > hi + 0.5 else useful_travel_mm(axis)
     return analyze_round_trip(time_s, motor_rev, table_mm, axis.spec, useful_travel_mm=travel,
-                              uncertainty=uncertainty or UncertaintyInputs())
+                              uncertainty=uncertainty or axis.settings.instruments.inputs())
 
 
 log = logging.getLogger(__name__)
@@ -265,7 +266,7 @@ class DriverRunner:
                                                 acceleration_mm_s2=st.measure_acceleration_mm_s2)
         except MebmError as exc:
             return CycleOutcome.failed(f"{type(exc).__name__}: {exc}")
-        res = acq_cycle.run_cycle(driver, st.spec, program)
+        res = acq_cycle.run_cycle(driver, st.spec, program, instruments=st.instruments)
         trace = res.trace
         temp = trace.temperature_c if trace is not None and math.isfinite(trace.temperature_c) else None
         raw = {}

@@ -9,10 +9,44 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 
 from api.service.status import AxisStatus, state_and_message
+from core.criteria import criterion_label
 from storage.db import AlertRecord, config_repo, results_repo, utcnow
 
 URGENCY = {"ALARM": 0, "WARNING": 1, "UNKNOWN": 2, "OK": 3}
 RANGES = {"30d": 30, "90d": 90, "1y": 365, "all": None}  # history range selector: days back
+
+
+@dataclass(frozen=True)
+class BudgetView:
+    """One uncertainty budget as the axis page lists it: each component's standard
+    uncertainty (µm) and note, u_c and U (k = 2)."""
+
+    key: str
+    label: str
+    components: tuple[tuple[str, float, str], ...]  # name, standard µm, note
+    combined_um: float
+    expanded_um: float
+    coverage_factor: float
+
+
+def _budget_label(key: str) -> str:
+    if key == "backlash_mean":
+        return "Mean backlash b̄"
+    if key == "backlash_mean_20c":
+        return "Mean backlash b̄ referred to 20 °C"
+    stroke, _, criterion = key.partition(".")
+    return f"{criterion_label(criterion)}, {stroke} stroke"
+
+
+def budget_views(rt) -> tuple[BudgetView, ...]:
+    """b̄'s budgets first, then the positive stroke's lead criteria (the ones the page shows)."""
+    if rt is None or not rt.budgets:
+        return ()
+    keys = [k for k in ("backlash_mean", "backlash_mean_20c") if k in rt.budgets]
+    keys += [k for k in rt.budgets if k.startswith("positive.")]
+    return tuple(BudgetView(k, _budget_label(k), tuple((c.name, c.standard_um, c.note) for c in b.components),
+                            b.combined_um, b.expanded_um, b.coverage_factor)
+                 for k in keys for b in (rt.budgets[k],))
 
 
 @dataclass(frozen=True)
@@ -38,6 +72,7 @@ class AxisRow:
     last_failure_reason: str | None
     restore_below_um: float | None = None  # the repair target: the warning level in backlash
     restore_below_explanation: str | None = None
+    budgets: tuple[BudgetView, ...] = ()  # the latest measurement's uncertainty budgets
 
     @property
     def utilisation(self) -> float:
@@ -72,6 +107,7 @@ def axis_row(st: AxisStatus, next_run_at: datetime | None, now: datetime) -> Axi
         last_failure_reason=st.last_failure_reason,
         restore_below_um=target.restore_below_um if target is not None else None,
         restore_below_explanation=target.explanation if target is not None else None,
+        budgets=budget_views(rt),
     )
 
 

@@ -25,9 +25,12 @@ from core.criteria.uncertainty import (
     UncertaintyBudget,
     UncertaintyComponent,
     UncertaintyInputs,
+    BAND_TEMPERATURE,
     history_components,
     resolution_component,
     sampling_component,
+    scale_component,
+    temperature_component,
 )
 from core.dataset import AxisSpec
 from core.errors import InputError, TraceError
@@ -421,7 +424,7 @@ def analyze_round_trip(
     budgets = _budgets(
         uncertainty, table=table, nominal=nominal, stride=stride, noise_mm=noise_mm, spacing_mm=spacing,
         smoothing_mm=smoothing_mm, length_mm=float(end - start), screw_lead_mm=lead_mm,
-        n_dir={name: sum(int(np.count_nonzero((travel[s.engaged : s.end + 1] >= start)
+        backlash_um=profile.mean_um, n_dir={name: sum(int(np.count_nonzero((travel[s.engaged : s.end + 1] >= start)
                                                & (travel[s.engaged : s.end + 1] <= end))) for s in by_dir[d])
                for d, name in ((1, "positive"), (-1, "negative"))},
     )
@@ -475,7 +478,7 @@ def _covered_travel_mm(travel: np.ndarray, by_dir: dict, step_mm: float) -> tupl
 
 
 def _budgets(inputs: UncertaintyInputs, *, table, nominal, stride, noise_mm, spacing_mm, smoothing_mm,
-             length_mm, screw_lead_mm, n_dir) -> dict[str, UncertaintyBudget]:
+             length_mm, screw_lead_mm, backlash_um, n_dir) -> dict[str, UncertaintyBudget]:
     """GUM budgets of b̄ and of each lead criterion (see core.criteria.uncertainty)."""
     # An estimated resolution is bounded by the noise it would put into l_a - l_0
     # (q/√12): a lattice the motion only revisits (a simulated trace replaying the
@@ -493,13 +496,16 @@ def _budgets(inputs: UncertaintyInputs, *, table, nominal, stride, noise_mm, spa
     # accuracy envelope on exact synthetic round trips (tests/core/criteria), rectangular
     method = UncertaintyComponent("reduction", REDUCTION_BOUND_UM / math.sqrt(3.0),
                                   f"grid and interpolation, bound ±{REDUCTION_BOUND_UM} µm (validated)")
+    quiet = "0: the data show no scatter (noise-free encoders, as simulated ones are)"
     out = {
         "backlash_mean": UncertaintyBudget("backlash_mean", (
             res,
             UncertaintyComponent("noise", sigma_um * math.sqrt(1.0 / n_pos + 1.0 / n_neg),
-                                 f"σ {sigma_um:.3g} µm over {n_pos} + {n_neg} samples"),
+                                 f"σ {sigma_um:.3g} µm over {n_pos} + {n_neg} samples" if sigma_um > 0 else quiet),
             sampling_component(inputs.sampling_bound_um),
             method,
+            scale_component(inputs, None),
+            temperature_component(inputs, backlash_um * 1e-3, "b̄"),
         ) + history),
     }
     # a point of a smoothed lead curve averages the samples of one smoothing window; a
@@ -507,10 +513,15 @@ def _budgets(inputs: UncertaintyInputs, *, table, nominal, stride, noise_mm, spa
     per_window = max(1.0, smoothing_mm / max(spacing_mm, 1e-12))
     sigma_point = 1.5 * sigma_um / math.sqrt(per_window)
     ka = UncertaintyComponent("transmission", length_mm * 1e3 * inputs.transmission_rel_tolerance / math.sqrt(3.0),
-                              f"k_a ±{inputs.transmission_rel_tolerance:.3g} relative over {length_mm:g} mm")
+                              f"k_a ±{inputs.transmission_rel_tolerance:.3g} relative over {length_mm:g} mm"
+                              if inputs.transmission_rel_tolerance > 0
+                              else "0: k_a is taken as configured (no tolerance stated)")
+    ep_scale = scale_component(inputs, length_mm)
+    ep_temperature = temperature_component(inputs, length_mm, "the useful travel")
     for name, n in (("positive", n_pos), ("negative", n_neg)):
-        slope = UncertaintyComponent("noise", sigma_um * math.sqrt(12.0 / n), f"least-squares slope over {n} samples")
-        out[f"{name}.e_p"] = UncertaintyBudget(f"{name}.e_p", (res, slope, ka))
+        slope = UncertaintyComponent("noise", sigma_um * math.sqrt(12.0 / n),
+                                     f"least-squares slope over {n} samples" if sigma_um > 0 else quiet)
+        out[f"{name}.e_p"] = UncertaintyBudget(f"{name}.e_p", (res, slope, ka, ep_scale, ep_temperature))
         windows = [("v_u", length_mm), ("v_300", min(300.0, length_mm))]
         if screw_lead_mm is not None:
             windows.append(("v_2pi", min(screw_lead_mm, length_mm)))
@@ -524,7 +535,9 @@ def _budgets(inputs: UncertaintyInputs, *, table, nominal, stride, noise_mm, spa
                 UncertaintyComponent("resolution", math.sqrt(2.0) * res.standard_um, res.note),
                 UncertaintyComponent("noise", math.sqrt(2.0) * sigma_point * extreme,
                                      f"extremes of the smoothed curve, σ {sigma_point:.3g} µm each, "
-                                     f"~{n_ind:.0f} independent points"),
+                                     f"~{n_ind:.0f} independent points" if sigma_um > 0 else quiet),
+                scale_component(inputs, window_mm),
+                BAND_TEMPERATURE,
             ))
     return out
 

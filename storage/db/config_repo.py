@@ -12,6 +12,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, selectinload
 
 from core.dataset import AxisSpec
+from core.criteria.uncertainty import Instruments
 from core.errors import InputError
 from core.tbe import DECISION_RULES, MachiningTask
 from storage.db import ui_sessions_repo
@@ -69,9 +70,17 @@ def _axis(a: Axis) -> AxisRecord:
         **({} if a.worst_case_temperature_c is None else {"worst_case_temperature_c": a.worst_case_temperature_c}),
         schedule=Schedule(a.schedule_interval_s, a.schedule_cron, a.schedule_enabled),
         tasks=tuple(_task(t, a.position_gain_per_s) for t in a.tasks),
-        in_service_since=as_utc(a.in_service_since),
+        in_service_since=as_utc(a.in_service_since), instruments=_instruments(a),
     )
     return AxisRecord(id=a.id, machine_id=a.machine_id, machine_name=a.machine.name, settings=settings)
+
+
+INSTRUMENT_COLUMNS = ("scale_accuracy_um", "scale_accuracy_um_per_m", "thermometer_class", "thermal_expansion_per_k")
+
+
+def _instruments(a: Axis) -> Instruments:
+    """The axis' instruments; a column left empty (an axis stored before they were) is the default."""
+    return Instruments(**{k: getattr(a, k) for k in INSTRUMENT_COLUMNS if getattr(a, k) is not None})
 
 
 def _check_settings(st: AxisSettings) -> None:
@@ -107,6 +116,7 @@ def create_axis(s: Session, machine_id: int, st: AxisSettings) -> AxisRecord:
         decision_rule=st.decision_rule, worst_case_temperature_c=st.worst_case_temperature_c,
         schedule_interval_s=st.schedule.interval_s, schedule_cron=st.schedule.cron,
         schedule_enabled=st.schedule.enabled, in_service_since=st.in_service_since or now, created_at=now,
+        **{k: getattr(st.instruments, k) for k in INSTRUMENT_COLUMNS},
     )
     s.add(a)
     s.flush()

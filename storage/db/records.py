@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 
 from core.criteria import RoundTripResult
+from core.criteria.uncertainty import Instruments
 from core.dataset import AxisSpec
 from core.errors import InputError
 from core.tbe import AxisDecision, MachiningTask
@@ -74,6 +75,8 @@ class AxisSettings:
     worst_case_temperature_c: float = 30.0  # the prognosis' date is for b̄ at this shop temperature
     tasks: tuple[MachiningTask, ...] = ()
     in_service_since: datetime | None = None
+    # the linear scale and the thermometer it is measured with, for the uncertainty budget
+    instruments: Instruments = field(default_factory=Instruments)
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,7 @@
 """`mebm tbe` and `mebm analyze` as a user calls them."""
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -94,11 +95,32 @@ def test_analyze_json_has_the_contract_keys(tmp_path, capsys):
         assert set(r["strokes"]) == {"positive", "negative"}
         assert r["temperature_c"] == 21.5
         # the GUM budget's expanded (k = 2) figures
-        assert 0 < r["backlash_mean_uncertainty_um"] < 0.5
+        # (the default glass scale's ±1 µm short-range accuracy, k = 2, and the data's part below 0.5 µm)
+        scale = 2 / math.sqrt(3)
+        assert scale < r["backlash_mean_uncertainty_um"] < math.hypot(scale, 0.5)
         for key in ("e_p", "v_u", "v_300", "v_2pi"):
             assert r[f"{key}_uncertainty_um"] > 0
         assert r["uncertainty_budget"]["backlash_mean"]["coverage_factor"] == 2.0
         assert r["outliers_removed"] == 0 and r["grid_step_mm"] == 0.25
+
+
+def test_analyze_states_the_scale_and_the_thermometer_and_takes_them_as_options(tmp_path, capsys):
+    folder = _dataset(tmp_path, _rt_run("rt_00.csv", 120.0))
+    code, out, _ = run_cli(capsys, "analyze", str(folder), "--json")
+    assert code == 0
+    (r,) = json.loads(out)
+    comp = {c["name"]: c for c in r["uncertainty_budget"]["backlash_mean"]["components"]}
+    assert comp["scale"]["standard_um"] == pytest.approx(1 / math.sqrt(3))
+    # the run's 21.5 °C: a Pt100 of class B, ±(0.30 + 0.005 x 21.5) °C
+    assert "±0.41 °C at 21.5 °C" in comp["temperature"]["note"] and comp["temperature"]["standard_um"] > 0
+    code, out, _ = run_cli(capsys, "analyze", str(folder), "--json", "--scale-accuracy-um", "3",
+                           "--thermometer-class", "A")
+    assert code == 0
+    (r,) = json.loads(out)
+    comp = {c["name"]: c for c in r["uncertainty_budget"]["backlash_mean"]["components"]}
+    assert comp["scale"]["standard_um"] == pytest.approx(3 / math.sqrt(3))
+    assert "class A" in comp["temperature"]["note"]
+    assert r["backlash_mean_uncertainty_um"] > 2 * 3 / math.sqrt(3)
 
 
 def test_analyze_table_output(tmp_path, capsys):

@@ -57,7 +57,8 @@ def test_measure_a_simulated_controller_in_another_process(tmp_path, capsys):
         port = int(re.search(r"modbus://127\.0\.0\.1:(\d+)", line).group(1))
         out = tmp_path / "measured"
         code = main(["measure", "--controller", f"sim://127.0.0.1:{port}", "--axis", "y", "--travel-mm", "100",
-                     "--feed-mm-min", "1000", "--out", str(out), "--json", "--timeout-s", "2"])
+                     "--feed-mm-min", "1000", "--out", str(out), "--json", "--timeout-s", "2",
+                     "--scale-accuracy-um", "2"])
         measured = json.loads(capsys.readouterr().out)
         assert code == 0, measured["reason"]
     finally:
@@ -67,6 +68,11 @@ def test_measure_a_simulated_controller_in_another_process(tmp_path, capsys):
     ds = read_dataset(out)
     assert [r.spec.file for r in ds.runs] == [measured["file"]]
     assert ds.runs[0].spec.extra["latched"] is True
+    # the scale it was measured with: in the budget and stated in the run
+    assert ds.runs[0].spec.extra["instruments"]["scale_accuracy_um"] == 2.0
+    scale = next(c for c in measured["result"]["uncertainty_budget"]["backlash_mean"]["components"]
+                 if c["name"] == "scale")
+    assert scale["standard_um"] == pytest.approx(2 / 3**0.5)
     # the same round trip, analysed by `mebm analyze` from the twin's own noiseless trace
     axis = AxisSpec("y", 6.857, 16.0, 10.0, (0.0, 100.0))
     _reference_dataset(tmp_path / "ref", axis)
@@ -81,6 +87,8 @@ def test_measure_a_simulated_controller_in_another_process(tmp_path, capsys):
     assert main(["analyze", str(out), "--json"]) == 0
     again = json.loads(capsys.readouterr().out)[0]
     assert again["backlash_mean_um"] == pytest.approx(got["backlash_mean_um"], abs=1e-6)
+    # with the same budget: the run's instruments are read back
+    assert again["backlash_mean_uncertainty_um"] == pytest.approx(got["backlash_mean_uncertainty_um"], rel=1e-9)
     assert np.isfinite(again["v_2pi_um"])
 
 

@@ -20,7 +20,7 @@ from api.rest.auth import ReadKey
 from api.rest.deps import AxisId, ServiceDep, SessionDep
 from api.service.compensation import LoopOnScaleError, export, load_round_trip
 from api.service.runner import analyse
-from core.criteria.uncertainty import inputs_of_run
+from core.criteria.uncertainty import inputs_of_spec
 from core.errors import DatasetError
 from storage.dataset import read_dataset
 from storage.db import ConflictError, NotFoundError, config_repo, results_repo
@@ -77,7 +77,7 @@ def compensation(
                             f"folder of axis {axis_id} (removed by retention?)")
     spec, run = load_round_trip(folder, cycle.run_file)
     rt = analyse(axis, run.time_s, run.motor_rev(spec.name), run.table_mm(spec.name),
-                 uncertainty=inputs_of_run(run.spec.extra))
+                 uncertainty=inputs_of_spec(run.spec, axis.settings.instruments))
     try:
         ex = export(rt, format.value, step_mm=step_mm, comp_type=comp_type, joint=joint,
                     loop_encoder=str(axis.spec.extra.get("loop_encoder", "motor")), reference_mm=reference_mm,

@@ -113,6 +113,43 @@ def test_environment_overrides_the_file(tmp_path):
         "sqlite:////tmp/x.sqlite3", Path("/srv/mebm"), 0, "127.0.0.1", "k" * 20)
 
 
+AXIS = ("[[machines]]\nname='m'\n[[machines.axes]]\nname='y'\ntransmission_mm_per_rev=1\nscrew_lead_mm=1\n"
+        "position_gain_per_s=1\ntravel_mm=[0, 10]\n")
+
+
+def test_instruments_default_to_a_glass_scale_and_a_class_b_pt100_and_are_set_per_axis(tmp_path):
+    (demo,) = load_settings(None, env={}).axes
+    assert demo.settings.instruments.to_dict() == {"scale_accuracy_um": 1.0, "scale_accuracy_um_per_m": 5.0,
+                                                   "thermometer_class": "B", "thermal_expansion_per_k": 11.5e-6}
+    p = tmp_path / "mebm.toml"
+    p.write_text("[uncertainty]\nscale_accuracy_um = 2\nthermometer_class = 'A'\n" + AXIS
+                 + "scale_accuracy_um_per_m = 3\n[[machines.axes]]\nname='z'\ntransmission_mm_per_rev=1\n"
+                   "screw_lead_mm=1\nposition_gain_per_s=1\ntravel_mm=[0, 10]\nthermometer_class = 'AA'\n")
+    y, z = load_settings(p, env={}).axes
+    assert (y.settings.instruments.scale_accuracy_um, y.settings.instruments.scale_accuracy_um_per_m,
+            y.settings.instruments.thermometer_class) == (2.0, 3.0, "A")
+    assert (z.settings.instruments.scale_accuracy_um, z.settings.instruments.scale_accuracy_um_per_m,
+            z.settings.instruments.thermometer_class) == (2.0, 5.0, "AA")
+    # [uncertainty] alone applies to the demo axis
+    p.write_text("[uncertainty]\nthermal_expansion_per_k = 10.5e-6\n")
+    (demo,) = load_settings(p, env={}).axes
+    assert demo.settings.instruments.thermal_expansion_per_k == 10.5e-6
+
+
+@pytest.mark.parametrize("text, where", [
+    ("[uncertainty]\nscale_accuracy_um = 0", "uncertainty: scale_accuracy_um"),
+    ("[uncertainty]\nthermometer_class = 'D'", "thermometer_class"),
+    ("[uncertainty]\nscale_accuracy = 1", "uncertainty: unknown"),
+    (AXIS + "thermal_expansion_per_k = -1e-6\n", "machines[0].axes[0]: thermal_expansion_per_k"),
+    (AXIS + "scale_accuracy_um = 'x'\n", "machines[0].axes[0].scale_accuracy_um"),
+])
+def test_instrument_errors_name_the_option(tmp_path, text, where):
+    p = tmp_path / "mebm.toml"
+    p.write_text(text)
+    with pytest.raises(ConfigError, match=where.replace(".", r"\.").replace("[", r"\[").replace("]", r"\]")):
+        load_settings(p, env={})
+
+
 @pytest.mark.parametrize("text, where", [
     ("[server]\nport = 'x'", "server.port"),
     ("[server]\nprt = 1", "prt"),

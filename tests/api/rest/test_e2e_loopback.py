@@ -83,3 +83,45 @@ def test_scheduler_simulator_database_status_trend_alert(live):
     assert len(ds.runs) >= tr["points"]
     svc.scheduler.stop()
     assert integrity_problems(svc.engine) == []
+
+
+def test_the_demo_axis_budget_keeps_the_scale_and_the_thermometer_and_the_page_lists_them(live):
+    """The simulated encoders are perfect: U(b̄) still holds the scale's accuracy and the
+    thermometer's tolerance, and the status body and the axis page list every component."""
+    from html import unescape
+
+    from tests.api.ui.test_maintenance_forms import sign_in
+
+    client, svc = live
+    read = {"X-API-Key": svc.report.demo_keys["read"]}
+    axis_id = next(iter(svc.simulators))
+
+    def measured_status():
+        body = client.get(f"{V1}/axes/{axis_id}/status", headers=read).json()
+        return body if body["measurement_id"] is not None else None
+
+    st = poll(measured_status)
+    budget = st["uncertainty_budget"]["backlash_mean"]
+    comp = {c["name"]: c for c in budget["components"]}
+    # the demo's glass scale, ±1 µm short-range, rectangular; a Pt100 of class B at the shop's 20 °C
+    assert comp["scale"]["standard_um"] == pytest.approx(1 / 3**0.5)
+    assert comp["temperature"]["standard_um"] > 0 and "class B ±0.40 °C at 20.0 °C" in comp["temperature"]["note"]
+    assert st["backlash_mean_uncertainty_um"] >= 2 * comp["scale"]["standard_um"] > 1.0
+    for c in budget["components"]:
+        assert c["standard_um"] > 0 or c["note"].startswith("0: "), c
+    ep = {c["name"]: c for c in st["uncertainty_budget"]["positive.e_p"]["components"]}
+    # over the 200 mm travel the class's ±5 µm/m is no more than the short-range ±1 µm
+    assert ep["scale"]["standard_um"] == pytest.approx(1 / 3**0.5) and "short-range" in ep["scale"]["note"]
+    assert ep["temperature"]["standard_um"] > 0.1 and "the useful travel" in ep["temperature"]["note"]
+    assert st["tasks"][0]["tbe_uncertainty_um"] > 0.05
+    axis = client.get(f"{V1}/axes/{axis_id}", headers=read).json()
+    assert (axis["scale_accuracy_um"], axis["thermometer_class"]) == (1.0, "B")
+
+    sign_in(client, svc.report.demo_keys["read"])
+    html = unescape(client.get(f"/ui/axes/{axis_id}").text)
+    assert f"± {st['backlash_mean_uncertainty_um']:.1f} µm" in html
+    table = html[html.index('data-quantity="backlash_mean"'):]
+    table = table[:table.index("</table>")]
+    assert '<tr data-component="scale"><td>scale</td><td class="num">0.577</td>' in table
+    assert "linear scale short-range accuracy: ±1 µm, rectangular" in table
+    assert 'data-component="temperature"' in table and "Pt100 class B" in table

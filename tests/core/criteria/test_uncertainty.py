@@ -23,6 +23,9 @@ def lead_error(u):
 
 
 TRUE_B, _, _ = true_criteria(0.0, 100.0, backlash, lead_error)
+# the synthetic traces' scale and temperature are exact: the coverage test judges the
+# components the data show (the instruments' own are stated, not simulated)
+EXACT_INSTRUMENTS = UncertaintyInputs(scale_accuracy_um=0.0, scale_accuracy_um_per_m=0.0, thermal_expansion_per_k=0.0)
 
 
 def _trip(seed, **kw):
@@ -36,7 +39,7 @@ def test_expanded_uncertainty_covers_the_true_error_of_b_mean_and_is_not_inflate
     errors, expanded = [], []
     for seed in range(100):
         s = _trip(seed)
-        r = analyze_round_trip(s.time_s, s.motor_rev, s.table_mm, AXIS)
+        r = analyze_round_trip(s.time_s, s.motor_rev, s.table_mm, AXIS, uncertainty=EXACT_INSTRUMENTS)
         errors.append(r.backlash.mean_um - TRUE_B)
         expanded.append(r.backlash_mean_uncertainty_um)
     errors, expanded = np.array(errors), np.array(expanded)
@@ -55,7 +58,53 @@ def test_budget_keys_in_the_result_dict():
     assert b["coverage_factor"] == 2.0
     assert b["expanded_um"] == pytest.approx(2.0 * b["combined_standard_um"])
     assert b["combined_standard_um"] == pytest.approx(math.sqrt(sum(c["standard_um"] ** 2 for c in b["components"])))
-    assert {c["name"] for c in b["components"]} >= {"resolution", "noise", "sampling", "reduction"}
+    assert {c["name"] for c in b["components"]} >= {"resolution", "noise", "sampling", "reduction", "scale",
+                                                    "temperature"}
+    for budget in d["uncertainty_budget"].values():
+        for c in budget["components"]:
+            assert c["standard_um"] > 0 or c["note"].startswith("0: "), (budget["quantity"], c)
+
+
+def test_the_scale_and_the_thermometer_are_in_every_budget_even_with_perfect_encoders():
+    s = _trip(3, table_noise_um=0.0, motor_noise_um=0.0)
+    r = analyze_round_trip(s.time_s, s.motor_rev, s.table_mm, AXIS)
+    comp = {c.name: c for c in r.budgets["backlash_mean"].components}
+    # a common glass scale: ±1 µm short-range, rectangular
+    assert comp["scale"].standard_um == pytest.approx(1.0 / math.sqrt(3))
+    assert "short-range" in comp["scale"].note
+    # a Pt100 of class B at 20 °C (±0.40 °C, not measured) over b̄ (~120 µm) of steel: tiny, not zero
+    assert comp["temperature"].standard_um == pytest.approx(
+        0.40 / math.sqrt(3) * 11.5e-6 * r.backlash.mean_um, rel=1e-9)
+    assert comp["temperature"].standard_um > 0 and "class B" in comp["temperature"].note
+    # the data alone would claim next to nothing; the instruments keep U(b̄) honest
+    assert comp["noise"].standard_um < 1e-3
+    assert r.backlash_mean_uncertainty_um >= 2 / math.sqrt(3)
+    # e_p over the useful travel: the scale's class (±5 µm/m) and the thermometer times β L
+    length_mm = r.useful_travel_mm[1] - r.useful_travel_mm[0]
+    ep = {c.name: c for c in r.budgets["positive.e_p"].components}
+    assert ep["scale"].standard_um == pytest.approx(max(1.0, 5.0 * length_mm / 1000) / math.sqrt(3))
+    assert ep["temperature"].standard_um == pytest.approx(0.40 / math.sqrt(3) * 11.5e-6 * length_mm * 1e3)
+    # within 300 mm of a 100 mm travel: the short-range accuracy; a band keeps a zero, explained, temperature term
+    v = {c.name: c for c in r.budgets["positive.v_300"].components}
+    assert v["scale"].standard_um == pytest.approx(1.0 / math.sqrt(3))
+    assert v["temperature"].standard_um == 0 and "mean travel line" in v["temperature"].note
+
+
+def test_the_instruments_are_configurable_and_a_measured_temperature_widens_the_thermometer():
+    s = _trip(4)
+    inputs = UncertaintyInputs(scale_accuracy_um=2.0, scale_accuracy_um_per_m=3.0, thermometer_class="A",
+                               temperature_c=30.0)
+    r = analyze_round_trip(s.time_s, s.motor_rev, s.table_mm, AXIS, uncertainty=inputs)
+    comp = {c.name: c for c in r.budgets["backlash_mean"].components}
+    assert comp["scale"].standard_um == pytest.approx(2.0 / math.sqrt(3))
+    bound = 0.15 + 0.002 * 30.0
+    assert comp["temperature"].standard_um == pytest.approx(bound / math.sqrt(3) * 11.5e-6 * r.backlash.mean_um)
+    assert "30.0 °C" in comp["temperature"].note
+    assert UncertaintyInputs(temperature_c=-10.0).thermometer_bound_c() == pytest.approx(0.35)
+    with pytest.raises(InputError, match="thermometer_class"):
+        UncertaintyInputs(thermometer_class="D")
+    with pytest.raises(InputError, match="scale_accuracy_um"):
+        UncertaintyInputs(scale_accuracy_um=-1.0)
 
 
 def test_sampling_skew_resolution_transmission_and_history_enter_the_budget():

@@ -46,6 +46,24 @@ def test_machine_and_axis_round_trip(factory, axis_id):
     assert a.settings.in_service_since.tzinfo is not None
 
 
+def test_an_axis_keeps_its_instruments_and_one_stored_without_them_has_the_defaults(factory, axis_id):
+    from core.criteria.uncertainty import Instruments
+    from storage.db.models import Axis
+
+    mine = Instruments(scale_accuracy_um=2.0, scale_accuracy_um_per_m=3.0, thermometer_class="A",
+                       thermal_expansion_per_k=10.5e-6)
+    with session_scope(factory) as s:
+        m = config_repo.create_machine(s, "lathe")
+        other = config_repo.create_axis(s, m.id, replace(f.settings(), instruments=mine)).id
+    with session_scope(factory) as s:
+        assert config_repo.get_axis(s, other).settings.instruments == mine
+        row = s.get(Axis, axis_id)
+        row.scale_accuracy_um = row.scale_accuracy_um_per_m = row.thermometer_class = None
+        row.thermal_expansion_per_k = None
+    with session_scope(factory) as s:
+        assert config_repo.get_axis(s, axis_id).settings.instruments == Instruments()
+
+
 def test_duplicates_and_unknown_ids_are_named(factory, axis_id):
     with pytest.raises(ConflictError, match="vmc-850"), session_scope(factory) as s:
         config_repo.create_machine(s, "vmc-850")
