@@ -145,7 +145,7 @@ def claim_folder(folder: Path, axis: AxisRecord,
         target = aside_name(folder, verdict.owner)
         folder.rename(target)
     log.warning("dataset folder %s moved aside to %s: %s. Axis %s (%s/%s) starts a new folder; the runs "
-                "moved aside are unchanged (see docs/operations.md, 'Dataset folders')",
+                "moved aside are unchanged (see docs/operations.md, 'Dataset folders and their owner')",
                 folder.name, target.name, verdict.reason, axis.id, axis.machine_name, axis.name)
     return target, verdict.reason
 
