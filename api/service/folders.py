@@ -167,7 +167,9 @@ def migrate_legacy_folders(datasets_dir: Path, axes: Iterable[AxisRecord],
                            axis_of_cycles: Callable[[list[str]], dict[str, int]]) -> dict[Path, Path]:
     """Move name-based dataset folders to id-based ones. ``axis_of_cycles(uuids)`` maps
     cycle uuids to axis ids (the database). Returns {old folder: new folder} for folders
-    moved whole. Runs that cannot be attributed to one axis stay where they are (logged)."""
+    moved whole. Runs that cannot be attributed to one axis stay where they are (logged): a
+    run of a cycle this database does not hold is attributed to no axis, and a run is
+    appended only to a folder that records its axis as owner."""
     moved: dict[Path, Path] = {}
     if not datasets_dir.is_dir():
         return moved
@@ -190,11 +192,17 @@ def migrate_legacy_folders(datasets_dir: Path, axes: Iterable[AxisRecord],
             owners = axis_of_cycles(uuids) if uuids else {}
             plan: dict[int, list[str]] = {}
             for r in meta.runs:
-                owner = owners.get(str(r.spec.extra.get("cycle_uuid")))
-                if owner is None and len(candidates) == 1:
+                cycle = r.spec.extra.get("cycle_uuid")
+                owner = owners.get(str(cycle)) if cycle else None
+                if owner is None and not cycle and len(candidates) == 1:  # a run put there by hand
                     owner = candidates[0].id
+                # (a run of a cycle this database does not hold is another database's: it is not attributed)
                 if owner is not None and owner in by_id and by_id[owner] in candidates:
                     plan.setdefault(owner, []).append(r.spec.file)
+            if not plan:
+                log.warning("dataset folder %s: none of its %d run(s) is a cycle of this database's axes: left as "
+                            "it is (another database's runs?)", folder, len(meta.runs))
+                continue
             if len(plan) == 1 and len(candidates) == 1 and sum(map(len, plan.values())) == len(meta.runs):
                 target = datasets_dir / (dataset_folder_name(candidates[0]) + suffix)
                 if not target.exists():
@@ -223,7 +231,8 @@ def _split(folder: Path, suffix: str, plan: dict[int, list[str]], by_id: dict[in
                     machine = replace(ds.machine, axes={k: v for k, v in ds.machine.axes.items() if k in run.spec.axes})
                     stem = file[: -len(".csv")].rsplit("_", 1)[0] if file.endswith(".csv") else file
                     new_name = file if not (target / file).exists() else next_run_name(target, stem)
-                    append_runs(target, machine, [Run(replace(run.spec, file=new_name), run.columns)])
+                    append_runs(target, machine, [Run(replace(run.spec, file=new_name), run.columns)],
+                                owner=axis_owner(by_id[axis_id]))
                     done.add(file)
             log.info("dataset folder %s: %d run(s) moved to %s", folder.name, len(files), target.name)
         left = tuple(r for r in ds.runs if r.spec.file not in done)
