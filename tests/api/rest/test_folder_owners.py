@@ -13,6 +13,7 @@ from fastapi.testclient import TestClient
 
 from api.rest import create_app
 from api.rest.routers import gap as gap_router
+from api.service.runner import CycleOutcome
 from api.service.gap_jobs import newest_runs
 from core.dataset import Dataset, MachineSpec, Run, RunSpec
 from storage.dataset import LOCK_FILE, read_dataset, write_dataset, write_run_csv
@@ -167,3 +168,46 @@ def test_the_gap_refuses_a_folder_that_records_another_owner(app_env):
     r = client.get(f"/api/v1/axes/{axis_id}/gap", headers=hdr(keys["read"]))
     assert r.status_code == 409, r.text
     assert other["machine_uuid"] in r.json()["detail"]
+
+
+class RejectingRunner(FakeRunner):
+    """A round trip whose analysis is refused: its trace goes to the ``_rejected`` folder."""
+
+    def __call__(self, axis, url) -> CycleOutcome:
+        t, m, x = f.trace(self.backlash_um)
+        return CycleOutcome(ok=False, reason="no reversal found", time_s=t, motor_rev=m, table_mm=x,
+                            temperature_c=20.0)
+
+
+def test_old_folders_of_every_kind_are_kept_from_a_new_database(engine, db_url, tmp_path):
+    settings = make_settings(db_url, tmp_path)
+    app = create_app(settings, runner=FakeRunner(backlash_um=OLD_UM))
+    with TestClient(app):
+        svc = app.state.service
+        old = _axis(svc)
+        _measure(svc, old.id, 2)
+        svc.executor.runner = RejectingRunner(backlash_um=OLD_UM)
+        _measure(svc, old.id, 1)
+        folder = svc.executor.dataset_folder(old)
+    rejected = folder.with_name(folder.name + "_rejected")
+    assert len(read_dataset(rejected, load_runs=False).runs) == 1
+    legacy = folder.with_name("vmc-850_y")  # as a version naming folders by names left it
+    write_dataset(legacy, read_dataset(folder))
+    legacy_doc = (legacy / "dataset.json").read_text()
+
+    truncate_all(engine)
+    for _ in range(2):  # the second start knows the axis when it looks at the legacy folder
+        app = create_app(settings, runner=FakeRunner(backlash_um=NEW_UM))
+        with TestClient(app):
+            svc = app.state.service
+            report = svc.report
+            axis = _axis(svc)
+            _measure(svc, axis.id, 1)
+        if _ == 0:
+            moved = {line.split(" moved aside to ")[1].split(":")[0] for line in report.folders_moved_aside}
+            assert moved == {f"{folder.name}.of-machine-{old.machine_uuid}",
+                             f"{rejected.name}.of-machine-{old.machine_uuid}"}
+    assert (legacy / "dataset.json").read_text() == legacy_doc  # another database's runs: left as they are
+    runs = read_dataset(folder, load_runs=False).runs
+    assert {r.spec.extra["cycle_uuid"] for r in runs} == {c.uuid for c in _ok_cycles(svc, axis.id)}
+    assert len(runs) == 2
