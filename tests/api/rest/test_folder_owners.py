@@ -211,3 +211,17 @@ def test_old_folders_of_every_kind_are_kept_from_a_new_database(engine, db_url, 
     runs = read_dataset(folder, load_runs=False).runs
     assert {r.spec.extra["cycle_uuid"] for r in runs} == {c.uuid for c in _ok_cycles(svc, axis.id)}
     assert len(runs) == 2
+
+
+def test_the_start_banner_says_which_folder_was_moved_aside_and_where_to_read_what_to_do(tmp_path):
+    from api.cli.serve import banner
+    from api.service.service import StartReport
+
+    line = "dataset folder machine-1_axis-1 moved aside to machine-1_axis-1.of-machine-abc: it belongs to ..."
+    report = StartReport(database="sqlite:///x", replayed=0, interrupted=0, created_axes=(), demo_keys={},
+                         simulators={}, bootstrap_admin=None, folders_moved_aside=(line,))
+    text = banner(make_settings("sqlite:///x", tmp_path), report, "http://127.0.0.1:1")
+    shown = [ln for ln in text.splitlines() if ln.startswith(line)]
+    assert len(shown) == 1 and "nothing deleted" in shown[0] and "Dataset folders and their owner" in shown[0]
+    quiet = banner(make_settings("sqlite:///x", tmp_path), replace(report, folders_moved_aside=()), "u")
+    assert "moved aside" not in quiet
