@@ -149,7 +149,7 @@ class CycleExecutor:
         self._replay_lock = threading.Lock()
         self._in_flight: set[str] = set()  # uuids being finished by execute(): replay leaves them
         self.unsaved: list[FinishedCycle] = []  # neither spooled nor stored: retried with the spool
-        self._moved: dict[Path, Path] = {}  # legacy dataset folder -> its id-named successor (or where it was moved aside)
+        self._moved: dict[Path, Path] = {}  # legacy dataset folder -> its id-named successor
         self._verdicts: dict[str, tuple] = {}  # folder -> ((mtime, size, axis uuid), Verdict) for readers
         # fleet (api.service.leases): (request, start time) -> whether this worker may run it; None: it may
         self.claim = None
@@ -189,8 +189,7 @@ class CycleExecutor:
 
     def claim_folder(self, axis: AxisRecord, folder: Path) -> tuple[Path, str] | None:
         moved = claim_folder(folder, axis, self._cycles_of(axis))
-        if moved is not None:
-            self._moved[folder] = moved[0]
+        if moved is not None:  # (not in _moved: a spooled cycle's run is in the axis' own folder at that name)
             self._verdicts.pop(str(folder), None)
         return moved
 
