@@ -8,11 +8,22 @@ from datetime import datetime, timezone
 
 import pytest
 from sqlalchemy import exc as sa_exc
-from sqlalchemy import text
+from sqlalchemy import inspect, text
 
 from storage.db import config_repo, make_engine, make_session_factory, session_scope, upgrade
 from tests.storage.db import factories as f
 from tests.storage.db.backends import BACKENDS, make_database
+
+def downgrade(engine, revision):
+    from alembic import command
+
+    from storage.db.migrate import alembic_config
+
+    cfg = alembic_config()
+    with engine.begin() as conn:
+        cfg.attributes["connection"] = conn
+        command.downgrade(cfg, revision)
+
 
 NOW = datetime(2026, 3, 1, tzinfo=timezone.utc)
 
@@ -47,6 +58,14 @@ def test_the_migration_gives_every_stored_machine_and_axis_its_own_uuid(backend,
         assert sorted(r.uuid for r in recs) == sorted(axes) and sorted(r.machine_uuid for r in recs) == sorted(machines)
         with pytest.raises(sa_exc.IntegrityError), engine.begin() as c:  # unique
             c.execute(text("UPDATE axes SET uuid = :u"), {"u": axes[0]})
+        downgrade(engine, "0009")  # and back: the rows that refer to the machines and axes stay
+        with engine.connect() as c:
+            assert c.execute(text("SELECT count(*) FROM axes")).scalar_one() == 2
+            assert "uuid" not in {col["name"] for col in inspect(c).get_columns("machines")}
+        upgrade(engine)
+        with engine.connect() as c:
+            again = c.execute(text("SELECT uuid FROM axes")).scalars().all()
+        assert len(set(again)) == 2 and None not in again
     finally:
         engine.dispose()
         if handle is not None:
