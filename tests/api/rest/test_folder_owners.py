@@ -225,3 +225,20 @@ def test_the_start_banner_says_which_folder_was_moved_aside_and_where_to_read_wh
     assert len(shown) == 1 and "nothing deleted" in shown[0] and "Dataset folders and their owner" in shown[0]
     quiet = banner(make_settings("sqlite:///x", tmp_path), replace(report, folders_moved_aside=()), "u")
     assert "moved aside" not in quiet
+
+
+def test_the_dashboards_gap_page_says_whose_the_folder_is_and_starts_no_diagnosis(app_env):
+    from html import unescape
+
+    from tests.api.ui.test_maintenance_forms import sign_in
+
+    client, svc, keys, axis_id = app_env
+    with session_scope(svc.factory) as s:
+        axis = config_repo.get_axis(s, axis_id)
+    write_dataset(svc.executor.dataset_folder(axis), _foreign_runs())
+    csrf = sign_in(client, keys["operate"])
+    page = unescape(client.get(f"/ui/axes/{axis_id}/gap").text)
+    assert f"is not axis {axis_id}'s" in page and "move it aside" in page
+    r = client.post(f"/ui/axes/{axis_id}/gap", data={"csrf": csrf}, follow_redirects=True)
+    assert r.status_code == 200 and "move it aside" in unescape(r.text)
+    assert svc.gap_jobs.pending_keys() == []  # nothing of the other machine's runs is diagnosed
