@@ -36,6 +36,37 @@ _RUN_FIELDS = [f.name for f in fields(RunSpec) if f.name != "extra"]
 _TUPLE_FIELDS = ("axes", "centre_mm", "start_mm")
 
 
+OWNER_KEY = "owner"  # dataset.json's optional record of the machine and axis the folder belongs to
+OWNER_FIELDS = ("machine_uuid", "axis_uuid")  # what identifies the owner; its other fields only inform
+
+
+class FolderOwnerError(DatasetError):
+    """A writer that names its owner met a folder that records another owner, or none
+    while it holds runs: the folder is not appended to (see :func:`append_runs`)."""
+
+
+def folder_owner(doc: Mapping) -> dict | None:
+    """The ``owner`` a dataset.json document (or a :class:`Dataset`'s ``extra``) records,
+    or None when it records none (folders written without one) or a malformed one."""
+    owner = doc.get(OWNER_KEY)
+    if not isinstance(owner, dict) or not all(isinstance(owner.get(k), str) and owner[k] for k in OWNER_FIELDS):
+        return None
+    return owner
+
+
+def same_owner(a: Mapping | None, b: Mapping | None) -> bool:
+    """Whether two owner records name the same machine and axis (by their uuids)."""
+    return a is not None and b is not None and all(a.get(k) == b.get(k) for k in OWNER_FIELDS)
+
+
+def describe_owner(owner: Mapping | None) -> str:
+    """An owner for a message: "machine 'vmc-850' (uuid ...), axis 'y' (uuid ...)"."""
+    if owner is None:
+        return "no recorded owner"
+    return (f"machine {owner.get('machine', '?')!r} (uuid {owner.get('machine_uuid')}), "
+            f"axis {owner.get('axis', '?')!r} (uuid {owner.get('axis_uuid')})")
+
+
 REWRITE_JSON = "the file is cut short or not JSON: restore it from a copy or write it again"
 
 
@@ -334,22 +365,60 @@ def write_dataset(folder: str | os.PathLike, dataset: Dataset) -> Path:
     return root
 
 
-def append_runs(folder: str | os.PathLike, machine: MachineSpec, runs: Iterable[Run]) -> Path:
+def append_runs(folder: str | os.PathLike, machine: MachineSpec, runs: Iterable[Run], *,
+                owner: Mapping[str, str] | None = None) -> Path:
     """Append runs to a dataset folder, creating it if absent.
 
     An existing folder must describe the same axes (same k_a, lead, gain, travel)
     or :class:`DatasetError` is raised; a run file name already listed (or a file of
     that name already in the folder) is an error, so nothing stored is overwritten.
     The whole read-modify-write holds :func:`dataset_lock`.
+
+    ``owner`` (``machine_uuid``, ``axis_uuid`` and informative fields): the machine and
+    axis the runs belong to. A new folder records it as its ``owner``; an existing one
+    must record the same owner, or record none and hold no run, else
+    :class:`FolderOwnerError` is raised and nothing is written. Without ``owner`` (the
+    CLI) the folder's recorded owner, if any, is kept as it is.
     """
     with dataset_lock(folder) as root:
-        return _append_runs_locked(root, machine, list(runs))
+        return _append_runs_locked(root, machine, list(runs), owner)
 
 
-def _append_runs_locked(root: Path, machine: MachineSpec, runs: list[Run]) -> Path:
+def _check_owner(json_path: Path, recorded: dict | None, owner: Mapping[str, str], n_runs: int) -> None:
+    if recorded is None and n_runs:
+        raise FolderOwnerError(f"records no owner and holds {n_runs} run(s), so they cannot be shown to be "
+                               f"{describe_owner(owner)}'s: not appended to", source=str(json_path))
+    if recorded is not None and not same_owner(recorded, owner):
+        raise FolderOwnerError(f"belongs to {describe_owner(recorded)}, not to {describe_owner(owner)}: "
+                               "not appended to", source=str(json_path))
+
+
+def set_owner(folder: str | os.PathLike, owner: Mapping[str, str]) -> None:
+    """Record ``owner`` in the folder's dataset.json (adopting a folder written without
+    one). Raises :class:`FolderOwnerError` if it records another owner already."""
+    with dataset_lock(folder) as root:
+        json_path = root / "dataset.json"
+        doc = _load_json(json_path)
+        recorded = folder_owner(doc)
+        if recorded is not None:
+            _check_owner(json_path, recorded, owner, 0)
+            return
+        read_dataset(root, load_runs=False)  # a malformed file is not rewritten
+        _atomic_write_text(json_path, json.dumps(_ordered({**doc, OWNER_KEY: dict(owner)}), indent=2) + "\n")
+
+
+def _ordered(doc: dict) -> dict:
+    """format, owner, machine, runs, then the rest (as read): dataset.json's key order."""
+    head = {k: doc[k] for k in ("format", OWNER_KEY, "machine", "runs") if k in doc}
+    return {**head, **{k: v for k, v in doc.items() if k not in head}}
+
+
+def _append_runs_locked(root: Path, machine: MachineSpec, runs: list[Run], owner: Mapping[str, str] | None) -> Path:
     json_path = root / "dataset.json"
     if json_path.exists():
         existing = read_dataset(root, load_runs=False)
+        if owner is not None:
+            _check_owner(json_path, folder_owner(existing.extra), owner, len(existing.runs))
         merged_axes = dict(existing.machine.axes)
         for name, axis in machine.axes.items():
             if name in merged_axes and merged_axes[name] != axis:
@@ -366,6 +435,8 @@ def _append_runs_locked(root: Path, machine: MachineSpec, runs: list[Run]) -> Pa
     else:
         root.mkdir(parents=True, exist_ok=True)
         listed, run_docs, doc = set(), [], {}
+    if owner is not None and folder_owner(doc) is None:
+        doc = {**doc, OWNER_KEY: dict(owner)}
     for run in runs:
         if run.spec.file in listed or (root / run.spec.file).exists():
             raise DatasetError(f"run file {run.spec.file!r} is already in the dataset", source=str(json_path))
@@ -375,7 +446,7 @@ def _append_runs_locked(root: Path, machine: MachineSpec, runs: list[Run]) -> Pa
         run_docs.append(run_spec_to_json(run.spec))
         listed.add(run.spec.file)
     out = {k: v for k, v in doc.items() if k not in ("format", "machine", "runs")}
-    new_doc = {"format": FORMAT, "machine": machine_to_json(machine), "runs": run_docs, **out}
+    new_doc = _ordered({"format": FORMAT, "machine": machine_to_json(machine), "runs": run_docs, **out})
     _atomic_write_text(json_path, json.dumps(new_doc, indent=2) + "\n")
     return root
 

@@ -86,6 +86,9 @@ def banner(settings, report, url: str, opcua=None, sign_in_url: str | None = Non
         lines.append(f"stored {report.replayed} cycle(s) kept on disk during a database outage")
     if report.interrupted:
         lines.append(f"{report.interrupted} cycle(s) interrupted by the last stop were closed")
+    for line in getattr(report, "folders_moved_aside", ()):
+        lines.append(f"{line} (nothing deleted; what to do with it: docs/operations.md, "
+                     "'Dataset folders and their owner')")
     for axis_id, sim_url in report.simulators.items():
         lines.append(f"axis {axis_id}: built-in simulated controller on {sim_url}")
     m = settings.mqtt

@@ -3,7 +3,9 @@
 Order of writes, so that a measurement is never lost:
 1. the raw round trip goes to the axis' dataset folder ``datasets/machine-<id>_axis-<id>``
    (``storage.dataset.append_runs``: CSV and dataset.json each written to a temporary
-   file, fsynced and renamed, under the folder's lock);
+   file, fsynced and renamed, under the folder's lock), only if the folder records the
+   axis as its owner (a folder of another database's axis of the same ids is moved
+   aside first, see ``folders``);
 2. a spool file (``<data_dir>/spool/<uuid>.json``) records the cycle's metadata (fsynced);
 3. cycle, result, curves, TBE and alert change are saved in one transaction, durable
    when it returns (SQLite ``synchronous=FULL``; PostgreSQL ``synchronous_commit=on``);
@@ -33,14 +35,29 @@ from pathlib import Path
 
 import numpy as np
 
-from api.service.folders import dataset_folder_name, migrate_legacy_folders
+from api.service.folders import (
+    axis_folders,
+    axis_owner,
+    claim_folder,
+    dataset_folder_name,
+    judge_folder,
+    migrate_legacy_folders,
+)
 from api.service.runner import CycleOutcome, CycleRunner, analyse
 from core.dataset import MachineSpec, Run, RunSpec
 from core.criteria.roundtrip import with_history_uncertainty
 from core.errors import MebmError
 from core.history import TemperatureModel, history_uncertainty
 from core.tbe import AxisDecision, MachiningTask, decide
-from storage.dataset import append_runs, dataset_lock, fsync_dir, next_run_name, read_dataset, read_run_csv
+from storage.dataset import (
+    FolderOwnerError,
+    append_runs,
+    dataset_lock,
+    fsync_dir,
+    next_run_name,
+    read_dataset,
+    read_run_csv,
+)
 from storage.db import (
     AlertRecord,
     AxisRecord,
@@ -132,6 +149,7 @@ class CycleExecutor:
         self._in_flight: set[str] = set()  # uuids being finished by execute(): replay leaves them
         self.unsaved: list[FinishedCycle] = []  # neither spooled nor stored: retried with the spool
         self._moved: dict[Path, Path] = {}  # legacy dataset folder -> its id-named successor
+        self._verdicts: dict[str, tuple] = {}  # folder -> ((mtime, size, axis uuid), Verdict) for readers
         # fleet (api.service.leases): (request, start time) -> whether this worker may run it; None: it may
         self.claim = None
 
@@ -143,6 +161,58 @@ class CycleExecutor:
                 return results_repo.axis_of_cycles(s, uuids)
 
         self._moved.update(migrate_legacy_folders(self.datasets_dir, axes, owners))
+
+    def _cycles_of(self, axis: AxisRecord):
+        def mine(uuids: list[str]) -> set[str]:
+            with session_scope(self.factory) as s:
+                return {u for u, a in results_repo.axis_of_cycles(s, uuids).items() if a == axis.id}
+
+        return mine
+
+    def claim_folders(self, axes) -> list[str]:
+        """Adopt or move aside each axis' dataset folders that do not record it as owner
+        (see ``folders``); returns one line per folder moved aside, for the start report.
+        A folder that cannot be read is left as it is (logged): appends to it are refused."""
+        lines = []
+        for axis in axes:
+            for folder in axis_folders(self.datasets_dir, axis):
+                try:
+                    moved = self.claim_folder(axis, folder)
+                except (MebmError, OSError) as exc:
+                    log.error("dataset folder %s could not be checked (%s): left as it is; axis %s appends no "
+                              "run to it until its dataset.json can be read", folder, exc, axis.id)
+                    continue
+                if moved is not None:
+                    lines.append(f"dataset folder {folder.name} moved aside to {moved[0].name}: {moved[1]}")
+        return lines
+
+    def claim_folder(self, axis: AxisRecord, folder: Path) -> tuple[Path, str] | None:
+        moved = claim_folder(folder, axis, self._cycles_of(axis))
+        if moved is not None:  # (not in _moved: a spooled cycle's run is in the axis' own folder at that name)
+            self._verdicts.pop(str(folder), None)
+        return moved
+
+    def readable_folder(self, axis: AxisRecord) -> Path:
+        """The axis' dataset folder for a reader of its runs (the gap diagnosis), checked to
+        be the axis' own (see ``folders``; the verdict is kept until dataset.json changes).
+        Raises FolderOwnerError for a folder another machine's or axis' runs are in."""
+        folder = self.dataset_folder(axis)
+        try:
+            st = (folder / "dataset.json").stat()
+        except OSError:
+            return folder  # no runs: the reader says so
+        stamp = (st.st_mtime_ns, st.st_size, axis.uuid)
+        kept = self._verdicts.get(str(folder))
+        if kept is None or kept[0] != stamp:
+            kept = (stamp, judge_folder(folder, axis, self._cycles_of(axis)))
+            self._verdicts[str(folder)] = kept
+        verdict = kept[1]
+        if verdict.kind == "foreign":
+            raise FolderOwnerError(
+                f"is not axis {axis.id}'s ({axis.machine_name}/{axis.name}): {verdict.reason}. Its runs are not "
+                "used; restart the service to move it aside (or move it yourself), or run it on the database it "
+                "belongs to", source=str(folder))
+        return folder
 
     # -- the cycle ---------------------------------------------------------------------------
     def remember(self, axis: AxisRecord) -> None:
@@ -335,16 +405,23 @@ class CycleExecutor:
         folder = self.dataset_folder(axis)
         if not out.ok:
             folder = folder.with_name(folder.name + "_rejected")
-        for attempt in range(2):
+        claimed = stamped = False
+        while True:
             try:
                 with dataset_lock(folder):  # the name is picked and used by one writer at a time
                     return folder, self._append_run(folder, machine, axis, out, req, finished, name, cols)
+            except FolderOwnerError:
+                if claimed:
+                    raise
+                # not recorded as the axis': adopted if nothing in it is another's, else moved aside
+                claimed = True
+                self.claim_folder(axis, folder)
             except MebmError:
-                if attempt:
+                if stamped:
                     raise
                 # the axis' mechanics changed since the folder was started: begin a new one
+                stamped = True
                 folder = folder.with_name(f"{folder.name}@{finished:%Y%m%dT%H%M%S}")
-        raise AssertionError("unreachable")
 
     @staticmethod
     def _append_run(folder: Path, machine: MachineSpec, axis: AxisRecord, out: CycleOutcome, req: CycleRequest,
@@ -369,7 +446,7 @@ class CycleExecutor:
                    **({"skew_uncertainty_um": _sampling_bound_um(out.round_trip),
                        "clock_uncertainty_s": out.round_trip.clock_uncertainty_s} if out.round_trip is not None else {})},
         )
-        append_runs(folder, machine, [Run(spec, cols)])
+        append_runs(folder, machine, [Run(spec, cols)], owner=axis_owner(axis))
         return file
 
     def _keep_trace(self, axis: AxisRecord, req: CycleRequest, out: CycleOutcome) -> Path | None:

@@ -22,6 +22,7 @@ from sqlalchemy import text
 
 from api.service.config import SIM_CONTROLLER, Settings
 from api.service.cycles import CycleExecutor
+from api.service.folders import axis_folders
 from api.service.gap_jobs import GapJobs
 from api.service.plot_process import PlotProcess
 from api.service.demo import DemoController
@@ -67,6 +68,7 @@ class StartReport:
     simulators: dict  # axis id -> controller url
     bootstrap_admin: str | None
     worker: str | None = None  # fleet (PostgreSQL): this worker's name, axes and lease, for the banner
+    folders_moved_aside: tuple[str, ...] = ()  # dataset folders of another machine or database, renamed (why, where)
 
 
 class Service:
@@ -185,6 +187,9 @@ class Service:
         demo_keys = self._demo_keys() if st.demo_keys and st.uses_simulator else {}
         with session_scope(self.factory) as s:
             axes = config_repo.list_axes(s)
+        # after the spool's replay (its cycles count as the axes') and the creation of the
+        # configured axes (a new database's axes meet the old folders of their ids here)
+        aside = tuple(self.executor.claim_folders(axes))
         fresh_sim_axes = []
         for axis in axes:
             if self.fleet:  # the fleet scheduler plans the axes this worker claims (simulators start on use)
@@ -220,7 +225,7 @@ class Service:
         self.report = StartReport(
             database=_redact(st.db_url), replayed=replayed, interrupted=interrupted, created_axes=tuple(created),
             demo_keys=demo_keys, simulators={a: s.url for a, s in self.simulators.items()}, bootstrap_admin=admin,
-            worker=self._worker_line(),
+            worker=self._worker_line(), folders_moved_aside=aside,
         )
         # Everything start-up made (modules, mappers, compiled statements, the app) lives as
         # long as the process: move it out of the collector's sight, so a full collection
@@ -265,12 +270,9 @@ class Service:
                 log.info("stored %d cycle(s) kept on disk during a database outage", n)
 
     def axis_folders(self, axis: AxisRecord) -> list[Path]:
-        """The axis' dataset folders: its own, ``_rejected`` and ``@<time>`` ones."""
-        base = self.executor.dataset_folder(axis)
-        if not base.parent.is_dir():
-            return []
-        return sorted(p for p in base.parent.glob(f"{base.name}*")
-                      if p.is_dir() and (p.name == base.name or p.name[len(base.name)] in "_@"))
+        """The axis' dataset folders: its own, ``_rejected`` and ``@<time>`` ones (not those
+        moved aside: retention never touches another machine's runs)."""
+        return axis_folders(self.executor.datasets_dir, axis)
 
     def apply_retention(self) -> dict[int, int]:
         """Apply the retention policy to every axis' folders; returns bytes on disk per axis."""

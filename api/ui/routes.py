@@ -21,6 +21,7 @@ from api.ui import panels as axis_panels
 from api.ui import views
 from api.ui.sessions import PRE_CSRF_COOKIE, ROLE_RANK, SESSION_COOKIE, Session, UiState, same_token
 from core.errors import MebmError
+from storage.dataset import FolderOwnerError
 from storage.db import ConflictError, NotFoundError, config_repo, results_repo, session_scope
 
 log = logging.getLogger("mebm.ui")
@@ -282,7 +283,7 @@ def _gap_future(request: Request, axis_id: int, start: bool):
     svc = request.app.state.service
     with session_scope(svc.factory) as s:
         axis = config_repo.get_axis(s, axis_id)
-    folder = svc.executor.dataset_folder(axis) if svc.executor is not None else None
+    folder = svc.executor.readable_folder(axis) if svc.executor is not None else None  # FolderOwnerError
     return axis, axis_job(svc.gap_jobs, axis_id, folder, GAP_RUNS, start=start)
 
 
@@ -295,6 +296,10 @@ def _gap_ctx(request: Request, axis_id: int) -> dict:
         with session_scope(request.app.state.service.factory) as s:
             axis = config_repo.get_axis(s, axis_id)
         return {"axis": axis, "gap": "no_runs", "detail": "no stored runs to diagnose yet"}
+    except FolderOwnerError as exc:
+        with session_scope(request.app.state.service.factory) as s:
+            axis = config_repo.get_axis(s, axis_id)
+        return {"axis": axis, "gap": "failed", "detail": str(exc)}
     if fut is None:
         return {"axis": axis, "gap": "idle"}
     if not fut.done():
@@ -346,6 +351,8 @@ def gap_start(request: Request, axis_id: int, who: Posted):
         if exc.kind == "axis":
             raise
         return back(f"/ui/axes/{axis_id}/gap", "no stored runs to diagnose yet")
+    except FolderOwnerError as exc:
+        return back(f"/ui/axes/{axis_id}/gap", str(exc))
     ui_state(request).gap_started.setdefault(axis_id, time.time())
     return back(f"/ui/axes/{axis_id}/gap")
 

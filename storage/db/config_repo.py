@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import math
 import secrets
+import uuid
 from collections.abc import Sequence
 from datetime import datetime
 
@@ -25,7 +26,8 @@ KEY_PREFIX = "mebm_"
 
 # -- machines ------------------------------------------------------------------------------
 def _machine(m: Machine) -> MachineRecord:
-    return MachineRecord(id=m.id, name=m.name, description=m.description, axis_ids=tuple(a.id for a in m.axes))
+    return MachineRecord(id=m.id, name=m.name, description=m.description, axis_ids=tuple(a.id for a in m.axes),
+                         uuid=m.uuid or "")
 
 
 def create_machine(s: Session, name: str, description: str = "") -> MachineRecord:
@@ -34,10 +36,10 @@ def create_machine(s: Session, name: str, description: str = "") -> MachineRecor
         raise InputError("machine name must not be empty")
     if s.scalar(select(Machine.id).where(Machine.name == name)) is not None:
         raise ConflictError(f"a machine named {name!r} exists already")
-    m = Machine(name=name, description=description, created_at=utcnow())
+    m = Machine(name=name, uuid=str(uuid.uuid4()), description=description, created_at=utcnow())
     s.add(m)
     s.flush()
-    return MachineRecord(id=m.id, name=m.name, description=m.description, axis_ids=())
+    return MachineRecord(id=m.id, name=m.name, description=m.description, axis_ids=(), uuid=m.uuid)
 
 
 def list_machines(s: Session) -> list[MachineRecord]:
@@ -72,7 +74,8 @@ def _axis(a: Axis) -> AxisRecord:
         tasks=tuple(_task(t, a.position_gain_per_s) for t in a.tasks),
         in_service_since=as_utc(a.in_service_since), instruments=_instruments(a),
     )
-    return AxisRecord(id=a.id, machine_id=a.machine_id, machine_name=a.machine.name, settings=settings)
+    return AxisRecord(id=a.id, machine_id=a.machine_id, machine_name=a.machine.name, settings=settings,
+                      uuid=a.uuid or "", machine_uuid=a.machine.uuid or "")
 
 
 INSTRUMENT_COLUMNS = ("scale_accuracy_um", "scale_accuracy_um_per_m", "thermometer_class", "thermal_expansion_per_k")
@@ -107,7 +110,7 @@ def create_axis(s: Session, machine_id: int, st: AxisSettings) -> AxisRecord:
         raise ConflictError(f"machine {m.name!r} has an axis {st.spec.name!r} already")
     now = utcnow()
     a = Axis(
-        machine_id=machine_id, name=st.spec.name,
+        machine_id=machine_id, name=st.spec.name, uuid=str(uuid.uuid4()),
         transmission_mm_per_rev=st.spec.transmission_mm_per_rev, screw_lead_mm=st.spec.screw_lead_mm,
         position_gain_per_s=st.spec.position_gain_per_s,
         travel_start_mm=st.spec.travel_mm[0], travel_end_mm=st.spec.travel_mm[1],

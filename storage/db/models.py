@@ -37,6 +37,9 @@ class Machine(Base):
 
     id: Mapped[int] = mapped_column(primary_key=True)
     name: Mapped[str] = mapped_column(String(100), unique=True)
+    # the machine's identity beyond this database (ids repeat in another one): recorded
+    # as the owner of its axes' dataset folders. Set on creation and by the migration.
+    uuid: Mapped[str | None] = mapped_column(String(36), unique=True, index=True, nullable=True)
     description: Mapped[str] = mapped_column(Text, default="")
     created_at: Mapped[datetime] = mapped_column(UtcDateTime)
 
@@ -53,6 +56,7 @@ class Axis(Base):
     id: Mapped[int] = mapped_column(primary_key=True)
     machine_id: Mapped[int] = mapped_column(ForeignKey("machines.id", ondelete="CASCADE"), index=True)
     name: Mapped[str] = mapped_column(String(20))
+    uuid: Mapped[str | None] = mapped_column(String(36), unique=True, index=True, nullable=True)  # as Machine.uuid
     transmission_mm_per_rev: Mapped[float] = mapped_column(Float)
     screw_lead_mm: Mapped[float] = mapped_column(Float)
     position_gain_per_s: Mapped[float] = mapped_column(Float)

@@ -59,6 +59,7 @@ class MachineRecord:
     name: str
     description: str
     axis_ids: tuple[int, ...]
+    uuid: str = ""  # the identity beyond this database, recorded in its axes' dataset folders
 
 
 @dataclass(frozen=True)
@@ -85,6 +86,10 @@ class AxisRecord:
     machine_id: int
     machine_name: str
     settings: AxisSettings
+    # identities beyond this database (ids repeat in another one): the owner recorded in
+    # the axis' dataset folders ("" for a record not read from a database: no owner check)
+    uuid: str = ""
+    machine_uuid: str = ""
 
     @property
     def spec(self) -> AxisSpec:

@@ -14,7 +14,9 @@ answers 202 with ``Retry-After``, and the next call gets the report (200), cache
 it was computed). A diagnosis that fails for its input is
 cached too and answered 422. More than the service's pending bound: 429 with
 ``Retry-After``. A cached answer is served after one ``stat`` of ``dataset.json``,
-without reading any run; the runs are read in the worker process.
+without reading any run; the runs are read in the worker process. A folder that does
+not record the axis as its owner and holds runs of other cycles (another database's
+machine of the same ids) is never diagnosed: 409 saying whose it is.
 """
 
 from __future__ import annotations
@@ -29,7 +31,8 @@ from api.rest.auth import ReadKey
 from api.rest.deps import AxisId, ServiceDep, SessionDep
 from api.rest.errors import TooManyRequestsError
 from api.service.gap_jobs import DiagnosisCrashed, JobAbandoned, TooManyJobs, axis_job, public_body
-from storage.db import config_repo
+from storage.dataset import FolderOwnerError
+from storage.db import ConflictError, config_repo
 
 router = APIRouter(tags=["gap"])
 
@@ -55,7 +58,10 @@ def gap(
     runs: Annotated[int, Query(ge=2, le=60, description="how many of the newest stored runs to use")] = 16,
 ):
     axis = config_repo.get_axis(s, axis_id)
-    folder = svc.executor.dataset_folder(axis) if svc.executor is not None else None
+    try:  # only the axis' own runs: never a folder another machine (of another database) wrote
+        folder = svc.executor.readable_folder(axis) if svc.executor is not None else None
+    except FolderOwnerError as exc:
+        raise ConflictError(str(exc)) from None
     try:
         fut = axis_job(svc.gap_jobs, axis_id, folder, runs)
     except TooManyJobs as exc:
