@@ -33,8 +33,8 @@ def test_the_migration_gives_every_stored_machine_and_axis_its_own_uuid(backend,
     url, handle = make_database(backend, tmp_path)
     engine = make_engine(url)
     try:
-        upgrade(engine, "0009")
-        with engine.begin() as c:  # as 0009 stored them: no uuid column yet
+        upgrade(engine, "0010")
+        with engine.begin() as c:  # as 0010 stored them: no uuid column yet
             for name in ("old-1", "old-2"):
                 c.execute(text("INSERT INTO machines (name, description, created_at) VALUES (:n, '', :t)"),
                           {"n": name, "t": NOW})
@@ -58,7 +58,7 @@ def test_the_migration_gives_every_stored_machine_and_axis_its_own_uuid(backend,
         assert sorted(r.uuid for r in recs) == sorted(axes) and sorted(r.machine_uuid for r in recs) == sorted(machines)
         with pytest.raises(sa_exc.IntegrityError), engine.begin() as c:  # unique
             c.execute(text("UPDATE axes SET uuid = :u"), {"u": axes[0]})
-        downgrade(engine, "0009")  # and back: the rows that refer to the machines and axes stay
+        downgrade(engine, "0010")  # and back: the rows that refer to the machines and axes stay
         with engine.connect() as c:
             assert c.execute(text("SELECT count(*) FROM axes")).scalar_one() == 2
             assert "uuid" not in {col["name"] for col in inspect(c).get_columns("machines")}

@@ -1,8 +1,8 @@
 """a uuid for every machine and axis: the identity a dataset folder records as its
 owner, so a folder written by another database (whose ids repeat) is never appended to
 
-Revision ID: 0010
-Revises: 0009
+Revision ID: 0011
+Revises: 0010
 """
 
 import uuid
@@ -11,8 +11,8 @@ from alembic import op
 import sqlalchemy as sa
 
 
-revision = '0010'
-down_revision = '0009'
+revision = '0011'
+down_revision = '0010'
 branch_labels = None
 depends_on = None
 
