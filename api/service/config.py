@@ -171,6 +171,9 @@ class Settings:
     data_dir: Path = Path("data")
     database_url: str | None = None
     min_free_disk_mb: float = 500.0  # /healthz is degraded below this much free disk under data_dir
+    # the folder a register profile named in an axis' controller URL (``profile=NAME``) is
+    # read from; None: ``<data_dir>/profiles``
+    profiles_dir: Path | None = None
     bootstrap_admin_key: str | None = None
     demo_keys: bool = True
     scheduler_enabled: bool = True
@@ -200,6 +203,11 @@ class Settings:
     @property
     def db_url(self) -> str:
         return self.database_url or sqlite_url(self.data_dir)
+
+    @property
+    def profiles_path(self) -> Path:
+        """Where ``profile=NAME`` in a controller URL is looked up."""
+        return self.profiles_dir if self.profiles_dir is not None else self.data_dir / "profiles"
 
     @property
     def uses_simulator(self) -> bool:
@@ -443,7 +451,7 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
     server = doc.get("server", {})
     _unknown(server, {"host", "port", "status_max_age_s", "trusted_proxies"}, "server")
     storage = doc.get("storage", {})
-    _unknown(storage, {"data_dir", "database_url", "min_free_disk_mb"}, "storage")
+    _unknown(storage, {"data_dir", "database_url", "min_free_disk_mb", "profiles_dir"}, "storage")
     auth = doc.get("auth", {})
     _unknown(auth, {"bootstrap_admin_key", "demo_keys"}, "auth")
     sched = doc.get("scheduler", {})
@@ -499,6 +507,7 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
                 axes.append(_axis(a, name, f"{where}.axes[{j}]", instruments))
         machines, axes = tuple(machines), tuple(axes)
     data_dir = _get(storage, "data_dir", str, "storage")
+    profiles_dir = _get(storage, "profiles_dir", str, "storage")
     min_free_disk_mb = _get(storage, "min_free_disk_mb", float, "storage", base.min_free_disk_mb)
     if min_free_disk_mb < 0:
         raise ConfigError(f"storage.min_free_disk_mb (={min_free_disk_mb}) must be >= 0")
@@ -508,6 +517,7 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
         data_dir=Path(data_dir) if data_dir else base.data_dir,
         database_url=_get(storage, "database_url", str, "storage", base.database_url) or None,
         min_free_disk_mb=min_free_disk_mb,
+        profiles_dir=Path(profiles_dir) if profiles_dir else base.profiles_dir,
         bootstrap_admin_key=_get(auth, "bootstrap_admin_key", str, "auth", base.bootstrap_admin_key) or None,
         demo_keys=_get(auth, "demo_keys", bool, "auth", base.demo_keys),
         scheduler_enabled=_get(sched, "enabled", bool, "scheduler", base.scheduler_enabled),

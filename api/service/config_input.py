@@ -8,6 +8,7 @@ start-up with its own option names.
 
 from __future__ import annotations
 
+from pathlib import Path
 from urllib.parse import urlsplit
 
 from typing import Literal
@@ -161,46 +162,67 @@ def schedule_of(body: ScheduleIn) -> Schedule:
     return sch
 
 
-def check_profile_name(url: str) -> None:
-    """A register profile named in a controller URL sent to the API (``profile=``) is a
-    plain file name: no folder, no absolute path, no ``..``; the file is then read as
-    :func:`acquisition.modbus_profile.load_profile` reads it (a regular file, 64 kB at
-    most). Absolute paths are for the configuration file (``modbus_profile``), which the
-    operator writes."""
+def _profile_names(url: str) -> list[str]:
     from urllib.parse import parse_qs
 
     from acquisition.modbus_profile import BUILTIN
 
-    for name in parse_qs(urlsplit(url).query).get("profile", []):
-        if name == BUILTIN:
-            continue
+    return [n for n in parse_qs(urlsplit(url).query).get("profile", []) if n != BUILTIN]
+
+
+def check_profile_name(url: str) -> None:
+    """A register profile named in a controller URL sent to the API (``profile=``) is a
+    plain file name inside the profiles folder (``[storage] profiles_dir``): no folder, no
+    absolute path, no ``..``; the file is then read as
+    :func:`acquisition.modbus_profile.load_profile` reads it (a regular file, 64 kB at
+    most). Absolute paths are for the configuration file (``modbus_profile``), which the
+    operator writes."""
+    for name in _profile_names(url):
         if not name or "/" in name or "\\" in name or name.startswith(".") or "\0" in name:
             raise InputError(f"controller_url: profile (={name[:100]!r}) must be a file name, without a folder, "
-                             "an absolute path or '..'")
+                             "an absolute path or '..': a file in the profiles folder ([storage] profiles_dir)")
 
 
-def check_controller_url(url: str) -> None:
+def resolve_profile(url: str, profiles_dir: Path) -> str:
+    """``url`` with a bare ``profile=NAME`` replaced by ``profiles_dir/NAME`` (what the
+    drivers open); a URL without one, or whose profile is a path (written in the
+    configuration file by the operator), is returned as it is."""
+    names = [n for n in _profile_names(url) if n and "/" not in n and "\\" not in n]
+    if not names:
+        return url
+    from urllib.parse import parse_qsl, urlencode
+
+    head, _, rest = url.partition("?")  # not urlunsplit: it drops the empty authority of modbus+rtu:///dev/…
+    query, hash_, fragment = rest.partition("#")
+    pairs = [(k, str(Path(profiles_dir) / v) if k == "profile" and v in names else v)
+             for k, v in parse_qsl(query, keep_blank_values=True)]
+    return f"{head}?{urlencode(pairs, safe='/:')}{hash_}{fragment}"
+
+
+def check_controller_url(url: str, profiles_dir: Path) -> None:
     """Refuse a controller URL whose options a cycle would refuse (unknown option, trigger,
-    passive settings, device id, serial line, a register profile that does not load, a
-    CANopen mapping), as a 422 naming it, when the axis is created rather than at its first
-    cycle. Builds the driver without connecting (drivers connect when a cycle opens them)."""
+    passive settings, device id, serial line, a register profile that does not load from
+    ``profiles_dir``, a CANopen mapping), as a 422 naming it, when the axis is created
+    rather than at its first cycle. Builds the driver without connecting (drivers connect
+    when a cycle opens them)."""
     if url == "sim":  # the embedded simulator: no driver of its own
         return
     check_profile_name(url)
     from acquisition.url import driver_from_url
 
     try:
-        driver_from_url(url)
+        driver_from_url(resolve_profile(url, profiles_dir))
     except MebmError as exc:
         raise InputError(f"controller_url: {exc}") from exc
 
 
-def axis_settings(body: AxisIn, *, allow_link_local: bool) -> AxisSettings:
-    """The stored settings of a new axis (``allow_link_local``: limits.allow_link_local_controllers)."""
+def axis_settings(body: AxisIn, *, allow_link_local: bool, profiles_dir: Path) -> AxisSettings:
+    """The stored settings of a new axis (``allow_link_local``: limits.allow_link_local_controllers;
+    ``profiles_dir``: where a ``profile=NAME`` of its controller URL is read from)."""
     problem = link_local_problem(body.controller_url)
     if problem and not allow_link_local:
         raise InputError(problem)
-    check_controller_url(body.controller_url)
+    check_controller_url(body.controller_url, profiles_dir)
     try:
         spec = AxisSpec(body.name, body.transmission_mm_per_rev, body.screw_lead_mm, body.position_gain_per_s,
                         tuple(body.travel_mm))

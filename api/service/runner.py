@@ -25,6 +25,7 @@ from collections.abc import Callable
 from concurrent.futures import CancelledError, Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Protocol
 
 import numpy as np
@@ -32,6 +33,7 @@ import numpy as np
 from acquisition import cycle as acq_cycle
 from acquisition.driver import ControllerDriver
 from acquisition.url import driver_from_url, needs_callers_process
+from api.service.config_input import resolve_profile
 from api.service.worker_process import end_pool, spawn_pool
 from core.criteria import RoundTripResult, analyze_round_trip
 from core.criteria.uncertainty import UncertaintyInputs
@@ -241,12 +243,15 @@ class DriverRunner:
     in-process ``virtual`` bus)."""
 
     def __init__(self, driver_factory: Callable[[str], ControllerDriver] | None = None, *, timeout_s: float = 2.0,
-                 processes: CycleProcesses | None = None):
+                 processes: CycleProcesses | None = None, profiles_dir: Path | None = None):
         self.timeout_s = timeout_s
         self.processes = processes if driver_factory is None else None
         self.driver_factory = driver_factory or (lambda url: driver_from_url(url, timeout_s=timeout_s))
+        self.profiles_dir = profiles_dir  # where a controller URL's profile=NAME is read from
 
     def __call__(self, axis: AxisRecord, controller_url: str) -> CycleOutcome:
+        if self.profiles_dir is not None:
+            controller_url = resolve_profile(controller_url, self.profiles_dir)
         if self.processes is not None and not needs_callers_process(controller_url):
             try:
                 return self.processes.run(_cycle_in_process, axis, controller_url, self.timeout_s)

@@ -75,7 +75,8 @@ class Service:
     def __init__(self, settings: Settings, *, runner: CycleRunner | None = None, db_wait_s: float = 30.0):
         self.settings = settings
         # the production runner measures in worker processes (the acquisition and analysis off the API's interpreter)
-        self.runner = runner or DriverRunner(processes=CycleProcesses(settings.cycle_processes))
+        self.runner = runner or DriverRunner(processes=CycleProcesses(settings.cycle_processes),
+                                             profiles_dir=settings.profiles_path)
         self.db_wait_s = db_wait_s
         self.engine = None
         self.factory = None

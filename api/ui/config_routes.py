@@ -85,7 +85,8 @@ async def add_axis(request: Request, machine_id: int, who: Posted):
     if checked.value is None:
         return _axis_form(request, who, machine_id, checked, 422)
     try:
-        st = axis_settings(checked.value, allow_link_local=svc.settings.limits.allow_link_local_controllers)
+        st = axis_settings(checked.value, allow_link_local=svc.settings.limits.allow_link_local_controllers,
+                           profiles_dir=svc.settings.profiles_path)
         with session_scope(svc.factory) as s:
             a = config_repo.create_axis(s, machine_id, st)
             s.commit()

@@ -32,7 +32,8 @@ def list_axes(machine_id: MachineId, s: SessionDep, svc: ServiceDep, _k: ReadKey
 @router.post("/machines/{machine_id}/axes", response_model=sc.AxisOut, status_code=status.HTTP_201_CREATED,
              summary="Add a monitored axis to a machine (admin)")
 def create_axis(machine_id: MachineId, body: sc.AxisIn, s: SessionDep, svc: ServiceDep, _k: AdminKey):
-    st = axis_settings(body, allow_link_local=svc.settings.limits.allow_link_local_controllers)
+    st = axis_settings(body, allow_link_local=svc.settings.limits.allow_link_local_controllers,
+                       profiles_dir=svc.settings.profiles_path)
     a = config_repo.create_axis(s, machine_id, st)
     s.commit()
     svc.axis_changed(a)

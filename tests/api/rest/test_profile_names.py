@@ -4,9 +4,13 @@ refusal quotes no file."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from tests.api.rest.conftest import hdr
+
+EXAMPLES = Path(__file__).resolve().parents[3] / "examples" / "modbus-profiles"
 
 V1 = "/api/v1"
 BODY = {"name": "p", "transmission_mm_per_rev": 10, "screw_lead_mm": 10, "position_gain_per_s": 20,
@@ -32,3 +36,25 @@ def test_a_profile_name_that_is_not_there_is_refused_naming_it(app_env):
     r = client.post(f"{V1}/machines/{machine_id}/axes", headers=h,
                     json={**BODY, "controller_url": "modbus://10.0.0.5:502?profile=no-such-profile.toml"})
     assert r.status_code == 422 and "no-such-profile.toml" in r.json()["detail"] and "cannot read" in r.text
+
+
+def test_a_profile_name_is_read_from_the_profiles_folder_not_the_working_directory(app_env, tmp_path,
+                                                                                      monkeypatch):
+    client, svc, keys, _ = app_env
+    h = hdr(keys["admin"])
+    machine_id = client.get(f"{V1}/machines", headers=h).json()[0]["id"]
+    text = (EXAMPLES / "drive-int32-input-separate.toml").read_text()
+    cwd = tmp_path / "elsewhere"
+    cwd.mkdir()
+    (cwd / "plc-y.toml").write_text(text)
+    monkeypatch.chdir(cwd)  # a file of that name beside the service is not the profiles folder
+    url = "modbus://10.0.0.5:502?profile=plc-y.toml"
+    r = client.post(f"{V1}/machines/{machine_id}/axes", headers=h, json={**BODY, "controller_url": url})
+    assert r.status_code == 422 and "plc-y.toml" in r.json()["detail"], r.text
+    folder = svc.settings.profiles_path
+    assert folder == svc.settings.data_dir / "profiles"
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "plc-y.toml").write_text(text)
+    r = client.post(f"{V1}/machines/{machine_id}/axes", headers=h, json={**BODY, "controller_url": url})
+    assert r.status_code == 201, r.text
+    assert r.json()["controller_url"] == url  # stored as given: the folder is the service's setting

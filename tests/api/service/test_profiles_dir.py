@@ -1,0 +1,49 @@
+"""A register profile named in a controller URL (``profile=NAME``) is read from the
+service's profiles folder: the URL the drivers get, the cycle's and the check's alike."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from api.service.config import load_settings
+from api.service.config_input import resolve_profile
+from api.service.runner import DriverRunner
+from core.errors import InputError
+
+FOLDER = Path("/srv/mebm/profiles")
+
+
+@pytest.mark.parametrize("url, expected", [
+    ("modbus://10.0.0.5:502?profile=plc-y.toml&mode=trace", "modbus://10.0.0.5:502?profile=/srv/mebm/profiles/plc-y.toml&mode=trace"),
+    ("modbus+rtu:///dev/ttyUSB0?baudrate=38400&parity=E&profile=a.toml",
+     "modbus+rtu:///dev/ttyUSB0?baudrate=38400&parity=E&profile=/srv/mebm/profiles/a.toml"),
+    ("modbus://h:502?profile=/etc/mebm/x.toml", "modbus://h:502?profile=/etc/mebm/x.toml"),  # the config file's path
+    ("modbus://h:502?profile=mebm-modbus/1", "modbus://h:502?profile=mebm-modbus/1"),  # the built-in map
+    ("modbus://h:502", "modbus://h:502"),
+    ("canopen://socketcan/can0?node=3", "canopen://socketcan/can0?node=3"),
+])  # fmt: skip
+def test_a_bare_profile_name_is_resolved_in_the_profiles_folder(url, expected):
+    assert resolve_profile(url, FOLDER) == expected
+
+
+def test_the_cycle_opens_the_profile_in_the_folder():
+    seen = []
+
+    def factory(url):
+        seen.append(url)
+        raise InputError("no controller here")
+
+    out = DriverRunner(factory, profiles_dir=FOLDER)(SimpleNamespace(id=1, settings=None), "modbus://h?profile=p.toml")
+    assert seen == ["modbus://h?profile=/srv/mebm/profiles/p.toml"]
+    assert not out.ok and "no controller here" in out.reason
+
+
+def test_the_folder_is_a_setting_under_storage(tmp_path):
+    cfg = tmp_path / "mebm.toml"
+    cfg.write_text(f'[storage]\ndata_dir = "{tmp_path / "d"}"\n')
+    assert load_settings(cfg, env={}).profiles_path == tmp_path / "d" / "profiles"
+    cfg.write_text(f'[storage]\ndata_dir = "{tmp_path / "d"}"\nprofiles_dir = "{tmp_path / "p"}"\n')
+    assert load_settings(cfg, env={}).profiles_path == tmp_path / "p"
