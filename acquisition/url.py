@@ -15,6 +15,8 @@ controller passive: mebm moves an axis only where it was told to, or where nothi
 
 from __future__ import annotations
 
+import ipaddress
+import re
 from urllib.parse import parse_qs, urlsplit
 
 from core.errors import InputError
@@ -70,6 +72,10 @@ def _trigger_kwargs(url: str, q: dict[str, str]) -> dict:
 def driver_from_url(url: str, **kwargs):
     """A :class:`~acquisition.driver.ControllerDriver` for ``url``; ``kwargs`` go to the driver
     (``timeout_s``, ``retries``, ...)."""
+    bad = next((c for c in url if c.isspace() or ord(c) < 32 or ord(c) == 127), None)
+    if bad is not None:
+        raise InputError(f"controller URL {url!r}: contains {'a space' if bad == ' ' else repr(bad)}; "
+                         "percent-encode it (%20) or remove it")
     parts = urlsplit(url)
     q = {k: v[-1] for k, v in parse_qs(parts.query).items()}
     if parts.scheme in ("modbus", "modbus+rtu", "sim"):  # canopen: its mode and the trigger, together (canopen_url)
@@ -101,6 +107,9 @@ def driver_from_url(url: str, **kwargs):
                 host, port = parts.hostname, parts.port or 502
             except ValueError:
                 raise InputError(f"controller URL {url!r}: the port must be a number 1..65535") from None
+            if not _is_host(host):
+                raise InputError(f"controller URL {url!r}: {host!r} is neither an IP address nor a host name "
+                                 "(letters, digits, '-' and '.')")
             serial = None
         else:
             host, port = parts.path, 0
@@ -131,3 +140,15 @@ def driver_from_url(url: str, **kwargs):
 
 
 _SERIAL = ("baudrate", "parity", "stopbits", "bytesize")
+_LABEL = re.compile(r"[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?")
+
+
+def _is_host(host: str) -> bool:
+    """An IP address or a DNS host name (RFC 1123 labels)."""
+    try:
+        ipaddress.ip_address(host)
+        return True
+    except ValueError:
+        pass
+    name = host[:-1] if host.endswith(".") else host
+    return 0 < len(name) <= 253 and all(_LABEL.fullmatch(label) for label in name.split("."))

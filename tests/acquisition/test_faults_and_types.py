@@ -58,6 +58,25 @@ def test_urls():
             driver_from_url(bad)
 
 
+@pytest.mark.parametrize("url, says", [
+    ("modbus://a b c", "contains a space"),
+    ("modbus://plc-y.shop:502 ?mode=trace", "contains a space"),
+    ("modbus://plc\x01y:502", "contains '\\x01'"),
+    ("modbus://plc_y!:502", "neither an IP address nor a host name"),
+    ("sim://-plc:502", "neither an IP address nor a host name"),
+])  # fmt: skip
+def test_a_controller_url_that_is_not_a_url_is_refused_naming_the_problem(url, says):
+    with pytest.raises(InputError, match="controller URL") as e:
+        driver_from_url(url)
+    assert says in str(e.value)
+
+
+@pytest.mark.parametrize("url", ["modbus://10.0.0.5:502", "modbus://[fd00::5]:502", "modbus://plc-y.hall-2.shop:1502",
+                                 "modbus://localhost"])  # fmt: skip
+def test_hosts_by_address_and_by_name_are_accepted(url):
+    assert isinstance(driver_from_url(url), ModbusDriver)
+
+
 def test_every_acquisition_error_names_its_own_reason_code():
     import inspect
 
