@@ -28,6 +28,7 @@ import re
 import uuid
 from dataclasses import dataclass
 from datetime import datetime, timezone
+from urllib.parse import urlsplit
 
 from api.service.status import AxisStatus, state_and_message
 
@@ -147,6 +148,23 @@ def _mm(um: float | None) -> float | None:
     return None if um is None or not math.isfinite(um) else round(um / 1000.0, 7)
 
 
+# an IPv4 address, a bracketed IPv6 one, or a host name with a port: what a connection failure names
+_ADDRESS = re.compile(r"\b\d{1,3}(?:\.\d{1,3}){3}(?::\d+)?\b|\[[0-9A-Fa-f:.]+\](?::\d+)?"
+                      r"|\b(?:localhost|[A-Za-z0-9-]+(?:\.[A-Za-z0-9-]+)+):\d{2,5}\b")
+
+
+def public_message(message: str, controller_url: str | None) -> str:
+    """``message`` without the controller's address: the agent answers anyone on the shop
+    network, and a failure text ("connection to 10.0.4.21:502 refused") would map the
+    controllers behind it. The REST status (behind a key) keeps the whole text."""
+    if controller_url:
+        parts = urlsplit(controller_url)
+        for piece in (controller_url, parts.netloc, parts.hostname, parts.path if parts.scheme.endswith("rtu") else ""):
+            if piece and len(piece) > 1:
+                message = message.replace(piece, "the controller")
+    return _ADDRESS.sub("the controller", message)
+
+
 def values_for(st: AxisStatus, comp: Component, now: datetime) -> list[Value]:
     """The value of each of ``comp``'s DataItems in the status ``st``; measured values carry
     the measurement's time, the cycle events the cycle's time."""
@@ -157,6 +175,7 @@ def values_for(st: AxisStatus, comp: Component, now: datetime) -> list[Value]:
     rt = latest.round_trip if latest is not None else None
     tbe = {x.task.name: x.tbe_um for x in d.assessments} if d is not None else {}
     state, message = state_and_message(st)
+    message = public_message(message, st.axis.settings.controller_url)
     out = []
     for di in comp.data_items:
         suffix = di.id[len(comp.id) + 1:]

@@ -482,3 +482,22 @@ def test_tasks_changed_through_the_api_change_the_device_model_at_once(tmp_path,
         tbe = {el.get("name"): el.text for el in cur.iterfind(".//x:TransientBacklashError", NS)}
         assert set(tbe) == {"line 30deg", "circle R50"}  # the old task's DataItem is gone from current
         assert all(float(v) > 0 for v in tbe.values())  # TBE of the new tasks from the stored measurement
+
+
+def test_a_failure_text_names_no_controller_address_while_rest_keeps_it(tmp_path, schemas):
+    runner = FakeRunner()
+    runner.fail = "ConnectionError: cannot connect to 127.0.0.1:1 (connection refused)"
+    app = _app(tmp_path, runner)
+    with TestClient(app) as client:
+        svc, agent = app.state.service, app.state.mtconnect
+        axis_id = _axis(svc)
+        _measure(svc, axis_id, agent, 0)
+        doc = schemas.streams_ok(client.get("/mtconnect/current").content)
+        cond = doc.find(".//m:Condition", NS)
+        text = "".join(cond.itertext())
+        assert "cannot connect to the controller (connection refused)" in text, text
+        assert "127.0.0.1" not in client.get("/mtconnect/current").text
+        with session_scope(svc.factory) as s:
+            key = config_repo.create_key(s, "mes", "read")[1]
+        body = client.get(f"/api/v1/axes/{axis_id}/status", headers=hdr(key)).json()
+        assert "127.0.0.1:1" in body["message"]  # behind a key, the technician's whole text
