@@ -159,22 +159,20 @@ def axis_job(jobs: "GapJobs", axis_id: int, folder: Path | None, runs: int, *, s
     key, version = run_set(folder, runs), data_version(folder)
     if not start:
         return jobs.latest(key)
-    return jobs.start(key, folder, runs, version, fresh=fresh)  # asking again keeps a pending job from being abandoned
+    return jobs.start(key, folder, runs, version, fresh=fresh, size_bytes=run_bytes(folder, runs))  # asking again keeps a pending job from being abandoned
 
 
 _stored_files: OrderedDict[tuple, tuple[str, ...]] = OrderedDict()
 _stored_lock = threading.Lock()
 
 
-def runs_stored_since(folder: Path, result: dict) -> int | None:
-    """How many runs were stored in ``folder`` after the newest run the diagnosis
-    ``result`` used (None: not known). Read once per data version."""
-    used = result.get("runs_used") or []
+def stored_files(folder: Path) -> tuple[str, ...] | None:
+    """The run files of a dataset folder in measurement order (None: unreadable). Read
+    once per data version."""
     try:
-        version = data_version(folder)
+        key = (str(folder), data_version(folder))
     except NotFoundError:
         return None
-    key = (str(folder), version)
     with _stored_lock:
         files = _stored_files.get(key)
     if files is None:
@@ -186,17 +184,42 @@ def runs_stored_since(folder: Path, result: dict) -> int | None:
             _stored_files[key] = files
             while len(_stored_files) > 8:
                 _stored_files.popitem(last=False)
-    if not used or used[-1] not in files:
+    return files
+
+
+def runs_stored_since(folder: Path, result: dict) -> int | None:
+    """How many runs were stored in ``folder`` after the newest run the diagnosis
+    ``result`` used (None: not known)."""
+    used = result.get("runs_used") or []
+    files = stored_files(folder)
+    if files is None or not used or used[-1] not in files:
         return None
     return len(files) - 1 - files.index(used[-1])
 
 
+def run_bytes(folder: Path, runs: int) -> int | None:
+    """The size on disk of the newest ``runs`` run files (None: not known): what a
+    diagnosis' time grows with (runs, and samples per run)."""
+    files = stored_files(folder)
+    if not files:
+        return None
+    total = 0
+    for f in files[-runs:]:
+        try:
+            total += (folder / f).stat().st_size
+        except OSError:
+            return None
+    return total
+
+
 WORKER_NICE = 10  # the diagnosis yields the CPU to the service's cycles and requests
-# What a diagnosis is expected to take before one has been timed here: seconds per run
-# of the demo axis' 1000 mm round trips on a 2-core machine with the service measuring
-# beside it, and the model kernels' compilation by a fresh worker process (docs/gap-diagnosis.md)
-DEFAULT_S_PER_RUN = 2.5
-FIRST_DIAGNOSIS_EXTRA_S = 10.0
+# What a diagnosis is expected to take before one has been timed here: seconds per MB of
+# run files (the demo axis' 1000 mm round trips are 0.87 MB each) on the shared 2-core
+# machine with the service measuring beside it, plus the model kernels' compilation by a
+# fresh worker process (docs/gap-diagnosis.md, "Time"); seconds per run when the size is not known
+DEFAULT_S_PER_MB = 15.0
+DEFAULT_S_PER_RUN = 13.0
+FIRST_DIAGNOSIS_EXTRA_S = 20.0
 # not answers: starting the run set again computes it anew (a time-out is kept for its data
 # version, so a poller does not start the same long diagnosis again and again; a start from
 # the dashboard, ``fresh``, does)
@@ -217,6 +240,7 @@ class Job:
     queued_at: float
     last_asked: float
     expected_s: float
+    size_bytes: int | None = None
     started_at: float | None = None
     finished_at: float | None = None
 
@@ -254,7 +278,8 @@ class GapJobs:
         self.clock = clock
         self.crashes = 0
         self.timeouts = 0
-        self.s_per_run: float | None = None  # measured by the last diagnosis that ended with an answer
+        self.s_per_run: float | None = None  # measured by the last diagnosis that ended with an answer...
+        self.s_per_mb: float | None = None  # ... per MB of its runs' files
         self._warm = False  # the worker process has diagnosed once (its kernels are compiled)
         self._ids = itertools.count(1)
         self._jobs: OrderedDict[int, Job] = OrderedDict()
@@ -265,9 +290,10 @@ class GapJobs:
 
     # -- the queue ------------------------------------------------------------------------------
     def start(self, key: tuple, folder: Path | str, runs: int, version: tuple | None = None, *,
-              fresh: bool = False) -> Job:
+              fresh: bool = False, size_bytes: int | None = None) -> Job:
         """The job for the run set ``key``: the pending one, else the answer kept for
-        ``version``, else a new one (TooManyJobs beyond ``max_pending``)."""
+        ``version``, else a new one (TooManyJobs beyond ``max_pending``). ``size_bytes``:
+        of its run files, for the expected time."""
         now = self.clock()
         with self._lock:
             pending = [j for j in self._jobs.values() if not j.future.done()]
@@ -283,7 +309,8 @@ class GapJobs:
                     return job
             if len(pending) >= self.max_pending:
                 raise TooManyJobs(len(pending), min(self._remaining_s(j, now) for j in pending))
-            job = Job(next(self._ids), key, version, str(folder), runs, Future(), now, now, self.expected_s(runs))
+            job = Job(next(self._ids), key, version, str(folder), runs, Future(), now, now,
+                      self.expected_s(runs, size_bytes), size_bytes)
             job.future = self._queue.submit(self._run, job)
             self._jobs[job.id] = job
             done = [i for i, j in self._jobs.items() if j.future.done()]
@@ -341,10 +368,14 @@ class GapJobs:
                 return 0
             return sum(1 for j in self._jobs.values() if j.id < job.id and not j.future.done())
 
-    def expected_s(self, runs: int) -> float:
-        """What a diagnosis of ``runs`` runs is expected to take once started."""
-        per_run = self.s_per_run if self.s_per_run is not None else DEFAULT_S_PER_RUN
-        return per_run * runs + (0.0 if self._warm else FIRST_DIAGNOSIS_EXTRA_S)
+    def expected_s(self, runs: int, size_bytes: int | None = None) -> float:
+        """What a diagnosis of ``runs`` runs (``size_bytes`` of run files) is expected to
+        take once started: as the last one timed here, per MB (else per run)."""
+        extra = 0.0 if self._warm else FIRST_DIAGNOSIS_EXTRA_S
+        if size_bytes is not None:
+            per_mb = self.s_per_mb if self.s_per_mb is not None else DEFAULT_S_PER_MB
+            return extra + per_mb * size_bytes / 1e6
+        return extra + (self.s_per_run if self.s_per_run is not None else DEFAULT_S_PER_RUN) * runs
 
     def _remaining_s(self, job: Job, now: float) -> float:
         """Expected seconds until ``job`` ends, the jobs before it included (lock held)."""
@@ -395,8 +426,11 @@ class GapJobs:
             result = self._compute(folder, runs)
         finally:
             job.finished_at = self.clock()
-        elapsed = job.finished_at - job.started_at  # the next jobs' expected time follows this one's
-        self.s_per_run = max(elapsed - (0.0 if self._warm else FIRST_DIAGNOSIS_EXTRA_S), 0.1 * runs) / max(runs, 1)
+        # the next jobs' expected time follows this one's
+        work = max(job.finished_at - job.started_at - (0.0 if self._warm else FIRST_DIAGNOSIS_EXTRA_S), 0.1)
+        self.s_per_run = work / max(runs, 1)
+        if job.size_bytes:
+            self.s_per_mb = work / (job.size_bytes / 1e6)
         self._warm = True
         return result
 

@@ -12,7 +12,7 @@ from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from fastapi.templating import Jinja2Templates
 
 from api.service import figures, plots
-from api.service.gap_jobs import RESIDUALS, TooManyJobs, age_s, axis_job, runs_stored_since
+from api.service.gap_jobs import RESIDUALS, TooManyJobs, age_s, axis_job, run_bytes, runs_stored_since
 from api.service.throttle import failed_authentication
 from api.ui import format as fmt
 from api.ui import panels as axis_panels
@@ -299,7 +299,9 @@ def _gap_ctx(request: Request, axis_id: int, job_id: int | None = None) -> dict:
     axis, folder = _gap_folder(request, axis_id)
     base = {"axis": axis, "runs": GAP_RUNS, "expected_s": jobs.expected_s(GAP_RUNS), "timeout_s": jobs.timeout_s,
             "timed": jobs.s_per_run is not None}
-    if folder is None or not (folder / "dataset.json").is_file():
+    if folder is not None and (folder / "dataset.json").is_file():
+        base["expected_s"] = jobs.expected_s(GAP_RUNS, run_bytes(folder, GAP_RUNS))
+    else:
         return {**base, "gap": "no_runs", "detail": "no stored runs to diagnose yet: the first good measurement of "
                                                     "the axis stores one"}
     if job_id is not None:
