@@ -221,6 +221,12 @@ def test_gap_diagnosis_of_a_demo_like_history_shows_its_progress_then_the_report
         nxt = read_dataset(scratch)
         append_runs(folder, nxt.machine, [type(nxt.runs[0])(replace(nxt.runs[0].spec, file="rt_y_99.csv"),
                                                             nxt.runs[0].columns)])
+        # a poll the service does not answer: the page keeps its state and says so
+        page.route("**/gap.frag*", lambda route: route.fulfill(status=500, body="down"))
+        page.wait_for_selector(".poll-trouble", timeout=60000)
+        assert "HTTP 500" in page.locator(".poll-trouble").inner_text()
+        assert page.locator(".gap-state").get_attribute("data-gap") in ("queued", "running")
+        page.unroute("**/gap.frag*")
     # the deadline only catches a diagnosis that never ends (the worker runs at nice +10 on a shared machine)
     page.wait_for_selector("#gap-result, #gap-error", timeout=900000)
     assert page.locator("#gap-error").count() == 0, page.locator("#gap-error").inner_text()
