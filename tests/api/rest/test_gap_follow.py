@@ -85,6 +85,8 @@ def test_a_full_queue_says_when_to_ask_again(app_env, held):
     client, svc, keys, axis_id = app_env
     _store_case(svc, axis_id, "cyclic_error", seed=11)
     bound = svc.gap_jobs.max_pending
+    assert (bound, svc.gap_jobs.timeout_s) == (svc.settings.limits.gap_diagnoses_pending,
+                                               svc.settings.limits.gap_diagnosis_timeout_s)
     codes = [client.get(f"/api/v1/axes/{axis_id}/gap", params={"runs": n}, headers=hdr(keys["read"]))
              for n in range(2, 3 + bound)]
     assert [r.status_code for r in codes] == [202] * bound + [429]
