@@ -159,7 +159,8 @@ def axis_job(jobs: "GapJobs", axis_id: int, folder: Path | None, runs: int, *, s
     key, version = run_set(folder, runs), data_version(folder)
     if not start:
         return jobs.latest(key)
-    return jobs.start(key, folder, runs, version, fresh=fresh, size_bytes=run_bytes(folder, runs))  # asking again keeps a pending job from being abandoned
+    # asking again keeps a pending job from being abandoned; the runs' size is looked at for a new job only
+    return jobs.start(key, folder, runs, version, fresh=fresh, size_bytes=lambda: run_bytes(folder, runs))
 
 
 _stored_files: OrderedDict[tuple, tuple[str, ...]] = OrderedDict()
@@ -290,10 +291,10 @@ class GapJobs:
 
     # -- the queue ------------------------------------------------------------------------------
     def start(self, key: tuple, folder: Path | str, runs: int, version: tuple | None = None, *,
-              fresh: bool = False, size_bytes: int | None = None) -> Job:
+              fresh: bool = False, size_bytes: int | Callable[[], int | None] | None = None) -> Job:
         """The job for the run set ``key``: the pending one, else the answer kept for
         ``version``, else a new one (TooManyJobs beyond ``max_pending``). ``size_bytes``:
-        of its run files, for the expected time."""
+        of its run files (or what tells it), for the expected time."""
         now = self.clock()
         with self._lock:
             pending = [j for j in self._jobs.values() if not j.future.done()]
@@ -309,8 +310,9 @@ class GapJobs:
                     return job
             if len(pending) >= self.max_pending:
                 raise TooManyJobs(len(pending), min(self._remaining_s(j, now) for j in pending))
+            size = size_bytes() if callable(size_bytes) else size_bytes
             job = Job(next(self._ids), key, version, str(folder), runs, Future(), now, now,
-                      self.expected_s(runs, size_bytes), size_bytes)
+                      self.expected_s(runs, size), size)
             job.future = self._queue.submit(self._run, job)
             self._jobs[job.id] = job
             done = [i for i, j in self._jobs.items() if j.future.done()]

@@ -297,11 +297,8 @@ def _gap_ctx(request: Request, axis_id: int, job_id: int | None = None) -> dict:
     else its newest finished one), always with an answer or a reason."""
     jobs = request.app.state.service.gap_jobs
     axis, folder = _gap_folder(request, axis_id)
-    base = {"axis": axis, "runs": GAP_RUNS, "expected_s": jobs.expected_s(GAP_RUNS), "timeout_s": jobs.timeout_s,
-            "timed": jobs.s_per_run is not None}
-    if folder is not None and (folder / "dataset.json").is_file():
-        base["expected_s"] = jobs.expected_s(GAP_RUNS, run_bytes(folder, GAP_RUNS))
-    else:
+    base = {"axis": axis, "runs": GAP_RUNS, "timeout_s": jobs.timeout_s}
+    if folder is None or not (folder / "dataset.json").is_file():
         return {**base, "gap": "no_runs", "detail": "no stored runs to diagnose yet: the first good measurement of "
                                                     "the axis stores one"}
     if job_id is not None:
@@ -337,6 +334,10 @@ def _gap_url(axis_id: int, job_id: int | None = None, *, frag: bool = False, **q
 def gap_page(request: Request, axis_id: int, who: Who, msg: str | None = None, job: int | None = None,
              refused: int = 0):
     ctx = _gap_ctx(request, axis_id, job)
+    jobs = request.app.state.service.gap_jobs
+    _axis, folder = _gap_folder(request, axis_id)  # the promise: the expected time of the axis' newest runs
+    ctx.update(expected_s=jobs.expected_s(GAP_RUNS, run_bytes(folder, GAP_RUNS) if ctx["gap"] != "no_runs" else None),
+               timed=jobs.s_per_run is not None)
     if refused and ctx["gap"] not in ("queued", "running"):
         ctx["refused"] = _gap_refusal(request.app.state.service.gap_jobs)
     job_id = ctx["job"]["id"] if ctx.get("job") else None
