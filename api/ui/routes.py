@@ -369,14 +369,12 @@ def gap_residual_plot(request: Request, axis_id: int, index: int, who: Who, job:
 @router.post("/axes/{axis_id}/gap")
 def gap_start(request: Request, axis_id: int, who: Posted):
     """Start (or join) the diagnosis of the axis' newest runs; the page then follows that job."""
-    from urllib.parse import quote
-
     jobs = request.app.state.service.gap_jobs
     _axis, folder = _gap_folder(request, axis_id)
     try:
         job = axis_job(jobs, axis_id, folder, GAP_RUNS, fresh=True)
-    except TooManyJobs as exc:
-        return RedirectResponse(_gap_url(axis_id, refused=1) + f"&msg={quote(str(exc))}", status_code=303)
+    except TooManyJobs:  # the page says why, as the queue is when it is shown
+        return RedirectResponse(_gap_url(axis_id, refused=1), status_code=303)
     except NotFoundError as exc:
         if exc.kind == "axis":
             raise
