@@ -77,6 +77,8 @@ class LimitSettings:
     auth_address_failures_per_minute: float = 60.0  # failed authentications per client address, any key...
     auth_address_failure_burst: int = 100  # ...before that address' failures are answered 429 for a while
     allow_link_local_controllers: bool = False  # 169.254.x.x / fe80:: controllers (cloud metadata lives there)
+    gap_diagnoses_pending: int = 2  # gap diagnoses waiting or running at once; more are refused (429)
+    gap_diagnosis_timeout_s: float = 900.0  # a gap diagnosis running longer is stopped, and says so
 
 
 @dataclass(frozen=True)
@@ -745,7 +747,7 @@ def _limits(table: Mapping, base: LimitSettings) -> LimitSettings:
              "triggers_per_minute": float, "trigger_burst": int,
              "auth_failures_per_minute": float, "auth_failure_burst": int,
              "auth_address_failures_per_minute": float, "auth_address_failure_burst": int,
-             "allow_link_local_controllers": bool}
+             "allow_link_local_controllers": bool, "gap_diagnoses_pending": int, "gap_diagnosis_timeout_s": float}
     _unknown(table, set(kinds), "limits")
     out = replace(base, **{k: _get(table, k, kinds[k], "limits") for k in table})
     for k in kinds:

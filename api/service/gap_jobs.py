@@ -1,6 +1,8 @@
 """Gap diagnoses as bounded background jobs, computed in a separate process.
 
-A diagnosis (core.gap) takes 5-60 s on a 2-core machine, and several minutes on a
+A diagnosis (core.gap) takes half a minute for a full-size benchmark dataset on a quiet
+2-core machine, about six minutes for the demo axis' 16 newest runs on the shared one
+(docs/gap-diagnosis.md, "Time"), and several minutes on a
 dataset whose visible gap no single candidate explains (the two-together search: up to
 620 s seen in the independent plant's benchmark, two diagnoses at a time), longer than an MES should
 hold a request open, and it is pure Python/numpy/numba that holds the interpreter lock
@@ -10,30 +12,43 @@ for the lock: p99 47 ms in the soak). So the jobs are queued here, one at a time
 each is computed by a worker *process* (a ``spawn``-started pool of one, kept for the
 next job): the service's threads stay free for the API and the cycles.
 
+Every job has an id: a caller (the dashboard's gap page, an MES following the 202's
+``Location``) follows *its* job by id, whatever is stored meanwhile.
+
 Bounds (a read key must not be able to keep the server busy for minutes):
 
-- one job per key (the caller's: folder, runs, data version); asking again for a
-  pending job returns the same future;
+- one pending job per run set (the caller's key: folder, runs); asking again while it
+  waits or runs returns the same job, even when a new run was stored meanwhile (the job
+  reads the newest runs when it starts, and its answer names the runs it used);
+- a finished answer is kept per run set and data version (``version``: dataset.json's
+  mtime and size), at most ``cache_size`` of them (small dicts; no runs);
 - at most ``max_pending`` jobs wait or run; more raise :class:`TooManyJobs`;
 - a job nobody has asked for within ``abandon_s`` is dropped before it starts
   (:class:`JobAbandoned`);
-- at most ``cache_size`` finished answers are kept (small dicts; no runs);
+- a diagnosis running longer than ``timeout_s`` is stopped (its process ended and
+  replaced) and fails with :class:`DiagnosisTimedOut`;
 - a worker process that dies (killed, out of memory) fails its job with
   :class:`DiagnosisCrashed` and is replaced for the next one.
+
+A crash or an abandoned job is not an answer: starting the run set again computes it
+anew. A diagnosis' own error (a GapError: data it cannot use) and a time-out are kept for
+their data version (``fresh`` computes them again).
 
 The REST router and the dashboard both use one :class:`GapJobs` of the service.
 """
 
 from __future__ import annotations
 
+import itertools
 import logging
 import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable
-from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures import CancelledError, Future, ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures import TimeoutError as FutureTimeout
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from api.service.worker_process import IDLE_END_S, end_pool, spawn_pool
@@ -51,11 +66,18 @@ class JobAbandoned(MebmError):
 
 
 class TooManyJobs(MebmError):
-    """``max_pending`` diagnoses wait or run already."""
+    """``max_pending`` diagnoses wait or run already; ``retry_after_s``: when the first of
+    them is expected to end."""
 
-    def __init__(self, pending: int):
-        super().__init__(f"{pending} gap diagnoses are being computed; ask again later")
+    def __init__(self, pending: int, retry_after_s: float):
         self.pending = pending
+        self.retry_after_s = max(int(round(retry_after_s)), 1)
+        super().__init__(f"{pending} gap diagnoses are being computed, the most the service runs at once; "
+                         f"the first is expected to end in about {self.retry_after_s} s: start this one again then")
+
+
+class DiagnosisTimedOut(MebmError):
+    """The diagnosis ran longer than ``timeout_s``: its process was ended."""
 
 
 class DiagnosisCrashed(MebmError):
@@ -109,114 +131,341 @@ def diagnose_folder(folder: str, n: int) -> dict:
             "computed_at": datetime.now(timezone.utc).isoformat(timespec="seconds"), RESIDUALS: residuals}
 
 
-def axis_job(jobs: "GapJobs", axis_id: int, folder: Path | None, runs: int, *, start: bool = True) -> Future | None:
-    """The job diagnosing the newest ``runs`` stored runs of the dataset ``folder`` of an
-    axis: the pending or cached one, else a new one (``start=False``: None instead).
+def data_version(folder: Path) -> tuple[int, int]:
+    """The version of a dataset folder's runs: dataset.json's mtime and size (every stored
+    run rewrites it). NotFoundError when there are no stored runs."""
+    try:
+        st = (folder / "dataset.json").stat()
+    except OSError:
+        raise NotFoundError("stored runs in", folder.name) from None
+    return st.st_mtime_ns, st.st_size
 
-    Keyed by (folder, runs, version of dataset.json): a cached answer costs a stat, not a
-    read of every run; keyed by the folder, not the axis id, since ids repeat across
-    databases and data directories. NotFoundError when there are no stored runs."""
+
+def run_set(folder: Path, runs: int) -> tuple[str, int]:
+    """The key of a run set: keyed by the folder, not the axis id, since ids repeat across
+    databases and data directories."""
+    return str(folder.resolve()), runs
+
+
+def axis_job(jobs: "GapJobs", axis_id: int, folder: Path | None, runs: int, *, start: bool = True,
+             fresh: bool = False) -> "Job | None":
+    """The job diagnosing the newest ``runs`` stored runs of the dataset ``folder`` of an
+    axis: the pending one, else the answer for the current data version, else a new job
+    (``start=False``: the pending job, else the newest finished one of the run set, any
+    version, else None). ``fresh``: a failure kept for this version (a time-out) is
+    computed again. A cached answer costs a stat, not a read of every run.
+    NotFoundError when there are no stored runs."""
     if folder is None or not (folder / "dataset.json").is_file():
         raise NotFoundError("stored runs for axis", axis_id)
-    st = (folder / "dataset.json").stat()
-    key = (str(folder.resolve()), runs, st.st_mtime_ns, st.st_size)
+    key, version = run_set(folder, runs), data_version(folder)
     if not start:
-        fut = jobs.future(key)
-        if fut is None or fut.done():
-            return fut
-    return jobs.submit(key, folder, runs)  # asking again keeps a pending job from being abandoned
+        return jobs.latest(key)
+    # asking again keeps a pending job from being abandoned; the runs' size is looked at for a new job only
+    return jobs.start(key, folder, runs, version, fresh=fresh, size_bytes=lambda: run_bytes(folder, runs))
+
+
+_stored_files: OrderedDict[tuple, tuple[str, ...]] = OrderedDict()
+_stored_lock = threading.Lock()
+
+
+def stored_files(folder: Path) -> tuple[str, ...] | None:
+    """The run files of a dataset folder in measurement order (None: unreadable). Read
+    once per data version."""
+    try:
+        key = (str(folder), data_version(folder))
+    except NotFoundError:
+        return None
+    with _stored_lock:
+        files = _stored_files.get(key)
+    if files is None:
+        try:
+            files = tuple(r.spec.file for r in read_dataset(folder, load_runs=False).runs)
+        except (MebmError, OSError, ValueError):
+            return None
+        with _stored_lock:
+            _stored_files[key] = files
+            while len(_stored_files) > 8:
+                _stored_files.popitem(last=False)
+    return files
+
+
+def runs_stored_since(folder: Path, result: dict) -> int | None:
+    """How many runs were stored in ``folder`` after the newest run the diagnosis
+    ``result`` used (None: not known)."""
+    used = result.get("runs_used") or []
+    files = stored_files(folder)
+    if files is None or not used or used[-1] not in files:
+        return None
+    return len(files) - 1 - files.index(used[-1])
+
+
+def run_bytes(folder: Path, runs: int) -> int | None:
+    """The size on disk of the newest ``runs`` run files (None: not known): what a
+    diagnosis' time grows with (runs, and samples per run)."""
+    files = stored_files(folder)
+    if not files:
+        return None
+    total = 0
+    for f in files[-runs:]:
+        try:
+            total += (folder / f).stat().st_size
+        except OSError:
+            return None
+    return total
 
 
 WORKER_NICE = 10  # the diagnosis yields the CPU to the service's cycles and requests
+# What a diagnosis is expected to take before one has been timed here: seconds per MB of
+# run files (the demo axis' 1000 mm round trips are 0.87 MB each; its 16 newest took 351 s
+# in the worker process at nice +10 on the shared 2-core machine), plus the model kernels'
+# compilation by a fresh worker process (docs/gap-diagnosis.md, "Time"); seconds per run
+# when the size is not known
+DEFAULT_S_PER_MB = 24.0
+DEFAULT_S_PER_RUN = 21.0
+FIRST_DIAGNOSIS_EXTRA_S = 20.0
+# not answers: starting the run set again computes it anew (a time-out is kept for its data
+# version, so a poller does not start the same long diagnosis again and again; a start from
+# the dashboard, ``fresh``, does)
+RETRYABLE = (DiagnosisCrashed, JobAbandoned, CancelledError)
 
 
 @dataclass
-class _Job:
+class Job:
+    """One diagnosis of a run set: the caller follows it by ``id``. Times are on the
+    jobs' clock (monotonic seconds)."""
+
+    id: int
+    key: tuple
+    version: tuple | None
+    folder: str
+    runs: int
     future: Future
-    last_asked: float = field(default_factory=time.monotonic)
+    queued_at: float
+    last_asked: float
+    expected_s: float
+    size_bytes: int | None = None
+    started_at: float | None = None
+    finished_at: float | None = None
+
+    @property
+    def state(self) -> str:
+        """``queued``, ``running``, ``done`` (an answer) or ``failed`` (``error()`` says why)."""
+        if not self.future.done():
+            return "running" if self.started_at is not None else "queued"
+        return "failed" if self.error() is not None else "done"
+
+    def error(self) -> BaseException | None:
+        """The failure of a finished job (None: it has an answer, or has not finished)."""
+        if not self.future.done():
+            return None
+        if self.future.cancelled():
+            return CancelledError("the service stopped before the diagnosis started; start it again")
+        return self.future.exception()
+
+    def retryable(self) -> bool:
+        return isinstance(self.error(), RETRYABLE)
 
 
 class GapJobs:
     """The service's gap-diagnosis jobs: a queue of one thread feeding a process pool of one."""
 
     def __init__(self, *, max_pending: int = 2, abandon_s: float = 60.0, cache_size: int = 16,
-                 compute: Callable[[str, int], dict] = diagnose_folder, use_process: bool = True):
+                 timeout_s: float = 900.0, compute: Callable[[str, int], dict] = diagnose_folder,
+                 use_process: bool = True, clock: Callable[[], float] = time.monotonic):
         self.max_pending = max_pending
         self.abandon_s = abandon_s
         self.cache_size = cache_size
+        self.timeout_s = timeout_s
         self.compute = compute
         self.use_process = use_process
+        self.clock = clock
         self.crashes = 0
-        self._jobs: OrderedDict[tuple, _Job] = OrderedDict()
+        self.timeouts = 0
+        self.s_per_run: float | None = None  # measured by the last diagnosis that ended with an answer...
+        self.s_per_mb: float | None = None  # ... per MB of its runs' files
+        self._warm = False  # the worker process has diagnosed once (its kernels are compiled)
+        self._ids = itertools.count(1)
+        self._jobs: OrderedDict[int, Job] = OrderedDict()
         self._lock = threading.Lock()
         self._queue = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mebm-gap")
         self._pool: ProcessPoolExecutor | None = None
         self._closing = False
 
     # -- the queue ------------------------------------------------------------------------------
-    def submit(self, key: tuple, folder: Path, runs: int) -> Future:
-        """The future of the job for ``key``: the pending or cached one, or a new one."""
+    def start(self, key: tuple, folder: Path | str, runs: int, version: tuple | None = None, *,
+              fresh: bool = False, size_bytes: int | Callable[[], int | None] | None = None) -> Job:
+        """The job for the run set ``key``: the pending one, else the answer kept for
+        ``version``, else a new one (TooManyJobs beyond ``max_pending``). ``size_bytes``:
+        of its run files (or what tells it), for the expected time."""
+        now = self.clock()
         with self._lock:
-            job = self._jobs.get(key)
-            if job is not None and job.future.done() and isinstance(job.future.exception(), DiagnosisCrashed):
-                job = None  # a crash is not an answer: asking again computes it anew
-            if job is None:
-                pending = sum(1 for j in self._jobs.values() if not j.future.done())
-                if pending >= self.max_pending:
-                    raise TooManyJobs(pending)
-                job = self._jobs[key] = _Job(self._queue.submit(self._run, key, str(folder), runs))
-                done = [k for k, j in self._jobs.items() if j.future.done()]
-                for k in done[: max(len(done) - self.cache_size, 0)]:
-                    del self._jobs[k]
-            else:
-                job.last_asked = time.monotonic()
-                self._jobs.move_to_end(key)
-            return job.future
+            pending = [j for j in self._jobs.values() if not j.future.done()]
+            for job in pending:
+                if job.key == key:
+                    job.last_asked = now
+                    return job
+            for job in reversed(self._jobs.values()):
+                if job.key == key and job.version == version and not job.retryable():
+                    if fresh and job.error() is not None:
+                        break
+                    self._jobs.move_to_end(job.id)
+                    return job
+            if len(pending) >= self.max_pending:
+                raise TooManyJobs(len(pending), min(self._remaining_s(j, now) for j in pending))
+            size = size_bytes() if callable(size_bytes) else size_bytes
+            job = Job(next(self._ids), key, version, str(folder), runs, Future(), now, now,
+                      self.expected_s(runs, size), size)
+            job.future = self._queue.submit(self._run, job)
+            self._jobs[job.id] = job
+            done = [i for i, j in self._jobs.items() if j.future.done()]
+            for i in done[: max(len(done) - self.cache_size, 0)]:
+                del self._jobs[i]
+            return job
+
+    def submit(self, key: tuple, folder: Path | str, runs: int, version: tuple | None = None) -> Future:
+        """The future of :meth:`start`'s job."""
+        return self.start(key, folder, runs, version).future
 
     def hold(self, fn: Callable[[], object]) -> Future:
         """Run ``fn`` on the queue's thread (tests hold the queue busy with it)."""
         return self._queue.submit(fn)
 
-    def future(self, key: tuple) -> Future | None:
-        """The future of the job for ``key``, without asking for it (no ``last_asked`` update)."""
+    def job(self, job_id: int) -> Job | None:
+        """The job ``job_id`` (None: unknown here, e.g. the service restarted since, or its
+        answer was dropped from the cache), without asking for it."""
         with self._lock:
-            job = self._jobs.get(key)
-            return None if job is None else job.future
+            return self._jobs.get(job_id)
+
+    def ask(self, job: Job) -> None:
+        """Someone follows ``job``: a queued job is not abandoned."""
+        with self._lock:
+            job.last_asked = self.clock()
+
+    def latest(self, key: tuple) -> Job | None:
+        """The pending job of the run set ``key``, else its newest finished one (None: none)."""
+        with self._lock:
+            mine = [j for j in self._jobs.values() if j.key == key]
+        pending = [j for j in mine if not j.future.done()]
+        if pending:
+            return pending[0]
+        return max(mine, key=lambda j: j.finished_at or j.queued_at, default=None)
+
+    def future(self, key: tuple) -> Future | None:
+        """The future of :meth:`latest`'s job."""
+        job = self.latest(key)
+        return None if job is None else job.future
+
+    def pending_jobs(self) -> list[Job]:
+        """The jobs waiting or running, in their queue's order."""
+        with self._lock:
+            return [j for j in self._jobs.values() if not j.future.done()]
 
     def pending_keys(self) -> list[tuple]:
+        """The run sets of the jobs waiting or running."""
         with self._lock:
-            return list(self._jobs)
+            return [j.key for j in self._jobs.values() if not j.future.done()]
+
+    def ahead(self, job: Job) -> int:
+        """How many diagnoses run or wait before ``job`` (0: it runs, or is next)."""
+        with self._lock:
+            if job.started_at is not None or job.future.done():
+                return 0
+            return sum(1 for j in self._jobs.values() if j.id < job.id and not j.future.done())
+
+    def expected_s(self, runs: int, size_bytes: int | None = None) -> float:
+        """What a diagnosis of ``runs`` runs (``size_bytes`` of run files) is expected to
+        take once started: as the last one timed here, per MB (else per run)."""
+        extra = 0.0 if self._warm else FIRST_DIAGNOSIS_EXTRA_S
+        if size_bytes is not None:
+            per_mb = self.s_per_mb if self.s_per_mb is not None else DEFAULT_S_PER_MB
+            return extra + per_mb * size_bytes / 1e6
+        return extra + (self.s_per_run if self.s_per_run is not None else DEFAULT_S_PER_RUN) * runs
+
+    def _remaining_s(self, job: Job, now: float) -> float:
+        """Expected seconds until ``job`` ends, the jobs before it included (lock held)."""
+        before = [j for j in self._jobs.values() if j.id <= job.id and not j.future.done()]
+        return sum(max(j.expected_s - (now - j.started_at if j.started_at is not None else 0.0), 1.0)
+                   for j in before)
+
+    def progress(self, job: Job) -> dict:
+        """The job's state for a caller: ``id``, ``state``, ``runs``, ``ahead`` (diagnoses
+        before it), ``waited_s`` (in the queue), ``elapsed_s`` (since it started),
+        ``expected_s`` (its expected duration once started), ``remaining_s`` (expected
+        seconds until it ends, the ones before it included), ``timeout_s``; the error
+        of a failed one as ``detail``."""
+        now = self.clock()
+        out = {"id": job.id, "state": job.state, "runs": job.runs, "expected_s": round(job.expected_s, 1),
+               "timeout_s": self.timeout_s}
+        started, finished = job.started_at, job.finished_at
+        out["waited_s"] = round((started if started is not None else (finished or now)) - job.queued_at, 1)
+        if started is not None:
+            out["elapsed_s"] = round((finished if finished is not None else now) - started, 1)
+        if not job.future.done():
+            out["ahead"] = self.ahead(job)
+            with self._lock:
+                out["remaining_s"] = round(self._remaining_s(job, now), 1)
+        elif job.error() is not None:
+            out["detail"] = str(job.error())
+        return out
 
     def forget(self) -> None:
         """Drop every job (still queued ones find themselves dropped and end at once)."""
         with self._lock:
             self._jobs.clear()
 
-    def _run(self, key: tuple, folder: str, runs: int) -> dict:
+    def _run(self, job: Job) -> dict:
+        now = self.clock()
         with self._lock:
-            job = self._jobs.get(key)
-            abandoned = job is None or time.monotonic() - job.last_asked > self.abandon_s
-            if abandoned and job is not None:
-                del self._jobs[key]
+            known = self._jobs.get(job.id) is job
+            abandoned = not known or now - job.last_asked > self.abandon_s
+            if abandoned:
+                job.finished_at = now
+            else:
+                job.started_at = now
+        folder, runs = job.folder, job.runs
         if abandoned:
-            raise JobAbandoned(f"gap diagnosis of {Path(folder).name} (runs={runs}) dropped: nobody asked for "
-                               f"it within {self.abandon_s:g} s")
+            raise JobAbandoned(f"the gap diagnosis of {Path(folder).name} (runs={runs}) was dropped before it "
+                               f"started: nobody asked for it within {self.abandon_s:g} s. Start it again")
+        try:
+            result = self._compute(folder, runs)
+        finally:
+            job.finished_at = self.clock()
+        # the next jobs' expected time follows this one's
+        work = max(job.finished_at - job.started_at - (0.0 if self._warm else FIRST_DIAGNOSIS_EXTRA_S), 0.1)
+        self.s_per_run = work / max(runs, 1)
+        if job.size_bytes:
+            self.s_per_mb = work / (job.size_bytes / 1e6)
+        self._warm = True
+        return result
+
+    def _compute(self, folder: str, runs: int) -> dict:
         if not self.use_process:
             return self.compute(folder, runs)
         try:
-            return self._process().submit(self.compute, folder, runs).result()
+            return self._process().submit(self.compute, folder, runs).result(timeout=self.timeout_s)
+        except FutureTimeout:
+            self.timeouts += 1
+            pool, self._pool = self._pool, None  # a fresh process for the next job
+            if pool is not None:
+                end_pool(pool, grace_s=0.0, what="gap diagnosis")
+            log.error("the gap diagnosis of %s (runs=%d) ran longer than %g s: stopped", folder, runs, self.timeout_s)
+            raise DiagnosisTimedOut(
+                f"the diagnosis of {runs} runs ran longer than {self.timeout_s:g} s and was stopped. Diagnose fewer "
+                f"runs (?runs=8 in the API), or raise limits.gap_diagnosis_timeout_s in the configuration") from None
         except BrokenProcessPool as exc:
             if self._closing:  # the service stops: end_pool ended it
-                raise DiagnosisCrashed(f"the service stopped while diagnosing runs={runs}; ask again") from None
+                raise DiagnosisCrashed(f"the service stopped while diagnosing runs={runs}; start it again") from None
             self.crashes += 1
             self._pool = None  # a fresh process for the next job
+            self._warm = False
             log.error("the gap diagnosis process died during %s (runs=%d): %s", folder, runs, exc)
             raise DiagnosisCrashed(f"the gap diagnosis process died (killed, or out of memory) while "
-                                   f"diagnosing runs={runs}; ask again to retry") from None
+                                   f"diagnosing runs={runs}; start it again to retry") from None
 
     def _process(self) -> ProcessPoolExecutor:
         if self._pool is None:
             self._pool = spawn_pool(what="gap diagnosis", nice=WORKER_NICE)
+            self._warm = False
         return self._pool
 
     def close(self) -> None:

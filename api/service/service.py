@@ -89,7 +89,8 @@ class Service:
         self.health = HealthProbe(self)
         self.events = EventHub()  # "measurement stored", "cycle failed", "alert changed" -> every interface
         self.render_status = None  # axis_id -> the status body (bytes); set by the REST app
-        self.gap_jobs = GapJobs()  # gap diagnoses: bounded jobs, computed in a worker process
+        self.gap_jobs = GapJobs(max_pending=settings.limits.gap_diagnoses_pending,  # gap diagnoses: bounded jobs,
+                                timeout_s=settings.limits.gap_diagnosis_timeout_s)  # computed in a worker process
         self.plots = PlotProcess.shared()  # figure renders, in a worker process (not on the API's interpreter)
         self.maintenance = MaintenanceLoop(self, settings.maintenance)  # work orders, repairs, verification
         self.fleet = False  # PostgreSQL: this process is one worker (or API replica) of a fleet

@@ -31,6 +31,16 @@ def age(s: float | None) -> str:
     return f"{s / 86400:.1f} d ago"
 
 
+def duration(s: float | None) -> str:
+    """Seconds as a person says them: "40 s", "3 min"."""
+    if s is None:
+        return "–"
+    s = max(s, 0.0)
+    if s < 90:
+        return f"{s:.0f} s"
+    return f"{s / 60:.0f} min"
+
+
 def when(t: datetime | None) -> str:
     return "–" if t is None else t.strftime("%Y-%m-%d %H:%M UTC")
 

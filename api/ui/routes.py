@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import logging
-import time
-from concurrent.futures import CancelledError
 from pathlib import Path as FsPath
 from typing import Annotated, Literal
 
@@ -14,20 +12,19 @@ from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from fastapi.templating import Jinja2Templates
 
 from api.service import figures, plots
-from api.service.gap_jobs import RESIDUALS, DiagnosisCrashed, age_s, JobAbandoned, TooManyJobs, axis_job
+from api.service.gap_jobs import RESIDUALS, TooManyJobs, age_s, axis_job, run_bytes, runs_stored_since
 from api.service.throttle import failed_authentication
 from api.ui import format as fmt
 from api.ui import panels as axis_panels
 from api.ui import views
 from api.ui.sessions import PRE_CSRF_COOKIE, ROLE_RANK, SESSION_COOKIE, Session, UiState, same_token
-from core.errors import MebmError
 from storage.dataset import FolderOwnerError
 from storage.db import ConflictError, NotFoundError, config_repo, results_repo, session_scope
 
 log = logging.getLogger("mebm.ui")
 HERE = FsPath(__file__).parent
 templates = Jinja2Templates(directory=str(HERE / "templates"))
-templates.env.filters.update(um=fmt.um, age=fmt.age, when=fmt.when, pct=fmt.pct)
+templates.env.filters.update(um=fmt.um, age=fmt.age, when=fmt.when, pct=fmt.pct, duration=fmt.duration)
 templates.env.globals.update(due=fmt.due)
 templates.env.globals.update(state_class=fmt.state_class, restore_below_explanation=fmt.restore_below_explanation)
 router = APIRouter(prefix="/ui", include_in_schema=False)
@@ -279,56 +276,91 @@ def measure_now(request: Request, axis_id: int, who: Posted):
 
 
 # -- gap --------------------------------------------------------------------------------------
-def _gap_future(request: Request, axis_id: int, start: bool):
+def _gap_folder(request: Request, axis_id: int):
     svc = request.app.state.service
     with session_scope(svc.factory) as s:
         axis = config_repo.get_axis(s, axis_id)
-    folder = svc.executor.readable_folder(axis) if svc.executor is not None else None  # FolderOwnerError
-    return axis, axis_job(svc.gap_jobs, axis_id, folder, GAP_RUNS, start=start)
-
-
-def _gap_ctx(request: Request, axis_id: int) -> dict:
-    try:
-        axis, fut = _gap_future(request, axis_id, start=False)
-    except NotFoundError as exc:
-        if exc.kind == "axis":
-            raise
-        with session_scope(request.app.state.service.factory) as s:
-            axis = config_repo.get_axis(s, axis_id)
-        return {"axis": axis, "gap": "no_runs", "detail": "no stored runs to diagnose yet"}
+    try:  # only the axis' own runs: never a folder another machine (of another database) wrote
+        return axis, (svc.executor.readable_folder(axis) if svc.executor is not None else None), None
     except FolderOwnerError as exc:
-        with session_scope(request.app.state.service.factory) as s:
-            axis = config_repo.get_axis(s, axis_id)
-        return {"axis": axis, "gap": "failed", "detail": str(exc)}
-    if fut is None:
-        return {"axis": axis, "gap": "idle"}
-    if not fut.done():
-        started = ui_state(request).gap_started.get(axis_id)
-        return {"axis": axis, "gap": "running", "elapsed_s": time.time() - started if started else None}
-    try:
-        report = fut.result()
-    except (DiagnosisCrashed, JobAbandoned, CancelledError) as exc:
-        return {"axis": axis, "gap": "failed", "detail": str(exc) or "the job was dropped; start it again"}
-    except MebmError as exc:
-        return {"axis": axis, "gap": "failed", "detail": str(exc)}
-    return {"axis": axis, "gap": "done", "report": report, "age_s": age_s(report)}
+        return axis, None, str(exc)
+
+
+def _gap_refusal(jobs) -> str:
+    """Why a start was refused, as the queue is now (and what to do)."""
+    pending = jobs.pending_jobs()
+    if len(pending) < jobs.max_pending:
+        return "The queue was full when the diagnosis was asked for; it has room now: start it again."
+    first = min(jobs.progress(j).get("remaining_s", 0.0) for j in pending)
+    return (f"The service is computing {len(pending)} gap diagnoses, the most it runs at once, so this one was "
+            f"not started. The first is expected to end in about {fmt.duration(first)}: start this one again then.")
+
+
+def _gap_ctx(request: Request, axis_id: int, job_id: int | None = None) -> dict:
+    """The state of the gap page: the job ``job_id`` it follows (else the axis' pending job,
+    else its newest finished one), always with an answer or a reason."""
+    jobs = request.app.state.service.gap_jobs
+    axis, folder, refusal = _gap_folder(request, axis_id)
+    base = {"axis": axis, "runs": GAP_RUNS, "timeout_s": jobs.timeout_s}
+    if refusal is not None:
+        return {**base, "gap": "failed", "detail": refusal}
+    if folder is None or not (folder / "dataset.json").is_file():
+        return {**base, "gap": "no_runs", "detail": "no stored runs to diagnose yet: the first good measurement of "
+                                                    "the axis stores one"}
+    if job_id is not None:
+        job = jobs.job(job_id)
+        if job is None or job.key[0] != str(folder.resolve()):
+            return {**base, "gap": "lost", "detail": "this diagnosis is no longer known to the service (it restarted "
+                                                     "since, or dropped the answer from its memory). Start it again"}
+        jobs.ask(job)
+    else:
+        job = axis_job(jobs, axis_id, folder, GAP_RUNS, start=False)
+        if job is None:
+            return {**base, "gap": "idle"}
+    p = jobs.progress(job)
+    ctx = {**base, "job": p, "runs": job.runs}
+    if p["state"] in ("queued", "running"):
+        return {**ctx, "gap": p["state"]}
+    err = job.error()
+    if err is not None:
+        return {**ctx, "gap": "failed", "detail": str(err) or "the job was dropped; start it again"}
+    report = job.future.result()
+    return {**ctx, "gap": "done", "report": report, "age_s": age_s(report),
+            "stored_since": runs_stored_since(folder, report)}
+
+
+def _gap_url(axis_id: int, job_id: int | None = None, *, frag: bool = False, **query) -> str:
+    from urllib.parse import urlencode
+
+    q = {**({"job": job_id} if job_id is not None else {}), **{k: v for k, v in query.items() if v is not None}}
+    return f"/ui/axes/{axis_id}/gap{'.frag' if frag else ''}" + (f"?{urlencode(q)}" if q else "")
 
 
 @router.get("/axes/{axis_id}/gap", response_class=HTMLResponse)
-def gap_page(request: Request, axis_id: int, who: Who, msg: str | None = None):
-    return page(request, "gap.html", who=who, msg=msg, **_gap_ctx(request, axis_id))
+def gap_page(request: Request, axis_id: int, who: Who, msg: str | None = None, job: int | None = None,
+             refused: int = 0):
+    ctx = _gap_ctx(request, axis_id, job)
+    jobs = request.app.state.service.gap_jobs
+    _axis, folder, _refusal = _gap_folder(request, axis_id)  # the promise: the expected time of the axis' newest runs
+    ctx.update(expected_s=jobs.expected_s(GAP_RUNS, run_bytes(folder, GAP_RUNS)
+                                          if folder is not None and ctx["gap"] != "no_runs" else None),
+               timed=jobs.s_per_run is not None)
+    if refused and ctx["gap"] not in ("queued", "running"):
+        ctx["refused"] = _gap_refusal(request.app.state.service.gap_jobs)
+    job_id = ctx["job"]["id"] if ctx.get("job") else None
+    return page(request, "gap.html", who=who, msg=msg, poll_url=_gap_url(axis_id, job_id, frag=True), **ctx)
 
 
 @router.get("/axes/{axis_id}/gap.frag", response_class=HTMLResponse)
-def gap_fragment(request: Request, axis_id: int, who: Who):
-    return page(request, "_gap.html", who=who, **_gap_ctx(request, axis_id))
+def gap_fragment(request: Request, axis_id: int, who: Who, job: int | None = None):
+    return page(request, "_gap.html", who=who, **_gap_ctx(request, axis_id, job))
 
 
 @router.get("/axes/{axis_id}/gap/residuals/{index}.png")
-def gap_residual_plot(request: Request, axis_id: int, index: int, who: Who):
+def gap_residual_plot(request: Request, axis_id: int, index: int, who: Who, job: int | None = None):
     """Measured vs model on one test run of the axis' finished diagnosis, before and
     after the diagnosed effect (the figure of ``mebm gap diagnose --plots``)."""
-    ctx = _gap_ctx(request, axis_id)
+    ctx = _gap_ctx(request, axis_id, job)
     curves = ctx["report"].get(RESIDUALS, []) if ctx["gap"] == "done" else []
     if not 0 <= index < len(curves):
         raise NotFoundError(f"residual plot of the diagnosis of axis {axis_id}", index)
@@ -343,18 +375,20 @@ def gap_residual_plot(request: Request, axis_id: int, index: int, who: Who):
 
 @router.post("/axes/{axis_id}/gap")
 def gap_start(request: Request, axis_id: int, who: Posted):
+    """Start (or join) the diagnosis of the axis' newest runs; the page then follows that job."""
+    jobs = request.app.state.service.gap_jobs
+    _axis, folder, refusal = _gap_folder(request, axis_id)
+    if refusal is not None:
+        return back(f"/ui/axes/{axis_id}/gap", refusal)
     try:
-        _gap_future(request, axis_id, start=True)
-    except TooManyJobs as exc:
-        return back(f"/ui/axes/{axis_id}/gap", str(exc))
+        job = axis_job(jobs, axis_id, folder, GAP_RUNS, fresh=True)
+    except TooManyJobs:  # the page says why, as the queue is when it is shown
+        return RedirectResponse(_gap_url(axis_id, refused=1), status_code=303)
     except NotFoundError as exc:
         if exc.kind == "axis":
             raise
         return back(f"/ui/axes/{axis_id}/gap", "no stored runs to diagnose yet")
-    except FolderOwnerError as exc:
-        return back(f"/ui/axes/{axis_id}/gap", str(exc))
-    ui_state(request).gap_started.setdefault(axis_id, time.time())
-    return back(f"/ui/axes/{axis_id}/gap")
+    return RedirectResponse(_gap_url(axis_id, job.id), status_code=303)
 
 
 # -- keys (admin) -----------------------------------------------------------------------------

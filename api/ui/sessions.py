@@ -129,4 +129,3 @@ class UiState:
 
     sessions: UiSessions = field(default_factory=UiSessions)
     figures: FigureCache = field(default_factory=FigureCache)
-    gap_started: dict[int, float] = field(default_factory=dict)  # axis id -> when the page started its job (epoch s)

@@ -5,15 +5,19 @@ this endpoint diagnoses the newest ``runs`` of them. With no ``split`` in stored
 runs the diagnosis holds out whole runs by condition (temperature, feed) and says
 which.
 
-A diagnosis takes seconds (more on the first call of a process, which compiles the
-model kernels), longer than an MES should hold a request open. So it is a job of the
-service (api/service/gap_jobs.py: computed in a worker process, bounded, abandoned
-jobs dropped): the request waits up to ``WAIT_S``; if the report is not ready it
-answers 202 with ``Retry-After``, and the next call gets the report (200), cached per
-(folder, runs, version of dataset.json), with ``computed_at`` and ``age_s`` (seconds since
-it was computed). A diagnosis that fails for its input is
-cached too and answered 422. More than the service's pending bound: 429 with
-``Retry-After``. A cached answer is served after one ``stat`` of ``dataset.json``,
+A diagnosis takes from seconds to minutes (more on the first call of a process, which
+compiles the model kernels), longer than an MES should hold a request open. So it is a
+job of the service (api/service/gap_jobs.py: computed in a worker process, bounded,
+abandoned jobs dropped, stopped after ``limits.gap_diagnosis_timeout_s``): the request
+waits up to ``WAIT_S``; if the report is not ready it answers 202 with ``Retry-After``,
+the job's progress (``job``: id, state, place in the queue, elapsed and expected
+seconds) and ``Location``: ``/axes/{id}/gap/jobs/{job_id}``, which follows that job
+whatever is stored meanwhile. The report (200) is cached per (folder, runs, version of
+dataset.json), with ``computed_at``, ``age_s`` (seconds since it was computed),
+``job_id`` and ``runs_stored_since`` (runs stored after the newest one it used). A
+diagnosis that fails for its input is cached too and answered 422. More than the
+service's pending bound: 429 with ``Retry-After`` (when the first pending diagnosis is
+expected to end). A cached answer is served after one ``stat`` of ``dataset.json``,
 without reading any run; the runs are read in the worker process. A folder that does
 not record the axis as its owner and holds runs of other cycles (another database's
 machine of the same ids) is never diagnosed: 409 saying whose it is.
@@ -21,7 +25,9 @@ machine of the same ids) is never diagnosed: 409 saying whose it is.
 
 from __future__ import annotations
 
+from concurrent.futures import CancelledError
 from concurrent.futures import TimeoutError as FutureTimeout
+from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query
@@ -30,21 +36,57 @@ from fastapi.responses import JSONResponse
 from api.rest.auth import ReadKey
 from api.rest.deps import AxisId, ServiceDep, SessionDep
 from api.rest.errors import TooManyRequestsError
-from api.service.gap_jobs import DiagnosisCrashed, JobAbandoned, TooManyJobs, axis_job, public_body
+from api.service.gap_jobs import (DiagnosisCrashed, DiagnosisTimedOut, GapJobs, Job, JobAbandoned, TooManyJobs,
+                                  axis_job, public_body, runs_stored_since)
 from storage.dataset import FolderOwnerError
-from storage.db import ConflictError, config_repo
+from storage.db import ConflictError, NotFoundError, config_repo
 
 router = APIRouter(tags=["gap"])
 
 WAIT_S = 5.0
 RETRY_AFTER_S = 5
 
-ACCEPTED = {202: {"description": "the diagnosis is being computed: call again after Retry-After seconds",
+ACCEPTED = {202: {"description": "the diagnosis waits or runs: follow Location (or call again) after Retry-After "
+                                 "seconds; `job` says its place in the queue and its expected time",
                   "content": {"application/json": {"schema": {"type": "object"}}}},
             429: {"description": "too many diagnoses waiting; call again after Retry-After seconds",
                   "content": {"application/json": {"schema": {"type": "object"}}}},
-            503: {"description": "the diagnosis process died (killed, out of memory); call again to retry",
+            503: {"description": "the diagnosis process died (killed, out of memory), the job was dropped, or "
+                                 "it ran past the time limit; `detail` says which and what to do",
                   "content": {"application/json": {"schema": {"type": "object"}}}}}
+
+
+def _folder(svc, s, axis_id: int) -> Path | None:
+    axis = config_repo.get_axis(s, axis_id)
+    try:  # only the axis' own runs: never a folder another machine (of another database) wrote
+        return svc.executor.readable_folder(axis) if svc.executor is not None else None
+    except FolderOwnerError as exc:
+        raise ConflictError(str(exc)) from None
+
+
+def _answer(jobs: GapJobs, axis_id: int, folder: Path, job: Job, wait_s: float):
+    """The job's report (200), its progress (202), or why it failed."""
+    location = f"/api/v1/axes/{axis_id}/gap/jobs/{job.id}"
+    try:
+        result = job.future.result(timeout=wait_s)  # re-raises the diagnosis' own error (a GapError: 422)
+    except FutureTimeout:
+        p = jobs.progress(job)
+        where = (f"{p['ahead']} diagnosis(es) ahead of it" if p.get("ahead") else
+                 "it runs" if p["state"] == "running" else "it is next")
+        return JSONResponse(
+            {"status": "computing" if p["state"] == "running" else "queued",
+             "detail": f"the gap diagnosis of axis {axis_id} ({job.runs} runs) is job {job.id}: {where}, expected "
+                       f"to end in about {p.get('remaining_s', 0):.0f} s; call {location} again in {RETRY_AFTER_S} s",
+             "job": p},
+            status_code=202, headers={"Retry-After": str(RETRY_AFTER_S), "Location": location})
+    except (DiagnosisCrashed, JobAbandoned, CancelledError, DiagnosisTimedOut) as exc:
+        detail = str(exc) or "the service stopped before the diagnosis started; start it again"
+        retry = {} if isinstance(exc, DiagnosisTimedOut) else {"Retry-After": str(RETRY_AFTER_S)}
+        return JSONResponse({"detail": detail, "job": jobs.progress(job)}, status_code=503, headers=retry)
+    body = public_body(result)
+    body["job_id"] = job.id
+    body["runs_stored_since"] = runs_stored_since(folder, result)
+    return body
 
 
 @router.get(
@@ -57,28 +99,25 @@ def gap(
     axis_id: AxisId, s: SessionDep, svc: ServiceDep, _k: ReadKey,
     runs: Annotated[int, Query(ge=2, le=60, description="how many of the newest stored runs to use")] = 16,
 ):
-    axis = config_repo.get_axis(s, axis_id)
-    try:  # only the axis' own runs: never a folder another machine (of another database) wrote
-        folder = svc.executor.readable_folder(axis) if svc.executor is not None else None
-    except FolderOwnerError as exc:
-        raise ConflictError(str(exc)) from None
+    folder = _folder(svc, s, axis_id)
     try:
-        fut = axis_job(svc.gap_jobs, axis_id, folder, runs)
+        job = axis_job(svc.gap_jobs, axis_id, folder, runs)
     except TooManyJobs as exc:
-        raise TooManyRequestsError(str(exc), RETRY_AFTER_S) from None
-    try:
-        return public_body(fut.result(timeout=WAIT_S))  # re-raises the diagnosis' own error
-    except FutureTimeout:
-        return JSONResponse(
-            {"status": "computing", "detail": f"the gap diagnosis of axis {axis_id} is running; "
-                                              f"call again in {RETRY_AFTER_S} s"},
-            status_code=202, headers={"Retry-After": str(RETRY_AFTER_S)},
-        )
-    except DiagnosisCrashed as exc:
-        return JSONResponse({"detail": str(exc)}, status_code=503, headers={"Retry-After": str(RETRY_AFTER_S)})
-    except JobAbandoned:
-        return JSONResponse(  # asked again after it was dropped: computed anew
-            {"status": "computing", "detail": f"the gap diagnosis of axis {axis_id} was restarted; "
-                                              f"call again in {RETRY_AFTER_S} s"},
-            status_code=202, headers={"Retry-After": str(RETRY_AFTER_S)},
-        )
+        raise TooManyRequestsError(str(exc), exc.retry_after_s) from None
+    return _answer(svc.gap_jobs, axis_id, folder, job, WAIT_S)
+
+
+@router.get(
+    "/axes/{axis_id}/gap/jobs/{job_id}",
+    summary="One gap diagnosis job: its report when done, else its place in the queue and its expected time",
+    response_model=dict[str, Any],
+    responses=ACCEPTED,
+)
+def gap_job(axis_id: AxisId, job_id: int, s: SessionDep, svc: ServiceDep, _k: ReadKey):
+    folder = _folder(svc, s, axis_id)
+    job = svc.gap_jobs.job(job_id)
+    if job is None or folder is None or job.key[0] != str(folder.resolve()):
+        raise NotFoundError(f"gap diagnosis job of axis {axis_id} (the service restarted, or the answer was "
+                            f"dropped from its memory: GET /api/v1/axes/{axis_id}/gap starts a new one)", job_id)
+    svc.gap_jobs.ask(job)
+    return _answer(svc.gap_jobs, axis_id, folder, job, WAIT_S)

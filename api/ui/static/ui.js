@@ -11,13 +11,27 @@
     var url = el.getAttribute("data-poll");
     var every = 1000 * (parseFloat(el.getAttribute("data-poll-s")) || 5);
     var busy = false;
+    // a poll that fails keeps what the region shows and says so (the next tick retries):
+    // the region never falls back to an older state without a word
+    function trouble(why) {
+      var note = el.querySelector(".poll-trouble");
+      if (!note) {
+        note = document.createElement("p");
+        note.className = "warn-text poll-trouble";
+        el.appendChild(note);
+      }
+      note.textContent = "This part of the page could not be refreshed (" + why + " at " +
+        new Date().toLocaleTimeString() + "); it tries again every " + every / 1000 + " s. " +
+        "If this lasts, reload the page.";
+    }
     function tick() {
       if (busy || document.hidden) { return; }
       busy = true;
       fetch(url, { credentials: "same-origin", headers: { "Accept": "text/html" } })
         .then(function (r) {
           if (r.status === 401) { window.location.href = "/ui/sign-in"; return null; }
-          return r.ok ? r.text() : null;
+          if (!r.ok) { trouble("the service answered HTTP " + r.status); return null; }
+          return r.text();
         })
         .then(function (html) {
           if (html === null || html === undefined) { return; }
@@ -26,7 +40,7 @@
           el.setAttribute("data-refreshed", new Date().toISOString());
           if (el.querySelector("[data-poll-stop]")) { clearInterval(timer); }
         })
-        .catch(function () { /* the next tick retries */ })
+        .catch(function () { trouble("the service does not answer"); })
         .finally(function () { busy = false; });
     }
     var timer = setInterval(tick, every);

@@ -22,6 +22,8 @@ max_header_bytes = 32768
 max_headers = 50
 auth_address_failures_per_minute = 30
 auth_address_failure_burst = 40
+gap_diagnoses_pending = 3
+gap_diagnosis_timeout_s = 300
 [storage]
 data_dir = "/var/lib/mebm"
 database_url = "postgresql://mebm@db/mebm"
@@ -94,6 +96,7 @@ def test_every_option_is_read(tmp_path):
     lim = s.limits
     assert (lim.max_header_bytes, lim.max_headers, lim.auth_address_failures_per_minute,
             lim.auth_address_failure_burst) == (32768, 50, 30, 40)
+    assert (lim.gap_diagnoses_pending, lim.gap_diagnosis_timeout_s) == (3, 300.0)
     assert (s.catch_up_missed, s.spool_retry_s, s.log_level) == (False, 10, "warning")
     assert s.simulator.time_scale == 5 and s.simulator.temperature_period_s == 3600
     (axis,) = s.axes

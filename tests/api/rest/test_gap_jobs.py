@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from api.service.gap_jobs import WORKER_NICE, DiagnosisCrashed, GapJobs, TooManyJobs
+from api.service.gap_jobs import FIRST_DIAGNOSIS_EXTRA_S, WORKER_NICE, DiagnosisCrashed, DiagnosisTimedOut, GapJobs, TooManyJobs
 
 
 def where_am_i(folder: str, runs: int) -> dict:
@@ -118,3 +118,93 @@ def test_the_worker_ends_when_the_service_process_is_killed(tmp_path):
         time.sleep(0.1)
     else:
         raise AssertionError(f"the diagnosis process {worker} outlived its killed service")
+
+
+class Clock:
+    """The jobs' injected clock: seconds that pass only when a test says so."""
+
+    def __init__(self):
+        self.t = 1000.0
+
+    def __call__(self):
+        return self.t
+
+
+def test_one_pending_job_per_run_set_whatever_is_stored_meanwhile(tmp_path):
+    """A run stored while a diagnosis waits (a new data version) joins the pending job
+    instead of orphaning it: the page and the API follow the same job id, and the bound
+    counts only jobs someone can still get an answer from."""
+    release = threading.Event()
+    j = GapJobs(compute=lambda folder, runs: (release.wait(60), {"runs": runs})[1], use_process=False, max_pending=1)
+    try:
+        first = j.start(("f", 16), tmp_path, 16, version=(1, 100))
+        again = j.start(("f", 16), tmp_path, 16, version=(2, 200))  # a run stored since
+        assert again is first and j.pending_keys() == [("f", 16)]
+        with pytest.raises(TooManyJobs) as refused:
+            j.start(("g", 16), tmp_path, 16, version=(1, 100))
+        assert "start this one again then" in str(refused.value) and refused.value.retry_after_s >= 1
+        release.set()
+        assert first.future.result(timeout=60) == {"runs": 16}
+        assert j.job(first.id).state == "done"
+        assert j.start(("f", 16), tmp_path, 16, version=(1, 100)) is first  # the answer kept for its version
+        newer = j.start(("f", 16), tmp_path, 16, version=(2, 200))  # the newer runs: a new job
+        assert newer.id != first.id and newer.future.result(timeout=60) == {"runs": 16}
+        assert j.latest(("f", 16)) is newer
+    finally:
+        release.set()
+        j.close()
+
+
+def test_progress_says_the_place_in_the_queue_and_the_expected_time(tmp_path):
+    clock = Clock()
+    go = {n: threading.Event() for n in (4, 8)}
+    started = {n: threading.Event() for n in (4, 8)}
+
+    def compute(folder, runs):
+        started[runs].set()
+        go[runs].wait(60)
+        clock.t += 30.0 * runs / 4  # the diagnosis' duration, on the injected clock
+        return {"runs": runs}
+
+    j = GapJobs(compute=compute, use_process=False, clock=clock, max_pending=3)
+    try:
+        a = j.start(("f", 4), tmp_path, 4, size_bytes=2_000_000)
+        b = j.start(("f", 8), tmp_path, 8, size_bytes=4_000_000)
+        assert started[4].wait(60)
+        clock.t += 10.0
+        pa, pb = j.progress(a), j.progress(b)
+        assert (pa["state"], pa["ahead"], pa["elapsed_s"]) == ("running", 0, 10.0)
+        assert (pb["state"], pb["ahead"], pb["waited_s"]) == ("queued", 1, 10.0)
+        assert pb["remaining_s"] == pytest.approx(pa["remaining_s"] + pb["expected_s"])
+        assert pb["expected_s"] > pa["expected_s"]  # twice the runs' bytes
+        go[4].set()
+        a.future.result(timeout=60)
+        assert started[8].wait(60)
+        # the first diagnosis timed here sets the next ones' expected time: 40 s for 2 MB, less the compilation
+        assert j.progress(a)["elapsed_s"] == 40.0 and "ahead" not in j.progress(a)
+        assert j.expected_s(8, 4_000_000) == pytest.approx(2 * (40.0 - FIRST_DIAGNOSIS_EXTRA_S))
+        go[8].set()
+        assert b.future.result(timeout=60) == {"runs": 8}
+    finally:
+        for e in go.values():
+            e.set()
+        j.close()
+
+
+def test_a_diagnosis_past_the_time_limit_is_stopped_and_says_what_to_do(tmp_path):
+    j = GapJobs(compute=where_am_i, timeout_s=5.0)
+    try:
+        slow = j.start(("t", 98), tmp_path, 98, version=(1, 1))
+        with pytest.raises(DiagnosisTimedOut, match="ran longer than 5 s and was stopped. Diagnose fewer runs"):
+            slow.future.result(timeout=300)
+        assert j.timeouts == 1 and slow.state == "failed"
+        assert "limits.gap_diagnosis_timeout_s" in j.progress(slow)["detail"]
+        # kept for its data version (a poller does not start it again and again) ...
+        assert j.start(("t", 98), tmp_path, 98, version=(1, 1)) is slow
+        # ... and the next diagnosis gets a fresh process (under a limit a spawn fits in on a loaded machine)
+        j.timeout_s = 600.0
+        assert j.submit(("t", 2), tmp_path, 2).result(timeout=120)["runs"] == 2
+        again = j.start(("t", 98), tmp_path, 98, version=(1, 1), fresh=True)  # a start from the page: computed anew
+        assert again is not slow and again.id > slow.id and again.state in ("queued", "running")
+    finally:
+        j.close()

@@ -164,6 +164,87 @@ def test_a_form_post_without_csrf_token_is_refused(page, ui_server, alarm):
     assert status == 403 and page.request.get(link).status == 200
 
 
+def demo_like_history(folder, n_runs: int = 6, travel_mm: float = 150.0, seed: int = 5) -> list[str]:
+    """Round trips of the demo axis (api/service/demo.py: its twin's thermal lead, cyclic
+    error at the screw lead, encoders and noise; the demo's feed, acceleration and 400 Hz
+    servo rate) through a shop temperature swinging 19-23 °C, over a shorter travel than
+    the demo's 1000 mm so that a diagnosis of them is short; stored as the service stores
+    runs. Returns the run files."""
+    from api.service.config import DEMO_SIMULATOR, demo_axis
+    from api.service.demo import DEMO_ENCODERS, DEMO_LEAD_ERROR_UM_PER_M, DEMO_LEAD_GROWTH_PPM_PER_K
+    from core.dataset import Dataset, MachineSpec
+    from core.sim import AxisModel, CyclicError, Effects, Thermal, round_trip, simulate
+
+    cfg = demo_axis(travel_mm=(0.0, travel_mm)).settings
+    spec, sim = cfg.spec, DEMO_SIMULATOR
+    effects = Effects(thermal=Thermal(lead_error_um_per_m=DEMO_LEAD_ERROR_UM_PER_M,
+                                      lead_growth_ppm_per_k=DEMO_LEAD_GROWTH_PPM_PER_K),
+                      cyclic_error=CyclicError.of((spec.screw_lead_mm, sim.cyclic_error_um, 0.0)))
+    rng = np.random.default_rng(seed)
+    runs = []
+    for i in range(n_runs):
+        t = 21.0 + 2.0 * np.sin(2 * np.pi * i / n_runs)
+        model = AxisModel.from_axis_spec(spec, sim.backlash_um_at_20c + sim.backlash_um_per_k * (t - 20.0),
+                                         effects=effects, encoders=DEMO_ENCODERS)
+        program = round_trip(-3.0, travel_mm + 3.0, cfg.measure_feed_mm_min, cfg.measure_acceleration_mm_s2,
+                             dwell_s=0.2)
+        trace = simulate({"y": model}, program, temperature_c=float(t), rate_hz=sim.servo_rate_hz, rng=rng)
+        runs.append(trace.to_run(f"rt_y_{i:02d}.csv", utility_day=0.1 * i))
+    write_dataset(folder, Dataset(MachineSpec("demo-vmc", {"y": spec}), tuple(runs)))
+    return [r.spec.file for r in runs]
+
+
+def test_gap_diagnosis_of_a_demo_like_history_shows_its_progress_then_the_report(page, ui_server):
+    """Started from the gap page, the diagnosis is followed by its job id until the report
+    is on the page (not only until it started); a run stored while it computes does not
+    send the page back to the idle button."""
+    with session_scope(ui_server.svc.factory) as s:
+        axis = config_repo.get_axis(s, ui_server.axis_id)
+    folder = ui_server.svc.executor.dataset_folder(axis)
+    files = demo_like_history(folder)
+    sign_in(page, ui_server, "read")
+    page.goto(f"{ui_server.url}/ui/axes/{ui_server.axis_id}/gap")
+    assert re.search(r"about \d+ (s|min) for 16 runs", page.locator("#gap-promise").inner_text())
+    page.click("#gap-start")
+    page.wait_for_url(re.compile(r"/gap\?job=\d+$"))
+    job_id = int(page.url.rsplit("=", 1)[1])
+    state = page.locator(".gap-state")
+    if state.get_attribute("data-gap") in ("queued", "running"):  # (a fast machine may be done already)
+        assert re.search(rf"(Waiting in the queue|Diagnosing \d+ runs) \(job {job_id}", state.inner_text())
+        # a run stored meanwhile (the next scheduled measurement): the page keeps following its job
+        from dataclasses import replace
+
+        from storage.dataset import append_runs, read_dataset
+
+        scratch = folder.with_name(folder.name + "-next")
+        demo_like_history(scratch, n_runs=1, seed=9)
+        nxt = read_dataset(scratch)
+        append_runs(folder, nxt.machine, [type(nxt.runs[0])(replace(nxt.runs[0].spec, file="rt_y_99.csv"),
+                                                            nxt.runs[0].columns)])
+        # a poll the service does not answer: the page keeps its state and says so
+        page.route("**/gap.frag*", lambda route: route.fulfill(status=500, body="down"))
+        page.wait_for_selector(".poll-trouble", timeout=60000)
+        assert "HTTP 500" in page.locator(".poll-trouble").inner_text()
+        assert page.locator(".gap-state").get_attribute("data-gap") in ("queued", "running")
+        page.unroute("**/gap.frag*")
+    # the deadline only catches a diagnosis that never ends (the worker runs at nice +10 on a shared machine)
+    page.wait_for_selector("#gap-result, #gap-error", timeout=900000)
+    assert page.locator("#gap-error").count() == 0, page.locator("#gap-error").inner_text()
+    assert page.locator(".gap-state").get_attribute("data-job") == str(job_id)
+    assert page.locator("#gap-result").inner_text().startswith("Diagnosis: ")
+    assert page.locator("table.candidates tbody tr").count() >= 2
+    used = re.search(r"(\d+) runs used \((\S+) to (\S+)\)", page.locator(".gap-state").inner_text())
+    assert used and used[2] == files[0]
+    assert re.match(r"Computed \d+ s ago .* in \d+ (s|min)\.", page.locator("#gap-age").inner_text())
+    # the report says which runs it used and how many were stored since (the job read the
+    # newest runs when it started: the run stored meanwhile, or not yet)
+    since = page.locator("#gap-since").inner_text()
+    if used[3] == files[-1] and (folder / "rt_y_99.csv").exists():
+        assert int(used[1]) == len(files) and since.startswith("1 run stored since: start the diagnosis again")
+    else:
+        assert since.startswith("No run stored since")
+
+
 def test_gap_diagnosis_runs_in_the_background_and_arrives(page, ui_server):
     with session_scope(ui_server.svc.factory) as s:
         axis = config_repo.get_axis(s, ui_server.axis_id)
@@ -173,8 +254,8 @@ def test_gap_diagnosis_runs_in_the_background_and_arrives(page, ui_server):
     page.goto(f"{ui_server.url}/ui/axes/{ui_server.axis_id}/gap")
     page.click("#gap-start")
     # the start returns at once; the page polls until the report arrives
-    page.wait_for_selector("#gap-running, #gap-result", timeout=30000)
-    page.wait_for_selector("#gap-result", timeout=240000)
+    page.wait_for_selector("#gap-queued, #gap-running, #gap-result", timeout=30000)
+    page.wait_for_selector("#gap-result, #gap-error", timeout=900000)
     assert page.locator("#gap-result").inner_text() == f"Diagnosis: {case.label}"
     assert page.locator("table.candidates tbody tr").count() >= 2
     assert "µm" in page.locator(".gap-state").inner_text()
@@ -190,6 +271,38 @@ def test_gap_diagnosis_runs_in_the_background_and_arrives(page, ui_server):
     assert "→" in page.locator(".residuals figcaption").first.inner_text()
     page.evaluate("window.scrollTo(0, 0)")
     page.screenshot(path=str(SCREENSHOTS / "gap.png"), full_page=True)
+
+
+def test_a_full_queue_is_shown_with_the_reason_and_what_to_do(page, ui_server):
+    """Starting while the service computes as many diagnoses as it runs at once: the page
+    says so, when the first is expected to end, and offers the start again."""
+    import threading
+
+    from api.service.gap_jobs import JobAbandoned, run_set
+
+    jobs = ui_server.svc.gap_jobs
+    with session_scope(ui_server.svc.factory) as s:
+        axis = config_repo.get_axis(s, ui_server.axis_id)
+    folder = ui_server.svc.executor.dataset_folder(axis)
+    demo_like_history(folder, n_runs=4)
+    release, held = threading.Event(), threading.Event()
+    jobs.hold(lambda: (held.set(), release.wait(600)))  # the queue is busy with another job
+    assert held.wait(60)
+    others = [jobs.start(run_set(folder, n), folder, n, ("held", n)) for n in range(2, 2 + jobs.max_pending)]
+    try:
+        sign_in(page, ui_server, "read")
+        page.goto(f"{ui_server.url}/ui/axes/{ui_server.axis_id}/gap")
+        page.click("#gap-start")
+        page.wait_for_url(re.compile(r"/gap\?refused=1"))
+        refused = page.locator("#gap-refused").inner_text()
+        assert f"computing {jobs.max_pending} gap diagnoses, the most it runs at once" in refused
+        assert re.search(r"expected to end in about \d+ (s|min): start this one again then", refused)
+        assert page.locator("#gap-start").is_visible()  # what to do: start again
+    finally:
+        jobs.forget()  # the held jobs are dropped, not computed
+        release.set()
+        for job in others:
+            assert isinstance(job.future.exception(timeout=120), JobAbandoned)
 
 
 def test_admin_creates_a_key_that_signs_in_by_form_then_revokes_it(page, ui_server):
