@@ -31,6 +31,20 @@ START_TIMEOUT_S = 60.0
 CALL_TIMEOUT_S = 30.0
 
 
+class _DeniedIsInfo(logging.Filter):
+    """asyncua logs every refused request of a client at ERROR ("sending service fault
+    response: ... (BadUserAccessDenied)"); a read-only server refuses writes by design, so
+    a client that tries one is an INFO line, not an error of the service."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno >= logging.WARNING and "AccessDenied" in record.getMessage():
+            record.levelno, record.levelname = logging.INFO, "INFO"
+        return True
+
+
+_DENIED_IS_INFO = _DeniedIsInfo()
+
+
 class OpcuaServer:
     def __init__(self, service, settings: OpcuaSettings):
         self.service = service
@@ -51,6 +65,7 @@ class OpcuaServer:
     def start(self) -> bool:
         """Start listening, seed the address space, subscribe; False (``error`` says why) if
         the server could not start."""
+        logging.getLogger("asyncua.server.uaprocessor").addFilter(_DENIED_IS_INFO)  # once: a filter is kept once
         self._thread = threading.Thread(target=self._run, name="mebm-opcua", daemon=True)
         self._thread.start()
         if not self._started.wait(START_TIMEOUT_S):

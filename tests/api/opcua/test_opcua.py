@@ -7,6 +7,7 @@ seen before a measurement, then after). SQLite: the server only reads the status
 from __future__ import annotations
 
 import asyncio
+import logging
 import socket
 import time
 import uuid
@@ -146,7 +147,9 @@ def test_a_client_browses_to_backlash_mean_and_sees_it_change_after_a_measuremen
     assert abs(entry["PredictedTime"].replace(tzinfo=timezone.utc) - raised_at) < timedelta(milliseconds=1)
 
 
-def test_a_write_is_refused_and_every_variable_is_read_only(env):
+def test_a_write_is_refused_and_every_variable_is_read_only(env, caplog):
+    caplog.set_level(logging.INFO, logger="asyncua.server")
+
     async def go():
         async with Client(env["ua"].endpoint, timeout=10) as c:
             idx, axis = await _browse_to_axis(c)
@@ -163,6 +166,10 @@ def test_a_write_is_refused_and_every_variable_is_read_only(env):
     before, after, refused, levels = asyncio.run(go())
     assert isinstance(refused, ua.uaerrors.BadUserAccessDenied)
     assert after == before
+    # a client refused by design is told so and logged at INFO, not as an error of the server
+    server_lines = [r for r in caplog.records if r.name.startswith("asyncua.server")]
+    assert any("BadUserAccessDenied" in r.getMessage() and r.levelno == logging.INFO for r in server_lines)
+    assert not [r.getMessage() for r in server_lines if r.levelno >= logging.WARNING and "Denied" in r.getMessage()]
     assert levels and set(levels) == {ua.AccessLevel.CurrentRead.mask}
 
 
