@@ -24,19 +24,24 @@ api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False,
 
 
 class KeyCache:
-    def __init__(self, ttl_s: float = 5.0):
+    """Keys as looked up in the database, each kept ``ttl_s``: a key revoked by another
+    process (another worker of a fleet, the CLI) stops working within that time; one
+    revoked through this process's API at once (the cache is cleared)."""
+
+    def __init__(self, ttl_s: float = 1.0, clock=time.monotonic):
         self.ttl_s = ttl_s
+        self.clock = clock
         self._d: dict[str, tuple[float, KeyRecord | None]] = {}
         self._lock = threading.Lock()
 
     def cached(self, secret: str) -> tuple[bool, KeyRecord | None]:
         hit = self._d.get(secret)
-        if hit is not None and time.monotonic() - hit[0] < self.ttl_s:
+        if hit is not None and self.clock() - hit[0] < self.ttl_s:
             return True, hit[1]
         return False, None
 
     def lookup(self, factory, secret: str) -> KeyRecord | None:
-        now = time.monotonic()
+        now = self.clock()
         found, rec = self.cached(secret)
         if found:
             return rec

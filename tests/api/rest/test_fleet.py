@@ -395,7 +395,6 @@ def test_api_replica_follows_what_other_processes_store(pg, tmp_path):
             _, admin = config_repo.create_key(s, "admin", "admin")
             _, reader = config_repo.create_key(s, "reader", "read")
             axis_id = config_repo.list_axes(s)[0].id
-        replica_app.state.key_cache.ttl_s = 0.5
         hdr = {"X-API-Key": admin}
         assert r.get("/api/v1/workers", headers=hdr).json()[0]["name"] == "worker"  # a replica is no worker
         assert r.get(f"/api/v1/axes/{axis_id}/status", headers=hdr).json()["measurement_id"] is None
