@@ -246,6 +246,7 @@ class Job:
     size_bytes: int | None = None
     started_at: float | None = None
     finished_at: float | None = None
+    waiting: int = 0  # REST requests waiting for it now (each on the event loop, holding no thread)
 
     @property
     def state(self) -> str:

@@ -25,21 +25,23 @@ machine of the same ids) is never diagnosed: 409 saying whose it is.
 
 from __future__ import annotations
 
+import asyncio
 from concurrent.futures import CancelledError
 from concurrent.futures import TimeoutError as FutureTimeout
 from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query
+from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
 from api.rest.auth import ReadKey
-from api.rest.deps import AxisId, ServiceDep, SessionDep
+from api.rest.deps import AxisId, ServiceDep
 from api.rest.errors import TooManyRequestsError
 from api.service.gap_jobs import (DiagnosisCrashed, DiagnosisTimedOut, GapJobs, Job, JobAbandoned, TooManyJobs,
                                   axis_job, public_body, runs_stored_since)
 from storage.dataset import FolderOwnerError
-from storage.db import ConflictError, NotFoundError, config_repo
+from storage.db import ConflictError, NotFoundError, config_repo, session_scope
 
 router = APIRouter(tags=["gap"])
 
@@ -56,8 +58,11 @@ ACCEPTED = {202: {"description": "the diagnosis waits or runs: follow Location (
                   "content": {"application/json": {"schema": {"type": "object"}}}}}
 
 
-def _folder(svc, s, axis_id: int) -> Path | None:
-    axis = config_repo.get_axis(s, axis_id)
+def _folder(svc, axis_id: int) -> Path | None:
+    """The axis' own folder, read in a session of its own: a request that then waits for
+    its job holds no database connection either."""
+    with session_scope(svc.factory) as s:
+        axis = config_repo.get_axis(s, axis_id)
     try:  # only the axis' own runs: never a folder another machine (of another database) wrote
         return svc.executor.readable_folder(axis) if svc.executor is not None else None
     except FolderOwnerError as exc:
@@ -95,16 +100,29 @@ def _answer(jobs: GapJobs, axis_id: int, folder: Path, job: Job, wait_s: float):
     response_model=dict[str, Any],
     responses=ACCEPTED,
 )
-def gap(
-    axis_id: AxisId, s: SessionDep, svc: ServiceDep, _k: ReadKey,
+async def gap(
+    axis_id: AxisId, svc: ServiceDep, _k: ReadKey,
     runs: Annotated[int, Query(ge=2, le=60, description="how many of the newest stored runs to use")] = 16,
 ):
-    folder = _folder(svc, s, axis_id)
+    folder = await run_in_threadpool(_folder, svc, axis_id)
     try:
-        job = axis_job(svc.gap_jobs, axis_id, folder, runs)
+        job = await run_in_threadpool(axis_job, svc.gap_jobs, axis_id, folder, runs)
     except TooManyJobs as exc:
         raise TooManyRequestsError(str(exc), exc.retry_after_s) from None
-    return _answer(svc.gap_jobs, axis_id, folder, job, WAIT_S)
+    await _settle(job)
+    return await run_in_threadpool(_answer, svc.gap_jobs, axis_id, folder, job, 0.0)
+
+
+async def _settle(job: Job) -> None:
+    """Up to ``WAIT_S`` for the job to end, on the event loop: a request that waits holds
+    none of the worker threads the other requests (``/healthz`` among them) need."""
+    wait_s = WAIT_S
+    if not job.future.done():
+        job.waiting += 1  # on the event loop only: no lock needed
+        try:
+            await asyncio.wait({asyncio.wrap_future(job.future)}, timeout=wait_s)  # never cancels the job
+        finally:
+            job.waiting -= 1
 
 
 @router.get(
@@ -113,11 +131,12 @@ def gap(
     response_model=dict[str, Any],
     responses=ACCEPTED,
 )
-def gap_job(axis_id: AxisId, job_id: int, s: SessionDep, svc: ServiceDep, _k: ReadKey):
-    folder = _folder(svc, s, axis_id)
+async def gap_job(axis_id: AxisId, job_id: int, svc: ServiceDep, _k: ReadKey):
+    folder = await run_in_threadpool(_folder, svc, axis_id)
     job = svc.gap_jobs.job(job_id)
     if job is None or folder is None or job.key[0] != str(folder.resolve()):
         raise NotFoundError(f"gap diagnosis job of axis {axis_id} (the service restarted, or the answer was "
                             f"dropped from its memory: GET /api/v1/axes/{axis_id}/gap starts a new one)", job_id)
     svc.gap_jobs.ask(job)
-    return _answer(svc.gap_jobs, axis_id, folder, job, WAIT_S)
+    await _settle(job)
+    return await run_in_threadpool(_answer, svc.gap_jobs, axis_id, folder, job, 0.0)

@@ -10,6 +10,7 @@ import pytest
 
 from api.rest.routers import gap
 from api.service.gap_jobs import JobAbandoned
+from core.gap import GapError
 from tests.api.rest.conftest import hdr
 from tests.api.rest.test_gap import _store_case, get_report
 
@@ -71,3 +72,50 @@ def test_a_cached_answer_does_not_read_the_runs_again(app_env):
     a, f = again.json(), first.json()
     assert a.pop("age_s") >= f.pop("age_s") >= 0  # a cached answer says how old it is
     assert a == f
+
+
+def test_waiting_gap_requests_hold_no_worker_thread(tmp_path, monkeypatch):
+    """Sixty clients wait on one diagnosis that cannot start (the queue is held): all sixty
+    wait at once, more than the server's 40 worker threads could hold, and ``/healthz`` (a
+    threaded endpoint) is answered while they wait."""
+    import asyncio
+
+    import httpx
+
+    from storage.db import config_repo, session_scope
+    from tests.api.rest.conftest import ServedApp
+    from tests.waiting import poll
+
+    served = ServedApp(tmp_path)
+    release = threading.Event()
+    try:
+        svc = served.app.state.service
+        with session_scope(svc.factory) as s:
+            key = config_repo.create_key(s, "mes", "read")[1]
+            axis_id = config_repo.list_axes(s)[0].id
+        _store_case(svc, axis_id, "cyclic_error", seed=11)
+        started = threading.Event()
+        svc.gap_jobs.hold(lambda: (started.set(), release.wait(120)))
+        assert started.wait(30)
+        monkeypatch.setattr(gap, "WAIT_S", 60.0)  # the sixty wait until the test has seen them all
+        svc.gap_jobs.use_process = False  # what the job then computes is not this test's matter: it ends at once
+        monkeypatch.setattr(svc.gap_jobs, "compute", lambda folder, runs: (_ for _ in ()).throw(GapError("held")))
+
+        async def go():
+            limits = httpx.Limits(max_connections=100, max_keepalive_connections=100)
+            async with httpx.AsyncClient(base_url=served.url, timeout=120, limits=limits) as c:
+                waiting = [asyncio.create_task(c.get(f"/api/v1/axes/{axis_id}/gap", headers=hdr(key)))
+                           for _ in range(60)]
+                job = await asyncio.to_thread(poll, lambda: next(iter(svc.gap_jobs.pending_jobs()), None), 60)
+                seen = await asyncio.to_thread(poll, lambda: job.waiting == 60, 60)
+                health = await c.get("/healthz")
+                still = job.waiting
+                release.set()  # the held queue moves on: the job runs and the sixty are answered
+                return seen, health.status_code, still, await asyncio.gather(*waiting)
+
+        seen, health, still, answers = asyncio.run(go())
+        assert seen and health in (200, 503) and still == 60
+        assert [r.status_code for r in answers] == [422] * 60  # each got the job's own answer
+    finally:
+        release.set()
+        served.close()
