@@ -397,9 +397,17 @@ class CycleExecutor:
         run_file, folder, note, trace_file, lost, full = None, None, None, None, None, False
         if outcome.time_s is not None:
             try:
-                folder, run_file = self._write_run(axis, outcome, req, finished)
+                try:
+                    folder, run_file = self._write_run(axis, outcome, req, finished)
+                except (MebmError, OSError) as exc:
+                    if not (is_storage_full(exc) and self.release_reserve()):
+                        raise
+                    full = True  # the reserve makes room for the raw run (and the spool file) once
+                    log.error("cycle %s: the disk is full (%s); the spool reserve (%s) was released to keep the "
+                              "cycle; %s", req.uuid, exc, self.reserve_path, FREE_SPACE_HINT)
+                    folder, run_file = self._write_run(axis, outcome, req, finished)
             except (MebmError, OSError) as exc:
-                full = is_storage_full(exc)
+                full = full or is_storage_full(exc)
                 trace_file = self._keep_trace(axis, req, outcome)
                 kept = f"kept in {trace_file}" if trace_file else "and it could not be kept anywhere else"
                 note = f"raw run not written to the dataset folder ({exc}); {kept}"
@@ -427,7 +435,9 @@ class CycleExecutor:
         if outcome.time_s is not None and run_file is None and trace_file is None:  # only the spool can keep it
             trace = {"time_s": outcome.time_s, "motor_rev": outcome.motor_rev, "table_mm": outcome.table_mm}
         if full:
-            fc = replace(fc, failure_reason=self._full_reason(fc, note))
+            fc = replace(fc, failure_reason=self._full_reason(fc, note or (
+                "the disk under the data folder was full when the cycle finished; its raw run was written to the "
+                f"room of the spool reserve ({self.reserve_path}), which is allocated again once there is space")))
         doc = self._spool_doc(fc, folder, axis.tasks, trace_file=trace_file, trace=trace)
         return self._save(fc, self._write_spool(doc), doc=doc)
 
@@ -659,6 +669,10 @@ class CycleExecutor:
                 return True
         except OSError:
             pass
+        free = self.free_bytes()
+        if free is not None and free < 2 * self.reserve_bytes:  # no room yet: taking it would fill the disk again
+            log.debug("spool reserve not allocated yet: %d bytes free", free)
+            return False
         tmp = self.reserve_path.with_name(".reserve.tmp")
         try:
             self.spool_dir.mkdir(parents=True, exist_ok=True)

@@ -268,7 +268,9 @@ class Service:
         gc.unfreeze()  # what start froze may be garbage now (a process that starts services in turn: the tests)
 
     def _retry_spool(self) -> None:
-        if self.executor.has_pending():
+        if not self.executor.has_pending():
+            self.executor.ensure_reserve()  # released on a full disk: back once there is room
+        else:
             n = self.executor.replay_spool()
             if n:
                 log.info("stored %d cycle(s) kept on disk during a database outage", n)
