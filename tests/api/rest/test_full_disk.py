@@ -76,7 +76,7 @@ def _wait(cond, timeout_s=30.0) -> bool:
     return cond()
 
 
-def _full_disk_cycle(small_disk, database_full=False):
+def _full_disk_cycle(small_disk, database_full=False, no_room_for_run=False):
     """Start on the small disk, run a cycle that finishes once the disk is full, stop
     normally, free the space and start again. Returns (data folder, uuid, what was seen while
     the disk was full, the restarted app's measurements, alerts, start report, executor)."""
@@ -104,6 +104,13 @@ def _full_disk_cycle(small_disk, database_full=False):
         filler = _fill(small_disk)
         if database_full:
             results_repo.save_finished_cycle = refuse
+        if no_room_for_run:  # a raw run larger than the reserve: neither the folder nor unfiled/ takes it
+
+            def no_room(*a, **k):
+                raise OSError(errno.ENOSPC, "No space left on device")
+
+            svc.executor._write_run = no_room
+            svc.executor._keep_trace = lambda *a, **k: None
         try:
             runner.gate.set()
             assert svc.scheduler.idle(60)
@@ -179,3 +186,14 @@ def test_below_the_free_disk_floor_no_cycle_starts_and_healthz_and_an_alert_say_
         alerts = client.get("/api/v1/alerts", headers=hdr(keys["read"])).json()["items"]
         (alert,) = [a for a in alerts if a["kind"] == "storage_full"]
         assert alert["active"] and "min_free_disk_mb" in alert["message"]
+
+
+def test_a_raw_run_with_no_room_anywhere_travels_in_the_spool_file_and_is_kept_at_the_restart(small_disk):
+    data, uuid, seen, items, alerts, report = _full_disk_cycle(small_disk, database_full=True, no_room_for_run=True)
+    assert seen["spooled_after_stop"] and seen["empty_after_stop"] == []
+    (during,) = seen["items"]
+    assert during["status"] == "failed" and during["reason_code"] == "storage_full"
+    assert report.replayed == 1 and report.interrupted == 0
+    _assert_kept_as_storage_full(items, alerts)  # re-analysed from the trace the spool file carried
+    assert (data / "unfiled" / f"{uuid}.npz").is_file()  # and the raw run kept now that there is room
+    assert "unfiled" in items[0]["failure_reason"]
