@@ -636,9 +636,6 @@ class CycleExecutor:
             doc["trace"] = {k: _encode(v) for k, v in trace.items()}
         return doc
 
-    def _spool(self, fc: FinishedCycle, folder: Path | None, tasks, *, trace_file: Path | None = None) -> Path | None:
-        return self._write_spool(self._spool_doc(fc, folder, tasks, trace_file=trace_file))
-
     def _write_spool(self, doc: dict) -> Path | None:
         """The spool file of ``doc`` (fsynced), or None. On a full disk the reserve is
         released and the write tried once more."""

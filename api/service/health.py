@@ -97,11 +97,11 @@ class HealthProbe:
                             "under the data folder and the schedule resumes")
         if ex is not None:
             held = ex.held()
-            full = sum(1 for _, reason in held.values() if results_repo.is_storage_full(reason))
-            if full:
-                problems.append(f"storage_full: {full} finished cycle(s) wait in the spool because the disk was full; "
-                                "free space under the data folder and they are stored within "
-                                "scheduler.spool_retry_s (or at the next start)")
+            full = any(results_repo.is_storage_full(reason) for _, reason in held.values())
+            if full:  # (no count in the line: it is also a metric label; spooled_cycles counts them)
+                problems.append("storage_full: finished cycles wait in the spool because the disk was full; free space "
+                                "under the data folder and they are stored within scheduler.spool_retry_s (or at "
+                                "the next start)")
             if not ex.reserve_ok() and (full or (free is not None and free < ex.reserve_bytes)):
                 problems.append(f"the spool reserve {ex.reserve_path} is released (the disk was full): the next "
                                 "cycle on a full disk may be kept in memory only; free space under the data folder")

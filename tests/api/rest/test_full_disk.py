@@ -197,3 +197,12 @@ def test_a_raw_run_with_no_room_anywhere_travels_in_the_spool_file_and_is_kept_a
     _assert_kept_as_storage_full(items, alerts)  # re-analysed from the trace the spool file carried
     assert (data / "unfiled" / f"{uuid}.npz").is_file()  # and the raw run kept now that there is room
     assert "unfiled" in items[0]["failure_reason"]
+
+
+def test_the_spool_reserve_is_configured_in_storage_and_refuses_a_negative_size():
+    from api.service.config import ConfigError, parse_settings
+
+    assert parse_settings({"storage": {"spool_reserve_mb": 2.5}}).spool_reserve_mb == 2.5
+    assert parse_settings({}).spool_reserve_mb == 16.0
+    with pytest.raises(ConfigError, match="spool_reserve_mb"):
+        parse_settings({"storage": {"spool_reserve_mb": -1}})
