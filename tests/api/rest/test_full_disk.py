@@ -76,7 +76,7 @@ def _wait(cond, timeout_s=30.0) -> bool:
     return cond()
 
 
-def _full_disk_cycle(small_disk, database_full=False, no_room_for_run=False):
+def _full_disk_cycle(small_disk, database_full=False, no_room_for_run=False, spool_refused=False):
     """Start on the small disk, run a cycle that finishes once the disk is full, stop
     normally, free the space and start again. Returns (data folder, uuid, what was seen while
     the disk was full, the restarted app's measurements, alerts, start report, executor)."""
@@ -111,6 +111,8 @@ def _full_disk_cycle(small_disk, database_full=False, no_room_for_run=False):
 
             svc.executor._write_run = no_room
             svc.executor._keep_trace = lambda *a, **k: None
+        if spool_refused:  # until the stop: the cycle is kept in memory meanwhile
+            svc.executor._write_spool = lambda doc: None
         try:
             runner.gate.set()
             assert svc.scheduler.idle(60)
@@ -120,6 +122,9 @@ def _full_disk_cycle(small_disk, database_full=False, no_room_for_run=False):
         seen["items"] = client.get(f"/api/v1/axes/{axis_id}/measurements", headers=hdr(keys["read"])).json()["items"]
         seen["health"] = client.get("/healthz").json()
         seen["spooled"] = (svc.executor.spool_dir / f"{uuid}.json").is_file()
+        seen["in_memory"] = [fc.uuid for fc in svc.executor.unsaved]
+        if spool_refused:
+            del svc.executor._write_spool  # the stop writes it (the reserve's room is free)
     # a normal stop: the cycle is in the spool or in the database; no empty file anywhere
     seen["spooled_after_stop"] = (data / "spool" / f"{uuid}.json").is_file()
     seen["empty_after_stop"] = _empty_files(data)
@@ -206,3 +211,13 @@ def test_the_spool_reserve_is_configured_in_storage_and_refuses_a_negative_size(
     assert parse_settings({}).spool_reserve_mb == 16.0
     with pytest.raises(ConfigError, match="spool_reserve_mb"):
         parse_settings({"storage": {"spool_reserve_mb": -1}})
+
+
+def test_a_cycle_kept_in_memory_on_a_full_disk_is_written_to_the_spool_at_a_normal_stop(small_disk):
+    data, uuid, seen, items, alerts, report = _full_disk_cycle(small_disk, database_full=True, spool_refused=True)
+    assert seen["in_memory"] == [uuid] and not seen["spooled"]
+    (during,) = seen["items"]
+    assert during["status"] == "failed" and during["reason_code"] == "storage_full"  # finished, not running
+    assert seen["spooled_after_stop"] and seen["empty_after_stop"] == []  # flushed by the stop
+    assert report.replayed == 1 and report.interrupted == 0
+    _assert_kept_as_storage_full(items, alerts)
