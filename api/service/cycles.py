@@ -225,6 +225,8 @@ class CycleExecutor:
         self._held: dict[str, tuple[str, str | None]] = {}  # uuid -> (status, reason): finished, not stored yet
         self._moved: dict[Path, Path] = {}  # legacy dataset folder -> its id-named successor
         self._verdicts: dict[str, tuple] = {}  # folder -> ((mtime, size, axis uuid), Verdict) for readers
+        if status is not None:
+            status.held = self.held
         # fleet (api.service.leases): (request, start time) -> whether this worker may run it; None: it may
         self.claim = None
 
@@ -490,6 +492,8 @@ class CycleExecutor:
                 doc = {**doc, "failure_reason": fc.failure_reason}
                 spool = self._write_spool(doc) or spool
             self._held[fc.uuid] = (fc.status, fc.failure_reason)
+            if self.status is not None:
+                self.status.invalidate(fc.axis_id)  # shown finished, with its reason, not running
             if spool is None:
                 log.error("cycle %s could not be spooled and the database is down (%s): kept in memory, "
                           "retried with the spool and written to the spool at stop; %s", fc.uuid, exc,

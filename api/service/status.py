@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime
 
 
@@ -38,7 +38,7 @@ class AxisStatus:
     work_order: WorkOrderRecord | None = None  # the axis' active maintenance order
 
 
-def compute_status(s, axis_id: int, history_memo: HistoryMemo | None = None) -> AxisStatus:
+def compute_status(s, axis_id: int, history_memo: HistoryMemo | None = None, held: dict | None = None) -> AxisStatus:
     axis = config_repo.get_axis(s, axis_id)
     latest = results_repo.latest_result(s, axis_id)
     decision = None
@@ -68,6 +68,12 @@ def compute_status(s, axis_id: int, history_memo: HistoryMemo | None = None) -> 
         history_error = str(exc)
     _, alerts = results_repo.list_alerts(s, "active", axis_id=axis_id, limit=1)
     _, last = results_repo.list_measurements(s, axis_id, limit=1)
+    if last and held and last[0].status in ("queued", "running") and last[0].uuid in held:
+        # finished, waiting in the spool (a full disk, a database outage): shown with its
+        # reason, never as running (failed until the spool stores an ok one)
+        kept_status, kept_reason = held[last[0].uuid]
+        last = [replace(last[0], status="failed" if kept_status == "ok" else kept_status,
+                        failure_reason=kept_reason or "finished; waiting in the spool to be stored")]
     last_final = next((c for c in last if c.status not in ("queued", "running")), None)
     return AxisStatus(
         axis=axis, latest=latest, decision=decision, backlash_mean_20c_um=b20, thermal_beta_um_per_k=beta,
@@ -115,6 +121,7 @@ class StatusCache:
         # started before one is returned to its caller but not cached
         self._gen: dict[int, int] = {}
         self._epoch = 0  # bumped by invalidating every axis
+        self.held = None  # () -> uuid -> (status, reason) of finished cycles not stored yet (CycleExecutor.held)
 
     def fresh(self, axis_id: int) -> AxisStatus | None:
         """The cached status if it is recent enough (no database access)."""
@@ -153,7 +160,7 @@ class StatusCache:
             now = time.monotonic()
             gen = self._stamp(axis_id)
             with session_scope(self.factory) as s:
-                st = compute_status(s, axis_id, self._history_memo)
+                st = compute_status(s, axis_id, self._history_memo, self._held())
             with self._lock:
                 if self._stamp(axis_id) == gen:  # not if a newer status was published meanwhile
                     self._cache[axis_id] = (now, st)
@@ -176,7 +183,7 @@ class StatusCache:
         with self._lock:
             gen = self._stamp(axis_id)
         now = time.monotonic()
-        st = compute_status(s, axis_id, memo)
+        st = compute_status(s, axis_id, memo, self._held())
 
         def publish() -> None:
             with self._lock:
@@ -187,6 +194,9 @@ class StatusCache:
                 self._cache[axis_id] = (now, st)
 
         return publish
+
+    def _held(self) -> dict | None:
+        return None if self.held is None else self.held()
 
     def _stamp(self, axis_id: int) -> tuple[int, int]:
         return self._epoch, self._gen.get(axis_id, 0)

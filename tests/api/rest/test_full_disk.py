@@ -121,6 +121,7 @@ def _full_disk_cycle(small_disk, database_full=False, no_room_for_run=False, spo
         assert not svc.executor.reserve_path.exists()  # released to keep the cycle
         seen["items"] = client.get(f"/api/v1/axes/{axis_id}/measurements", headers=hdr(keys["read"])).json()["items"]
         seen["health"] = client.get("/healthz").json()
+        seen["status"] = client.get(f"/api/v1/axes/{axis_id}/status", headers=hdr(keys["read"])).json()
         seen["spooled"] = (svc.executor.spool_dir / f"{uuid}.json").is_file()
         seen["in_memory"] = [fc.uuid for fc in svc.executor.unsaved]
         if spool_refused:
@@ -156,6 +157,7 @@ def test_a_cycle_finished_on_a_full_disk_survives_a_stop_and_a_restart_as_storag
     assert seen["empty_after_stop"] == []
     (during,) = seen["items"]
     assert during["status"] != "running" and during["reason_code"] == "storage_full"
+    assert seen["status"]["last_cycle_status"] != "running"
     assert report.interrupted == 0
     _assert_kept_as_storage_full(items, alerts)
 
@@ -166,6 +168,8 @@ def test_a_cycle_the_full_database_refuses_waits_in_the_spool_across_a_stop_and_
     assert seen["empty_after_stop"] == []
     (during,) = seen["items"]
     assert during["status"] == "failed" and during["reason_code"] == "storage_full"  # finished, not running
+    assert seen["status"]["last_cycle_status"] == "failed"
+    assert seen["status"]["last_failure_reason"].startswith("storage_full:")
     assert any(p.startswith("storage_full") for p in seen["health"]["problems"])
     assert report.replayed == 1 and report.interrupted == 0
     _assert_kept_as_storage_full(items, alerts)
@@ -198,6 +202,7 @@ def test_a_raw_run_with_no_room_anywhere_travels_in_the_spool_file_and_is_kept_a
     assert seen["spooled_after_stop"] and seen["empty_after_stop"] == []
     (during,) = seen["items"]
     assert during["status"] == "failed" and during["reason_code"] == "storage_full"
+    assert seen["status"]["last_cycle_status"] == "failed"
     assert report.replayed == 1 and report.interrupted == 0
     _assert_kept_as_storage_full(items, alerts)  # re-analysed from the trace the spool file carried
     assert (data / "unfiled" / f"{uuid}.npz").is_file()  # and the raw run kept now that there is room
@@ -218,6 +223,8 @@ def test_a_cycle_kept_in_memory_on_a_full_disk_is_written_to_the_spool_at_a_norm
     assert seen["in_memory"] == [uuid] and not seen["spooled"]
     (during,) = seen["items"]
     assert during["status"] == "failed" and during["reason_code"] == "storage_full"  # finished, not running
+    assert seen["status"]["last_cycle_status"] == "failed"
+    assert seen["status"]["last_failure_reason"].startswith("storage_full:")
     assert seen["spooled_after_stop"] and seen["empty_after_stop"] == []  # flushed by the stop
     assert report.replayed == 1 and report.interrupted == 0
     _assert_kept_as_storage_full(items, alerts)
