@@ -36,9 +36,21 @@ class AxisStatus:
     history: HistoryAnswers | None = None  # prognosis and history clearance (api.service.prognosis)
     history_error: str | None = None
     work_order: WorkOrderRecord | None = None  # the axis' active maintenance order
+    last_cycle_uuid: str | None = None
 
 
-def compute_status(s, axis_id: int, history_memo: HistoryMemo | None = None, held: dict | None = None) -> AxisStatus:
+def with_held(st: AxisStatus, held: dict | None) -> AxisStatus:
+    """``st`` with its last cycle as finished when it waits in the spool (a full disk, a
+    database outage; ``held``: CycleExecutor.held): failed with its reason until the spool
+    stores it (an ok one is then stored ok), never running."""
+    if not held or st.last_cycle_status not in ("queued", "running") or st.last_cycle_uuid not in held:
+        return st
+    kept_status, kept_reason = held[st.last_cycle_uuid]
+    return replace(st, last_cycle_status="failed" if kept_status == "ok" else kept_status,
+                   last_failure_reason=kept_reason or "finished; waiting in the spool to be stored")
+
+
+def compute_status(s, axis_id: int, history_memo: HistoryMemo | None = None) -> AxisStatus:
     axis = config_repo.get_axis(s, axis_id)
     latest = results_repo.latest_result(s, axis_id)
     decision = None
@@ -68,17 +80,11 @@ def compute_status(s, axis_id: int, history_memo: HistoryMemo | None = None, hel
         history_error = str(exc)
     _, alerts = results_repo.list_alerts(s, "active", axis_id=axis_id, limit=1)
     _, last = results_repo.list_measurements(s, axis_id, limit=1)
-    if last and held and last[0].status in ("queued", "running") and last[0].uuid in held:
-        # finished, waiting in the spool (a full disk, a database outage): shown with its
-        # reason, never as running (failed until the spool stores an ok one)
-        kept_status, kept_reason = held[last[0].uuid]
-        last = [replace(last[0], status="failed" if kept_status == "ok" else kept_status,
-                        failure_reason=kept_reason or "finished; waiting in the spool to be stored")]
     last_final = next((c for c in last if c.status not in ("queued", "running")), None)
     return AxisStatus(
         axis=axis, latest=latest, decision=decision, backlash_mean_20c_um=b20, thermal_beta_um_per_k=beta,
         active_alert_id=alerts[0].id if alerts else None,
-        last_cycle_status=last[0].status if last else None,
+        last_cycle_status=last[0].status if last else None, last_cycle_uuid=last[0].uuid if last else None,
         last_cycle_at=(last[0].finished_at or last[0].requested_at) if last else None,
         last_failure_reason=last_final.failure_reason if last_final is not None else None,
         decision_error=decision_error,
@@ -160,7 +166,7 @@ class StatusCache:
             now = time.monotonic()
             gen = self._stamp(axis_id)
             with session_scope(self.factory) as s:
-                st = compute_status(s, axis_id, self._history_memo, self._held())
+                st = with_held(compute_status(s, axis_id, self._history_memo), self._held())
             with self._lock:
                 if self._stamp(axis_id) == gen:  # not if a newer status was published meanwhile
                     self._cache[axis_id] = (now, st)
@@ -183,7 +189,7 @@ class StatusCache:
         with self._lock:
             gen = self._stamp(axis_id)
         now = time.monotonic()
-        st = compute_status(s, axis_id, memo, self._held())
+        st = with_held(compute_status(s, axis_id, memo), self._held())
 
         def publish() -> None:
             with self._lock:
