@@ -92,7 +92,7 @@ STORAGE_FULL = results_repo.STORAGE_FULL  # reason code: the cycle found no room
 _FULL_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
 _FULL_WORDS = ("no space left", "disk is full", "database or disk is full", "disk quota exceeded")
 FREE_SPACE_HINT = ("free space under the data folder (old raw runs, other files on that disk) or raise its "
-                   "quota; the kept cycle is then stored within storage.spool_retry_s, or at the next start")
+                   "quota; the kept cycle is then stored within scheduler.spool_retry_s, or at the next start")
 
 
 def is_storage_full(exc: BaseException | None) -> bool:
