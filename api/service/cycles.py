@@ -223,6 +223,7 @@ class CycleExecutor:
         self.unsaved: list[FinishedCycle] = []  # neither spooled nor stored: retried with the spool
         self._unspooled: dict[str, dict] = {}  # uuid -> the spool document of an unsaved cycle, written at stop
         self._held: dict[str, tuple[str, str | None]] = {}  # uuid -> (status, reason): finished, not stored yet
+        self._spool_refused_full: set[str] = set()  # uuids whose spool file met a full disk
         self._moved: dict[Path, Path] = {}  # legacy dataset folder -> its id-named successor
         self._verdicts: dict[str, tuple] = {}  # folder -> ((mtime, size, axis uuid), Verdict) for readers
         if status is not None:
@@ -484,7 +485,8 @@ class CycleExecutor:
                 cycle, alerts = results_repo.save_finished_cycle(s, fc)
                 publish = self._prepare_status(s, fc.axis_id)
         except DatabaseUnavailableError as exc:
-            if doc is not None and (is_storage_full(exc) or spool is None) and reason_code(
+            spool_full = spool is None and doc is not None and doc["uuid"] in self._spool_refused_full
+            if doc is not None and (is_storage_full(exc) or spool_full) and reason_code(
                     fc.status, fc.failure_reason) is None:
                 # the database found no room either (SQLite under the data folder): the true reason
                 fc = replace(fc, failure_reason=self._full_reason(
@@ -509,6 +511,7 @@ class CycleExecutor:
                 log.warning("cycle %s kept on disk (%s): it is stored when the database is back", fc.uuid, exc)
             return None
         self._held.pop(fc.uuid, None)
+        self._spool_refused_full.discard(fc.uuid)
         if spool is not None:
             spool.unlink(missing_ok=True)
         self._notify(fc.axis_id, cycle, alerts, publish)
@@ -656,6 +659,8 @@ class CycleExecutor:
                               doc["uuid"], self.reserve_path)
                     continue
                 log.error("cycle %s: spool file not written (%s)", doc["uuid"], exc)
+                if is_storage_full(exc):
+                    self._spool_refused_full.add(doc["uuid"])
                 return None
         return None
 
@@ -775,6 +780,7 @@ class CycleExecutor:
                 self.unsaved.remove(fc)
                 self._unspooled.pop(fc.uuid, None)
                 self._held.pop(fc.uuid, None)
+                self._spool_refused_full.discard(fc.uuid)
                 stored += 1
         pending = self.pending()
         for i, path in enumerate(pending):
