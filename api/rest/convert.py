@@ -13,6 +13,7 @@ from core.criteria.roundtrip import TBE_BASIS
 from core.history import TemperatureModel
 from core.errors import MebmError
 from core.tbe import stored_repair_target
+from storage.db import results_repo
 from storage.db import AlertRecord, AxisRecord, CycleRecord, KeyRecord, MachineRecord, ResultRecord, TrendView
 
 
@@ -125,11 +126,20 @@ def _prognosis(s: AxisStatus) -> dict | None:
     return None
 
 
-def summary(c: CycleRecord) -> sc.MeasurementSummary:
+def summary(c: CycleRecord, held: dict | None = None) -> sc.MeasurementSummary:
+    """``held``: uuid -> (status, reason) of the cycles that finished but wait in the spool
+    (CycleExecutor.held): shown finished (``failed`` until the spool stores an ok one) with
+    their reason, never ``running``."""
+    status, reason = c.status, c.failure_reason
+    if held and c.status in ("queued", "running") and c.uuid in held:
+        kept_status, kept_reason = held[c.uuid]
+        status = "failed" if kept_status == "ok" else kept_status
+        reason = kept_reason or "finished; waiting in the spool to be stored"
     return sc.MeasurementSummary(
-        id=c.id, axis_id=c.axis_id, status=c.status, trigger=c.trigger, requested_by=c.requested_by,
+        id=c.id, axis_id=c.axis_id, status=status, trigger=c.trigger, requested_by=c.requested_by,
         requested_at=c.requested_at, started_at=c.started_at, finished_at=c.finished_at,
-        failure_reason=c.failure_reason, temperature_c=c.temperature_c, utility_day=c.utility_day,
+        failure_reason=reason, reason_code=results_repo.STORAGE_FULL if results_repo.is_storage_full(reason) else None,
+        temperature_c=c.temperature_c, utility_day=c.utility_day,
         uncertainty_um=c.uncertainty_um, backlash_mean_um=c.backlash_mean_um, state=c.state,
         raw_run_lost=c.raw_run_lost,
     )
@@ -139,8 +149,8 @@ def _list(a) -> list[float]:
     return [float(v) for v in np.asarray(a, dtype=float)]
 
 
-def detail(c: CycleRecord, r: ResultRecord | None, curves: bool) -> sc.MeasurementDetail:
-    base = summary(c).model_dump()
+def detail(c: CycleRecord, r: ResultRecord | None, curves: bool, held: dict | None = None) -> sc.MeasurementDetail:
+    base = summary(c, held).model_dump()
     if r is None:
         return sc.MeasurementDetail(**base, result=None, curves=None)
     rt = r.round_trip

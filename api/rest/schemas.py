@@ -164,6 +164,8 @@ class MeasurementSummary(BaseModel):
     started_at: datetime | None
     finished_at: datetime | None
     failure_reason: str | None
+    reason_code: str | None = Field(None, description="machine-readable reason: storage_full (no room under the "
+                                    "data folder; failure_reason says what to free), or null")
     temperature_c: float | None
     utility_day: float | None
     uncertainty_um: float | None

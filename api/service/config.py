@@ -172,7 +172,10 @@ class Settings:
     port: int = 8000
     data_dir: Path = Path("data")
     database_url: str | None = None
-    min_free_disk_mb: float = 500.0  # /healthz is degraded below this much free disk under data_dir
+    min_free_disk_mb: float = 500.0  # below this much free disk under data_dir: /healthz degraded, no new cycle
+    # a file of this size kept under <data_dir>/spool, released when the disk is full so
+    # that a finished cycle can still be spooled (0: none)
+    spool_reserve_mb: float = 16.0
     # the folder a register profile named in an axis' controller URL (``profile=NAME``) is
     # read from; None: ``<data_dir>/profiles``
     profiles_dir: Path | None = None
@@ -453,7 +456,7 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
     server = doc.get("server", {})
     _unknown(server, {"host", "port", "status_max_age_s", "trusted_proxies"}, "server")
     storage = doc.get("storage", {})
-    _unknown(storage, {"data_dir", "database_url", "min_free_disk_mb", "profiles_dir"}, "storage")
+    _unknown(storage, {"data_dir", "database_url", "min_free_disk_mb", "spool_reserve_mb", "profiles_dir"}, "storage")
     auth = doc.get("auth", {})
     _unknown(auth, {"bootstrap_admin_key", "demo_keys"}, "auth")
     sched = doc.get("scheduler", {})
@@ -513,12 +516,15 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
     min_free_disk_mb = _get(storage, "min_free_disk_mb", float, "storage", base.min_free_disk_mb)
     if min_free_disk_mb < 0:
         raise ConfigError(f"storage.min_free_disk_mb (={min_free_disk_mb}) must be >= 0")
+    spool_reserve_mb = _get(storage, "spool_reserve_mb", float, "storage", base.spool_reserve_mb)
+    if spool_reserve_mb < 0:
+        raise ConfigError(f"storage.spool_reserve_mb (={spool_reserve_mb}) must be >= 0")
     return replace(
         base,
         host=_get(server, "host", str, "server", base.host), port=port,
         data_dir=Path(data_dir) if data_dir else base.data_dir,
         database_url=_get(storage, "database_url", str, "storage", base.database_url) or None,
-        min_free_disk_mb=min_free_disk_mb,
+        min_free_disk_mb=min_free_disk_mb, spool_reserve_mb=spool_reserve_mb,
         profiles_dir=Path(profiles_dir) if profiles_dir else base.profiles_dir,
         bootstrap_admin_key=_get(auth, "bootstrap_admin_key", str, "auth", base.bootstrap_admin_key) or None,
         demo_keys=_get(auth, "demo_keys", bool, "auth", base.demo_keys),

@@ -16,17 +16,30 @@ Saving is idempotent on the cycle's uuid, so a crash between 3 and 4 stores it o
 If the raw run cannot be written to the dataset folder, it is kept as
 ``<data_dir>/unfiled/<uuid>.npz`` instead; if that fails too, the cycle is stored with
 ``raw_run_lost`` (the reason), which the status, a ``raw_run_lost`` alert and the
-``mebm_raw_runs_lost_total`` metric show. If the spool file cannot be written either,
-the cycle is kept in memory and retried with the spool.
+``mebm_raw_runs_lost_total`` metric show.
+
+A full disk: ``<data_dir>/spool/.reserve`` (``storage.spool_reserve_mb``) is allocated
+while there is room. When a spool file meets ENOSPC the reserve is released and the
+spool file written in its place; a cycle whose raw run found no room either carries its
+trace in the spool file. Such a cycle is recorded with the reason code ``storage_full``
+(its ``failure_reason`` starts with ``storage_full:``), shown so while it waits
+(:meth:`CycleExecutor.held`) and stored when there is room again (re-analysed from its
+trace). The reserve is allocated again once the spool is empty. A cycle that could not be
+spooled even so is kept in memory, retried with the spool and written to the spool at stop.
+Temporary files are renamed into place only after a successful fsync and removed on failure.
 """
 
 from __future__ import annotations
 
+import base64
 import contextlib
+import errno
+import io
 import json
 import logging
 import math
 import os
+import shutil
 import tempfile
 import threading
 from dataclasses import dataclass, replace
@@ -74,6 +87,62 @@ from storage.db import (
 )
 
 log = logging.getLogger("mebm.cycles")
+
+STORAGE_FULL = results_repo.STORAGE_FULL  # reason code: the cycle found no room under the data folder
+_FULL_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
+_FULL_WORDS = ("no space left", "disk is full", "database or disk is full", "disk quota exceeded")
+FREE_SPACE_HINT = ("free space under the data folder (old raw runs, other files on that disk) or raise its "
+                   "quota; the kept cycle is then stored within scheduler.spool_retry_s, or at the next start")
+
+
+def is_storage_full(exc: BaseException | None) -> bool:
+    """Whether ``exc`` (or what caused it) says the disk or quota is full."""
+    seen = 0
+    while exc is not None and seen < 8:
+        if isinstance(exc, OSError) and exc.errno in _FULL_ERRNOS:
+            return True
+        if any(w in str(exc).lower() for w in _FULL_WORDS):
+            return True
+        exc = exc.__cause__ or exc.__context__
+        seen += 1
+    return False
+
+
+def storage_full_reason(detail: str) -> str:
+    return f"{STORAGE_FULL}: {detail}; {FREE_SPACE_HINT}"
+
+
+def reason_code(status: str, failure_reason: str | None) -> str | None:
+    """The machine-readable reason of a cycle (``storage_full``), or None."""
+    if failure_reason and failure_reason.startswith(f"{STORAGE_FULL}:"):
+        return STORAGE_FULL
+    return None
+
+
+def _encode(a) -> str:
+    return base64.b64encode(np.ascontiguousarray(np.asarray(a, dtype="<f8")).tobytes()).decode("ascii")
+
+
+def _decode(s: str) -> np.ndarray:
+    return np.frombuffer(base64.b64decode(s), dtype="<f8").copy()
+
+
+def write_durably(path: Path, data: bytes) -> None:
+    """``data`` as ``path``: written to a temporary name in the same folder, fsynced, renamed
+    over ``path`` and the folder fsynced. The temporary file is removed on any failure, so
+    a full disk leaves no empty or partial file."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    fsync_dir(path.parent)
 
 
 @dataclass(frozen=True)
@@ -131,12 +200,16 @@ def _fin(x):
 class CycleExecutor:
     """Runs cycles for the scheduler and stores them (see the module docstring)."""
 
-    def __init__(self, factory, data_dir: Path, runner: CycleRunner, resolve_url, *, on_saved=None, status=None):
+    def __init__(self, factory, data_dir: Path, runner: CycleRunner, resolve_url, *, on_saved=None, status=None,
+                 reserve_bytes: int = 0, min_free_bytes: int = 0):
         self.factory = factory
         self.data_dir = Path(data_dir)
         self.spool_dir = self.data_dir / "spool"
         self.datasets_dir = self.data_dir / "datasets"
         self.unfiled_dir = self.data_dir / "unfiled"
+        self.reserve_path = self.spool_dir / ".reserve"
+        self.reserve_bytes = max(int(reserve_bytes), 0)
+        self.min_free_bytes = max(int(min_free_bytes), 0)  # below it, no cycle is started
         self.runner = runner
         self.resolve_url = resolve_url
         self.on_saved = on_saved or (lambda axis_id, cycle, alerts: None)
@@ -148,8 +221,13 @@ class CycleExecutor:
         self._replay_lock = threading.Lock()
         self._in_flight: set[str] = set()  # uuids being finished by execute(): replay leaves them
         self.unsaved: list[FinishedCycle] = []  # neither spooled nor stored: retried with the spool
+        self._unspooled: dict[str, dict] = {}  # uuid -> the spool document of an unsaved cycle, written at stop
+        self._held: dict[str, tuple[str, str | None]] = {}  # uuid -> (status, reason): finished, not stored yet
+        self._spool_refused_full: set[str] = set()  # uuids whose spool file met a full disk
         self._moved: dict[Path, Path] = {}  # legacy dataset folder -> its id-named successor
         self._verdicts: dict[str, tuple] = {}  # folder -> ((mtime, size, axis uuid), Verdict) for readers
+        if status is not None:
+            status.held = self.held
         # fleet (api.service.leases): (request, start time) -> whether this worker may run it; None: it may
         self.claim = None
 
@@ -241,7 +319,10 @@ class CycleExecutor:
         if self.claim is not None:
             if not self.claim(req, started):  # another worker runs it, or this one lost the axis
                 return None
-        else:
+        refusal = self.storage_refusal()
+        if refusal is not None:
+            return self._refuse(axis, req, started, refusal)
+        if self.claim is None:
             try:
                 with session_scope(self.factory) as s:
                     results_repo.mark_running(s, req.uuid, started)
@@ -271,7 +352,8 @@ class CycleExecutor:
                 failure_reason=reason, temperature_c=_fin(outcome.temperature_c), raw_run_lost=lost,
             )
             try:
-                return self._save(fc, self._spool(fc, None, axis.tasks))
+                doc = self._spool_doc(fc, None, axis.tasks)
+                return self._save(fc, self._write_spool(doc), doc=doc)
             except StorageError:
                 log.exception("cycle %s: the failure could not be recorded", req.uuid)
                 return None
@@ -279,13 +361,56 @@ class CycleExecutor:
             with self._spool_lock:
                 self._in_flight.discard(req.uuid)
 
+    def free_bytes(self) -> int | None:
+        for p in (self.data_dir, *self.data_dir.resolve().parents):
+            with contextlib.suppress(OSError):
+                return shutil.disk_usage(p).free
+        return None
+
+    def storage_refusal(self) -> str | None:
+        """Why no cycle may start now (free disk under the floor), or None."""
+        if self.min_free_bytes <= 0:
+            return None
+        free = self.free_bytes()
+        if free is None or free >= self.min_free_bytes:
+            return None
+        return (f"{STORAGE_FULL}: no cycle started: free disk under the data folder is {free / 1e6:.1f} MB, below "
+                f"the floor of {self.min_free_bytes / 1e6:.0f} MB (storage.min_free_disk_mb); free space under the "
+                "data folder and the next scheduled or manual cycle runs")
+
+    def _refuse(self, axis: AxisRecord, req: CycleRequest, started: datetime, reason: str) -> CycleRecord | None:
+        """Record a cycle not started for lack of disk (cancelled, reason ``storage_full``;
+        nothing was measured, so nothing is spooled)."""
+        log.error("cycle %s on axis %s: %s", req.uuid, axis.id, reason)
+        fc = FinishedCycle(uuid=req.uuid, axis_id=axis.id, trigger=req.trigger, requested_by=req.requested_by,
+                           status="cancelled", requested_at=req.requested_at, started_at=None, finished_at=started,
+                           failure_reason=reason)
+        try:
+            with session_scope(self.factory) as s:
+                cycle, alerts = results_repo.save_finished_cycle(s, fc)
+                publish = self._prepare_status(s, fc.axis_id)
+        except StorageError as exc:
+            log.error("cycle %s: the refusal could not be recorded (%s)", req.uuid, exc)
+            return None
+        self._notify(fc.axis_id, cycle, alerts, publish)
+        return cycle
+
     def _finish(self, axis: AxisRecord, req: CycleRequest, outcome: CycleOutcome, started: datetime,
                 finished: datetime) -> CycleRecord | None:
-        run_file, folder, note, trace_file, lost = None, None, None, None, None
+        run_file, folder, note, trace_file, lost, full = None, None, None, None, None, False
         if outcome.time_s is not None:
             try:
-                folder, run_file = self._write_run(axis, outcome, req, finished)
+                try:
+                    folder, run_file = self._write_run(axis, outcome, req, finished)
+                except (MebmError, OSError) as exc:
+                    if not (is_storage_full(exc) and self.release_reserve()):
+                        raise
+                    full = True  # the reserve makes room for the raw run (and the spool file) once
+                    log.error("cycle %s: the disk is full (%s); the spool reserve (%s) was released to keep the "
+                              "cycle; %s", req.uuid, exc, self.reserve_path, FREE_SPACE_HINT)
+                    folder, run_file = self._write_run(axis, outcome, req, finished)
             except (MebmError, OSError) as exc:
+                full = full or is_storage_full(exc)
                 trace_file = self._keep_trace(axis, req, outcome)
                 kept = f"kept in {trace_file}" if trace_file else "and it could not be kept anywhere else"
                 note = f"raw run not written to the dataset folder ({exc}); {kept}"
@@ -309,8 +434,24 @@ class CycleExecutor:
             utility_day=utility_day(axis, finished), uncertainty_um=_fin(outcome.uncertainty_um), run_file=run_file,
             round_trip=outcome.round_trip if outcome.ok else None, decision=decision, raw_run_lost=lost,
         )
-        spool = self._spool(fc, folder, axis.tasks, trace_file=trace_file)
-        return self._save(fc, spool)
+        trace = None
+        if outcome.time_s is not None and run_file is None and trace_file is None:  # only the spool can keep it
+            trace = {"time_s": outcome.time_s, "motor_rev": outcome.motor_rev, "table_mm": outcome.table_mm}
+        if full:
+            fc = replace(fc, failure_reason=self._full_reason(fc, note or (
+                "the disk under the data folder was full when the cycle finished; its raw run was written to the "
+                f"room of the spool reserve ({self.reserve_path}), which is allocated again once there is space")))
+        doc = self._spool_doc(fc, folder, axis.tasks, trace_file=trace_file, trace=trace)
+        return self._save(fc, self._write_spool(doc), doc=doc)
+
+    @staticmethod
+    def _full_reason(fc: FinishedCycle, note: str | None) -> str:
+        if fc.failure_reason and fc.failure_reason.startswith(f"{STORAGE_FULL}:"):
+            return fc.failure_reason
+        what = note or "the disk under the data folder was full when the cycle finished"
+        if fc.status != "ok" and fc.failure_reason:
+            what = f"{fc.failure_reason}; {what}" if note is None or note not in fc.failure_reason else fc.failure_reason
+        return storage_full_reason(what)
 
     def _with_history(self, axis: AxisRecord, rt, temperature_c: float | None, finished: datetime):
         """``rt`` with the history's budget components (repeatability at similar temperature,
@@ -338,21 +479,39 @@ class CycleExecutor:
                                     thermometer_uncertainty_k=u_t)
         return with_history_uncertainty(rt, comps)
 
-    def _save(self, fc: FinishedCycle, spool: Path | None) -> CycleRecord | None:
+    def _save(self, fc: FinishedCycle, spool: Path | None, *, doc: dict | None = None) -> CycleRecord | None:
         try:
             with session_scope(self.factory) as s:
                 cycle, alerts = results_repo.save_finished_cycle(s, fc)
                 publish = self._prepare_status(s, fc.axis_id)
         except DatabaseUnavailableError as exc:
+            spool_full = spool is None and doc is not None and doc["uuid"] in self._spool_refused_full
+            if doc is not None and (is_storage_full(exc) or spool_full) and reason_code(
+                    fc.status, fc.failure_reason) is None:
+                # the database found no room either (SQLite under the data folder): the true reason
+                fc = replace(fc, failure_reason=self._full_reason(
+                    fc, f"the database could not store the cycle ({exc})" if is_storage_full(exc) else None))
+                doc = {**doc, "failure_reason": fc.failure_reason}
+                spool = self._write_spool(doc) or spool
+            self._held[fc.uuid] = (fc.status, fc.failure_reason)
+            if self.status is not None:
+                self.status.invalidate(fc.axis_id)  # shown finished, with its reason, not running
             if spool is None:
-                log.error("cycle %s could not be spooled and the database is down (%s): kept in memory "
-                          "until the database is back (lost if the service stops first)", fc.uuid, exc)
+                log.error("cycle %s could not be spooled and the database is down (%s): kept in memory, "
+                          "retried with the spool and written to the spool at stop; %s", fc.uuid, exc,
+                          FREE_SPACE_HINT)
                 with self._spool_lock:
                     if all(u.uuid != fc.uuid for u in self.unsaved):
                         self.unsaved.append(fc)
+                    if doc is not None:
+                        self._unspooled[fc.uuid] = doc
+            elif reason_code(fc.status, fc.failure_reason) == STORAGE_FULL:
+                log.error("cycle %s kept in the spool (%s): the disk is full; %s", fc.uuid, exc, FREE_SPACE_HINT)
             else:
                 log.warning("cycle %s kept on disk (%s): it is stored when the database is back", fc.uuid, exc)
             return None
+        self._held.pop(fc.uuid, None)
+        self._spool_refused_full.discard(fc.uuid)
         if spool is not None:
             spool.unlink(missing_ok=True)
         self._notify(fc.axis_id, cycle, alerts, publish)
@@ -457,19 +616,17 @@ class CycleExecutor:
             arrays = {"time_s": out.time_s, "motor_rev": out.motor_rev, "table_mm": out.table_mm}
             if out.command_mm is not None:
                 arrays["command_mm"] = out.command_mm
-            tmp = path.with_name(f".{path.name}")
-            with open(tmp, "wb") as fh:
-                np.savez(fh, axis=np.array(axis.name), **{k: np.asarray(v, float) for k, v in arrays.items()})
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
+            buf = io.BytesIO()
+            np.savez(buf, axis=np.array(axis.name), **{k: np.asarray(v, float) for k, v in arrays.items()})
+            write_durably(path, buf.getvalue())
             return path
         except (OSError, ValueError, TypeError) as exc:
             log.error("cycle %s: raw trace not kept either (%s)", req.uuid, exc)
             return None
 
     # -- spool -----------------------------------------------------------------------------------
-    def _spool(self, fc: FinishedCycle, folder: Path | None, tasks, *, trace_file: Path | None = None) -> Path | None:
+    def _spool_doc(self, fc: FinishedCycle, folder: Path | None, tasks, *, trace_file: Path | None = None,
+                   trace: dict | None = None) -> dict:
         doc = {
             "uuid": fc.uuid, "axis_id": fc.axis_id, "trigger": fc.trigger, "requested_by": fc.requested_by,
             "status": fc.status, "requested_at": fc.requested_at.isoformat(),
@@ -482,20 +639,108 @@ class CycleExecutor:
             "trace_file": str(trace_file) if trace_file else None, "raw_run_lost": fc.raw_run_lost,
             "tasks": [_task_doc(t) for t in tasks],
         }
+        if trace is not None:  # float64 little-endian, base64: the raw run had no room anywhere else
+            doc["trace"] = {k: _encode(v) for k, v in trace.items()}
+        return doc
+
+    def _write_spool(self, doc: dict) -> Path | None:
+        """The spool file of ``doc`` (fsynced), or None. On a full disk the reserve is
+        released and the write tried once more."""
+        data = json.dumps(doc).encode("utf-8")
+        for attempt in (1, 2):
+            try:
+                self.spool_dir.mkdir(parents=True, exist_ok=True)
+                path = self.spool_dir / f"{doc['uuid']}.json"
+                write_durably(path, data)
+                return path
+            except OSError as exc:
+                if attempt == 1 and is_storage_full(exc) and self.release_reserve():
+                    log.error("cycle %s: the disk is full; the spool reserve (%s) was released to keep it",
+                              doc["uuid"], self.reserve_path)
+                    continue
+                log.error("cycle %s: spool file not written (%s)", doc["uuid"], exc)
+                if is_storage_full(exc):
+                    self._spool_refused_full.add(doc["uuid"])
+                return None
+        return None
+
+    # -- the reserve -----------------------------------------------------------------------------
+    def ensure_reserve(self) -> bool:
+        """Allocate the spool reserve if it is missing (written, fsynced and renamed into
+        place; nothing is left on failure). True if it is in place (or none is configured)."""
+        if self.reserve_bytes <= 0:
+            return True
+        try:
+            if self.reserve_path.stat().st_size >= self.reserve_bytes:
+                return True
+        except OSError:
+            pass
+        free = self.free_bytes()
+        if free is not None and free < 2 * self.reserve_bytes:  # no room yet: taking it would fill the disk again
+            log.debug("spool reserve not allocated yet: %d bytes free", free)
+            return False
+        tmp = self.reserve_path.with_name(".reserve.tmp")
         try:
             self.spool_dir.mkdir(parents=True, exist_ok=True)
-            path = self.spool_dir / f"{fc.uuid}.json"
-            fd, tmp = tempfile.mkstemp(dir=self.spool_dir, prefix=".spool.")
-            with os.fdopen(fd, "w", encoding="utf-8") as fh:
-                json.dump(doc, fh)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+            try:
+                block = b"\0" * (1 << 20)
+                left = self.reserve_bytes
+                while left > 0:  # written, not only fallocated: every block is the file's for sure
+                    n = os.write(fd, block[:min(left, len(block))])
+                    left -= n
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+            os.replace(tmp, self.reserve_path)
             fsync_dir(self.spool_dir)
-            return path
+            return True
         except OSError as exc:
-            log.error("cycle %s: spool file not written (%s)", fc.uuid, exc)
-            return None
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            log.warning("the spool reserve %s (%d bytes) could not be allocated (%s): a cycle that finishes on a "
+                        "full disk may be kept in memory only until the stop; %s", self.reserve_path,
+                        self.reserve_bytes, exc, FREE_SPACE_HINT)
+            return False
+
+    def release_reserve(self) -> bool:
+        """Delete the reserve (room for spool files); False if there was none."""
+        try:
+            self.reserve_path.unlink()
+        except OSError:
+            return False
+        with contextlib.suppress(OSError):
+            fsync_dir(self.spool_dir)
+        return True
+
+    def reserve_ok(self) -> bool:
+        if self.reserve_bytes <= 0:
+            return True
+        try:
+            return self.reserve_path.stat().st_size >= self.reserve_bytes
+        except OSError:
+            return False
+
+    def held(self) -> dict[str, tuple[str, str | None]]:
+        """uuid -> (status, reason) of the finished cycles not stored yet (spooled or in memory)."""
+        return dict(self._held)
+
+    def flush_unsaved(self) -> int:
+        """At stop: write the memory-kept cycles to the spool (the reserve is released if the
+        disk is full); returns how many are still only in memory (logged: lost at exit)."""
+        with self._spool_lock:
+            for fc in list(self.unsaved):
+                doc = self._unspooled.get(fc.uuid)
+                if doc is None:
+                    doc = self._spool_doc(fc, None, ())
+                if self._write_spool(doc) is not None:
+                    self.unsaved.remove(fc)
+                    self._unspooled.pop(fc.uuid, None)
+            left = list(self.unsaved)
+        for fc in left:
+            log.critical("cycle %s could not be written to the spool at stop and is lost when the service exits: "
+                         "%s", fc.uuid, FREE_SPACE_HINT)
+        return len(left)
 
     def pending(self) -> list[Path]:
         return sorted(self.spool_dir.glob("*.json")) if self.spool_dir.is_dir() else []
@@ -505,9 +750,22 @@ class CycleExecutor:
 
     def replay_spool(self) -> int:
         """Store every spooled (or memory-kept) cycle the database does not have yet; returns
-        how many were stored. Stops at the first database outage (retried later)."""
+        how many were stored. Stops at the first database outage (retried later). The
+        reserve is allocated again once nothing waits."""
         with self._replay_lock:  # start-up and the retry job never replay at once
-            return self._replay()
+            stored = self._replay()
+        if not self.has_pending():
+            self.ensure_reserve()
+        return stored
+
+    def _hold_rest(self, paths: list[Path]) -> None:
+        """Note the spooled cycles the replay could not store, for :meth:`held`."""
+        for path in paths:
+            try:
+                d = json.loads(path.read_text(encoding="utf-8"))
+                self._held.setdefault(d["uuid"], (d["status"], d.get("failure_reason")))
+            except (OSError, ValueError, KeyError, TypeError):
+                continue
 
     def _replay(self) -> int:
         stored = 0
@@ -520,13 +778,18 @@ class CycleExecutor:
                     log.error("cycle %s kept in memory could not be stored: %s", fc.uuid, exc)
                     continue
                 self.unsaved.remove(fc)
+                self._unspooled.pop(fc.uuid, None)
+                self._held.pop(fc.uuid, None)
+                self._spool_refused_full.discard(fc.uuid)
                 stored += 1
-        for path in self.pending():
+        pending = self.pending()
+        for i, path in enumerate(pending):
             if path.stem in self._in_flight:
                 continue  # execute() is storing it right now (saving is idempotent all the same)
             try:
                 fc = self._from_spool(path)
             except DatabaseUnavailableError:
+                self._hold_rest(pending[i:])
                 break  # the file stays for the next attempt
             except Exception as exc:  # noqa: BLE001 - one bad file must not block the others or the start
                 log.error("spool file %s unreadable (%s): moved aside as .bad", path.name, exc)
@@ -535,6 +798,7 @@ class CycleExecutor:
                 continue
             try:
                 if self._save(fc, path) is None:
+                    self._hold_rest(pending[i + 1:])
                     break
             except StorageError as exc:
                 log.error("spooled cycle %s could not be stored: %s", path.name, exc)
@@ -558,6 +822,13 @@ class CycleExecutor:
         axis = self._axis(int(d["axis_id"]))
         rt = decision = None
         status, reason = d["status"], d["failure_reason"]
+        kept = None
+        if d.get("trace"):  # the raw run found no room when measured: kept now that there is
+            kept = self._keep_embedded(axis, d)
+            if kept is not None:
+                d = {**d, "trace_file": str(kept), "raw_run_lost": None}
+                if reason:
+                    reason = f"{reason}; the raw run is kept in {kept}"
         if status == "ok":
             try:
                 time_s, motor_rev, table_mm = self._spooled_trace(d)
@@ -582,6 +853,17 @@ class CycleExecutor:
             raw_run_lost=d.get("raw_run_lost"),
         )
 
+    def _keep_embedded(self, axis: AxisRecord, d: dict) -> Path | None:
+        """The trace a spool file carries, as ``unfiled/<uuid>.npz`` (None if it cannot be)."""
+        try:
+            t = {k: _decode(v) for k, v in d["trace"].items()}
+        except (KeyError, ValueError, TypeError, AttributeError):
+            return None
+        out = CycleOutcome(ok=d["status"] == "ok", time_s=t["time_s"], motor_rev=t["motor_rev"],
+                           table_mm=t["table_mm"])
+        req = CycleRequest(uuid=d["uuid"], axis_id=axis.id, trigger=d["trigger"], requested_at=utcnow())
+        return self._keep_trace(axis, req, out)
+
     def _spooled_trace(self, d: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The raw trace of a spooled ok cycle: its run in the dataset folder (only that run
         is read, so a damaged neighbour does not matter) or its ``unfiled`` copy."""
@@ -598,4 +880,7 @@ class CycleExecutor:
         if d.get("trace_file"):
             with np.load(d["trace_file"]) as z:
                 return z["time_s"], z["motor_rev"], z["table_mm"]
+        if d.get("trace"):
+            t = d["trace"]
+            return _decode(t["time_s"]), _decode(t["motor_rev"]), _decode(t["table_mm"])
         raise MebmError("the raw run was not kept (neither in the dataset folder nor unfiled)")

@@ -7,7 +7,9 @@ files; the disk may be nearly full. :class:`HealthProbe` tries each for real:
 - database: an ``UPDATE alembic_version SET version_num = version_num`` that is rolled
   back (a genuine write on both backends, which changes nothing);
 - data folders (``datasets``, ``spool``): create, fsync and delete a small file;
-- free disk of the data folder against ``Settings.min_free_disk_mb``.
+- free disk of the data folder against ``Settings.min_free_disk_mb`` (below it no cycle
+  is started), finished cycles waiting in the spool for room (``storage_full``) and the
+  spool reserve released.
 
 The result is cached for ``ttl_s`` so a polling load balancer does not cost a write
 per request. ``/healthz`` and ``/metrics`` both read it.
@@ -27,7 +29,7 @@ from pathlib import Path
 from sqlalchemy import exc as sa_exc
 from sqlalchemy import text
 
-from storage.db import StorageError
+from storage.db import StorageError, results_repo
 from storage.db.engine import translate
 
 
@@ -91,7 +93,18 @@ class HealthProbe:
         free = self._free_bytes(Path(self.service.settings.data_dir))
         if free is not None and free < floor:
             problems.append(f"free disk under the data folder is {free / 1e6:.0f} MB, below the floor of "
-                            f"{floor / 1e6:.0f} MB (storage.min_free_disk_mb)")
+                            f"{floor / 1e6:.0f} MB (storage.min_free_disk_mb): no new cycle is started; free space "
+                            "under the data folder and the schedule resumes")
+        if ex is not None:
+            held = ex.held()
+            full = any(results_repo.is_storage_full(reason) for _, reason in held.values())
+            if full:  # (no count in the line: it is also a metric label; spooled_cycles counts them)
+                problems.append("storage_full: finished cycles wait in the spool because the disk was full; free space "
+                                "under the data folder and they are stored within scheduler.spool_retry_s (or at "
+                                "the next start)")
+            if not ex.reserve_ok() and (full or (free is not None and free < ex.reserve_bytes)):
+                problems.append(f"the spool reserve {ex.reserve_path} is released (the disk was full): the next "
+                                "cycle on a full disk may be kept in memory only; free space under the data folder")
         return HealthReport(database=database, data_dir_writable=writable, free_disk_bytes=free,
                             min_free_disk_bytes=floor, problems=tuple(problems))
 

@@ -163,7 +163,9 @@ class Service:
                     _restrict(p, 0o600)
         self.status = StatusCache(self.factory, ttl_s=st.status_max_age_s)
         self.executor = CycleExecutor(self.factory, Path(st.data_dir), self.runner, self.resolve_url,
-                                      on_saved=self._on_saved, status=self.status)
+                                      on_saved=self._on_saved, status=self.status,
+                                      reserve_bytes=int(st.spool_reserve_mb * 1e6),
+                                      min_free_bytes=int(st.min_free_disk_mb * 1e6))
         if isinstance(self.runner, DriverRunner) and self.runner.processes is not None and (
                 st.scheduler_enabled or not self.fleet):  # (an API-only fleet replica runs no cycle)
             self.runner.processes.start()  # spawned in the background; cycles run in the service until they are up
@@ -183,7 +185,7 @@ class Service:
         interrupted = 0
         if not self.fleet:  # in a fleet, the cycles a dead worker left are closed by the worker taking its axes
             with session_scope(self.factory) as s:
-                interrupted = results_repo.close_stale_cycles(s)
+                interrupted = results_repo.close_stale_cycles(s, held=self.executor.held())
         created = self._sync_config()
         admin = self._bootstrap_admin()
         demo_keys = self._demo_keys() if st.demo_keys and st.uses_simulator else {}
@@ -251,6 +253,8 @@ class Service:
     def stop(self) -> None:
         if self.scheduler is not None:
             self.scheduler.stop()
+        if self.executor is not None:
+            self.executor.flush_unsaved()  # a cycle kept in memory goes to the spool (the reserve if need be)
         if self._sqlite_lock is not None:
             self._sqlite_lock.release()
             self._sqlite_lock = None
@@ -266,7 +270,9 @@ class Service:
         gc.unfreeze()  # what start froze may be garbage now (a process that starts services in turn: the tests)
 
     def _retry_spool(self) -> None:
-        if self.executor.has_pending():
+        if not self.executor.has_pending():
+            self.executor.ensure_reserve()  # released on a full disk: back once there is room
+        else:
             n = self.executor.replay_spool()
             if n:
                 log.info("stored %d cycle(s) kept on disk during a database outage", n)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime
 
 
@@ -36,6 +36,18 @@ class AxisStatus:
     history: HistoryAnswers | None = None  # prognosis and history clearance (api.service.prognosis)
     history_error: str | None = None
     work_order: WorkOrderRecord | None = None  # the axis' active maintenance order
+    last_cycle_uuid: str | None = None
+
+
+def with_held(st: AxisStatus, held: dict | None) -> AxisStatus:
+    """``st`` with its last cycle as finished when it waits in the spool (a full disk, a
+    database outage; ``held``: CycleExecutor.held): failed with its reason until the spool
+    stores it (an ok one is then stored ok), never running."""
+    if not held or st.last_cycle_status not in ("queued", "running") or st.last_cycle_uuid not in held:
+        return st
+    kept_status, kept_reason = held[st.last_cycle_uuid]
+    return replace(st, last_cycle_status="failed" if kept_status == "ok" else kept_status,
+                   last_failure_reason=kept_reason or "finished; waiting in the spool to be stored")
 
 
 def compute_status(s, axis_id: int, history_memo: HistoryMemo | None = None) -> AxisStatus:
@@ -72,7 +84,7 @@ def compute_status(s, axis_id: int, history_memo: HistoryMemo | None = None) -> 
     return AxisStatus(
         axis=axis, latest=latest, decision=decision, backlash_mean_20c_um=b20, thermal_beta_um_per_k=beta,
         active_alert_id=alerts[0].id if alerts else None,
-        last_cycle_status=last[0].status if last else None,
+        last_cycle_status=last[0].status if last else None, last_cycle_uuid=last[0].uuid if last else None,
         last_cycle_at=(last[0].finished_at or last[0].requested_at) if last else None,
         last_failure_reason=last_final.failure_reason if last_final is not None else None,
         decision_error=decision_error,
@@ -115,6 +127,7 @@ class StatusCache:
         # started before one is returned to its caller but not cached
         self._gen: dict[int, int] = {}
         self._epoch = 0  # bumped by invalidating every axis
+        self.held = None  # () -> uuid -> (status, reason) of finished cycles not stored yet (CycleExecutor.held)
 
     def fresh(self, axis_id: int) -> AxisStatus | None:
         """The cached status if it is recent enough (no database access)."""
@@ -153,7 +166,7 @@ class StatusCache:
             now = time.monotonic()
             gen = self._stamp(axis_id)
             with session_scope(self.factory) as s:
-                st = compute_status(s, axis_id, self._history_memo)
+                st = with_held(compute_status(s, axis_id, self._history_memo), self._held())
             with self._lock:
                 if self._stamp(axis_id) == gen:  # not if a newer status was published meanwhile
                     self._cache[axis_id] = (now, st)
@@ -176,7 +189,7 @@ class StatusCache:
         with self._lock:
             gen = self._stamp(axis_id)
         now = time.monotonic()
-        st = compute_status(s, axis_id, memo)
+        st = with_held(compute_status(s, axis_id, memo), self._held())
 
         def publish() -> None:
             with self._lock:
@@ -187,6 +200,9 @@ class StatusCache:
                 self._cache[axis_id] = (now, st)
 
         return publish
+
+    def _held(self) -> dict | None:
+        return None if self.held is None else self.held()
 
     def _stamp(self, axis_id: int) -> tuple[int, int]:
         return self._epoch, self._gen.get(axis_id, 0)

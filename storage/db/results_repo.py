@@ -42,6 +42,9 @@ from storage.db.records import (
 DIRECTIONS = ("positive", "negative")
 ALERT_KIND = "tbe_exceeded"
 RAW_RUN_LOST = "raw_run_lost"  # alert kind: a cycle's raw run could not be kept; cleared by the next kept run
+# reason code and alert kind: a cycle found no room under the data folder (its failure_reason
+# starts with "storage_full:"); the alert is cleared by the next cycle stored without it
+STORAGE_FULL = "storage_full"
 
 
 def _fin(x: float | None) -> float | None:
@@ -112,13 +115,24 @@ def mark_running(s: Session, uuid: str, started_at: datetime | None = None) -> C
     return _cycle(c)
 
 
-def close_stale_cycles(s: Session, now: datetime | None = None) -> int:
+def is_storage_full(failure_reason: str | None) -> bool:
+    return bool(failure_reason) and failure_reason.startswith(f"{STORAGE_FULL}:")
+
+
+def close_stale_cycles(s: Session, now: datetime | None = None, *, held: dict | None = None) -> int:
     """At start-up: cycles left 'running' by a crash become 'interrupted', 'queued' ones
-    'cancelled' (an axis is not moved on its own after a restart). Returns how many."""
+    'cancelled' (an axis is not moved on its own after a restart). Returns how many.
+    ``held``: uuid -> (status, reason) of cycles that finished and wait in the spool; a
+    running row of one takes that reason (the spool stores the rest of it later)."""
     now = now or utcnow()
+    held = held or {}
     n = 0
     for c in s.scalars(select(Cycle).where(Cycle.status.in_(("running", "queued")))):
-        if c.status == "running":
+        if c.uuid in held:
+            status, reason = held[c.uuid]
+            c.status = "failed" if status == "ok" else status  # (an ok result is stored with the spool file)
+            c.failure_reason = reason or "finished; waiting in the spool to be stored"
+        elif c.status == "running":
             c.status, c.failure_reason = "interrupted", "the service stopped during the cycle"
         else:
             c.status, c.failure_reason = "cancelled", "the service stopped before the cycle started"
@@ -142,8 +156,9 @@ def save_finished_cycle(s: Session, fc: FinishedCycle) -> tuple[CycleRecord, lis
     if axis is None:
         raise NotFoundError("axis", fc.axis_id)
     c = s.scalar(select(Cycle).where(Cycle.uuid == fc.uuid).options(selectinload(Cycle.result)))
-    if c is not None and c.status not in ("queued", "running", "interrupted", "cancelled"):
-        return _cycle(c, c.result), []
+    if c is not None and c.status not in ("queued", "running", "interrupted", "cancelled") and not (
+            c.status == "failed" and c.result is None and is_storage_full(c.failure_reason)):
+        return _cycle(c, c.result), []  # (a storage_full row closed at a start is completed by its spool file)
     if c is None:
         c = Cycle(uuid=fc.uuid, axis_id=fc.axis_id, trigger=fc.trigger, requested_by=fc.requested_by,
                   requested_at=fc.requested_at, status=fc.status)
@@ -175,13 +190,32 @@ def _update_lost_run_alert(s: Session, fc: FinishedCycle, c: Cycle) -> list[Aler
     next cycle whose run is kept clears it."""
     active = s.scalar(select(Alert).where(Alert.axis_id == fc.axis_id, Alert.kind == RAW_RUN_LOST,
                                           Alert.cleared_at.is_(None)))
+    changes = _update_storage_full_alert(s, fc, c)
     if fc.raw_run_lost and active is None:
         a = Alert(axis_id=fc.axis_id, kind=RAW_RUN_LOST, raised_at=fc.finished_at,
                   message=f"the raw run of cycle {c.id} ({fc.uuid}) was lost: {fc.raw_run_lost}")
         s.add(a)
         s.flush()
-        return [_alert_full(s, a)]
+        return changes + [_alert_full(s, a)]
     if not fc.raw_run_lost and fc.run_file and active is not None:
+        active.cleared_at = fc.finished_at
+        s.flush()
+        return changes + [_alert_full(s, active)]
+    return changes
+
+
+def _update_storage_full_alert(s: Session, fc: FinishedCycle, c: Cycle) -> list[AlertRecord]:
+    """A cycle that found the disk full raises a ``storage_full`` alert (one per axis while
+    active); the next cycle stored without that reason clears it."""
+    active = s.scalar(select(Alert).where(Alert.axis_id == fc.axis_id, Alert.kind == STORAGE_FULL,
+                                          Alert.cleared_at.is_(None)))
+    if is_storage_full(fc.failure_reason) and active is None:
+        a = Alert(axis_id=fc.axis_id, kind=STORAGE_FULL, raised_at=fc.finished_at,
+                  message=f"cycle {c.id} ({fc.uuid}): {fc.failure_reason[len(STORAGE_FULL) + 1:].strip()}")
+        s.add(a)
+        s.flush()
+        return [_alert_full(s, a)]
+    if not is_storage_full(fc.failure_reason) and fc.status == "ok" and active is not None:
         active.cleared_at = fc.finished_at
         s.flush()
         return [_alert_full(s, active)]

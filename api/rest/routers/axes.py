@@ -101,13 +101,15 @@ def trigger(axis_id: AxisId, svc: ServiceDep, key: OperateKey, response: Respons
 @router.get("/axes/{axis_id}/measurements", response_model=sc.MeasurementPage,
             summary="Measurement cycles of an axis, newest first")
 def list_measurements(
-    axis_id: AxisId, s: SessionDep, _k: ReadKey, since: Since = None, until: Until = None,
+    axis_id: AxisId, s: SessionDep, svc: ServiceDep, _k: ReadKey, since: Since = None, until: Until = None,
     status_: Annotated[str | None, Query(alias="status", pattern="^(queued|running|ok|failed|interrupted|cancelled)$")] = None,
     limit: Annotated[int, Query(ge=1, le=500)] = 50, offset: Annotated[int, Query(ge=0, le=10**7)] = 0,
 ):
     total, rows = results_repo.list_measurements(s, axis_id, since=utc(since), until=utc(until), status=status_,
                                                  limit=limit, offset=offset)
-    return sc.MeasurementPage(items=[convert.summary(c) for c in rows], total=total, limit=limit, offset=offset)
+    held = svc.executor.held() if svc.executor is not None else None
+    return sc.MeasurementPage(items=[convert.summary(c, held) for c in rows], total=total, limit=limit,
+                              offset=offset)
 
 
 @router.get("/axes/{axis_id}/trend", response_model=sc.TrendOut,

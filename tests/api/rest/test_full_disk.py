@@ -1,0 +1,230 @@
+"""A full disk loses nothing that was measured: the data folder (and the SQLite database in
+it) on a small tmpfs filled to the last block while a cycle runs; a normal stop; a restart
+once there is room. The cycle is kept with the reason code storage_full, shown so (never
+running) while it waits, and no empty file is left behind. Below the free-disk floor no
+cycle is started, and /healthz and an alert say why."""
+
+from __future__ import annotations
+
+import errno
+import os
+import subprocess
+import threading
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+from api.rest import create_app
+from storage.db import DatabaseUnavailableError, config_repo, results_repo, session_scope
+from tests.api.rest.conftest import FakeRunner, hdr, make_settings
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 5 MB tmpfs (root only), unmounted afterwards."""
+    mnt = tmp_path / "disk"
+    mnt.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("mounting a tmpfs needs root")
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=5m", "tmpfs", str(mnt)], capture_output=True, text=True)
+    if r.returncode != 0:
+        pytest.skip(f"no tmpfs here: {r.stderr.strip()}")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], check=False)
+
+
+def _fill(disk: Path) -> Path:
+    """Write a filler file until the disk refuses another byte."""
+    filler = disk / "filler"
+    fd = os.open(filler, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    try:
+        for size in (65536, 512, 1):  # down to the last byte
+            try:
+                while True:
+                    os.write(fd, b"\xff" * size)
+            except OSError as exc:
+                assert exc.errno == errno.ENOSPC
+    finally:
+        os.close(fd)
+    return filler
+
+
+def _empty_files(root: Path) -> list[Path]:
+    """Empty files, but the folders' lock files (empty by design: flock targets)."""
+    return [p for p in root.rglob("*") if p.is_file() and p.stat().st_size == 0 and not p.name.endswith(".lock")]
+
+
+def _keys(svc) -> tuple[dict, int]:
+    keys = {}
+    with session_scope(svc.factory) as s:
+        for role in ("read", "operate"):
+            keys[role] = config_repo.create_key(s, f"test-{role}", role)[1]
+        axis_id = config_repo.list_axes(s)[0].id
+    return keys, axis_id
+
+
+def _wait(cond, timeout_s=30.0) -> bool:
+    done = threading.Event()
+    for _ in range(int(timeout_s / 0.05)):
+        if cond():
+            return True
+        done.wait(0.05)
+    return cond()
+
+
+def _full_disk_cycle(small_disk, database_full=False, no_room_for_run=False, spool_refused=False):
+    """Start on the small disk, run a cycle that finishes once the disk is full, stop
+    normally, free the space and start again. Returns (data folder, uuid, what was seen while
+    the disk was full, the restarted app's measurements, alerts, start report, executor)."""
+    data = small_disk / "data"
+    settings = replace(make_settings("sqlite://", data), database_url=None, min_free_disk_mb=0.0,
+                       spool_reserve_mb=1.0)  # the default SQLite database under the data folder
+    runner = FakeRunner()
+    runner.gate = threading.Event()
+    runner.gate_timeout_s = 60.0
+    app = create_app(settings, runner=runner)
+    seen = {}
+    real_save = results_repo.save_finished_cycle
+
+    def refuse(s, fc):  # SQLite under the data folder finds no page either (its WAL may have had room)
+        raise DatabaseUnavailableError("database unavailable: database or disk is full")
+
+    with TestClient(app) as client:
+        svc = app.state.service
+        keys, axis_id = _keys(svc)
+        assert svc.executor.reserve_path.stat().st_size >= 1_000_000  # allocated while there was room
+        r = client.post(f"/api/v1/axes/{axis_id}/measurements", headers=hdr(keys["operate"]))
+        assert r.status_code in (200, 201, 202), r.text
+        uuid = r.json()["uuid"]
+        assert runner.running.wait(30)  # marked running, measuring
+        filler = _fill(small_disk)
+        if database_full:
+            results_repo.save_finished_cycle = refuse
+        if no_room_for_run:  # a raw run larger than the reserve: neither the folder nor unfiled/ takes it
+
+            def no_room(*a, **k):
+                raise OSError(errno.ENOSPC, "No space left on device")
+
+            svc.executor._write_run = no_room
+            svc.executor._keep_trace = lambda *a, **k: None
+        if spool_refused:  # until the stop: the cycle is kept in memory meanwhile
+            svc.executor._write_spool = lambda doc: None
+        try:
+            runner.gate.set()
+            assert svc.scheduler.idle(60)
+        finally:
+            results_repo.save_finished_cycle = real_save
+        assert not svc.executor.reserve_path.exists()  # released to keep the cycle
+        seen["items"] = client.get(f"/api/v1/axes/{axis_id}/measurements", headers=hdr(keys["read"])).json()["items"]
+        seen["health"] = client.get("/healthz").json()
+        seen["status"] = client.get(f"/api/v1/axes/{axis_id}/status", headers=hdr(keys["read"])).json()
+        seen["spooled"] = (svc.executor.spool_dir / f"{uuid}.json").is_file()
+        seen["in_memory"] = [fc.uuid for fc in svc.executor.unsaved]
+        if spool_refused:
+            del svc.executor._write_spool  # the stop writes it (the reserve's room is free)
+    # a normal stop: the cycle is in the spool or in the database; no empty file anywhere
+    seen["spooled_after_stop"] = (data / "spool" / f"{uuid}.json").is_file()
+    seen["empty_after_stop"] = _empty_files(data)
+    filler.unlink()  # the operator frees space, then restarts
+    app = create_app(settings, runner=FakeRunner())
+    with TestClient(app) as client:
+        svc = app.state.service
+        items = client.get(f"/api/v1/axes/{axis_id}/measurements", headers=hdr(keys["read"])).json()["items"]
+        alerts = client.get("/api/v1/alerts", headers=hdr(keys["read"])).json()["items"]
+        assert svc.executor.pending() == [] and svc.executor.held() == {}
+        assert _wait(svc.executor.reserve_ok)  # allocated again
+        report = svc.report
+    assert _empty_files(data) == []
+    assert not [p for p in data.rglob(".*") if p.name != ".reserve" and not p.name.endswith(".lock")]  # no temp file
+    return data, uuid, seen, items, alerts, report
+
+
+def _assert_kept_as_storage_full(items, alerts):
+    (item,) = items
+    assert item["status"] == "ok" and item["backlash_mean_um"] is not None  # the measurement itself
+    assert item["reason_code"] == "storage_full" and item["failure_reason"].startswith("storage_full:")
+    assert "free space under the data folder" in item["failure_reason"]
+    assert item["raw_run_lost"] is None
+    assert [a["kind"] for a in alerts if a["active"]] == ["storage_full"]
+
+
+def test_a_cycle_finished_on_a_full_disk_survives_a_stop_and_a_restart_as_storage_full(small_disk):
+    data, uuid, seen, items, alerts, report = _full_disk_cycle(small_disk)
+    assert seen["empty_after_stop"] == []
+    (during,) = seen["items"]
+    assert during["status"] != "running" and during["reason_code"] == "storage_full"
+    assert seen["status"]["last_cycle_status"] != "running"
+    assert report.interrupted == 0
+    _assert_kept_as_storage_full(items, alerts)
+
+
+def test_a_cycle_the_full_database_refuses_waits_in_the_spool_across_a_stop_and_a_restart(small_disk):
+    data, uuid, seen, items, alerts, report = _full_disk_cycle(small_disk, database_full=True)
+    assert seen["spooled"] and seen["spooled_after_stop"]  # kept on disk, in the reserve's room
+    assert seen["empty_after_stop"] == []
+    (during,) = seen["items"]
+    assert during["status"] == "failed" and during["reason_code"] == "storage_full"  # finished, not running
+    assert seen["status"]["last_cycle_status"] == "failed"
+    assert seen["status"]["last_failure_reason"].startswith("storage_full:")
+    assert any(p.startswith("storage_full") for p in seen["health"]["problems"])
+    assert report.replayed == 1 and report.interrupted == 0
+    _assert_kept_as_storage_full(items, alerts)
+
+
+def test_below_the_free_disk_floor_no_cycle_starts_and_healthz_and_an_alert_say_why(engine, db_url, tmp_path):
+    runner = FakeRunner()
+    settings = make_settings(db_url, tmp_path, min_free_disk_mb=1e12)  # more than any disk has
+    app = create_app(settings, runner=runner)
+    with TestClient(app) as client:
+        svc = app.state.service
+        keys, axis_id = _keys(svc)
+        r = client.post(f"/api/v1/axes/{axis_id}/measurements", headers=hdr(keys["operate"]))
+        assert r.status_code in (200, 201, 202), r.text
+        assert svc.scheduler.idle(30)
+        assert runner.calls == 0  # the axis was not moved
+        (item,) = client.get(f"/api/v1/axes/{axis_id}/measurements", headers=hdr(keys["read"])).json()["items"]
+        assert item["status"] == "cancelled" and item["reason_code"] == "storage_full"
+        assert "below the floor" in item["failure_reason"] and "free space" in item["failure_reason"]
+        health = client.get("/healthz")
+        assert health.status_code == 503
+        assert any("no new cycle is started" in p for p in health.json()["problems"])
+        alerts = client.get("/api/v1/alerts", headers=hdr(keys["read"])).json()["items"]
+        (alert,) = [a for a in alerts if a["kind"] == "storage_full"]
+        assert alert["active"] and "min_free_disk_mb" in alert["message"]
+
+
+def test_a_raw_run_with_no_room_anywhere_travels_in_the_spool_file_and_is_kept_at_the_restart(small_disk):
+    data, uuid, seen, items, alerts, report = _full_disk_cycle(small_disk, database_full=True, no_room_for_run=True)
+    assert seen["spooled_after_stop"] and seen["empty_after_stop"] == []
+    (during,) = seen["items"]
+    assert during["status"] == "failed" and during["reason_code"] == "storage_full"
+    assert seen["status"]["last_cycle_status"] == "failed"
+    assert report.replayed == 1 and report.interrupted == 0
+    _assert_kept_as_storage_full(items, alerts)  # re-analysed from the trace the spool file carried
+    assert (data / "unfiled" / f"{uuid}.npz").is_file()  # and the raw run kept now that there is room
+    assert "unfiled" in items[0]["failure_reason"]
+
+
+def test_the_spool_reserve_is_configured_in_storage_and_refuses_a_negative_size():
+    from api.service.config import ConfigError, parse_settings
+
+    assert parse_settings({"storage": {"spool_reserve_mb": 2.5}}).spool_reserve_mb == 2.5
+    assert parse_settings({}).spool_reserve_mb == 16.0
+    with pytest.raises(ConfigError, match="spool_reserve_mb"):
+        parse_settings({"storage": {"spool_reserve_mb": -1}})
+
+
+def test_a_cycle_kept_in_memory_on_a_full_disk_is_written_to_the_spool_at_a_normal_stop(small_disk):
+    data, uuid, seen, items, alerts, report = _full_disk_cycle(small_disk, database_full=True, spool_refused=True)
+    assert seen["in_memory"] == [uuid] and not seen["spooled"]
+    (during,) = seen["items"]
+    assert during["status"] == "failed" and during["reason_code"] == "storage_full"  # finished, not running
+    assert seen["status"]["last_cycle_status"] == "failed"
+    assert seen["status"]["last_failure_reason"].startswith("storage_full:")
+    assert seen["spooled_after_stop"] and seen["empty_after_stop"] == []  # flushed by the stop
+    assert report.replayed == 1 and report.interrupted == 0
+    _assert_kept_as_storage_full(items, alerts)
