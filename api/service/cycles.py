@@ -95,8 +95,9 @@ FREE_SPACE_HINT = ("free space under the data folder (old raw runs, other files 
                    "quota; the kept cycle is then stored within scheduler.spool_retry_s, or at the next start")
 
 
-def is_storage_full(exc: BaseException | None) -> bool:
-    """Whether ``exc`` (or what caused it) says the disk or quota is full."""
+def disk_full(exc: BaseException | None) -> bool:
+    """Whether the error ``exc`` (or what caused it) says the disk or quota is full (a cycle's
+    recorded reason says so by :func:`storage.db.results_repo.is_storage_full`)."""
     seen = 0
     while exc is not None and seen < 8:
         if isinstance(exc, OSError) and exc.errno in _FULL_ERRNOS:
@@ -110,13 +111,6 @@ def is_storage_full(exc: BaseException | None) -> bool:
 
 def storage_full_reason(detail: str) -> str:
     return f"{STORAGE_FULL}: {detail}; {FREE_SPACE_HINT}"
-
-
-def reason_code(status: str, failure_reason: str | None) -> str | None:
-    """The machine-readable reason of a cycle (``storage_full``), or None."""
-    if failure_reason and failure_reason.startswith(f"{STORAGE_FULL}:"):
-        return STORAGE_FULL
-    return None
 
 
 def _encode(a) -> str:
@@ -403,14 +397,14 @@ class CycleExecutor:
                 try:
                     folder, run_file = self._write_run(axis, outcome, req, finished)
                 except (MebmError, OSError) as exc:
-                    if not (is_storage_full(exc) and self.release_reserve()):
+                    if not (disk_full(exc) and self.release_reserve()):
                         raise
                     full = True  # the reserve makes room for the raw run (and the spool file) once
                     log.error("cycle %s: the disk is full (%s); the spool reserve (%s) was released to keep the "
                               "cycle; %s", req.uuid, exc, self.reserve_path, FREE_SPACE_HINT)
                     folder, run_file = self._write_run(axis, outcome, req, finished)
             except (MebmError, OSError) as exc:
-                full = full or is_storage_full(exc)
+                full = full or disk_full(exc)
                 trace_file = self._keep_trace(axis, req, outcome)
                 kept = f"kept in {trace_file}" if trace_file else "and it could not be kept anywhere else"
                 note = f"raw run not written to the dataset folder ({exc}); {kept}"
@@ -446,7 +440,7 @@ class CycleExecutor:
 
     @staticmethod
     def _full_reason(fc: FinishedCycle, note: str | None) -> str:
-        if fc.failure_reason and fc.failure_reason.startswith(f"{STORAGE_FULL}:"):
+        if results_repo.is_storage_full(fc.failure_reason):
             return fc.failure_reason
         what = note or "the disk under the data folder was full when the cycle finished"
         if fc.status != "ok" and fc.failure_reason:
@@ -486,11 +480,11 @@ class CycleExecutor:
                 publish = self._prepare_status(s, fc.axis_id)
         except DatabaseUnavailableError as exc:
             spool_full = spool is None and doc is not None and doc["uuid"] in self._spool_refused_full
-            if doc is not None and (is_storage_full(exc) or spool_full) and reason_code(
-                    fc.status, fc.failure_reason) is None:
+            if doc is not None and (disk_full(exc) or spool_full) and not results_repo.is_storage_full(
+                    fc.failure_reason):
                 # the database found no room either (SQLite under the data folder): the true reason
                 fc = replace(fc, failure_reason=self._full_reason(
-                    fc, f"the database could not store the cycle ({exc})" if is_storage_full(exc) else None))
+                    fc, f"the database could not store the cycle ({exc})" if disk_full(exc) else None))
                 doc = {**doc, "failure_reason": fc.failure_reason}
                 spool = self._write_spool(doc) or spool
             self._held[fc.uuid] = (fc.status, fc.failure_reason)
@@ -505,7 +499,7 @@ class CycleExecutor:
                         self.unsaved.append(fc)
                     if doc is not None:
                         self._unspooled[fc.uuid] = doc
-            elif reason_code(fc.status, fc.failure_reason) == STORAGE_FULL:
+            elif results_repo.is_storage_full(fc.failure_reason):
                 log.error("cycle %s kept in the spool (%s): the disk is full; %s", fc.uuid, exc, FREE_SPACE_HINT)
             else:
                 log.warning("cycle %s kept on disk (%s): it is stored when the database is back", fc.uuid, exc)
@@ -654,12 +648,12 @@ class CycleExecutor:
                 write_durably(path, data)
                 return path
             except OSError as exc:
-                if attempt == 1 and is_storage_full(exc) and self.release_reserve():
+                if attempt == 1 and disk_full(exc) and self.release_reserve():
                     log.error("cycle %s: the disk is full; the spool reserve (%s) was released to keep it",
                               doc["uuid"], self.reserve_path)
                     continue
                 log.error("cycle %s: spool file not written (%s)", doc["uuid"], exc)
-                if is_storage_full(exc):
+                if disk_full(exc):
                     self._spool_refused_full.add(doc["uuid"])
                 return None
         return None
@@ -668,13 +662,8 @@ class CycleExecutor:
     def ensure_reserve(self) -> bool:
         """Allocate the spool reserve if it is missing (written, fsynced and renamed into
         place; nothing is left on failure). True if it is in place (or none is configured)."""
-        if self.reserve_bytes <= 0:
+        if self.reserve_ok():
             return True
-        try:
-            if self.reserve_path.stat().st_size >= self.reserve_bytes:
-                return True
-        except OSError:
-            pass
         free = self.free_bytes()
         if free is not None and free < 2 * self.reserve_bytes:  # no room yet: taking it would fill the disk again
             log.debug("spool reserve not allocated yet: %d bytes free", free)
