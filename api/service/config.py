@@ -18,6 +18,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from urllib.parse import urlencode, urlsplit
 
+from api.service.config_input import resolve_profile
 from core.criteria.uncertainty import Instruments
 from core.dataset import AxisSpec
 from core.errors import InputError
@@ -334,6 +335,9 @@ def _axis(a: Mapping, machine: str, where: str, instruments: Instruments = Instr
         raise ConfigError(f"{where}.controller (={controller!r}) must be 'sim', modbus://host:port, "
                           "modbus+rtu:///dev/DEVICE, sim://host:port or canopen://...")
     controller = _modbus_profile(a, controller, where)
+    # a profile named in this file's URL is the operator's path, relative to where the service
+    # starts (as modbus_profile): stored absolute, so the profiles folder is not looked in
+    controller = resolve_profile(controller, Path.cwd())
     controller = _canopen_controller(a, controller, where)
     controller = _with_trigger(controller, a, spec, where)
     st = AxisSettings(

@@ -47,3 +47,17 @@ def test_the_folder_is_a_setting_under_storage(tmp_path):
     assert load_settings(cfg, env={}).profiles_path == tmp_path / "d" / "profiles"
     cfg.write_text(f'[storage]\ndata_dir = "{tmp_path / "d"}"\nprofiles_dir = "{tmp_path / "p"}"\n')
     assert load_settings(cfg, env={}).profiles_path == tmp_path / "p"
+
+
+def test_a_profile_named_in_the_configuration_file_is_the_operators_path(tmp_path, monkeypatch):
+    profile = Path(__file__).resolve().parents[3] / "examples" / "modbus-profiles" / "drive-int32-input-separate.toml"
+    (tmp_path / "plc-y.toml").write_text(profile.read_text())
+    monkeypatch.chdir(tmp_path)  # where the service is started
+    cfg = tmp_path / "mebm.toml"
+    cfg.write_text(f'[storage]\ndata_dir = "{tmp_path / "d"}"\n[[machines]]\nname = "m"\n[[machines.axes]]\n'
+                   'name = "y"\ntransmission_mm_per_rev = 10\nscrew_lead_mm = 10\nposition_gain_per_s = 20\n'
+                   'travel_mm = [0, 500]\ncontroller = "modbus://10.0.0.5:502?profile=plc-y.toml"\n')
+    (axis,) = load_settings(cfg, env={}).axes
+    url = axis.settings.controller_url
+    assert f"profile={tmp_path / 'plc-y.toml'}" in url  # stored absolute: the profiles folder is not looked in
+    assert resolve_profile(url, FOLDER) == url
