@@ -573,6 +573,8 @@ class Strategy:
     effect: str
     forms: str
     stage: Callable | None  # (runs, axis_spec, residuals) -> Stage | tuple of alternative forms | None; None: contour-only
+    # the observations (core.gap.evidence.KINDS) this family's physics produces: evidence for it
+    shown_by: tuple[str, ...] = ()
 
 
 def _cyclic_factory(runs, axis, resid):
@@ -581,10 +583,16 @@ def _cyclic_factory(runs, axis, resid):
 
 
 REGISTRY: dict[str, Strategy] = {
+    # static friction above the Coulomb level holds a table at rest and lets it jump; below
+    # its critical speed it sticks and slips out and back alike
     "friction": Strategy("friction", f"{friction_stage.__doc__}\n{friction_chain_stage.__doc__}",
-                         lambda runs, axis, resid: (friction_stage(), friction_chain_stage())),
+                         lambda runs, axis, resid: (friction_stage(), friction_chain_stage()),
+                         shown_by=("breakaway", "stick_slip")),
+    # a compliant chain whose loop is closed through it hunts: a self-excited cycle a stroke
+    # falls into or not, in one direction only
     "compliance": Strategy("compliance", compliance_stage.__doc__,
-                           lambda runs, axis, resid: compliance_stage(axis.position_gain_per_s)),
+                           lambda runs, axis, resid: compliance_stage(axis.position_gain_per_s),
+                           shown_by=("hunting",)),
     "thermal": Strategy("thermal", thermal_stage.__doc__, lambda runs, axis, resid: thermal_stage(runs, axis)),
     "backlash_profile": Strategy("backlash_profile", profile_stage.__doc__,
                                  lambda runs, axis, resid: profile_stage(runs, axis)),  # fmt: skip

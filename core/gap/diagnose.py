@@ -11,32 +11,15 @@
    with it, fitted on the train runs only, predicting the test runs. A round-trip axis
    takes the extension only if it passes a BIC test on its train fit; contours take the
    round-trip fit through the twin only if it does not worsen the train contours.
-5. Rank by test gap times (1 + penalty_per_param * n_params); name the best if it cuts
-   the gap by min_reduction and the gap is above noise_factor times the noise.
-6. Second effect: every other candidate on top of the best, fitted on the train runs;
-   accepted if it cuts the best's test gap by another min_reduction while that gap is
-   still above the noise floor. The closest rival the test runs do not tell apart from
-   the best (not its other chain family) gets the same step; the rival with its second
-   effect replaces the answer if that pair cuts the answer's gap by another
-   min_reduction (``rival_second_effect``).
-7. Two together: when no single candidate cuts a gap above the noise by min_reduction,
-   the two best single candidates are each tried as a base with every other on top, and
-   every other pair of candidates that took something once, from the better of the two
-   (two effects that each alone extrapolate badly rank last by test gap); a pair is
-   named if it cuts the gap before by min_reduction and its second effect cuts its
-   base's gap by min_reduction too (two effects whose train runs confound them).
-8. Otherwise the answer is none; with min_first_reduction set (off by default), the best
-   single candidate is still named if it cuts the gap by that weaker fraction (the
-   decision says that most of the gap stays unexplained).
-9. Observations of the chain, whatever the fits say (:mod:`core.gap.where`): a table
-   that breaks away at rest names friction instead of none or compliance
-   (``breakaway_names_friction``; over compliance where friction's fit cuts nothing too, if
-   the table also rattles out and back, ``stick_slip_names_friction``); a rattle in one
-   stroke direction only names compliance
-   where friction is named and compliance is not told apart (``hunting_names_compliance``);
-   where the answer is still none, a rattle names the chain family its sides point at,
-   out and back friction, one-sided compliance (``rattle_names_chain``,
-   ``rattle_sides_name_family``).
+5. The second effect: every other candidate on top of the best single candidate that
+   cuts the gap by min_reduction and of each single the held-out runs do not tell apart
+   from it; where no single cuts it, the two best singles as a base with every other on
+   top, and every other pair of candidates that took something (:func:`pair_jobs`).
+6. The observations of the chain (:mod:`core.gap.evidence`): a table that breaks away at
+   rest, a table that rattles against the nut.
+7. The decision on that table (:func:`core.gap.select.select`): the best-scoring
+   eligible hypothesis, evidence breaking ties only; the report's sentences come from
+   the decision (:func:`core.gap.report.explain`).
 """
 
 from __future__ import annotations
@@ -56,8 +39,10 @@ from core.gap import roundtrip as rt
 from core.gap.candidates import ASSUMED_MASS_KG, ASSUMED_STIFFNESS_N_PER_UM, EFFECTS, FRICTION_CHAIN_MIN_MM_S2, REGISTRY, SERVO_LOWER, SERVO_NAMES, SERVO_UPPER, compose, derived, servo_piece
 from core.gap.candidates import sim_piece, stage_starts, train_residuals
 from core.gap.data import GapError, choose_split, prepare_runs
-from core.gap.report import Candidate, GapReport
-from core.gap.where import breakaway_sentence, breakaways, locate, rattle_sentence, rattles, stick_slips
+from core.gap.evidence import observe
+from core.gap.report import Candidate, GapReport, explain, selection_dict
+from core.gap.select import Rule, eligible_singles, ranked, select, ties_of
+from core.gap.where import breakaways, locate, rattles
 from core.sim import AxisModel, Effects, Friction
 
 NOT_IDENTIFIABLE = "not identifiable"
@@ -65,67 +50,26 @@ NOT_IDENTIFIABLE = "not identifiable"
 
 @dataclass(frozen=True)
 class GapSettings:
-    """Decision thresholds, set on generated data (seeds 101-130, 211-213 and 901, and the
-    plant-form test's seed 31; see docs/gap-diagnosis.md §5 for the data of each rule)."""
+    """The decision's parameters (:class:`core.gap.select.Rule`) and what the report keeps.
+
+    ``penalty_per_param``: the score is the held-out gap times (1 + this x parameters).
+    ``min_reduction``: the fraction by which a hypothesis must cut a gap to be eligible, a
+    second effect its base's gap, and the better of two hypotheses the worse one's for
+    the held-out runs to tell them apart. ``noise_factor``: a gap within this multiple of
+    the noise floor is noise. ``second_effect``: pairs are searched. ``min_first_reduction``:
+    where nothing is eligible, the best single family is still named if it cuts the gap by
+    this weaker fraction (off by default). ``keep_curves``: the report keeps the residual
+    curves for plots."""
 
     penalty_per_param: float = 0.01
-    min_reduction: float = 0.25  # best candidate must cut the test gap by at least this fraction
-    noise_factor: float = 2.0  # ... and the gap before must exceed this multiple of the noise floor
+    min_reduction: float = 0.25
+    noise_factor: float = 2.0
     second_effect: bool = True
     keep_curves: bool = True
-    # When neither a single candidate nor a pair cuts the gap by min_reduction, the best
-    # single one is still named (a weak cut, said so) if it cuts at least this fraction.
-    # Off (None) by default: at 0.15, set on 26 cases of seeds 4172, 6060, 7043, 7919, 8123,
-    # 8647 and 9401 (15 named, all rightly), it named 3 cases of the unseen seed 9433 (both
-    # plants), all wrongly (docs/gap-diagnosis.md §5).
     min_first_reduction: float | None = None
-    # When the answer would be `none` on a gap above noise_factor x the noise floor, but the
-    # table rattles against the nut on a round trip (where.rattles: a tonal cycle of 5 µm
-    # or more through a fifth of a stroke, stick-slip or a hunting chain), a chain effect
-    # is there by that observation: the better of the chain families (friction,
-    # compliance) is named if it cuts the test gap at all (as `_took_something`), and the
-    # decision says that most of the gap stays unexplained (set on seeds 3547 and 9433, where
-    # only the independent plant's friction and compliance cases rattle).
-    rattle_names_chain: bool = True
-    # ... and the rattle's sides choose the family (chain_by_rattle): both stroke directions
-    # on every round trip that rattles, stick-slip, so friction; one direction only on any,
-    # a hunting chain, so compliance; where the family pointed at cuts nothing, the better
-    # one that does. Off: the better-scoring family (set on seeds 3547, 9433, 3878, 5261 and
-    # the tuning draws [49, k, ...]; docs/gap-diagnosis.md §5).
-    rattle_sides_name_family: bool = True
-    # When friction is named (alone or first), the table does not break away at rest, but
-    # it rattles in one stroke direction only on some round trip (a hunting chain:
-    # stick-slip sticks and slips out and back) and compliance's fit is not told apart from
-    # friction's (close_rivals), compliance is named instead and the second-effect step runs
-    # on top of it (compliance_by_hunting; set on the independent plant's seeds 6529 and 8647). A
-    # table that breaks away at rest keeps friction: the rule fired wrongly on the unseen
-    # seed 8311, case 16, which broke away at rest.
-    hunting_names_compliance: bool = True
-    # When the table breaks away at rest (where.breakaways: the command still, the table
-    # held for 30 ms, then a jump of 5 µm or more within 10 ms, on two still stretches or
-    # more), static friction above the Coulomb level is there by that observation, which
-    # no other family shows: on a gap above noise_factor x the noise floor, an answer of
-    # `none` becomes friction (whatever its fit cuts, said so), and an answer of compliance
-    # (the chain without static friction) becomes friction where friction's fit cuts the
-    # test gap at all (as `_took_something`); the second-effect step then runs on top of
-    # friction (set on the independent plant's seeds 3547, 4172, 4234, 4818, 8647, 9433).
-    breakaway_names_friction: bool = True
-    # When a single effect is named and another single candidate is not told apart from it
-    # (close_rivals: it cuts the test gap by min_reduction itself, and the named one alone
-    # does not cut its gap by min_reduction again), the second-effect step also runs on top
-    # of that rival; where the rival with its second effect cuts the answer's test gap
-    # (with the answer's own second effect, if any) by min_reduction again, the rival and
-    # its second effect are named instead: two singles that the test runs do not tell apart
-    # are told apart by which of them, with a second effect, explains the rest (set on seeds
-    # 3878 and 4234 and the small wear-plus-skew datasets [48, 0..4]).
-    rival_second_effect: bool = True
-    # When the table breaks away at rest (as above) and also rattles against the nut out
-    # and back on every round trip that rattles (stick-slip, :func:`chain_by_rattle`), two
-    # observations of static friction agree: an answer of compliance becomes friction even
-    # where friction's fit cuts nothing (its forms do not follow that chain; said so, with
-    # what compliance's form cut). The break-away alone gives way to a fit there (set on
-    # the independent plant's seed 7457, case 36).
-    stick_slip_names_friction: bool = True
+
+    def rule(self) -> Rule:
+        return Rule(self.penalty_per_param, self.min_reduction, self.noise_factor, self.min_first_reduction)
 
 
 NOISE_DIFF_ORDER = 3  # the differences the white-noise level is read from (see noise_floor_um)
@@ -143,7 +87,26 @@ def white_level_um(resid: Sequence[np.ndarray], order: int = NOISE_DIFF_ORDER) -
     return float(np.median(np.abs(d - np.median(d))) / 0.6745 / math.sqrt(math.comb(2 * k, k)))
 
 
-def noise_floor_um(resid: Sequence[np.ndarray], groups: Sequence[str | None] | None = None) -> float:
+def step_um(x_mm: np.ndarray) -> float:
+    """The smallest step of a recorded position, µm: the encoder's resolution where the
+    record is quantized (a 1 µm scale steps by 1 µm), next to nothing where it is not.
+    The record must pass through rest somewhere, where it steps by one count (a round trip
+    at its ends, an axis of a circle at its reversals); a record at speed throughout steps
+    by several counts."""
+    d = np.abs(np.diff(np.asarray(x_mm, dtype=float)))
+    d = d[np.isfinite(d) & (d > 1e-9)]
+    return float(d.min() * 1e3) if d.size else 0.0
+
+
+def quantization_um(*records_mm: np.ndarray) -> float:
+    """The RMS that the quantization of ``records_mm`` adds to a residual that takes each of
+    them once (their differences: table given motor): sqrt(sum q^2 / 12) over their steps
+    (:func:`step_um`)."""
+    return math.sqrt(sum(step_um(x) ** 2 for x in records_mm) / 12.0)
+
+
+def noise_floor_um(resid: Sequence[np.ndarray], groups: Sequence[str | None] | None = None,
+                   quant_um: Sequence[float] | None = None) -> float:
     """The white-noise level of residuals (:func:`white_level_um`), as the RMS that a gap of
     white noise alone would have.
 
@@ -166,17 +129,23 @@ def noise_floor_um(resid: Sequence[np.ndarray], groups: Sequence[str | None] | N
     0.32 µm; contours of 8311 cases 39 and 40: 13.8 and 7.7 µm -> 0.60 and 0.51 µm), while
     on white noise all orders read the same (a sharp slip is a few samples: the median
     passes it). Contours keep the pooled level: sampled sparser, their differences still
-    carry more of the contour's own motion."""
-    runs = [(r, None if groups is None else g) for r, g in zip(resid, groups or [None] * len(resid))
+    carry more of the contour's own motion.
+
+    ``quant_um``: per residual, the RMS its encoders' quantization adds
+    (:func:`quantization_um`), in quadrature beside the white level. A quantized record
+    that moves slowly steps rarely, so its differences read almost no noise while the
+    steps alone give resolution/sqrt(12): a 1 µm scale 0.29 µm RMS."""
+    q_all = list(quant_um) if quant_um is not None else [0.0] * len(resid)
+    runs = [(r, None if groups is None else g, q) for r, g, q in zip(resid, groups or [None] * len(resid), q_all)
             if r.size > NOISE_DIFF_ORDER + 1]  # fmt: skip
     if not runs:
         return 0.0
-    pooled = white_level_um([r for r, _ in runs])
-    if groups is None:
+    pooled = white_level_um([r for r, _, _ in runs])
+    if groups is None and quant_um is None:
         return pooled
-    level = {g: white_level_um([r for r, k in runs if k == g]) for g in {k for _, k in runs if k is not None}}
-    n = np.array([r.size for r, _ in runs], dtype=float)
-    s = np.array([pooled if g is None else level[g] for _, g in runs])
+    level = {g: white_level_um([r for r, k, _ in runs if k == g]) for g in {k for _, k, _ in runs if k is not None}}
+    n = np.array([r.size for r, _, _ in runs], dtype=float)
+    s = np.array([math.hypot(pooled if g is None else level[g], q) for _, g, q in runs])
     return float(np.sqrt(np.sum(n * s * s) / np.sum(n)))
 
 
@@ -681,7 +650,6 @@ def _bounded(resid_um: np.ndarray, what: str, notes: list[str]) -> np.ndarray:
 
 
 TOOK_FRACTION = 0.98  # a candidate whose test gap is below this fraction of the gap before cut it
-CHAIN_EFFECTS = ("friction", "compliance")  # the families a rattling table points to
 
 
 def _took_something(f: Fitted, gap_before: float) -> bool:
@@ -689,197 +657,29 @@ def _took_something(f: Fitted, gap_before: float) -> bool:
     return bool(f.rt_fits or f.servo) or f.gap_after_um < TOOK_FRACTION * gap_before
 
 
-def pair_jobs(ranked: Sequence[Fitted], fits: Mapping[str, Fitted], gap_before: float) -> list:
-    """The pairs to fit where no single candidate explains the gap, as (effects, base):
-    the two best single candidates as a base with every other candidate on top, then the
-    other pairs of candidates that took something, once each, from the better of the two
-    (two effects that each alone extrapolate badly rank last by test gap). A candidate
-    that took nothing (:func:`_took_something`) is in no pair."""
-    took = [f for f in ranked if _took_something(f, gap_before)]
-    jobs = [((base.effects[0], e2), base) for base in took[:2]
-            for e2 in EFFECTS if e2 != base.effects[0] and _took_something(fits[e2], gap_before)]
-    tried = {frozenset(j[0]) for j in jobs}
-    jobs += [((a.effects[0], b.effects[0]), a) for i, a in enumerate(took) for b in took[i + 1:]
-             if frozenset((a.effects[0], b.effects[0])) not in tried]
-    return jobs
-
-
-def joint_pair(pairs: Sequence[Fitted], fits: Mapping[str, Fitted], gap_before: float,
-               min_reduction: float) -> Fitted | None:
-    """The best of ``pairs`` (ranked) that cuts the gap before by ``min_reduction`` and
-    whose second effect cuts its base's gap by ``min_reduction`` too (each effect is
-    needed), or None."""
-    ok = [f for f in pairs if f.gap_after_um <= (1 - min_reduction) * gap_before
-          and f.gap_after_um <= (1 - min_reduction) * fits[f.effects[0]].gap_after_um]  # fmt: skip
-    return ok[0] if ok else None
-
-
-def friction_by_breakaway(effect: str, best: Fitted, fits: Mapping[str, Fitted], gap_before: float, n_found: int,
-                          min_reduction: float) -> tuple[Fitted, str] | None:
-    """Friction's fit and the decision's sentence where a table that breaks away at rest on
-    ``n_found`` round trips (:func:`core.gap.where.breakaways`) names friction instead of
-    ``effect`` (``GapSettings.breakaway_names_friction``): instead of `none`, whatever
-    friction's fit cuts (the sentence says so), and instead of compliance, the chain without
-    static friction, where friction's fit cuts the test gap at all (below ``TOOK_FRACTION``
-    of the gap before). None where the answer stands (any other effect, or friction)."""
-    fric = fits["friction"]
-    seen = (f"the table breaks away at rest on {n_found} round trip(s) (the command still, the table held, then a "
-            "jump): static friction above the Coulomb level")  # fmt: skip
-    if effect == "none":
-        cut = 1 - fric.gap_after_um / gap_before
-        fit = (f"its fit cuts the test gap by {cut * 100:.0f} % only" if cut > 0 else
-               f"its fit does not cut the test gap ({fric.gap_after_um:.2f} µm)")  # fmt: skip
-        return fric, (f"No candidate cuts the test gap by {min_reduction * 100:.0f} %, but {seen}: friction. The "
-                      f"friction forms do not follow it: {fit}, and most of the gap stays unexplained.")  # fmt: skip
-    if effect == "compliance" and fric.gap_after_um < TOOK_FRACTION * gap_before:
-        return fric, (f"compliance fits best ({best.gap_after_um:.2f} µm), but {seen}, which a chain without it does "
-                      f"not show: friction (it cuts the test gap by {(1 - fric.gap_after_um / gap_before) * 100:.0f} %, "
-                      f"to {fric.gap_after_um:.2f} µm).")  # fmt: skip
-    return None
-
-
-def friction_by_stick_slip(effect: str, best: Fitted, fits: Mapping[str, Fitted], found: Sequence[Mapping],
-                           gap_before: float, n_broke: int) -> tuple[Fitted, str] | None:
-    """Friction's fit and the decision's sentence where a compliance answer meets both
-    observations of static friction (``GapSettings.stick_slip_names_friction``): the table
-    breaks away at rest on ``n_broke`` round trips (:func:`core.gap.where.breakaways`) and
-    rattles against the nut in both stroke directions on every round trip that rattles
-    (``found``, :func:`core.gap.where.rattles`; a hunting chain without static friction
-    rattles in one direction only on some, :func:`chain_by_rattle`). Called where
-    :func:`friction_by_breakaway` left the answer (friction's fit cuts nothing): friction is
-    named although its forms do not follow the chain, as the break-away names it over
-    `none`, and the sentence says what compliance's form cut. None where the answer stands
-    (another effect, no break-away, no rattle, or a one-sided rattle)."""
-    if effect != "compliance" or n_broke <= 0 or not stick_slips(found):
-        return None
-    fric = fits["friction"]
-    return fric, (f"compliance fits best ({best.gap_after_um:.2f} µm, a {(1 - best.gap_after_um / gap_before) * 100:.0f} % "
-                  f"cut), but the table breaks away at rest on {n_broke} round trip(s) (the command still, the table "
-                  f"held, then a jump) and rattles against the nut in both stroke directions on each of the "
-                  f"{len(found)} that rattle: stick-slip, static friction above the Coulomb level, which a chain "
-                  f"without it does not show: friction. The friction forms do not follow this chain: their fit does not "
-                  f"cut the test gap ({fric.gap_after_um:.2f} µm), and the gap stays unexplained.")  # fmt: skip
-
-
-def compliance_by_hunting(effect: str, best: Fitted, fits: Mapping[str, Fitted], found: Sequence[Mapping],
-                          gap_before: float, n_broke: int, min_reduction: float) -> tuple[Fitted, str] | None:
-    """Compliance's fit and the decision's sentence where a hunting chain names compliance
-    instead of friction (``GapSettings.hunting_names_compliance``): the table rattles in one
-    stroke direction only on some round trip (:func:`core.gap.where.rattles`; stick-slip
-    sticks and slips out and back alike, :func:`chain_by_rattle`), and compliance's fit is
-    not told apart from friction's (:func:`close_rivals`: it cuts the test gap by
-    ``min_reduction`` itself, and friction does not cut compliance's gap by
-    ``min_reduction`` again). None where the answer stands (any other effect, no one-sided
-    rattle, compliance told apart, or a table that breaks away at rest on ``n_broke`` > 0
-    round trips, :func:`core.gap.where.breakaways`: static friction, which a chain without
-    it does not show, so friction's own evidence; seen on used seed 8311 case 16, a wear
-    bump + friction whose friction chain rattled one-sided on one round trip of three and
-    broke away on five, which the rule named compliance)."""
-    if effect != "friction" or n_broke > 0 or not found or stick_slips(found):
-        return None
-    comp = fits["compliance"]
-    if not any(r is comp for r in close_rivals(fits, [effect], best, gap_before, min_reduction)):
-        return None
-    n = sum(not f.get("both_directions", False) for f in found)
-    return comp, (f"friction fits best ({best.gap_after_um:.2f} µm), but the table rattles against the nut in one "
-                  f"stroke direction only on {n} round trip(s): a hunting chain, which stick-slip (out and back) does "
-                  f"not show, and compliance is not told apart from friction by the fits: compliance (it cuts the "
-                  f"test gap by {(1 - comp.gap_after_um / gap_before) * 100:.0f} %, to {comp.gap_after_um:.2f} µm).")  # fmt: skip
-
-
-def chain_by_rattle(fits: Mapping[str, Fitted], found: Sequence[Mapping], gap_before: float, penalty_per_param: float,
-                    by_sides: bool = True) -> tuple[Fitted, str] | None:
-    """The chain family a rattling table names where no candidate passes
-    (``GapSettings.rattle_names_chain``), and what the rattle says of it; None where
-    neither chain family cuts the test gap at all (below ``TOOK_FRACTION`` of the gap
-    before). ``found``: :func:`core.gap.where.rattles`' findings.
-
-    With ``by_sides`` (``GapSettings.rattle_sides_name_family``) the rattle's sides choose:
-    a table that rattles in both stroke directions on every round trip that rattles
-    stick-slips (a symmetric friction below its critical speed makes every slow stroke
-    stick and slip, out and back), so friction; one that rattles in one direction only on
-    any of them hunts (a self-excited cycle that a stroke falls into or not, depending on how
-    it began), so compliance. The family pointed at is named where its fit cuts the test gap
-    at all; otherwise, and without ``by_sides``, the better-scoring family that does."""
-    took = {e: fits[e] for e in CHAIN_EFFECTS if fits[e].gap_after_um < TOOK_FRACTION * gap_before}
-    if not took:
-        return None
-    both = stick_slips(found)
-    pointed = "friction" if both else "compliance"
-    if by_sides and pointed in took:
-        how = (" in both stroke directions on each: stick-slip" if both else
-               " in one stroke direction only on some: a hunting chain")  # fmt: skip
-        return took[pointed], f"{how}, so {pointed}"
-    chain = min(took.values(), key=lambda f: f.score(penalty_per_param))
-    return chain, (" (stick-slip or a hunting chain): a chain effect. Of the chain families, "
-                   f"{chain.effects[0]} fits best")
-
-
-def close_rivals(fits: Mapping[str, Fitted], named: Sequence[str], best: Fitted | None, gap_before: float,
-                 min_reduction: float) -> list[Fitted]:
-    """Single candidates outside the answer that the test runs do not tell apart from it,
-    best first: each cuts the test gap by ``min_reduction`` itself, and the named effect
-    alone (``best``) does not cut the rival's test gap by ``min_reduction`` again (the
-    standard every cut of the decision is held to). None for a ``none`` answer
-    (``best`` None). The answer stands (it scores best); these say how sure it is. Seen
-    most between the two chain families, whose forms overlap (docs/gap-diagnosis.md,
-    "Friction on a chain and compliance overlap")."""
-    if best is None:
-        return []
-    keep = 1.0 - min_reduction
-    out = [f for e, f in fits.items() if e not in named and f.gap_after_um <= keep * gap_before
-           and best.gap_after_um > keep * f.gap_after_um]
-    return sorted(out, key=lambda f: f.gap_after_um)
-
-
-def rival_to_pair(fits: Mapping[str, Fitted], effect: str, best: Fitted, gap_before: float,
-                  min_reduction: float) -> Fitted | None:
-    """The rival of a single answer ``effect`` that the second-effect step also runs on
-    (``GapSettings.rival_second_effect``): the first of :func:`close_rivals` that is not the
-    answer's other chain family. Friction and compliance are two forms of one chain's
-    dynamics (never composed with each other); which of them takes a second effect better
-    says which form fits that chain, not which effect acts, and on the used seeds it chose
-    wrongly (4234 case 42): the chain observations (break-away, rattle) choose
-    between them instead. None where there is none."""
-    for r in close_rivals(fits, [effect], best, gap_before, min_reduction):
-        if not (effect in CHAIN_EFFECTS and r.effects[0] in CHAIN_EFFECTS):
-            return r
-    return None
-
-
-def rival_second_effect(effect: str, best: Fitted, second: Fitted | None, rival: Fitted, rpairs: Sequence[Fitted],
-                        gap_before: float, min_reduction: float) -> str | None:
-    """The decision's sentence where the closest rival of a single answer, with a second
-    effect on top, replaces it (``GapSettings.rival_second_effect``); None where the answer
-    stands. ``best`` (with ``second`` on top, if the second-effect step found one) is the
-    answer, ``rival`` its rival (:func:`rival_to_pair`), ``rpairs`` the rival with each
-    other candidate on top, best first. The rival's best pair replaces the answer where its
-    second effect cuts the rival's test gap by ``min_reduction`` and the pair cuts the
-    answer's by ``min_reduction`` again (the standard every cut of the decision is held to)."""
-    if not rpairs:
-        return None
-    answer, p, keep = second or best, rpairs[0], 1 - min_reduction
-    if p.gap_after_um > keep * rival.gap_after_um or p.gap_after_um > keep * answer.gap_after_um:
-        return None
-    name = rival.effects[0]
-    return (f"{effect} alone fits best ({best.gap_after_um:.2f} µm) and {name} is not told apart from it "
-            f"({rival.gap_after_um:.2f} µm), but {name} with {p.effects[1]} on top cuts the test gap to "
-            f"{p.gap_after_um:.2f} µm, {(1 - p.gap_after_um / answer.gap_after_um) * 100:.0f} % below "
-            f"{'+'.join(answer.effects)} ({answer.gap_after_um:.2f} µm): {name}, with {p.effects[1]}, "
-            f"cuts the test gap by {(1 - p.gap_after_um / gap_before) * 100:.0f} %.")  # fmt: skip
-
-
-def second_on_top(effect: str, best: Fitted, pairs: Sequence[Fitted], min_reduction: float) -> Fitted | None:
-    """The second effect's pair: the first of ``pairs`` (best first) whose base is the
-    answer ``effect`` and which cuts the answer's test gap (``best``) by ``min_reduction``
-    again; None where there is none. ``pairs`` also holds the two-together step's pairs
-    when an observation replaced the pair it found (a break-away naming friction over
-    compliance + cyclic error: used seed 4234 case 15, which would otherwise be named
-    friction with that pair's effects), and those are not on top of the answer."""
-    own = [p for p in pairs if p.effects[0] == effect]
-    if own and own[0].gap_after_um <= (1 - min_reduction) * best.gap_after_um:
-        return own[0]
-    return None
+def pair_jobs(singles: Sequence[Fitted], gap_before: float, gate_um: float, rule: Rule) -> list:
+    """The pairs the search fits, as (effects, base). Where single families cut the gap by
+    ``min_reduction``: every other family on top of the best of them and of each one the
+    held-out runs do not tell apart from it (:func:`core.gap.select.ties_of`), each base
+    above the noise gate. Where none does: the two best single families as a base with
+    every other on top, then every other pair of families that took something, once each,
+    from the better of the two (two effects that each alone extrapolate badly rank last by
+    test gap). A family that took nothing (:func:`_took_something`) is in no pair, and a
+    pair of the same two families is fitted once."""
+    took = [f for f in ranked(singles, rule.penalty_per_param) if _took_something(f, gap_before)]
+    ok = eligible_singles(singles, gap_before, rule)
+    if ok:
+        bases = [b for b in [ok[0]] + ties_of(ok[0], ok, rule) if b.gap_after_um > gate_um]
+        jobs = [((b.effects[0], t.effects[0]), b) for b in bases for t in took if t.effects[0] != b.effects[0]]
+    else:
+        jobs = [((b.effects[0], t.effects[0]), b) for b in took[:2] for t in took if t.effects[0] != b.effects[0]]
+        jobs += [((a.effects[0], b.effects[0]), a) for i, a in enumerate(took) for b in took[i + 1:]]
+    out, seen = [], set()
+    for job in jobs:
+        if frozenset(job[0]) not in seen:
+            seen.add(frozenset(job[0]))
+            out.append(job)
+    return out
 
 
 def _candidate(f: Fitted, s: GapSettings) -> Candidate:
@@ -924,135 +724,32 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: 
         if parts:
             by_kind[kind] = _rms_all(parts)
     # white noise, from the plain sample-by-sample residuals: each round-trip axis its own
-    noise = noise_floor_um(d.rt_nom_plain + d.ct_nom_plain, [r.axis for r in d.test_rt] + [None] * len(d.ct_nom_plain))
+    # and each encoder's quantization, from the records' own smallest step
+    quant = ([quantization_um(r.x_mm, r.u_mm) for r in d.test_rt]
+             + [math.sqrt(sum(quantization_um(c.table_mm[a]) ** 2 for a in c.axes) / len(c.axes)) for c in d.test_ct])
+    noise = noise_floor_um(d.rt_nom_plain + d.ct_nom_plain, [r.axis for r in d.test_rt] + [None] * len(d.ct_nom_plain),
+                           quant)  # fmt: skip
 
+    rule = s.rule()
+    gate = s.noise_factor * noise
     fits = dict(zip(EFFECTS, _fit_all(d, [((e,), None) for e in EFFECTS], workers)))
-    ranked = sorted(fits.values(), key=lambda f: f.score(s.penalty_per_param))
-    best = ranked[0]
-    if gap_before <= s.noise_factor * noise:
-        effect, decision = "none", (
-            f"The test gap {gap_before:.2f} µm is within {s.noise_factor:g}x the noise floor ({noise:.2f} µm)."
-        )
-    elif best.gap_after_um > (1 - s.min_reduction) * gap_before:
-        effect, decision = "none", (
-            f"No candidate cuts the test gap by {s.min_reduction * 100:.0f} % or more "
-            f"(best: {best.effects[0]}, {best.gap_after_um:.2f} µm): the gap is not one of the modelled effects."
-        )
-    else:
-        effect = best.effects[0]
-        decision = f"{effect} cuts the test gap by {(1 - best.gap_after_um / gap_before) * 100:.0f} %."
-
-    second: Fitted | None = None
+    singles = list(fits.values())
     pairs: list[Fitted] = []
-    second_text = ""
-    joint = False
-    if effect == "none" and s.second_effect and gap_before > s.noise_factor * noise:
-        # No single effect explains the gap: two acting together may (each alone leaves
-        # the other's share, so neither cuts the gap by min_reduction). Try the two best
-        # single candidates as a base with every other candidate on top; name a pair only
-        # if it cuts the gap before by min_reduction and its second effect cuts its
-        # base's gap by min_reduction too (each effect is needed).
-        pairs = _fit_all(d, pair_jobs(ranked, fits, gap_before), workers)
-        pairs.sort(key=lambda f: f.score(s.penalty_per_param))
-        together = joint_pair(pairs, fits, gap_before, s.min_reduction)
-        if together is not None:
-            second, best, joint = together, fits[together.effects[0]], True
-            effect = best.effects[0]
-            decision = (f"No single candidate cuts the test gap by {s.min_reduction * 100:.0f} %, but "
-                        f"{effect} and {second.effects[1]} together cut it by "
-                        f"{(1 - second.gap_after_um / gap_before) * 100:.0f} %.")  # fmt: skip
-            second_text = (f"A second effect remains: {second.effects[1]} (together the test gap falls to "
-                           f"{second.gap_after_um:.2f} µm; {effect} alone leaves {best.gap_after_um:.2f} µm).")  # fmt: skip
-    if (effect == "none" and s.min_first_reduction is not None and gap_before > s.noise_factor * noise
-            and ranked[0].gap_after_um <= (1 - s.min_first_reduction) * gap_before):
-        # no pair either: the best single candidate, a weak cut, is still the likeliest of
-        # the modelled effects. Every pair on top of it was tried above (a pair that cuts
-        # its gap by min_reduction would also have passed there), so no second effect.
-        best = ranked[0]
-        effect = best.effects[0]
-        decision = (f"{effect} cuts the test gap by {(1 - best.gap_after_um / gap_before) * 100:.0f} % only "
-                    f"(under {s.min_reduction * 100:.0f} %): the likeliest of the modelled effects, but most of "
-                    "the gap stays unexplained.")  # fmt: skip
-        if s.second_effect:
-            on_top = any(p.effects[0] == effect for p in pairs)
-            second_text = ("No second effect found (no other candidate on top cuts the remaining gap by "
-                           f"{s.min_reduction * 100:.0f} %)." if on_top else
-                           "No second effect found (no other candidate took anything on its own).")  # fmt: skip
-        joint = True  # the second-effect step below has been done
-    broke = breakaways(d.rts)
-    named = (friction_by_breakaway(effect, best, fits, gap_before, len(broke), s.min_reduction)
-             if s.breakaway_names_friction and broke and gap_before > s.noise_factor * noise else None)  # fmt: skip
-    if named is not None:
-        if effect == "none":
-            if s.second_effect:
-                second_text = ("No second effect found (no pair of candidates cuts the gap by "
-                               f"{s.min_reduction * 100:.0f} %).")  # fmt: skip
-            joint = True  # the pairs were tried in the two-together step
-        else:
-            second, second_text, joint = None, "", False  # the second-effect step runs on top of friction
-        (best, decision), effect = named, "friction"
-    found = rattles(d.rts)
-    if (named is None and s.stick_slip_names_friction and broke and gap_before > s.noise_factor * noise
-            and second is None):  # fmt: skip
-        named = friction_by_stick_slip(effect, best, fits, found, gap_before, len(broke))
-        if named is not None:
-            (best, decision), effect = named, "friction"
-            if s.second_effect:
-                second_text = (f"No second effect looked for: the friction forms do not follow the gap (their fit "
-                               f"leaves {best.gap_after_um:.2f} µm).")  # fmt: skip
-            joint = True
-    hunted = (compliance_by_hunting(effect, best, fits, found, gap_before, len(broke), s.min_reduction)
-              if s.hunting_names_compliance and named is None and gap_before > s.noise_factor * noise else None)  # fmt: skip
-    if hunted is not None:
-        second, second_text, joint = None, "", False  # the second-effect step runs on top of compliance
-        (best, decision), effect = hunted, "compliance"
-    if effect == "none" and s.rattle_names_chain and found and gap_before > s.noise_factor * noise:
-        chain = chain_by_rattle(fits, found, gap_before, s.penalty_per_param, s.rattle_sides_name_family)
-        if chain is not None:
-            (best, why), effect = chain, chain[0].effects[0]
-            decision = (f"No candidate cuts the test gap by {s.min_reduction * 100:.0f} %, but the table rattles against "
-                        f"the nut on {len(found)} round trip(s){why}; it cuts the test gap by "
-                        f"{(1 - best.gap_after_um / gap_before) * 100:.0f} % only: most of the gap stays unexplained.")  # fmt: skip
-            if s.second_effect:
-                second_text = ("No second effect found (no pair of candidates cuts the gap by "
-                               f"{s.min_reduction * 100:.0f} %).")  # fmt: skip
-            joint = True
-    if effect != "none" and s.second_effect and not joint:
-        if best.gap_after_um > s.noise_factor * noise:
-            # a candidate that took no axis on its own and cut no test gap is not tried on top
-            pairs += _fit_all(d, [((effect, e2), best) for e2 in EFFECTS
-                                  if e2 != effect and _took_something(fits[e2], gap_before)], workers)
-            pairs.sort(key=lambda f: f.score(s.penalty_per_param))
-            second = second_on_top(effect, best, pairs, s.min_reduction)
-            if second is not None:
-                second_text = (f"A second effect remains: {second.effects[1]} (together the test gap falls to "
-                               f"{second.gap_after_um:.2f} µm, another {(1 - second.gap_after_um / best.gap_after_um) * 100:.0f} %).")  # fmt: skip
-            else:
-                second_text = "No second effect found (no other candidate on top cuts the remaining gap by " \
-                              f"{s.min_reduction * 100:.0f} %)."
-        rival = (rival_to_pair(fits, effect, best, gap_before, s.min_reduction)
-                 if s.rival_second_effect and named is None else None)  # fmt: skip
-        if rival is not None and best.gap_after_um > s.noise_factor * noise:
-            # two singles that the test runs do not tell apart: the one whose second effect
-            # explains the rest is the likelier answer
-            rpairs = _fit_all(d, [((rival.effects[0], e2), rival) for e2 in EFFECTS
-                                  if e2 != rival.effects[0] and _took_something(fits[e2], gap_before)], workers)
-            rpairs.sort(key=lambda f: f.score(s.penalty_per_param))
-            pairs = sorted(pairs + rpairs, key=lambda f: f.score(s.penalty_per_param))
-            text = rival_second_effect(effect, best, second, rival, rpairs, gap_before, s.min_reduction)
-            if text:
-                decision, best, second, effect = text, rival, rpairs[0], rival.effects[0]
-                second_text = (f"A second effect remains: {second.effects[1]} (together the test gap falls to "
-                               f"{second.gap_after_um:.2f} µm; {effect} alone leaves {best.gap_after_um:.2f} µm).")  # fmt: skip
-        if best.gap_after_um <= s.noise_factor * noise:
-            second_text = "No second effect found: the remaining gap is at the noise floor."
-    chosen = second or best
-    effects_list = [] if effect == "none" else list(chosen.effects)
-    rivals = close_rivals(fits, effects_list, None if effect == "none" else best, gap_before, s.min_reduction)
-    gap_after = gap_before if effect == "none" else chosen.gap_after_um
-    cands = [_candidate(f, s) for f in ([best] + [f for f in ranked if f is not best])]
+    if s.second_effect and gap_before > gate:
+        pairs = ranked(_fit_all(d, pair_jobs(singles, gap_before, gate, rule), workers), s.penalty_per_param)
+    found, broke = rattles(d.rts), breakaways(d.rts)
+    observations = observe(broke, found, {e: st.shown_by for e, st in REGISTRY.items()})
+    dec = select(singles, pairs, gap_before, noise, observations, rule)
+    effect, chosen = dec.effect, dec.chosen
+    single = fits.get(effect)
+    decision, second_text = explain(dec, {e: f.gap_after_um for e, f in fits.items()}, s.second_effect,
+                                    on_top=any(p.effects[0] == effect for p in pairs))  # fmt: skip
+    effects_list = [] if chosen is None else list(chosen.effects)
+    gap_after = gap_before if chosen is None else chosen.gap_after_um
+    first = [single] if single is not None else []
+    cands = [_candidate(f, s) for f in first + [f for f in ranked(singles, s.penalty_per_param) if f is not single]]
     none_c = Candidate("none", gap_before, {}, 0, gap_before, True, "the nominal model", ())
-    ordered = ([none_c] + cands) if effect == "none" else cands[:1] + [none_c] + cands[1:]
+    ordered = ([none_c] + cands) if chosen is None else cands[:1] + [none_c] + cands[1:]
 
     all_runs = []
     for r in d.rts:
@@ -1065,7 +762,6 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: 
         all_runs,
     )  # fmt: skip
     where = replace(where, details={**where.details, "rattle": found, "breakaway": broke})
-    observations = tuple(o for o in (rattle_sentence(found), breakaway_sentence(broke)) if o)
     quantity = {}
     if d.test_rt:
         quantity["round_trip"] = ("table position given the motor position (per-run offset fitted; sample by sample below 20 Hz, "
@@ -1081,7 +777,7 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: 
     )  # fmt: skip
     curves = {}
     if s.keep_curves:
-        after = (chosen.rt_res, chosen.ct_res) if effect != "none" else (rt_nom, ct_nom)
+        after = (chosen.rt_res, chosen.ct_res) if chosen is not None else (rt_nom, ct_nom)
         curves = {
             "round_trip": [{"file": r.file, "axis": r.axis, "u_mm": r.u_mm[r.start :], "nominal_um": a, "corrected_um": b}
                            for r, a, b in zip(d.test_rt, rt_nom, after[0])],
@@ -1106,16 +802,13 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: 
         decision=decision,
         thresholds={"penalty_per_param": s.penalty_per_param, "min_reduction": s.min_reduction,
                     "min_first_reduction": s.min_first_reduction, "noise_factor": s.noise_factor,
-                    "rattle_names_chain": s.rattle_names_chain, "rattle_sides_name_family": s.rattle_sides_name_family,
-                    "hunting_names_compliance": s.hunting_names_compliance,
-                    "breakaway_names_friction": s.breakaway_names_friction,
-                    "rival_second_effect": s.rival_second_effect,
-                    "stick_slip_names_friction": s.stick_slip_names_friction},  # fmt: skip
+                    "second_effect": s.second_effect},  # fmt: skip
         curves=curves,
         effects=tuple(effects_list),
         second_effect=second_text,
         program_source=program_source,
         pairs=tuple(_candidate(f, s) for f in pairs),
-        observations=observations,
-        close_alternatives=tuple((f.effects[0], f.gap_after_um) for f in rivals),
+        observations=tuple(o.seen for o in observations),
+        close_alternatives=tuple(("+".join(f.effects), f.gap_after_um) for f in dec.ties),
+        selection=selection_dict(dec),
     )

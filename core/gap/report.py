@@ -97,9 +97,10 @@ class GapReport:
     program_source: str = "recorded command columns"
     pairs: tuple[Candidate, ...] = ()  # the dominant effect with each other candidate on top
     observations: tuple[str, ...] = ()  # what the data show beside the decision (a rattling table)
-    # single candidates the test runs do not tell apart from the answer: (effect, gap_after_um), best
-    # first (core.gap.diagnose.close_rivals)
+    # eligible hypotheses the test runs do not tell apart from the answer: (effects joined by "+",
+    # gap_after_um), best first (core.gap.select)
     close_alternatives: tuple[tuple[str, float], ...] = ()
+    selection: Mapping = field(default_factory=dict)  # the decision's reasons as data (selection_dict)
 
     def to_dict(self) -> dict:
         return {
@@ -124,6 +125,7 @@ class GapReport:
             "pairs": [c.to_dict() for c in self.pairs],
             "observations": list(self.observations),
             "close_alternatives": [{"effect": e, "gap_after_um": _num(g, 3)} for e, g in self.close_alternatives],
+            "selection": dict(self.selection),
         }
 
     def text(self) -> str:
@@ -139,19 +141,21 @@ class GapReport:
         if self.effect == "none":
             lines.append(f"Diagnosis: none. {self.decision}")
         else:
+            # the named effect's own figure; a second effect's is its own line
+            own = next((c.gap_after_um for c in self.candidates if c.effect == self.effect), ga)
             lines.append(
                 f"Diagnosis: {self.effect}. Adding it, fitted on the train runs only, brings the test gap to "
-                f"{ga:.2f} µm ({(ga / gb - 1) * 100:+.0f} %)."
+                f"{own:.2f} µm ({(own / gb - 1) * 100:+.0f} %). {self.decision}"
             )
         if self.second_effect:
             lines.append(self.second_effect)
         if self.close_alternatives:
             alts = ", ".join(f"{e} ({g:.2f} µm)" for e, g in self.close_alternatives)
             cut = self.thresholds.get("min_reduction", 0.25) * 100
-            own = next((f" ({c.gap_after_um:.2f} µm)" for c in self.candidates if c.effect == self.effect), "")
-            lines.append(f"Not told apart: {alts} also cut the test gap by {cut:.0f} % or more, and {self.effect} "
-                         f"alone{own} does not cut theirs by another {cut:.0f} %; test runs at other conditions "
-                         "(feed, acceleration, temperature) may separate them.")  # fmt: skip
+            named = "+".join(self.effects) or self.effect
+            lines.append(f"Not told apart: {alts} also cut the test gap by {cut:.0f} % or more, and neither "
+                         f"{named} ({ga:.2f} µm) nor they cut the other's gap by another {cut:.0f} %; test runs at "
+                         "other conditions (feed, acceleration, temperature) may separate them.")  # fmt: skip
         lines.append(f"Where: {self.where.summary}")
         lines += [f"Observed: {o}" for o in self.observations]
         lines.append(f"Contour programs: {self.program_source}.")
@@ -175,3 +179,82 @@ class GapReport:
         for r in rows:
             lines.append("  ".join(r[i].ljust(widths[i]) for i in range(5)) + "  " + r[5])
         return "\n".join(lines)
+
+
+def _pct(after_um: float, before_um: float) -> str:
+    return f"{(1 - after_um / before_um) * 100:.0f} %"
+
+
+def explain(dec, single_gap_um: Mapping[str, float], second_effect: bool, on_top: bool) -> tuple[str, str]:
+    """The decision's sentence and the second effect's, from a :class:`core.gap.select.Decision`.
+    ``single_gap_um``: each single family's held-out gap; ``second_effect``: pairs were
+    searched; ``on_top``: pairs were fitted on top of the named family."""
+    gb, r = dec.gap_before_um, dec.rule
+    m = f"{r.min_reduction * 100:.0f} %"
+    pointed = sorted({e for o in dec.unsupported for e in o.supports})
+    unsupported = ""
+    if pointed:
+        kinds = ", ".join(o.kind.replace("_", "-") for o in dec.unsupported)
+        fam = "; ".join(f"{e} {_pct(single_gap_um[e], gb)}" for e in pointed if e in single_gap_um)
+        unsupported = (f" The observations ({kinds}) point at {' or '.join(pointed)}, whose fit does not explain "
+                       f"the gap as well (its cut of the test gap: {fam}).")  # fmt: skip
+    if dec.kind == "within_noise":
+        return (f"The test gap {gb:.2f} µm is within {r.noise_factor:g}x the noise floor ({dec.noise_floor_um:.2f} µm)."
+                ), ""  # fmt: skip
+    if dec.kind == "no_cut":
+        best = "" if dec.best is None else f" (best: {dec.best.effects[0]}, {dec.best.gap_after_um:.2f} µm)"
+        pair = ", and no pair of candidates does" if second_effect else ""
+        return (f"No candidate cuts the test gap by {m} or more{best}{pair}: the gap is not one of the modelled "
+                f"effects.{unsupported}"), ""  # fmt: skip
+    c = dec.chosen
+    name = c.effects[0]
+    if dec.kind == "weak":
+        text = (f"{name} cuts the test gap by {_pct(c.gap_after_um, gb)} only (under {m}): the likeliest of the "
+                "modelled effects, but most of the gap stays unexplained.")  # fmt: skip
+        return text + unsupported, ("No second effect found (no other candidate on top cuts the remaining gap by "
+                                    f"{m})." if second_effect else "")  # fmt: skip
+    alone = single_gap_um.get(name, gb)
+    if len(c.effects) > 1:
+        second = c.effects[1]
+        if alone <= (1 - r.min_reduction) * gb:
+            text = f"{name} cuts the test gap by {_pct(alone, gb)}, and {second} on top by another {_pct(c.gap_after_um, alone)}."
+        else:
+            text = (f"No single candidate cuts the test gap by {m}, but {name} and {second} together cut it by "
+                    f"{_pct(c.gap_after_um, gb)}.")  # fmt: skip
+        second_text = (f"A second effect remains: {second} (together the test gap falls to {c.gap_after_um:.2f} µm; "
+                       f"{name} alone leaves {alone:.2f} µm).")  # fmt: skip
+    else:
+        text = f"{name} cuts the test gap by {_pct(c.gap_after_um, gb)}."
+        if not second_effect:
+            second_text = ""
+        elif c.gap_after_um <= r.noise_factor * dec.noise_floor_um:
+            second_text = "No second effect found: the remaining gap is at the noise floor."
+        elif on_top:
+            second_text = f"No second effect found (no other candidate on top cuts the remaining gap by {m})."
+        else:
+            second_text = "No second effect found (no other candidate took anything on its own)."
+    if dec.by_evidence:
+        b = dec.best
+        kinds = ", ".join(o.kind.replace("_", "-") for o in dec.supporting)
+        text += (f" The held-out runs do not tell it apart from {'+'.join(b.effects)} ({b.gap_after_um:.2f} µm, the "
+                 f"better score); the observations ({kinds}) support {name}.")  # fmt: skip
+    return text + unsupported, second_text
+
+
+def selection_dict(dec) -> dict:
+    """The decision's reasons as JSON: its kind, the hypothesis named and the best by score,
+    the ties, whether evidence broke a tie, and the observations for and outside the answer."""
+    def hyp(h):
+        return None if h is None else {"effects": list(h.effects), "gap_after_um": _num(h.gap_after_um, 3)}
+
+    return {
+        "kind": dec.kind,
+        "chosen": hyp(dec.chosen),
+        "best_by_score": hyp(dec.best),
+        "ties": [hyp(h) for h in dec.ties],
+        "by_evidence": dec.by_evidence,
+        "supporting": [{"kind": o.kind, "supports": sorted(o.supports)} for o in dec.supporting],
+        "unsupported": [{"kind": o.kind, "supports": sorted(o.supports)} for o in dec.unsupported],
+        "rule": {"penalty_per_param": dec.rule.penalty_per_param, "min_reduction": dec.rule.min_reduction,
+                 "noise_factor": dec.rule.noise_factor, "min_first_reduction": dec.rule.min_first_reduction},
+    }

@@ -1,9 +1,8 @@
 """The break-away observation (core.gap.where.breakaways): a table that, while the command
 stands still, stays put and then jumps (static friction giving way to a chain the position
 loop winds up) is found; a table that follows a creeping motor, settles after the stop,
-jumps once only or is only noisy is not; and the rule that names friction on it."""
+jumps once only or is only noisy is not. What the decision does with it: tests/core/gap/test_select.py."""
 
-import importlib
 from dataclasses import replace
 
 import numpy as np
@@ -13,7 +12,6 @@ from core.gap.data import RoundTrip
 from core.gap.where import BREAKAWAY_MIN_UM, BREAKAWAY_SETTLE_S, breakaway_sentence, breakaways
 
 RATE_HZ = 1000.0
-dg = importlib.import_module("core.gap.diagnose")  # the module (core.gap.diagnose is also the function)
 
 
 def _stroke(jumps=((0.5, 30.0), (0.5, -30.0)), creep_mm_s=0.0, noise_um=0.3, command=True, seed=0, file="rt_x_00.csv"):
@@ -73,73 +71,3 @@ def test_a_jump_without_a_hold_before_it_is_not_a_breakaway():
     wobble = 1e-3 * 20.0 * np.sin(2 * np.pi * 30.0 * s.t_s) * (s.command_mm >= 100.0)  # a ring through the dwell
     x = s.x_mm + wobble
     assert breakaways([replace(s, x_mm=x)]) == []
-
-
-def _fits(**gaps):
-    return {e: dg.Fitted((e,), gap_after_um=g) for e, g in gaps.items()}
-
-
-@pytest.mark.parametrize("fric_um, said", [(8.0, "cuts the test gap by 20 % only"),
-                                           (11.0, "does not cut the test gap (11.00 µm)")])
-def test_a_breakaway_names_friction_instead_of_none_whatever_its_fit_cuts(fric_um, said):
-    fits = _fits(friction=fric_um, compliance=9.0, thermal=9.5)
-    fit, text = dg.friction_by_breakaway("none", fits["compliance"], fits, 10.0, 3, 0.25)
-    assert fit is fits["friction"]
-    assert "breaks away at rest on 3 round trip(s)" in text and said in text and "most of the gap stays" in text
-
-
-def test_a_breakaway_names_friction_instead_of_compliance_only_where_friction_cuts_the_gap():
-    fits = _fits(friction=7.0, compliance=5.0)
-    fit, text = dg.friction_by_breakaway("compliance", fits["compliance"], fits, 10.0, 2, 0.25)
-    assert fit is fits["friction"]
-    assert text.startswith("compliance fits best (5.00 µm)") and "to 7.00 µm" in text and "30 %" in text
-    fits = _fits(friction=9.9, compliance=5.0)  # friction's fit cuts nothing (above 0.98 of the gap)
-    assert dg.friction_by_breakaway("compliance", fits["compliance"], fits, 10.0, 2, 0.25) is None
-
-
-@pytest.mark.parametrize("effect", ["friction", "thermal", "servo_dynamics"])
-def test_a_breakaway_leaves_other_answers_alone(effect):
-    fits = _fits(friction=7.0, compliance=5.0, thermal=4.0, servo_dynamics=4.0)
-    assert dg.friction_by_breakaway(effect, fits[effect], fits, 10.0, 2, 0.25) is None
-
-
-def test_a_breakaway_with_stick_slip_out_and_back_names_friction_where_its_fit_cuts_nothing():
-    """Used seed 7457 case 36 (Karnopp friction on a compliant chain): compliance's form cuts
-    47 %, friction's fit leaves more than the gap before; the table breaks away at rest on
-    four round trips and rattles out and back on the three that rattle."""
-    two = {"both_directions": True}
-    fits = _fits(friction=36.57, compliance=17.62)
-    fit, text = dg.friction_by_stick_slip("compliance", fits["compliance"], fits, [two, two, two], 33.32, 4)
-    assert fit is fits["friction"]
-    assert text.startswith("compliance fits best (17.62 µm, a 47 % cut)")
-    assert "breaks away at rest on 4 round trip(s)" in text and "both stroke directions on each of the 3" in text
-    assert "does not cut the test gap (36.57 µm)" in text and "stays unexplained" in text
-
-
-@pytest.mark.parametrize("case", ["one_sided_rattle", "no_rattle", "no_breakaway", "answer_not_compliance"])
-def test_stick_slip_needs_both_observations_and_a_compliance_answer(case):
-    two, one = {"both_directions": True}, {"both_directions": False}
-    fits = _fits(friction=36.57, compliance=17.62, thermal=20.0)
-    effect, found, n_broke = "compliance", [two, two], 4
-    if case == "one_sided_rattle":  # a hunting chain can also wind up and jump at rest
-        found = [two, one]
-    elif case == "no_rattle":
-        found = []
-    elif case == "no_breakaway":
-        n_broke = 0
-    else:
-        effect = "thermal"
-    assert dg.friction_by_stick_slip(effect, fits[effect], fits, found, 33.32, n_broke) is None
-
-
-def test_the_second_effect_is_looked_for_on_top_of_the_answer_only():
-    """A break-away that names friction over a compliance + cyclic-error pair of the
-    two-together step (used seed 4234 case 15): that pair, still the best of the pairs,
-    is not friction's second effect."""
-    best = dg.Fitted(("friction",), gap_after_um=27.42)
-    pairs = [dg.Fitted(("compliance", "cyclic_error"), gap_after_um=17.17),
-             dg.Fitted(("friction", "thermal"), gap_after_um=25.0),
-             dg.Fitted(("friction", "cyclic_error"), gap_after_um=19.0)]
-    assert dg.second_on_top("friction", best, pairs, 0.25) is None  # 25.0 is not 25 % below 27.42
-    pairs[1] = dg.Fitted(("friction", "thermal"), gap_after_um=18.0)
-    assert dg.second_on_top("friction", best, pairs, 0.25).effects == ("friction", "thermal")

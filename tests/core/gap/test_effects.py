@@ -177,3 +177,17 @@ def test_a_weak_cut_is_named_as_such_and_below_the_weaker_threshold_none():
     # off by default (on a fresh benchmark seed it named three cases, all wrongly)
     off = diagnose(ds, GapSettings(keep_curves=False, second_effect=False, min_reduction=strict))
     assert off.effect == "none" and off.to_dict()["thresholds"]["min_first_reduction"] is None, off.text()
+
+
+def test_a_nominal_machine_with_a_coarse_scale_is_none_within_twice_its_floor():
+    """A 1 µm linear scale and a 2^16-count motor encoder: the quantization alone gives
+    0.29 µm RMS, which the noise floor reads from the records' own steps."""
+    axis = AxisModel(name="y", transmission_mm_per_rev=6.857, backlash_um=60.0,
+                     encoders=Encoders(table_noise_um=0.05, motor_noise_um=0.05, motor_counts_per_rev=2**16,
+                                       table_resolution_um=1.0))  # fmt: skip
+    runs = _round_trip_runs(axis, np.random.default_rng(13))
+    rep = diagnose(Dataset(MachineSpec("t", {"y": axis.to_axis_spec((0.0, 200.0))}), tuple(runs)),
+                   GapSettings(keep_curves=False))  # fmt: skip
+    assert rep.effect == "none", rep.text()
+    assert rep.noise_floor_um >= 0.29, rep.text()
+    assert rep.gap_before_um <= 2.0 * rep.noise_floor_um, rep.text()

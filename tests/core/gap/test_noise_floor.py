@@ -97,3 +97,22 @@ def test_runs_too_short_to_difference_are_left_out():
     rng = np.random.default_rng(6)
     runs = [np.array([5.0, -5.0, 5.0]), 0.1 * rng.standard_normal(5000)]
     assert dg.noise_floor_um(runs, ["x", "y"]) == pytest.approx(0.1, rel=0.05)
+
+
+def test_a_quantized_record_reads_its_step_and_adds_it_beside_the_white_level():
+    rng = np.random.default_rng(5)
+    t = np.linspace(0.0, 10.0, 10001)
+    path_mm = 5.0 * np.clip(t - 1.0, 0.0, 8.0)  # at rest, then 5 mm/s, then at rest: a stroke
+    x = np.round((path_mm + 0.0002 * rng.standard_normal(t.size)) / 1e-3) * 1e-3  # mm, a 1 µm scale
+    assert dg.step_um(x) == pytest.approx(1.0, rel=1e-6)
+    assert dg.step_um(path_mm + 1e-4 * rng.standard_normal(t.size)) < 0.01  # an unquantized record
+    assert dg.step_um(np.zeros(5)) == 0.0
+    # 1 µm on the table, 2^16 counts of a 10 mm-per-revolution motor: 0.15 µm
+    u = np.round((path_mm + 1e-4 * rng.standard_normal(t.size)) / (10.0 / 2**16)) * (10.0 / 2**16)
+    assert dg.quantization_um(x, u) == pytest.approx(np.hypot(1.0, 10e3 / 2**16) / np.sqrt(12.0), rel=1e-3)
+    # a slowly moving quantized residual: its differences read almost nothing, the step 0.29 µm
+    resid = [np.round(np.sin(np.linspace(0.0, 3.0, 20000)) * 2.0) * 1.0]  # µm, steps of 1 µm
+    assert dg.noise_floor_um(resid) < 0.05
+    with_q = dg.noise_floor_um(resid, ["x"], [dg.quantization_um(x)])
+    assert with_q == pytest.approx(1.0 / np.sqrt(12.0), rel=0.1)
+    assert dg.noise_floor_um(resid, None, [0.0]) == pytest.approx(dg.noise_floor_um(resid))

@@ -2,7 +2,6 @@
 against the nut through a stroke is found, with its frequency and size; reversals, noise
 and the other effects' slow residuals are not taken for one."""
 
-import importlib
 
 import numpy as np
 import pytest
@@ -10,8 +9,6 @@ import pytest
 from core.gap.data import RoundTrip
 from core.gap.play import play
 from core.gap.where import RATTLE_MIN_UM, rattle_sentence, rattles, stick_slips
-
-dg = importlib.import_module("core.gap.diagnose")  # the module (core.gap.diagnose is also the function)
 
 RATE_HZ = 1000.0
 
@@ -77,71 +74,6 @@ def test_a_rattle_through_both_directions_is_said_to_be_two_sided():
     assert f["both_directions"] is False and 0.5 < f["fraction_of_stroke"] < 0.65
 
 
-def _chain_fits(friction, compliance, n_friction=6, n_compliance=4):
-    return {"friction": dg.Fitted(("friction",), gap_after_um=friction, n_params=n_friction),
-            "compliance": dg.Fitted(("compliance",), gap_after_um=compliance, n_params=n_compliance)}
-
-
-def test_the_rattles_sides_choose_the_chain_family():
-    two, one = {"both_directions": True}, {"both_directions": False}
-    # friction leaves 22.54 µm, compliance 22.92 of 28.35 (seed 5261 case 5, Karnopp friction):
-    # compliance scores better by its fewer parameters (22.92 x 1.04 < 22.54 x 1.06)
-    fits = _chain_fits(22.54, 22.92)
-    (f, why) = dg.chain_by_rattle(fits, [two, two], 28.35, 0.01)
-    assert f.effects == ("friction",) and "both stroke directions" in why and "stick-slip" in why
-    (f, why) = dg.chain_by_rattle(fits, [two, two], 28.35, 0.01, by_sides=False)
-    assert f.effects == ("compliance",) and "fits best" in why
-    # one round trip rattling in one direction only: a hunting chain
-    (f, why) = dg.chain_by_rattle(_chain_fits(9.0, 9.5), [two, one], 10.6, 0.01)
-    assert f.effects == ("compliance",) and "one stroke direction only" in why and "hunting" in why
-
-
-def test_a_family_pointed_at_that_cuts_nothing_gives_way_to_the_other():
-    two = {"both_directions": True}
-    # friction's fit leaves more than the gap before (26.8 against 23.28 µm): compliance, which cuts
-    (f, why) = dg.chain_by_rattle(_chain_fits(26.8, 21.0), [two], 23.28, 0.01)
-    assert f.effects == ("compliance",) and "fits best" in why
-    # neither cuts 2 %: nothing named
-    assert dg.chain_by_rattle(_chain_fits(23.0, 23.5), [two], 23.28, 0.01) is None
-    # a finding without the sides (an older caller's dict) counts as one-sided: compliance
-    assert dg.chain_by_rattle(_chain_fits(9.0, 9.5), [{}], 10.6, 0.01)[0].effects == ("compliance",)
-
-
 @pytest.mark.parametrize(("sides", "expected"), [((True, True), True), ((True, False), False), ((), False)])
 def test_stick_slip_is_every_rattling_round_trip_rattling_out_and_back(sides, expected):
     assert stick_slips([{"both_directions": b} for b in sides]) is expected
-
-
-def test_a_one_sided_rattle_names_compliance_where_friction_and_compliance_fit_alike():
-    two, one = {"both_directions": True}, {"both_directions": False}
-    # friction leaves 7.59 µm, compliance 8.11 of 13.9 (used seed 6529 case 46, a two-mass chain):
-    # friction does not cut compliance's gap by another 25 % (7.59 > 6.08), so they are not told apart
-    fits = _chain_fits(7.59, 8.11)
-    fits["backlash_profile"] = dg.Fitted(("backlash_profile",), gap_after_um=9.49, n_params=9)
-    got = dg.compliance_by_hunting("friction", fits["friction"], fits, [two, one], 13.9, 0, 0.25)
-    assert got is not None
-    f, why = got
-    assert f.effects == ("compliance",)
-    assert "one stroke direction only on 1 round trip(s)" in why and "cuts the test gap by 42 %" in why
-
-
-@pytest.mark.parametrize("case", ["every_rattle_two_sided", "no_rattle", "compliance_told_apart", "answer_not_friction",
-                                  "breaks_away"])
-def test_the_friction_answer_stands_without_a_hunting_chain_or_a_close_compliance(case):
-    two, one = {"both_directions": True}, {"both_directions": False}
-    fits = _chain_fits(7.59, 8.11)
-    effect, found, n_broke = "friction", [two, one], 0
-    if case == "breaks_away":
-        # used seed 8311 case 16 (wear bump + friction): one of three rattling round trips
-        # one-sided, and the table broke away at rest on five: static friction, friction stands
-        found, n_broke = [two, one, two], 5
-    elif case == "every_rattle_two_sided":
-        found = [two, two]
-    elif case == "no_rattle":
-        found = []
-    elif case == "compliance_told_apart":
-        fits = _chain_fits(4.0, 8.11)  # friction cuts compliance's gap by half
-    else:
-        effect = "backlash_profile"
-        fits["backlash_profile"] = dg.Fitted(("backlash_profile",), gap_after_um=7.0, n_params=9)
-    assert dg.compliance_by_hunting(effect, fits[effect], fits, found, 13.9, n_broke, 0.25) is None
