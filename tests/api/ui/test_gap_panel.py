@@ -38,3 +38,15 @@ def test_candidates_not_told_apart_are_named_with_their_gaps():
     p = " ".join(p[: p.index("</p>")].split())
     assert "do not tell none apart from compliance (12.00 µm), &lt;thermal&gt; (13.50 µm): each cuts" in p
     assert "gap-alternatives" not in _render([], []) and "gap-alternatives" not in _render([])
+
+
+def test_the_decision_and_the_second_effect_are_said_beside_the_answer():
+    report_html = templates.get_template("_gap.html").render(
+        gap="done", report={"effect": "compliance", "gap_before_um": 42.97, "gap_after_um": 6.57, "noise_floor_um": 0.3,
+                            "runs_used": ["a.csv"], "computed_at": "2026-11-27T16:00:00+00:00", "candidates": [],
+                            "residuals": [], "decision": "compliance cuts the test gap by 85 %. The observations "
+                            "(breakaway) point at <friction>", "second_effect": "No second effect found."},
+        age_s=5.0, axis=SimpleNamespace(id=1), who=SimpleNamespace(csrf="t"))  # fmt: skip
+    assert '<p class="gap-decision" id="gap-decision">compliance cuts the test gap by 85 %.' in report_html
+    assert "&lt;friction&gt;" in report_html and '<p class="gap-second">No second effect found.</p>' in report_html
+    assert "gap-decision" not in _render([])  # a result without a decision sentence: no paragraph

@@ -154,29 +154,20 @@ def test_friction_with_pre_sliding_is_named_from_circles_and_its_length_found():
             assert c.values[f"{a}.presliding_um"] == p[f"{a}.presliding_um"], c.effect
 
 
-def test_a_weak_cut_is_named_as_such_and_below_the_weaker_threshold_none():
-    """When no single candidate cuts the gap by ``min_reduction`` and no pair explains it,
-    the best one is still named if it cuts by ``min_first_reduction``, and the decision says
-    that most of the gap stays unexplained; below that the answer is none. The thresholds
-    are moved around the thermal dataset's own cut, so that the same fits fall on each side."""
+def test_a_weak_cut_is_named_as_such():
+    """When nothing cuts the gap by ``min_reduction``, the best single candidate is still
+    named if it cuts by ``min_first_reduction``, and the decision says that most of the gap
+    stays unexplained. The thermal dataset's own cut is above a half (its halving test
+    above): at a main threshold of 99 % it fails the main rule and passes a weak one of a
+    half. The decision on either side of the thresholds: tests/core/gap/test_select.py."""
     ds = _round_trips(EFFECTS["thermal"], np.random.default_rng(7))
-    alone = diagnose(ds, GapSettings(keep_curves=False, second_effect=False))
-    assert alone.effect == "thermal", alone.text()
-    cut = 1.0 - alone.gap_after_um / alone.gap_before_um  # the best single candidate's cut
-    assert cut > 0.5
-    strict = 0.5 * (cut + 1.0)  # more than the best single cut: it fails the main rule
-    weak = diagnose(ds, GapSettings(keep_curves=False, min_reduction=strict, min_first_reduction=cut - 0.05))
+    weak = diagnose(ds, GapSettings(keep_curves=False, second_effect=False, min_reduction=0.99,
+                                    min_first_reduction=0.5))  # fmt: skip
     assert weak.effect == "thermal" and weak.effects == ("thermal",), weak.text()
-    assert " only (under " in weak.decision and "most of the gap stays unexplained" in weak.decision
-    assert weak.second_effect.startswith("No second effect found"), weak.second_effect
-    assert weak.gap_after_um < weak.gap_before_um
-    assert weak.to_dict()["thresholds"]["min_first_reduction"] == pytest.approx(cut - 0.05)
-    none = diagnose(ds, GapSettings(keep_curves=False, second_effect=False, min_reduction=strict,
-                                    min_first_reduction=cut + 0.05))  # fmt: skip
-    assert none.effect == "none" and none.gap_after_um == none.gap_before_um, none.text()
-    # off by default (on a fresh benchmark seed it named three cases, all wrongly)
-    off = diagnose(ds, GapSettings(keep_curves=False, second_effect=False, min_reduction=strict))
-    assert off.effect == "none" and off.to_dict()["thresholds"]["min_first_reduction"] is None, off.text()
+    assert " only (under 99 %)" in weak.decision and "most of the gap stays unexplained" in weak.decision
+    assert weak.gap_after_um <= 0.5 * weak.gap_before_um and weak.second_effect == ""
+    d = weak.to_dict()
+    assert d["thresholds"]["min_first_reduction"] == 0.5 and d["selection"]["kind"] == "weak"
 
 
 def test_a_nominal_machine_with_a_coarse_scale_is_none_within_twice_its_floor():
