@@ -175,6 +175,7 @@ class FitResult:
     rss: float
     jac: np.ndarray
     n_res: int
+    capped: bool = False  # the best start stopped at its evaluation cap (max_nfev), not at convergence
 
 
 NONFINITE_RESIDUAL = 1e6  # µm: what a diverged simulation counts as, per sample
@@ -209,7 +210,7 @@ def fit_ls(residuals: Callable[[np.ndarray], np.ndarray], x0s: Sequence[np.ndarr
         x0 = cands[0]
         r = safe(x0)
         return FitResult(x0, float(np.sum(r**2)), np.zeros((r.size, x0.size)), int(r.size - n_prior))
-    return FitResult(best.x, float(2 * best.cost), best.jac, int(best.fun.size - n_prior))
+    return FitResult(best.x, float(2 * best.cost), best.jac, int(best.fun.size - n_prior), best.status == 0)
 
 
 def fit(model: RTModel, runs: Sequence[RoundTrip], starts: Sequence[np.ndarray] = (),
@@ -236,7 +237,7 @@ def fit_model(model: RTModel, runs: Sequence[RoundTrip], starts: Sequence[np.nda
     rss = train_rss(model, r.theta, runs, model.envelope)
     # the residuals per sample: each window's stacked (d, e) repeats the same samples
     n_res = r.n_res // len(model.train_windows_s) if model.envelope else r.n_res
-    return FitResult(r.theta, rss, r.jac, n_res)
+    return FitResult(r.theta, rss, r.jac, n_res, r.capped)
 
 
 def intervals(fr: FitResult, names: Sequence[str], lower: np.ndarray, upper: np.ndarray,

@@ -37,3 +37,16 @@ def test_a_diverged_test_residual_is_bounded_and_said():
     assert notes == [f"the model's simulation diverged on test contour c.csv (3 samples counted as {NONFINITE_RESIDUAL:g} µm)"]
     ok = np.array([0.3, -0.2])
     assert _bounded(ok, "x", notes) is ok and len(notes) == 1
+
+
+def test_a_fit_stopped_by_its_evaluation_cap_says_so():
+    x = np.linspace(0.0, 1.0, 200)
+    y = np.exp(-3.0 * x) * np.sin(9.0 * x)
+
+    def res(th):
+        return np.exp(-th[0] * x) * np.sin(th[1] * x) - y
+
+    start, lo, hi = [np.array([0.5, 5.0])], np.array([0.0, 0.0]), np.array([10.0, 20.0])
+    assert fit_ls(res, start, lo, hi, max_nfev=2).capped
+    done = fit_ls(res, start, lo, hi, max_nfev=200)
+    assert not done.capped and np.allclose(done.theta, [3.0, 9.0], atol=1e-4)
