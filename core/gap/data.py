@@ -368,12 +368,17 @@ def _recorded_program(run: Run, gains_per_s: tuple[float, ...],
         return out
 
     sides = _first_sides(path(np.array([0.0, 0.05, 0.5])) if moving else cmd)
+    one_way: dict[str, tuple[int, float]] = {}
     if not moving and ka_mm is not None:
         sides = tuple(_measured_side(run, a, ka_mm[i], sides[i]) for i, a in enumerate(s.axes))
+        for i, a in enumerate(s.axes):
+            w = _one_way_travel_mm(run, a, ka_mm[i]) if isinstance(sides[i], str) else None
+            if w is not None:
+                one_way[a] = w
     prog = Program(
         kind=s.kind, axes=tuple(s.axes), feed_mm_min=float(s.feed_mm_min), duration_s=float(tt[-1] + pre),
         record_from_s=pre, record_to_s=float(tt[-1] + pre), initial_sides=sides, path=path,
-        meta={"acceleration_mm_s2": s.acceleration_mm_s2, "start": start},
+        meta={"acceleration_mm_s2": s.acceleration_mm_s2, "start": start, "rest_one_way_mm": one_way},
     )  # fmt: skip
     return prog, tt + pre
 
@@ -382,7 +387,8 @@ def _measured_side(run: Run, axis: str, ka_mm: float, natural: str):
     """Where the table rests in the backlash at the first sample of a run that starts at
     rest, from the encoders: d = table - k_a motor is c - b/2 while the nut pushes in +,
     c + b/2 in -, so (c - d0) / (b/2) is the place (+1: against the + flank). The
-    natural engagement when the run never moves steadily both ways or b is below 2 µm."""
+    natural engagement when the run never moves steadily both ways or b is below 2 µm (a
+    run that moves one way has its place read against that way: :func:`_one_way_travel_mm`)."""
     t = np.asarray(run.time_s, float)
     x = np.asarray(run.table_mm(axis), float)
     d = x - ka_mm * np.asarray(run.motor_rev(axis), float)
@@ -392,6 +398,32 @@ def _measured_side(run: Run, axis: str, ka_mm: float, natural: str):
     if found is None or found[1] < 1e-3:
         return natural
     return float(np.clip(found[0] / found[1], -1.0, 1.0))
+
+
+def _one_way_travel_mm(run: Run, axis: str, ka_mm: float) -> tuple[int, float] | None:
+    """Where the table rests in the backlash at the first sample of a run that starts at
+    rest and moves one way only (a line), from the encoders: the direction ``s`` (+1, -1)
+    and ``delta = d_move - d0`` (mm), d = table - k_a motor over the first samples at rest
+    (``d0``) and its median while the command moves that way at over 0.3 of its top speed
+    (``d_move``, the nut on the flank that drives it). The nut's lead on the table is
+    then ``s h + delta`` for a contact gap of half ``h``: the full backlash (2 h) when the
+    nut starts on the far flank, 0 on the driving one. Without the other direction the
+    half gap is not measured, so the place is left to the model's own gap
+    (:func:`core.gap.contour.start_side`). None when the run moves both ways or neither
+    (20 samples at least)."""
+    t = np.asarray(run.time_s, float)
+    d = np.asarray(run.table_mm(axis), float) - ka_mm * np.asarray(run.motor_rev(axis), float)
+    cmd = np.asarray(run.command_mm(axis), float)
+    v = np.gradient(cmd, t)
+    vmax = float(np.max(np.abs(v))) if v.size else 0.0
+    if vmax <= 0:
+        return None
+    pos, neg = v > 0.3 * vmax, v < -0.3 * vmax
+    if (pos.sum() >= 20) == (neg.sum() >= 20):
+        return None
+    sgn, way = (1, pos) if pos.sum() >= 20 else (-1, neg)
+    n0 = max(1, min(10, int(np.argmax(np.abs(cmd - cmd[0]) > 1e-4)) or 1))  # samples still at rest
+    return sgn, float(np.median(d[way])) - float(np.mean(d[:n0]))
 
 
 def _data_arc_mask(run: Run, cmd: np.ndarray) -> tuple[np.ndarray, dict]:

@@ -4,7 +4,9 @@ A command that moves at the first interval is either a recording begun in motion
 axes follow it at its speed, the loop at its steady lag: the model gets a pre-roll along
 the path) or a program that steps to its feed from rest (the encoders stand still while
 the loop takes up its lag: the model starts from rest too). The encoders' own way over
-the first samples, against the command's, tells which.
+the first samples, against the command's, tells which. Starting from rest, the model's
+nut starts where the encoders put it in the backlash, also on a line, which moves each
+axis one way only.
 """
 
 import math
@@ -16,8 +18,9 @@ import pytest
 
 from core.dataset import AxisSpec, Dataset, MachineSpec, Run, RunSpec
 from core.gap import diagnose
+from core.gap.contour import SimMemo, contour_plain_residual_um, models_for, start_side
 from core.gap.data import prepare_contour, start_speed_fraction
-from core.sim import AxisModel, Effects, Encoders, circle, simulate
+from core.sim import AxisModel, Effects, Encoders, circle, line, simulate
 
 ENC = Encoders(table_noise_um=0.3, motor_noise_um=0.3)
 KA = 8.0
@@ -144,3 +147,45 @@ def test_a_nominal_circle_whose_command_moves_at_its_first_sample_is_none_at_the
     c = prepare_contour(ds.runs[0], "train", ds.machine.axes)
     assert c.meta["start"]["command_moves"]
     assert c.meta["start"]["in_motion"] == (start == "motion")
+
+
+def _lines(rng) -> Dataset:
+    """Nominal lines as the twin runs them: both axes step to the feed from rest, the first
+    (X) axis reversely engaged (the nut on the far flank: it crosses the backlash before
+    the table moves), the second (Y) directly engaged."""
+    ax = _axes()
+    runs = []
+    for i, (ang, length, feed) in enumerate(((30.0, 60.0, 800.0), (120.0, 80.0, 1200.0), (60.0, 50.0, 2500.0))):
+        tr = simulate(ax, line(ang, length, feed, (200.0, 300.0)), rate_hz=250.0, rng=rng)
+        runs.append(tr.to_run(f"line_{i}.csv", split="test" if i == 2 else "train"))
+    return Dataset(MachineSpec("m", {a: m.to_axis_spec((0.0, 800.0)) for a, m in ax.items()}), tuple(runs))
+
+
+def test_a_line_from_rest_starts_its_model_where_the_encoders_put_the_nut():
+    """A line moves each axis one way: the nut's place at rest is read against the moving
+    samples alone (the far flank: the backlash's width of d = table - k_a motor) and put
+    in each model's own gap."""
+    ds = _lines(np.random.default_rng(3))
+    for run in ds.runs:
+        c = prepare_contour(run, "train", ds.machine.axes)
+        assert not c.meta["start"]["in_motion"] and c.program.record_from_s == 0.0
+        sgn_x, delta_x = c.program.meta["rest_one_way_mm"]["x"]
+        sgn_y, delta_y = c.program.meta["rest_one_way_mm"]["y"]
+        assert -sgn_x * delta_x * 1e3 == pytest.approx(40.0, abs=1.5)  # X: the whole backlash to cross
+        assert delta_y * 1e3 == pytest.approx(0.0, abs=1.5)  # Y: on the flank that drives it
+        m = models_for(ds.machine.axes, {"x": 40.0, "y": 70.0})
+        assert start_side(c.program, "x", m["x"]) == pytest.approx(-sgn_x, abs=0.08)
+        assert start_side(c.program, "y", m["y"]) == pytest.approx(sgn_y, abs=0.05)
+        # the nominal model with the true backlash explains the start to the noise
+        res = contour_plain_residual_um(c, SimMemo().table(c, m))
+        assert float(np.sqrt(np.mean(res[:25] ** 2))) < 1.0
+
+
+def test_nominal_lines_stepping_to_their_feed_from_rest_are_none_at_the_noise_floor():
+    ds = _lines(np.random.default_rng(7))
+    t0 = time.perf_counter()
+    rep = diagnose(ds)
+    print(f"lines: gap {rep.gap_before_um:.3f} µm, floor {rep.noise_floor_um:.3f} µm, "
+          f"{time.perf_counter() - t0:.1f} s")
+    assert rep.effect == "none", rep.text()
+    assert rep.gap_before_um <= 2.0 * rep.noise_floor_um, rep.text()
