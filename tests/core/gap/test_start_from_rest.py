@@ -88,7 +88,7 @@ def test_the_pre_roll_is_added_only_when_the_encoders_move_at_the_first_interval
         assert first == pytest.approx([run.command_mm("x")[0], run.command_mm("y")[0]], abs=1e-9)
 
 
-def test_the_start_is_read_over_a_window_that_rises_the_command_above_the_noise():
+def test_the_start_is_read_over_a_window_that_lifts_the_commands_way_above_the_noise():
     """A slow feed sampled fast: one interval's way (1.7 µm at 100 mm/min, 1 kHz) is within
     a few noise deviations of a difference; the window grows to 20 of them (but not past
     one loop time constant), and the fraction stays near 0 from rest and 1 in motion."""
