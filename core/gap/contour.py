@@ -60,7 +60,7 @@ class SimMemo:
         hit = self._sims.get(key)
         if hit is not None:
             return hit
-        prog = _one_axis(c.program, c.axes.index(axis))
+        prog = _one_axis(c.program, c.axes.index(axis), start_side(c.program, axis, model))
         tr = simulate({axis: model}, prog, temperature_c=c.temperature_c, rate_hz=c.rate_hz, step_s=SIM_STEP_S,
                       steps_per_radian=SIM_STEPS_PER_RADIAN)
         skew = model.effects.sampling_skew
@@ -74,11 +74,27 @@ class SimMemo:
         return {a: self.axis(c, a, models[a]) for a in c.axes}
 
 
-def _one_axis(prog: Program, i: int) -> Program:
-    """Axis ``i`` of a program alone (the simulator's axes do not interact)."""
+def start_side(prog: Program, axis: str, model: AxisModel):
+    """The initial side of ``axis`` in a simulation of ``model``: the program's, but for an
+    axis that starts at rest and moves one way only, where the encoders put the nut
+    (``meta["rest_one_way_mm"]``, :func:`core.gap.data._one_way_travel_mm`) as a place in
+    the model's own gap: (s h + delta) / h, clipped to the gap's flanks."""
+    side = prog.initial_sides[prog.axes.index(axis)]
+    w = (prog.meta.get("rest_one_way_mm") or {}).get(axis)
+    half_mm = 0.5e-3 * float(model.backlash_um)
+    if w is None or half_mm <= 0:
+        return side
+    sgn, delta = w
+    return float(np.clip(sgn + delta / half_mm, -1.0, 1.0))
+
+
+def _one_axis(prog: Program, i: int, side=None) -> Program:
+    """Axis ``i`` of a program alone (the simulator's axes do not interact), starting on
+    ``side`` (default: the program's initial side of that axis)."""
+    side = prog.initial_sides[i] if side is None else side
     return Program(
         kind=prog.kind, axes=(prog.axes[i],), feed_mm_min=prog.feed_mm_min, duration_s=prog.duration_s,
-        record_from_s=prog.record_from_s, record_to_s=prog.record_to_s, initial_sides=(prog.initial_sides[i],),
+        record_from_s=prog.record_from_s, record_to_s=prog.record_to_s, initial_sides=(side,),
         path=lambda t, _p=prog.path, _i=i: np.atleast_2d(_p(t))[_i : _i + 1], meta=prog.meta,
     )  # fmt: skip
 

@@ -4,8 +4,10 @@ A round trip becomes :class:`RoundTrip` (nut travel u = k_a x_m aligned to table
 coordinates, table x, decimated fit indices); a circle or line becomes
 :class:`Contour`. A contour's program is the **recorded command** when the run has
 ``<a>_command_mm`` columns (resampled linearly, as a CNC interpolator feeds its
-position loop; a run that starts in motion gets a pre-roll along the same path, so the
-loop is in steady state when the recording starts), and is rebuilt from the run's
+position loop; a run recorded in motion, its command and its encoders moving at the first
+sample, gets a pre-roll along the same path, so the loop is in steady state when the
+recording starts; a command that steps to its feed while the encoders stand still starts
+the model from rest), and is rebuilt from the run's
 fields otherwise (``Contour.rebuilt``; the report says so). Only the samples on the
 data arc (circle) or segment (line) are scored (``Contour.score``): a feed-in before
 it and a lead-out after it drive the simulation but are not compared.
@@ -250,6 +252,54 @@ def _align_time(run: Run, prog: Program) -> np.ndarray:
 
 PRE_ROLL_TIME_CONSTANTS = 12.0  # a run that starts in motion: e^-12 of the loop's start-up transient remains
 MAX_PRE_ROLL_S = 3.0
+# The start read off the encoders: over the first samples, no longer than one time constant
+# of the fastest loop (an axis starting from rest has covered 1 - (1 - e^-KT) / KT of the
+# command's way, e^-1 = 0.37 at KT = 1; one in steady motion all of it), until the command has
+# moved START_NOISES times the deviation noise gives a difference of two samples (the
+# fraction then carries a noise of 1/20: the midpoint stands 10 of it from steady motion).
+START_WINDOW_TIME_CONSTANTS = 1.0
+START_NOISES = 20.0
+IN_MOTION_FRACTION = 0.5  # the midpoint between a start from rest (about 0) and steady motion (1)
+
+
+def encoder_noise_mm(x: np.ndarray) -> float:
+    """White-noise level of one encoder's record (mm): the MAD of its third differences /
+    (0.6745 sqrt 20). A feed's motion is smooth on that scale (a circle's third difference
+    is v^3 dt^3 / r^2), and the median passes the few samples of a start or a reversal."""
+    if x.size < 5:
+        return 0.0
+    d = np.diff(np.asarray(x, float), 3)
+    return float(np.median(np.abs(d - np.median(d))) / 0.6745 / math.sqrt(20.0))
+
+
+def start_speed_fraction(t_s: np.ndarray, cmd_mm: np.ndarray, enc_mm: np.ndarray,
+                         gain_per_s: float) -> tuple[float, float]:
+    """How far the encoders moved with the command at the start: the encoders' way since
+    the first sample projected on the command's, as a fraction of the command's, and the
+    window it is read over (s). ``cmd_mm`` and ``enc_mm`` are (axes, samples).
+
+    In steady motion the loop lags the command by a constant amount, so the encoders cover
+    the command's way (fraction about 1); an axis standing still when the command steps to
+    its feed covers v (T - (1 - e^-KT) / K) of v T (about K T / 2, 0.37 at T = 1/K). The
+    window is the first sample interval, grown until the command's way stands
+    ``START_NOISES`` times above the noise of a difference of two encoder samples (the
+    noise read on the record itself, :func:`encoder_noise_mm`) and no longer than
+    ``START_WINDOW_TIME_CONSTANTS`` / ``gain_per_s`` (at least one interval)."""
+    t = np.asarray(t_s, float)
+    cmd = np.atleast_2d(np.asarray(cmd_mm, float))
+    enc = np.atleast_2d(np.asarray(enc_mm, float))
+    sigma = max(encoder_noise_mm(e) for e in enc)
+    dc = cmd[:, 1:] - cmd[:, :1]
+    way = np.sqrt(np.sum(dc * dc, axis=0))
+    last = max(1, int(np.searchsorted(t, t[0] + START_WINDOW_TIME_CONSTANTS / max(gain_per_s, 1e-3), "right")) - 1)
+    last = min(last, t.size - 1)
+    enough = np.flatnonzero(way[:last] >= START_NOISES * math.sqrt(2.0) * sigma)
+    n = int(enough[0]) + 1 if enough.size else last
+    de = enc[:, n] - enc[:, 0]
+    w2 = float(np.sum(dc[:, n - 1] ** 2))
+    if w2 <= 0.0:
+        return 0.0, float(t[n] - t[0])
+    return float(np.dot(de, dc[:, n - 1]) / w2), float(t[n] - t[0])
 
 
 def _first_sides(cmd: np.ndarray) -> tuple[str, ...]:
@@ -267,18 +317,32 @@ def _recorded_program(run: Run, gains_per_s: tuple[float, ...],
                       ka_mm: tuple[float, ...] | None = None) -> tuple[Program, np.ndarray]:
     """The recorded command as a program, and the program time of each sample.
 
-    When the command moves at the first sample, a pre-roll of PRE_ROLL_TIME_CONSTANTS
+    When the command moves at the first sample and the encoders move with it (a recording
+    begun in motion, :func:`start_speed_fraction`), a pre-roll of PRE_ROLL_TIME_CONSTANTS
     loop time constants is prepended: along the circle at the same angular speed for a
-    circle, along the same straight line otherwise."""
+    circle, along the same straight line otherwise. When the encoders stand still the
+    command stepped to its feed from rest, and the program starts from rest at the first
+    sample. The program's ``meta["start"]`` says which, and on what."""
     s = run.spec
     t = np.asarray(run.time_s, float)
     cmd = np.stack([np.asarray(run.command_mm(a), float) for a in s.axes])
-    # moving at the first sample: the first interval's speed is a good part of the feed (a
-    # start from rest on an acceleration ramp covers a small fraction of it)
+    # the command moves at the first sample: the first interval's speed is a good part of
+    # the feed (a start from rest on an acceleration ramp covers a small fraction of it)
     n0 = 1
     v0 = (cmd[:, n0] - cmd[:, 0]) / (t[n0] - t[0])
     feed = s.feed_mm_min / 60.0
-    moving = float(np.hypot(*v0) if v0.size == 2 else abs(v0[0])) > 0.3 * feed
+    stepped = float(np.hypot(*v0) if v0.size == 2 else abs(v0[0])) > 0.3 * feed
+    # ... and a recording begun in motion only if the encoders move with it from the first
+    # sample on; standing still, the axes start from rest on a step of the commanded speed
+    # (the simulation starts them so, without a pre-roll). The motor encoders when their
+    # transmission is known (the nut's backlash does not hide the loop's own motion).
+    if ka_mm is not None:
+        enc = np.stack([ka_mm[i] * np.asarray(run.motor_rev(a), float) for i, a in enumerate(s.axes)])
+    else:
+        enc = np.stack([np.asarray(run.table_mm(a), float) for a in s.axes])
+    fraction, window_s = start_speed_fraction(t, cmd, enc, max(gains_per_s)) if stepped else (0.0, 0.0)
+    moving = stepped and fraction > IN_MOTION_FRACTION
+    start = {"command_moves": stepped, "in_motion": moving, "encoder_fraction": fraction, "window_s": window_s}
     pre = min(MAX_PRE_ROLL_S, PRE_ROLL_TIME_CONSTANTS / max(min(gains_per_s), 1e-3)) if moving else 0.0
     tt = t - t[0]
     if s.kind == "circle" and moving:
@@ -304,12 +368,17 @@ def _recorded_program(run: Run, gains_per_s: tuple[float, ...],
         return out
 
     sides = _first_sides(path(np.array([0.0, 0.05, 0.5])) if moving else cmd)
+    one_way: dict[str, tuple[int, float]] = {}
     if not moving and ka_mm is not None:
         sides = tuple(_measured_side(run, a, ka_mm[i], sides[i]) for i, a in enumerate(s.axes))
+        for i, a in enumerate(s.axes):
+            w = _one_way_travel_mm(run, a, ka_mm[i]) if isinstance(sides[i], str) else None
+            if w is not None:
+                one_way[a] = w
     prog = Program(
         kind=s.kind, axes=tuple(s.axes), feed_mm_min=float(s.feed_mm_min), duration_s=float(tt[-1] + pre),
         record_from_s=pre, record_to_s=float(tt[-1] + pre), initial_sides=sides, path=path,
-        meta={"acceleration_mm_s2": s.acceleration_mm_s2},
+        meta={"acceleration_mm_s2": s.acceleration_mm_s2, "start": start, "rest_one_way_mm": one_way},
     )  # fmt: skip
     return prog, tt + pre
 
@@ -318,7 +387,8 @@ def _measured_side(run: Run, axis: str, ka_mm: float, natural: str):
     """Where the table rests in the backlash at the first sample of a run that starts at
     rest, from the encoders: d = table - k_a motor is c - b/2 while the nut pushes in +,
     c + b/2 in -, so (c - d0) / (b/2) is the place (+1: against the + flank). The
-    natural engagement when the run never moves steadily both ways or b is below 2 µm."""
+    natural engagement when the run never moves steadily both ways or b is below 2 µm (a
+    run that moves one way has its place read against that way: :func:`_one_way_travel_mm`)."""
     t = np.asarray(run.time_s, float)
     x = np.asarray(run.table_mm(axis), float)
     d = x - ka_mm * np.asarray(run.motor_rev(axis), float)
@@ -328,6 +398,32 @@ def _measured_side(run: Run, axis: str, ka_mm: float, natural: str):
     if found is None or found[1] < 1e-3:
         return natural
     return float(np.clip(found[0] / found[1], -1.0, 1.0))
+
+
+def _one_way_travel_mm(run: Run, axis: str, ka_mm: float) -> tuple[int, float] | None:
+    """Where the table rests in the backlash at the first sample of a run that starts at
+    rest and moves one way only (a line), from the encoders: the direction ``s`` (+1, -1)
+    and ``delta = d_move - d0`` (mm), d = table - k_a motor over the first samples at rest
+    (``d0``) and its median while the command moves that way at over 0.3 of its top speed
+    (``d_move``, the nut on the flank that drives it). The nut's lead on the table is
+    then ``s h + delta`` for a contact gap of half ``h``: the full backlash (2 h) when the
+    nut starts on the far flank, 0 on the driving one. Without the other direction the
+    half gap is not measured, so the place is left to the model's own gap
+    (:func:`core.gap.contour.start_side`). None when the run moves both ways or neither
+    (20 samples at least)."""
+    t = np.asarray(run.time_s, float)
+    d = np.asarray(run.table_mm(axis), float) - ka_mm * np.asarray(run.motor_rev(axis), float)
+    cmd = np.asarray(run.command_mm(axis), float)
+    v = np.gradient(cmd, t)
+    vmax = float(np.max(np.abs(v))) if v.size else 0.0
+    if vmax <= 0:
+        return None
+    pos, neg = v > 0.3 * vmax, v < -0.3 * vmax
+    if (pos.sum() >= 20) == (neg.sum() >= 20):
+        return None
+    sgn, way = (1, pos) if pos.sum() >= 20 else (-1, neg)
+    n0 = max(1, min(10, int(np.argmax(np.abs(cmd - cmd[0]) > 1e-4)) or 1))  # samples still at rest
+    return sgn, float(np.median(d[way])) - float(np.mean(d[:n0]))
 
 
 def _data_arc_mask(run: Run, cmd: np.ndarray) -> tuple[np.ndarray, dict]:
@@ -382,6 +478,7 @@ def prepare_contour(run: Run, split: str, axes: Mapping[str, AxisSpec] | None = 
             raise GapError(f"{s.kind} run {s.file!r}: fewer than 10 samples of its command lie on the data "
                            f"{'arc' if s.kind == 'circle' else 'segment'} its fields name ({arc['how']})")  # fmt: skip
         meta["data_arc"] = arc
+        meta["start"] = prog.meta["start"]
     else:
         prog = _program_of(run)
         t = _align_time(run, prog)
