@@ -30,6 +30,7 @@ from api.service.health import HealthProbe
 from api.service.leases import FleetScheduler
 from api.service.runner import CycleProcesses, CycleRunner, DriverRunner
 from api.service.scheduler import CycleScheduler
+from api.service.secret_files import ADMIN_KEY_FILE, DEMO_KEYS_FILE, write_secret_file
 from api.service.events import Event, EventHub, events_of_saved_cycle
 from api.service.maintenance import MaintenanceLoop
 from api.service.status import StatusCache
@@ -53,7 +54,6 @@ from storage.db import (
 )
 
 log = logging.getLogger("mebm.service")
-DEMO_KEYS_FILE = "demo-keys.json"
 
 
 @dataclass(frozen=True)
@@ -360,10 +360,14 @@ class Service:
 
     def _demo_keys(self) -> dict:
         """Demo keys (read, operate, admin), created hashed at first start. Returns the keys
-        created by this start only: they are printed once. The read and operate secrets are
-        kept in ``<data_dir>/demo-keys.json`` (mode 600) for the demo's examples; the admin
-        secret is never written anywhere (a file of an older version loses it)."""
-        path = Path(self.settings.data_dir) / DEMO_KEYS_FILE
+        created by this start only. The read and operate secrets are kept in
+        ``<data_dir>/demo-keys.json`` for the demo's examples, the admin secret in
+        ``<data_dir>/admin-key`` for the operator to take away (both mode 600,
+        :mod:`api.service.secret_files`); none of them is printed unless ``mebm serve
+        --show-keys`` asks. A key is created only if its file could be written: on a full
+        disk none is, and the next start tries again."""
+        data_dir = Path(self.settings.data_dir)
+        path = data_dir / DEMO_KEYS_FILE
         kept = {}
         if path.is_file():
             try:
@@ -373,24 +377,30 @@ class Service:
         if not isinstance(kept, dict):
             kept = {}
         created = {}
-        with session_scope(self.factory) as s:
-            leases.serialize(s)  # fleet workers starting together: one at a time
-            live = [k for k in config_repo.list_keys(s) if k.revoked_at is None]
-            valid = {r: kept[r] for r in ("read", "operate")
-                     if isinstance(kept.get(r), str) and config_repo.authenticate(s, kept[r]) is not None}
-            for role in ("read", "operate", "admin"):
-                if role in valid or (role == "admin" and any(k.role == "admin" and k.name.startswith("demo-admin")
-                                                             for k in live)):
-                    continue
-                name = f"demo-{role}"
-                if config_repo.find_key(s, name) is not None:
-                    name = f"demo-{role}-{int(time.time())}"
-                _, created[role] = config_repo.create_key(s, name, role)
-        keep = {**valid, **{r: k for r, k in created.items() if r != "admin"}}
-        if keep != kept:
-            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-            with os.fdopen(fd, "w", encoding="utf-8") as fh:
-                json.dump(keep, fh, indent=2)
+        try:
+            with session_scope(self.factory) as s:
+                leases.serialize(s)  # fleet workers starting together: one at a time
+                live = [k for k in config_repo.list_keys(s) if k.revoked_at is None]
+                valid = {r: kept[r] for r in ("read", "operate")
+                         if isinstance(kept.get(r), str) and config_repo.authenticate(s, kept[r]) is not None}
+                for role in ("read", "operate", "admin"):
+                    if role in valid or (role == "admin" and any(k.role == "admin" and k.name.startswith("demo-admin")
+                                                                 for k in live)):
+                        continue
+                    name = f"demo-{role}"
+                    if config_repo.find_key(s, name) is not None:
+                        name = f"demo-{role}-{int(time.time())}"
+                    _, created[role] = config_repo.create_key(s, name, role)
+                # written before the keys are committed: a key nobody can read is never created
+                keep = {**valid, **{r: k for r, k in created.items() if r != "admin"}}
+                if keep != kept:
+                    write_secret_file(path, json.dumps(keep, indent=2))
+                if "admin" in created:
+                    write_secret_file(data_dir / ADMIN_KEY_FILE, created["admin"] + "\n")
+        except OSError as exc:
+            log.warning("demo keys not created: cannot write them under %s (%s); the next start tries again",
+                        data_dir, exc.strerror or exc)
+            return {}
         return created
 
     # -- operations for the API ------------------------------------------------------------------
