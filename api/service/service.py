@@ -22,6 +22,7 @@ from sqlalchemy import text
 
 from api.service.config import SIM_CONTROLLER, Settings
 from api.service.cycles import CycleExecutor
+from api.service.figure_cache import FigureCache
 from api.service.folders import axis_folders
 from api.service.gap_jobs import GapJobs
 from api.service.plot_process import PlotProcess
@@ -92,6 +93,7 @@ class Service:
         self.gap_jobs = GapJobs(max_pending=settings.limits.gap_diagnoses_pending,  # gap diagnoses: bounded jobs,
                                 timeout_s=settings.limits.gap_diagnosis_timeout_s)  # computed in a worker process
         self.plots = PlotProcess.shared()  # figure renders, in a worker process (not on the API's interpreter)
+        self.figures = FigureCache()  # rendered figures, for the REST plot endpoints and the dashboard alike
         self.maintenance = MaintenanceLoop(self, settings.maintenance)  # work orders, repairs, verification
         self.fleet = False  # PostgreSQL: this process is one worker (or API replica) of a fleet
         self._sqlite_lock: leases.SqliteWorkerLock | None = None

@@ -396,6 +396,23 @@ def latest_result(s: Session, axis_id: int, *, curves: bool = False) -> ResultRe
     return None if r is None else _result(s, r, curves=curves)
 
 
+def latest_measurement_id(s: Session, axis_id: int) -> int | None:
+    """The id of the newest ok measurement of the axis (the one :func:`latest_result` reads)."""
+    return s.scalar(select(Result.cycle_id).where(Result.axis_id == axis_id)
+                    .order_by(Result.measured_at.desc(), Result.id.desc()).limit(1))
+
+
+def results_signature(s: Session, axis_id: int, since: datetime | None = None) -> tuple[int, int | None, int | None]:
+    """(count, smallest id, largest id) of the axis' ok measurements since ``since``: it
+    changes when one is stored or deleted (retention), and only then (a stored result
+    never changes), so it names the content of a figure drawn from them."""
+    q = select(func.count(Result.id), func.min(Result.id), func.max(Result.id)).where(Result.axis_id == axis_id)
+    if since is not None:
+        q = q.where(Result.measured_at >= since)
+    n, lo, hi = s.execute(q).one()
+    return int(n or 0), lo, hi
+
+
 def get_measurement(s: Session, cycle_id: int, *, curves: bool = True) -> tuple[CycleRecord, ResultRecord | None]:
     c = s.get(Cycle, cycle_id)
     if c is None:
