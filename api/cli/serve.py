@@ -95,6 +95,9 @@ def banner(settings, report, url: str, opcua=None, sign_in_url: str | None = Non
     lines = [f"mebm service on {url}  (API {url}/api/v1, OpenAPI docs {url}/docs)",
              f"dashboard: {url}/ui/" + sign_in,
              f"database: {report.database}"]
+    if getattr(report, "waiting_for_room", None):
+        lines.append(f"WAITING FOR DISK: {report.waiting_for_room}; until then /healthz says so and every other "
+                     "request answers 503")
     if getattr(report, "worker", None):
         lines.append(report.worker)
     if report.replayed:
@@ -153,7 +156,12 @@ def sign_in_link(settings, report, url: str, sessions) -> tuple[str | None, Path
     read_key = demo_read_key(settings, report) if settings.demo_keys else None
     if not read_key:
         return None, None, None
-    link = f"{url}/ui/sign-in/{sessions.issue_link(read_key)}"
+    from storage.db import StorageError
+
+    try:
+        link = f"{url}/ui/sign-in/{sessions.issue_link(read_key)}"
+    except StorageError as exc:  # the database is not open yet (a full disk): sign in with a key later
+        return None, None, f"no database yet ({exc})"
     path = Path(settings.data_dir) / SIGN_IN_LINK_FILE
     try:
         write_secret_file(path, link + "\n")

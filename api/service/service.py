@@ -11,6 +11,7 @@ import gc
 import json
 import logging
 import os
+import shutil
 import threading
 import time
 from dataclasses import dataclass
@@ -55,6 +56,7 @@ from storage.db import (
 )
 
 log = logging.getLogger("mebm.service")
+SQLITE_OPEN_ROOM_BYTES = 1_000_000  # enough for SQLite to open a WAL database and write a little
 
 
 @dataclass(frozen=True)
@@ -70,6 +72,9 @@ class StartReport:
     bootstrap_admin: str | None
     worker: str | None = None  # fleet (PostgreSQL): this worker's name, axes and lease, for the banner
     folders_moved_aside: tuple[str, ...] = ()  # dataset folders of another machine or database, renamed (why, where)
+    # the SQLite database could not be opened for lack of disk: why, and that the start
+    # completes by itself once there is room (nothing else in this report happened yet)
+    waiting_for_room: str | None = None
 
 
 class Service:
@@ -98,6 +103,9 @@ class Service:
         self.fleet = False  # PostgreSQL: this process is one worker (or API replica) of a fleet
         self._sqlite_lock: leases.SqliteWorkerLock | None = None
         self._sim_lock = threading.Lock()
+        self.waiting_for_room: str | None = None  # the start waits for disk to open the database (see start)
+        self._room_waiter: threading.Thread | None = None
+        self._stopping = threading.Event()
 
     # -- wiring ----------------------------------------------------------------------------------
     def resolve_url(self, axis: AxisRecord) -> str:
@@ -131,28 +139,95 @@ class Service:
         render = self.render_status
         return None if render is None else render(axis_id)
 
-    def _connect(self) -> None:
+    def _connect(self, wait_s: float | None = None) -> None:
+        """Open the database (and migrate it), retried for ``wait_s`` (default
+        ``db_wait_s``). A SQLite database on a disk too full to open it raises at once:
+        waiting does not make room (:meth:`start` waits for it without blocking)."""
         st = self.settings
         idle_s = max(st.worker.lease_s / 2, 2.0) if st.scheduler_enabled and not is_sqlite(st.db_url) else None
-        self.engine = make_engine(st.db_url, idle_in_transaction_timeout_s=idle_s)
-        deadline = time.monotonic() + self.db_wait_s
+        if self.engine is None:
+            self.engine = make_engine(st.db_url, idle_in_transaction_timeout_s=idle_s)
+        deadline = time.monotonic() + (self.db_wait_s if wait_s is None else wait_s)
         while True:
             try:
                 ping(self.engine)
                 upgrade(self.engine)
                 break
             except DatabaseUnavailableError:
-                if time.monotonic() > deadline:
+                if time.monotonic() > deadline or self._database_disk_full() is not None:
                     raise
                 time.sleep(1.0)
         self.factory = make_session_factory(self.engine)
 
+    def _database_disk_full(self) -> str | None:
+        """Why the SQLite database cannot be opened for lack of disk (free space under its
+        folder below the free-disk floor, and below the little SQLite needs to open a
+        database: its shared-memory index and write-ahead log), or None."""
+        if not is_sqlite(self.settings.db_url):
+            return None
+        folder = Path(self.engine.url.database or self.settings.data_dir).parent
+        try:
+            free = shutil.disk_usage(folder).free
+        except OSError:
+            return None
+        if free >= max(self.settings.min_free_disk_mb * 1e6, SQLITE_OPEN_ROOM_BYTES):
+            return None
+        return (f"the database {self.engine.url.database} cannot be opened: the disk under it is full "
+                f"({free / 1e6:.1f} MB free); free space under the data folder and the service completes its "
+                "start (spooled cycles are stored then)")
+
     # -- life cycle ------------------------------------------------------------------------------
     def start(self) -> StartReport:
+        """Open the database and start everything. On a disk too full for SQLite to open its
+        database, the start is not an error: the service answers (``/healthz`` says why it
+        waits, every other request 503), keeps what the spool holds untouched, starts no
+        cycle, and completes the start by itself once there is room."""
         st = self.settings
         Path(st.data_dir).mkdir(parents=True, exist_ok=True)
         _restrict(Path(st.data_dir), 0o700)  # raw runs, spool, keys: the service's own
-        self._connect()
+        self._stopping.clear()
+        self.engine = None
+        try:
+            self._connect()
+        except DatabaseUnavailableError as exc:
+            why = self._database_disk_full()
+            if why is None:
+                raise
+            return self._wait_for_room(f"{why} ({exc})")
+        return self._start_connected()
+
+    def _wait_for_room(self, why: str) -> StartReport:
+        self.waiting_for_room = why
+        log.error("%s", why)
+        self.report = StartReport(database=_redact(self.settings.db_url), replayed=0, interrupted=0, created_axes=(),
+                                  demo_keys={}, simulators={}, bootstrap_admin=None, waiting_for_room=why)
+        self._room_waiter = threading.Thread(target=self._complete_start_when_room, name="mebm-wait-for-room",
+                                             daemon=True)
+        self._room_waiter.start()
+        return self.report
+
+    def _complete_start_when_room(self) -> None:
+        every_s = max(min(self.settings.spool_retry_s, 30.0), 0.1)
+        while not self._stopping.wait(every_s):
+            try:
+                self._connect(wait_s=0.0)
+            except DatabaseUnavailableError as exc:
+                why = self._database_disk_full()
+                self.waiting_for_room = f"{why} ({exc})" if why else f"database unavailable ({exc}); retried"
+                continue
+            try:
+                self._start_connected()
+            except Exception:  # noqa: BLE001 - logged; /healthz says it
+                log.exception("the start after the disk had room again failed")
+                self.waiting_for_room = "the start after the disk had room again failed: see the log"
+                return
+            self.waiting_for_room = None
+            log.info("the disk has room again: the service completed its start (%d spooled cycle(s) stored)",
+                     self.report.replayed)
+            return
+
+    def _start_connected(self) -> StartReport:
+        st = self.settings
         self.fleet = not is_sqlite(self.engine)
         if (not self.fleet and st.scheduler_enabled and self._sqlite_lock is None
                 and self.engine.url.database not in (None, "", ":memory:")):
@@ -253,6 +328,10 @@ class Service:
                 f"lease {sched.lease_s:g} s (GET /api/v1/workers)")
 
     def stop(self) -> None:
+        self._stopping.set()
+        if self._room_waiter is not None:  # a start completing now finishes first, then stops here
+            self._room_waiter.join()
+            self._room_waiter = None
         if self.scheduler is not None:
             self.scheduler.stop()
         if self.executor is not None:
@@ -270,6 +349,14 @@ class Service:
         if self.engine is not None:
             self.engine.dispose()
         gc.unfreeze()  # what start froze may be garbage now (a process that starts services in turn: the tests)
+
+    def spooled_count(self) -> int:
+        """Finished cycles not stored yet: in the spool or kept in memory (before the
+        database is open, what the spool folder holds)."""
+        if self.executor is not None:
+            return len(self.executor.pending()) + len(self.executor.unsaved)
+        spool = Path(self.settings.data_dir) / "spool"
+        return len(list(spool.glob("*.json"))) if spool.is_dir() else 0
 
     def _retry_spool(self) -> None:
         if not self.executor.has_pending():

@@ -123,20 +123,22 @@ def close_stale_cycles(s: Session, now: datetime | None = None, *, held: dict | 
     """At start-up: cycles left 'running' by a crash become 'interrupted', 'queued' ones
     'cancelled' (an axis is not moved on its own after a restart). Returns how many.
     ``held``: uuid -> (status, reason) of cycles that finished and wait in the spool; a
-    running row of one takes that reason (the spool stores the rest of it later)."""
+    running row of one takes that reason (the spool stores the rest of it later) and is
+    not counted: it was not interrupted."""
     now = now or utcnow()
     held = held or {}
     n = 0
     for c in s.scalars(select(Cycle).where(Cycle.status.in_(("running", "queued")))):
+        c.finished_at = now
         if c.uuid in held:
             status, reason = held[c.uuid]
             c.status = "failed" if status == "ok" else status  # (an ok result is stored with the spool file)
             c.failure_reason = reason or "finished; waiting in the spool to be stored"
-        elif c.status == "running":
+            continue
+        if c.status == "running":
             c.status, c.failure_reason = "interrupted", "the service stopped during the cycle"
         else:
             c.status, c.failure_reason = "cancelled", "the service stopped before the cycle started"
-        c.finished_at = now
         n += 1
     s.flush()
     return n
