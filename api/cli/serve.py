@@ -96,8 +96,8 @@ def banner(settings, report, url: str, opcua=None, sign_in_url: str | None = Non
              f"dashboard: {url}/ui/" + sign_in,
              f"database: {report.database}"]
     if getattr(report, "waiting_for_room", None):
-        lines.append(f"WAITING FOR DISK: {report.waiting_for_room}; until then /healthz says so and every other "
-                     "request answers 503")
+        lines.append(f"WAITING FOR DISK: {report.waiting_for_room}; until then /healthz says so and every "
+                     "request that needs the database answers 503")
     if getattr(report, "worker", None):
         lines.append(report.worker)
     if report.replayed:
