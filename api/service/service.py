@@ -207,13 +207,23 @@ class Service:
         return self.report
 
     def _complete_start_when_room(self) -> None:
-        every_s = max(min(self.settings.spool_retry_s, 30.0), 0.1)
-        while not self._stopping.wait(every_s):
+        # the free space is looked at every second (cheap), the database tried as soon as
+        # there is room, and every spool_retry_s while the database refuses for another reason
+        retry_s = max(self.settings.spool_retry_s, 0.1)
+        next_try = 0.0  # (monotonic) while there is room but the database still refuses
+        while not self._stopping.wait(min(1.0, retry_s)):
+            why = self._database_disk_full()
+            if why is not None:
+                self.waiting_for_room = why  # with the free space of now
+                next_try = 0.0  # tried as soon as there is room
+                continue
+            if time.monotonic() < next_try:
+                continue
             try:
                 self._connect(wait_s=0.0)
             except DatabaseUnavailableError as exc:
-                why = self._database_disk_full()
-                self.waiting_for_room = f"{why} ({exc})" if why else f"database unavailable ({exc}); retried"
+                next_try = time.monotonic() + retry_s
+                self.waiting_for_room = f"the database is not open yet: {exc} (tried every {retry_s:g} s)"
                 continue
             try:
                 self._start_connected()
