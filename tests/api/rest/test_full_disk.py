@@ -2,7 +2,9 @@
 it) on a small tmpfs filled to the last block while a cycle runs; a normal stop; a restart
 once there is room. The cycle is kept with the reason code storage_full, shown so (never
 running) while it waits, and no empty file is left behind. Below the free-disk floor no
-cycle is started, and /healthz and an alert say why."""
+cycle is started, and /healthz and an alert say why. A restart while the disk is still
+full starts (even when SQLite cannot open its database), says why on /healthz, keeps the
+spooled cycle as it is and stores it once there is room, without another restart."""
 
 from __future__ import annotations
 
@@ -350,3 +352,48 @@ def test_the_start_banner_says_the_service_waits_for_disk_and_gives_no_sign_in_l
     text = banner(settings, report, "http://127.0.0.1:1", sign_in_error=error)
     assert f"WAITING FOR DISK: {why}" in text and "no sign-in link" in text
     assert not (tmp_path / "sign-in-link").exists()
+
+
+def test_a_start_on_a_disk_too_full_to_open_sqlite_answers_healthz_and_completes_once_there_is_room(
+        tmp_path, monkeypatch):
+    """The same without root: the disk's fullness and SQLite's refusal to open are played."""
+    import shutil
+
+    import api.service.service as service_module
+
+    settings = replace(make_settings("sqlite://", tmp_path / "data"), database_url=None, min_free_disk_mb=0.0,
+                       spool_retry_s=0.1)
+    first = create_app(settings, runner=FakeRunner())
+    with TestClient(first) as client:
+        keys, axis_id = _keys(first.state.service)
+    full = threading.Event()
+    full.set()
+    real_usage, real_ping = shutil.disk_usage, service_module.ping
+
+    def usage(path):
+        u = real_usage(path)
+        return u._replace(free=0) if full.is_set() else u
+
+    def ping(engine):
+        if full.is_set():
+            raise DatabaseUnavailableError("database unavailable: disk I/O error")
+        real_ping(engine)
+
+    monkeypatch.setattr(shutil, "disk_usage", usage)
+    monkeypatch.setattr(service_module, "ping", ping)
+    runner = FakeRunner()
+    app = create_app(settings, runner=runner)
+    with TestClient(app) as client:  # it starts
+        svc = app.state.service
+        assert svc.report.waiting_for_room and "cannot be opened" in svc.report.waiting_for_room
+        health = client.get("/healthz")
+        assert health.status_code == 503 and health.json()["database"] == "unavailable"
+        assert any(p.startswith("storage_full: the database") for p in health.json()["problems"])
+        r = client.get(f"/api/v1/axes/{axis_id}/status", headers=hdr(keys["read"]))
+        assert r.status_code == 503, r.text  # a request that needs the database: 503, never a 500
+        full.clear()  # room again
+        assert _wait(lambda: svc.waiting_for_room is None and svc.scheduler is not None, 30)
+        svc.health.invalidate()
+        assert client.get("/healthz").status_code == 200
+        assert client.get(f"/api/v1/axes/{axis_id}/status", headers=hdr(keys["read"])).status_code == 200
+    assert runner.calls == 0
