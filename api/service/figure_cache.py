@@ -18,7 +18,7 @@ from collections.abc import Callable, Hashable
 class FigureCache:
     """The last ``size`` rendered figures, least recently used dropped first."""
 
-    def __init__(self, size: int = 256):
+    def __init__(self, size: int = 128):  # PNGs of 50-150 kB: at most ~20 MB
         self.size = size
         self._d: OrderedDict[Hashable, bytes] = OrderedDict()
         self._lock = threading.Lock()
