@@ -36,7 +36,6 @@ from fastapi.testclient import TestClient  # noqa: E402
 
 from api.rest import create_app  # noqa: E402
 from api.service.config import Settings, demo_axis  # noqa: E402
-from api.ui.sessions import FigureCache  # noqa: E402
 from core.criteria import BacklashProfile  # noqa: E402
 from core.tbe import decide  # noqa: E402
 from storage.db import (  # noqa: E402
@@ -125,7 +124,7 @@ def main() -> int:
             print(f"median of {a.repeats}, server side, ms        warm    cold (caches dropped)")
             def cold_start():  # no cached status, no cached figure
                 svc.status.invalidate()
-                app.state.ui.figures = FigureCache()
+                svc.figures.clear()
 
             for label, path in pages + figures:
                 warm, code = median_ms(client, path, a.repeats)

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from api.cli.output import print_json, print_table
 from api.service.config import load_settings
+from api.service.secret_files import write_secret_file
 from core.errors import InputError
 from storage.db import config_repo, make_engine, make_session_factory, session_scope, upgrade
 
@@ -20,10 +21,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         q.add_argument("--config", type=Path, help="TOML configuration file (for the database URL)")
         q.add_argument("--json", action="store_true", help="print JSON")
 
-    c = ksub.add_parser("create", help="create a key; the secret is printed once")
+    c = ksub.add_parser("create", help="create a key; its secret goes to a mode-600 file of the data directory",
+                        description="Create a key. Its secret is written to <data_dir>/keys/<id>.key (mode 600) and "
+                                    "the file named; --show-keys prints the secret instead (stdout may be logged).")
     c.add_argument("--role", required=True, choices=("read", "operate", "admin"),
                    help="read: an MES; operate: trigger cycles, acknowledge alerts; admin: configure")
     c.add_argument("--name", help="a name for the key (default: <role>-<n>)")
+    c.add_argument("--show-keys", action="store_true", help="print the secret (once) instead of writing it to a file")
     common(c)
     c.set_defaults(func=_create)
     ls = ksub.add_parser("list", help="list keys (never their secrets)")
@@ -35,15 +39,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     rv.set_defaults(func=_revoke)
 
 
-def _factory(a):
-    settings = load_settings(a.config)
+def _factory(a, settings=None):
+    settings = settings or load_settings(a.config)
     engine = make_engine(settings.db_url)
     upgrade(engine)
     return make_session_factory(engine)
 
 
+def key_file(data_dir: Path, key_id: int) -> Path:
+    """Where ``mebm keys create`` writes the secret of key ``key_id``."""
+    return Path(data_dir) / "keys" / f"{key_id}.key"
+
+
 def _create(a) -> int:
-    with session_scope(_factory(a)) as s:
+    settings = load_settings(a.config)
+    with session_scope(_factory(a, settings)) as s:
         name = a.name
         if not name:
             n = sum(1 for k in config_repo.list_keys(s) if k.role == a.role) + 1
@@ -52,11 +62,24 @@ def _create(a) -> int:
                 n += 1
                 name = f"{a.role}-{n}"
         rec, secret = config_repo.create_key(s, name, a.role)
+        path = None
+        if not a.show_keys:  # written before the commit: a key whose secret is nowhere is never created
+            path = key_file(settings.data_dir, rec.id)
+            try:
+                path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+                write_secret_file(path, secret + "\n")
+            except OSError as exc:
+                raise InputError(f"cannot write the key to {path}: {exc.strerror or exc} (no key created; "
+                                 "--show-keys prints it instead)") from exc
     if a.json:
-        print_json({"id": rec.id, "name": rec.name, "role": rec.role, "key": secret})
-    else:
+        print_json({"id": rec.id, "name": rec.name, "role": rec.role,
+                    **({"key": secret} if a.show_keys else {"key_file": str(path)})})
+    elif a.show_keys:
         print(f"created key {rec.name!r} (id {rec.id}, role {rec.role}); it is shown only now:")
         print(secret)
+    else:
+        print(f"created key {rec.name!r} (id {rec.id}, role {rec.role}); its secret is in {path} (mode 600): "
+              "hand it over and delete the file")
     return 0
 
 

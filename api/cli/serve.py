@@ -13,17 +13,23 @@ from dataclasses import replace
 from pathlib import Path
 
 from api.service.config import load_settings
+from api.service.secret_files import ADMIN_KEY_FILE, DEMO_KEYS_FILE, SIGN_IN_LINK_FILE, write_secret_file
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("serve", help="run the service: REST API, scheduled measurements, simulated demo controller",
                        description="Run the mebm service. Without --config: SQLite under ./data (MEBM_DATA_DIR), "
-                                   "the demo machine on a built-in simulated controller, demo keys printed.")
+                                   "the demo machine on a built-in simulated controller. Secrets (the demo "
+                                   "keys, the dashboard's sign-in link) go to mode-600 files of the data "
+                                   "directory, stdout says where; --show-keys prints them too.")
     p.add_argument("--config", type=Path, help="TOML configuration file (docs/configuration.md)")
     p.add_argument("--host", help="listen address (default 127.0.0.1; env MEBM_HOST)")
     p.add_argument("--port", type=int, help="listen port, 0 for a free one (default 8000; env MEBM_PORT)")
     p.add_argument("--data-dir", type=Path, help="data directory (default ./data; env MEBM_DATA_DIR)")
     p.add_argument("--no-scheduler", action="store_true", help="serve the API only: no scheduled cycles")
+    p.add_argument("--show-keys", action="store_true",
+                   help="also print the demo keys created and the sign-in link (for an operator at a terminal: "
+                        "stdout of a service usually ends in a journal)")
     p.set_defaults(func=_serve)
 
 
@@ -49,8 +55,6 @@ def demo_read_key(settings, report) -> str | None:
     """The demo read key: created by this start, else the one kept in demo-keys.json."""
     if report.demo_keys.get("read"):
         return report.demo_keys["read"]
-    from api.service.service import DEMO_KEYS_FILE
-
     path = Path(settings.data_dir) / DEMO_KEYS_FILE
     try:
         kept = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {}
@@ -74,12 +78,26 @@ def opcua_line(settings, opcua) -> str:
     return f"OPC UA: {opcua.endpoint}  ({who}; security {sec}; Objects/Machines/<machine>/<axis>/BacklashMean)"
 
 
-def banner(settings, report, url: str, opcua=None, sign_in_url: str | None = None) -> str:
+def banner(settings, report, url: str, opcua=None, sign_in_url: str | None = None, *, show_keys: bool = False,
+           sign_in_file: Path | None = None, sign_in_error: str | None = None) -> str:
+    """The start banner. It names the files that hold secrets and prints no secret, unless
+    ``show_keys`` (``mebm serve --show-keys``): then the demo keys this start created and
+    the sign-in link are printed as well."""
+    data = Path(settings.data_dir)
+    if sign_in_url and show_keys:
+        sign_in = f"  (one-time sign-in link for the demo read key, valid 10 min: {sign_in_url})"
+    elif sign_in_url and sign_in_file is not None:
+        sign_in = f"  (one-time sign-in link for the demo read key, valid 10 min, in {sign_in_file})"
+    elif sign_in_error:
+        sign_in = f"  (no sign-in link: {sign_in_error}; sign in with an access key)"
+    else:
+        sign_in = "  (sign in with an access key)"
     lines = [f"mebm service on {url}  (API {url}/api/v1, OpenAPI docs {url}/docs)",
-             f"dashboard: {url}/ui/"
-             + (f"  (one-time sign-in link for the demo read key, valid 10 min: {sign_in_url})" if sign_in_url
-                else "  (sign in with an access key)"),
+             f"dashboard: {url}/ui/" + sign_in,
              f"database: {report.database}"]
+    if getattr(report, "waiting_for_room", None):
+        lines.append(f"WAITING FOR DISK: {report.waiting_for_room}; until then /healthz says so and every "
+                     "request that needs the database answers 503")
     if getattr(report, "worker", None):
         lines.append(report.worker)
     if report.replayed:
@@ -103,22 +121,53 @@ def banner(settings, report, url: str, opcua=None, sign_in_url: str | None = Non
                  else "MTConnect: off ([mtconnect] enabled)")  # fmt: skip
     if mc.enabled and mc.shdr_port is not None:
         lines.append(f"MTConnect SHDR adapter: {mc.shdr_host}:{mc.shdr_port} (device file: {url}/mtconnect/probe)")
-    if report.demo_keys:  # only the keys created by this start: shown once
+    kept_at, admin_at = data / DEMO_KEYS_FILE, data / ADMIN_KEY_FILE
+    if report.demo_keys:  # only the keys created by this start
         k = report.demo_keys
-        lines.append("demo keys created (shown this once; read and operate are kept in "
-                     f"{Path(settings.data_dir) / 'demo-keys.json'}, the admin key nowhere):")
-        labels = {"read": "read (MES):", "operate": "operate:", "admin": "admin:"}
-        lines += [f"  {labels[r]:<12} {k[r]}" for r in ("read", "operate", "admin") if r in k]
+        files = [f"read and operate in {kept_at}"] if ("read" in k or "operate" in k) else []
+        files += [f"admin in {admin_at}"] if "admin" in k else []
+        if show_keys:
+            lines.append(f"demo keys created (shown this once; {', '.join(files)}, mode 600):")
+            labels = {"read": "read (MES):", "operate": "operate:", "admin": "admin:"}
+            lines += [f"  {labels[r]:<12} {k[r]}" for r in ("read", "operate", "admin") if r in k]
+        else:
+            lines.append(f"demo keys created: {', '.join(files)} (mode 600; --show-keys prints them)")
         if "read" in k:
+            # without --show-keys the examples name the key $K, set from the file
+            header = f"'X-API-Key: {k['read']}'" if show_keys else '"X-API-Key: $K"'
+            where = "" if show_keys else f"; K: the read key in {kept_at}"
             lines += [
-                "try (the first measurement arrives within a minute):",
-                f"  curl -H 'X-API-Key: {k['read']}' {url}/api/v1/axes/1/status",
-                f"  curl -H 'X-API-Key: {k['read']}' '{url}/api/v1/alerts?state=active'",
+                f"try (the first measurement arrives within a minute{where}):",
+                f"  curl -H {header} {url}/api/v1/axes/1/status",
+                f"  curl -H {header} '{url}/api/v1/alerts?state=active'",
                 f"  open {url}/api/v1/axes/1/plots/backlash_trend.png (with the key header) for Fig. 10",
             ]
+    if "admin" not in report.demo_keys and admin_at.is_file():
+        lines.append(f"the demo admin key is in {admin_at}: keep it somewhere safe and delete the file")
     if report.bootstrap_admin:
         lines.append(f"bootstrap admin key registered as {report.bootstrap_admin!r}")
     return "\n".join(lines)
+
+
+def sign_in_link(settings, report, url: str, sessions) -> tuple[str | None, Path | None, str | None]:
+    """The one-time sign-in link for the demo read key, written to ``<data_dir>/sign-in-link``
+    (mode 600). Returns (link, its file, why it could not be written). The link carries a
+    one-time token, never the key; the dashboard keeps the token hashed."""
+    read_key = demo_read_key(settings, report) if settings.demo_keys else None
+    if not read_key:
+        return None, None, None
+    from storage.db import StorageError
+
+    try:
+        link = f"{url}/ui/sign-in/{sessions.issue_link(read_key)}"
+    except StorageError as exc:  # the database is not open yet (a full disk): sign in with a key later
+        return None, None, f"no database yet ({exc})"
+    path = Path(settings.data_dir) / SIGN_IN_LINK_FILE
+    try:
+        write_secret_file(path, link + "\n")
+    except OSError as exc:
+        return link, None, f"cannot write {path}: {exc.strerror or exc}"
+    return link, path, None
 
 
 SWITCH_INTERVAL_S = 0.001
@@ -180,10 +229,9 @@ def _serve(a: argparse.Namespace) -> int:
         host = settings.host if settings.host not in ("0.0.0.0", "::") else "127.0.0.1"
         url = f"http://{host}:{port}"
         app = create_app(settings, service=service, opcua=opcua)
-        read_key = demo_read_key(settings, report) if settings.demo_keys else None
-        # the link carries a one-time token, never the key; the dashboard keeps the token in memory
-        link = f"{url}/ui/sign-in/{app.state.ui.sessions.issue_link(read_key)}" if read_key else None
-        print(banner(settings, report, url, opcua, sign_in_url=link), flush=True)
+        link, link_file, link_error = sign_in_link(settings, report, url, app.state.ui.sessions)
+        print(banner(settings, report, url, opcua, sign_in_url=link, show_keys=a.show_keys, sign_in_file=link_file,
+                     sign_in_error=link_error), flush=True)
         server = uvicorn.Server(uvicorn_config(app, settings))
         # uvicorn re-raises SIGTERM after its graceful shutdown, with the handler it found: the
         # default one would end the process before `finally` stops the service (a fleet worker

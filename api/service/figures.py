@@ -13,6 +13,7 @@ from datetime import datetime, timezone
 import numpy as np
 
 from api.service import plots
+from api.service.figure_cache import FigureCache
 from api.service.plot_prognosis import prognosis as prognosis_plot
 from core.prognosis import forecast_band
 from core.errors import MebmError
@@ -38,23 +39,73 @@ def backlash_limit_um(tasks) -> float | None:
 
 
 def render(s, axis_id: int, name: str, *, measurement_id: int | None = None, direction: str = "positive",
-           since: datetime | None = None, status=None, draw: Callable[..., bytes] | None = None) -> bytes:
+           since: datetime | None = None, status=None, draw: Callable[..., bytes] | None = None,
+           cache: FigureCache | None = None) -> bytes:
     """The PNG of figure ``name`` (one of :data:`NAMES`) for ``axis_id``; an explanatory
     empty figure when there is nothing to draw yet. ``status`` (the axis' AxisStatus,
     from the service's status cache) is needed for the prognosis. The database is read
     here; the drawing goes through ``draw(fn, *args, **kwargs)`` (the service's
-    :class:`~api.service.plot_process.PlotProcess`; default: on this thread)."""
+    :class:`~api.service.plot_process.PlotProcess`; default: on this thread). With
+    ``cache`` (the service's :class:`~api.service.figure_cache.FigureCache`) a figure
+    whose inputs (:func:`figure_key`) were drawn before is not drawn again."""
     draw = draw or _here
+    if name not in NAMES:
+        raise ValueError(f"name (={name!r}) must be one of {', '.join(NAMES)}")
+    if name == "prognosis" and status is None:
+        raise ValueError("the prognosis figure needs the axis' status")
     axis = config_repo.get_axis(s, axis_id)
     title = f"{axis.machine_name} axis {axis.name}"
     limit = backlash_limit_um(axis.tasks)
+    # what the figure is drawn from, read once: the newest measurement is resolved to its id
+    # here, so that the key and the drawing name the same one
+    if name == "tbe_vs_backlash" or (name in ("backlash_profile", "lead_deviation") and measurement_id is None):
+        measurement_id = results_repo.latest_measurement_id(s, axis_id)
+    repairs = _repairs(s, axis_id, since) if name in ("tbe_history", "backlash_trend") else None
+
+    def drawn() -> bytes:
+        return _draw(s, axis, name, title, limit, measurement_id=measurement_id, direction=direction,
+                     since=since, status=status, repairs=repairs, draw=draw)
+
+    if cache is None:
+        return drawn()
+    key = figure_key(s, axis, name, title, limit, measurement_id=measurement_id, direction=direction, since=since,
+                     status=status, repairs=repairs)
+    return cache.get_or_render(key, drawn)
+
+
+def figure_key(s, axis, name: str, title: str, limit: float | None, *, measurement_id: int | None,
+               direction: str, since: datetime | None, status, repairs) -> tuple:
+    """Everything figure ``name`` of ``axis`` is drawn from, as a hashable key: the stored
+    results it shows (by id: a result never changes once stored), its parameters, and the
+    settings drawn with them (title, limit, tasks, decision rule)."""
+    base = (axis.id, name, title, limit)
     if name in ("backlash_profile", "lead_deviation"):
+        return (*base, measurement_id, direction if name == "lead_deviation" else None, axis.spec.screw_lead_mm)
+    if name == "tbe_vs_backlash":
+        return (*base, measurement_id, _hashable(axis.tasks), axis.settings.decision_rule)
+    if name in ("tbe_history", "backlash_trend"):
+        return (*base, since, results_repo.results_signature(s, axis.id, since), tuple(repairs))
+    h = status.history  # prognosis: one computation of the axis' history, and why there is none
+    return (*base, None if h is None else (h.computed_at, h.rows_used, h.rows_total), status.history_error)
+
+
+def _hashable(x):
+    try:
+        hash(x)
+        return x
+    except TypeError:
+        return repr(x)
+
+
+def _draw(s, axis, name: str, title: str, limit: float | None, *, measurement_id: int | None,
+          direction: str, since: datetime | None, status, repairs, draw: Callable[..., bytes]) -> bytes:
+    axis_id = axis.id
+    if name in ("backlash_profile", "lead_deviation"):
+        r = None
         if measurement_id is not None:
             c, r = results_repo.get_measurement(s, measurement_id)
             if c.axis_id != axis_id:
                 raise NotFoundError(f"measurement of axis {axis_id}", measurement_id)
-        else:
-            r = results_repo.latest_result(s, axis_id, curves=True)
         if r is None or r.round_trip.backlash.position_mm.size == 0:
             return draw(plots.empty, title, "no good measurement yet")
         rt = r.round_trip
@@ -70,7 +121,7 @@ def render(s, axis_id: int, name: str, *, measurement_id: int | None = None, dir
     if name == "tbe_vs_backlash":
         if not axis.tasks:
             return draw(plots.empty, title, "no machining task configured")
-        latest = results_repo.latest_result(s, axis_id)
+        latest = results_repo.get_measurement(s, measurement_id, curves=False)[1] if measurement_id else None
         lims = []
         for t in axis.tasks:
             try:
@@ -94,18 +145,14 @@ def render(s, axis_id: int, name: str, *, measurement_id: int | None = None, dir
             ts.append(t)
             vs.append(tbe)
             tols.append(tol)
-        return draw(plots.tbe_history, series, title=title, repairs=_repairs(s, axis_id, since))
+        return draw(plots.tbe_history, series, title=title, repairs=repairs)
     if name == "backlash_trend":
         tr = results_repo.trend(s, axis_id, since=since, max_points=plots.SCREEN_POINTS).series
         if not tr.measured_at:
             return draw(plots.empty, title, "no good measurement yet")
         return draw(plots.backlash_trend, list(tr.measured_at), list(tr.backlash_mean_um),
-                    list(tr.temperature_c), limit_um=limit, title=title, repairs=_repairs(s, axis_id, since))
-    if name == "prognosis":
-        if status is None:
-            raise ValueError("the prognosis figure needs the axis' status")
-        return prognosis_png(status, title, draw)
-    raise ValueError(f"name (={name!r}) must be one of {', '.join(NAMES)}")
+                    list(tr.temperature_c), limit_um=limit, title=title, repairs=repairs)
+    return prognosis_png(status, title, draw)
 
 
 def _repairs(s, axis_id: int, since: datetime | None) -> list[tuple[datetime, str]]:

@@ -89,6 +89,10 @@ class HealthProbe:
             if why:
                 writable = False
                 problems.append(why)
+        waiting = getattr(self.service, "waiting_for_room", None)
+        if waiting:
+            n = self.service.spooled_count()
+            problems.append(f"storage_full: {waiting}" + (f"; {n} finished cycle(s) wait in the spool" if n else ""))
         floor = int(self.service.settings.min_free_disk_mb * 1e6)
         free = self._free_bytes(Path(self.service.settings.data_dir))
         if free is not None and free < floor:

@@ -11,6 +11,7 @@ import gc
 import json
 import logging
 import os
+import shutil
 import threading
 import time
 from dataclasses import dataclass
@@ -22,6 +23,7 @@ from sqlalchemy import text
 
 from api.service.config import SIM_CONTROLLER, Settings
 from api.service.cycles import CycleExecutor
+from api.service.figure_cache import FigureCache
 from api.service.folders import axis_folders
 from api.service.gap_jobs import GapJobs
 from api.service.plot_process import PlotProcess
@@ -30,6 +32,7 @@ from api.service.health import HealthProbe
 from api.service.leases import FleetScheduler
 from api.service.runner import CycleProcesses, CycleRunner, DriverRunner
 from api.service.scheduler import CycleScheduler
+from api.service.secret_files import ADMIN_KEY_FILE, DEMO_KEYS_FILE, write_secret_file
 from api.service.events import Event, EventHub, events_of_saved_cycle
 from api.service.maintenance import MaintenanceLoop
 from api.service.status import StatusCache
@@ -53,7 +56,7 @@ from storage.db import (
 )
 
 log = logging.getLogger("mebm.service")
-DEMO_KEYS_FILE = "demo-keys.json"
+SQLITE_OPEN_ROOM_BYTES = 1_000_000  # enough for SQLite to open a WAL database and write a little
 
 
 @dataclass(frozen=True)
@@ -69,6 +72,9 @@ class StartReport:
     bootstrap_admin: str | None
     worker: str | None = None  # fleet (PostgreSQL): this worker's name, axes and lease, for the banner
     folders_moved_aside: tuple[str, ...] = ()  # dataset folders of another machine or database, renamed (why, where)
+    # the SQLite database could not be opened for lack of disk: why, and that the start
+    # completes by itself once there is room (nothing else in this report happened yet)
+    waiting_for_room: str | None = None
 
 
 class Service:
@@ -92,10 +98,14 @@ class Service:
         self.gap_jobs = GapJobs(max_pending=settings.limits.gap_diagnoses_pending,  # gap diagnoses: bounded jobs,
                                 timeout_s=settings.limits.gap_diagnosis_timeout_s)  # computed in a worker process
         self.plots = PlotProcess.shared()  # figure renders, in a worker process (not on the API's interpreter)
+        self.figures = FigureCache()  # rendered figures, for the REST plot endpoints and the dashboard alike
         self.maintenance = MaintenanceLoop(self, settings.maintenance)  # work orders, repairs, verification
         self.fleet = False  # PostgreSQL: this process is one worker (or API replica) of a fleet
         self._sqlite_lock: leases.SqliteWorkerLock | None = None
         self._sim_lock = threading.Lock()
+        self.waiting_for_room: str | None = None  # the start waits for disk to open the database (see start)
+        self._room_waiter: threading.Thread | None = None
+        self._stopping = threading.Event()
 
     # -- wiring ----------------------------------------------------------------------------------
     def resolve_url(self, axis: AxisRecord) -> str:
@@ -129,28 +139,105 @@ class Service:
         render = self.render_status
         return None if render is None else render(axis_id)
 
-    def _connect(self) -> None:
+    def _connect(self, wait_s: float | None = None) -> None:
+        """Open the database (and migrate it), retried for ``wait_s`` (default
+        ``db_wait_s``). A SQLite database on a disk too full to open it raises at once:
+        waiting does not make room (:meth:`start` waits for it without blocking)."""
         st = self.settings
         idle_s = max(st.worker.lease_s / 2, 2.0) if st.scheduler_enabled and not is_sqlite(st.db_url) else None
-        self.engine = make_engine(st.db_url, idle_in_transaction_timeout_s=idle_s)
-        deadline = time.monotonic() + self.db_wait_s
+        if self.engine is None:
+            self.engine = make_engine(st.db_url, idle_in_transaction_timeout_s=idle_s)
+        deadline = time.monotonic() + (self.db_wait_s if wait_s is None else wait_s)
         while True:
             try:
                 ping(self.engine)
                 upgrade(self.engine)
                 break
             except DatabaseUnavailableError:
-                if time.monotonic() > deadline:
+                if time.monotonic() > deadline or self._database_disk_full() is not None:
                     raise
                 time.sleep(1.0)
         self.factory = make_session_factory(self.engine)
 
+    def _database_disk_full(self) -> str | None:
+        """Why the SQLite database cannot be opened for lack of disk (free space under its
+        folder below the free-disk floor, and below the little SQLite needs to open a
+        database: its shared-memory index and write-ahead log), or None."""
+        if not is_sqlite(self.settings.db_url):
+            return None
+        folder = Path(self.engine.url.database or self.settings.data_dir).parent
+        try:
+            free = shutil.disk_usage(folder).free
+        except OSError:
+            return None
+        if free >= max(self.settings.min_free_disk_mb * 1e6, SQLITE_OPEN_ROOM_BYTES):
+            return None
+        return (f"the database {self.engine.url.database} cannot be opened: the disk under it is full "
+                f"({free / 1e6:.1f} MB free); free space under the data folder and the service completes its "
+                "start (spooled cycles are stored then)")
+
     # -- life cycle ------------------------------------------------------------------------------
     def start(self) -> StartReport:
+        """Open the database and start everything. On a disk too full for SQLite to open its
+        database, the start is not an error: the service answers (``/healthz`` says why it
+        waits, every other request 503), keeps what the spool holds untouched, starts no
+        cycle, and completes the start by itself once there is room."""
         st = self.settings
         Path(st.data_dir).mkdir(parents=True, exist_ok=True)
         _restrict(Path(st.data_dir), 0o700)  # raw runs, spool, keys: the service's own
-        self._connect()
+        self._stopping.clear()
+        self.engine = None
+        try:
+            self._connect()
+        except DatabaseUnavailableError as exc:
+            why = self._database_disk_full()
+            if why is None:
+                raise
+            return self._wait_for_room(f"{why} ({exc})")
+        return self._start_connected()
+
+    def _wait_for_room(self, why: str) -> StartReport:
+        self.waiting_for_room = why
+        log.error("%s", why)
+        self.report = StartReport(database=_redact(self.settings.db_url), replayed=0, interrupted=0, created_axes=(),
+                                  demo_keys={}, simulators={}, bootstrap_admin=None, waiting_for_room=why)
+        self._room_waiter = threading.Thread(target=self._complete_start_when_room, name="mebm-wait-for-room",
+                                             daemon=True)
+        self._room_waiter.start()
+        return self.report
+
+    def _complete_start_when_room(self) -> None:
+        # the free space is looked at every second (cheap), the database tried as soon as
+        # there is room, and every spool_retry_s while the database refuses for another reason
+        retry_s = max(self.settings.spool_retry_s, 0.1)
+        next_try = 0.0  # (monotonic) while there is room but the database still refuses
+        while not self._stopping.wait(min(1.0, retry_s)):
+            why = self._database_disk_full()
+            if why is not None:
+                self.waiting_for_room = why  # with the free space of now
+                next_try = 0.0  # tried as soon as there is room
+                continue
+            if time.monotonic() < next_try:
+                continue
+            try:
+                self._connect(wait_s=0.0)
+            except DatabaseUnavailableError as exc:
+                next_try = time.monotonic() + retry_s
+                self.waiting_for_room = f"the database is not open yet: {exc} (tried every {retry_s:g} s)"
+                continue
+            try:
+                self._start_connected()
+            except Exception:  # noqa: BLE001 - logged; /healthz says it
+                log.exception("the start after the disk had room again failed")
+                self.waiting_for_room = "the start after the disk had room again failed: see the log"
+                return
+            self.waiting_for_room = None
+            log.info("the disk has room again: the service completed its start (%d spooled cycle(s) stored)",
+                     self.report.replayed)
+            return
+
+    def _start_connected(self) -> StartReport:
+        st = self.settings
         self.fleet = not is_sqlite(self.engine)
         if (not self.fleet and st.scheduler_enabled and self._sqlite_lock is None
                 and self.engine.url.database not in (None, "", ":memory:")):
@@ -251,6 +338,10 @@ class Service:
                 f"lease {sched.lease_s:g} s (GET /api/v1/workers)")
 
     def stop(self) -> None:
+        self._stopping.set()
+        if self._room_waiter is not None:  # a start completing now finishes first, then stops here
+            self._room_waiter.join()
+            self._room_waiter = None
         if self.scheduler is not None:
             self.scheduler.stop()
         if self.executor is not None:
@@ -268,6 +359,14 @@ class Service:
         if self.engine is not None:
             self.engine.dispose()
         gc.unfreeze()  # what start froze may be garbage now (a process that starts services in turn: the tests)
+
+    def spooled_count(self) -> int:
+        """Finished cycles not stored yet: in the spool or kept in memory (before the
+        database is open, what the spool folder holds)."""
+        if self.executor is not None:
+            return len(self.executor.pending()) + len(self.executor.unsaved)
+        spool = Path(self.settings.data_dir) / "spool"
+        return len(list(spool.glob("*.json"))) if spool.is_dir() else 0
 
     def _retry_spool(self) -> None:
         if not self.executor.has_pending():
@@ -360,10 +459,14 @@ class Service:
 
     def _demo_keys(self) -> dict:
         """Demo keys (read, operate, admin), created hashed at first start. Returns the keys
-        created by this start only: they are printed once. The read and operate secrets are
-        kept in ``<data_dir>/demo-keys.json`` (mode 600) for the demo's examples; the admin
-        secret is never written anywhere (a file of an older version loses it)."""
-        path = Path(self.settings.data_dir) / DEMO_KEYS_FILE
+        created by this start only. The read and operate secrets are kept in
+        ``<data_dir>/demo-keys.json`` for the demo's examples, the admin secret in
+        ``<data_dir>/admin-key`` for the operator to take away (both mode 600,
+        :mod:`api.service.secret_files`); none of them is printed unless ``mebm serve
+        --show-keys`` asks. A key is created only if its file could be written: on a full
+        disk none is, and the next start tries again."""
+        data_dir = Path(self.settings.data_dir)
+        path = data_dir / DEMO_KEYS_FILE
         kept = {}
         if path.is_file():
             try:
@@ -373,24 +476,30 @@ class Service:
         if not isinstance(kept, dict):
             kept = {}
         created = {}
-        with session_scope(self.factory) as s:
-            leases.serialize(s)  # fleet workers starting together: one at a time
-            live = [k for k in config_repo.list_keys(s) if k.revoked_at is None]
-            valid = {r: kept[r] for r in ("read", "operate")
-                     if isinstance(kept.get(r), str) and config_repo.authenticate(s, kept[r]) is not None}
-            for role in ("read", "operate", "admin"):
-                if role in valid or (role == "admin" and any(k.role == "admin" and k.name.startswith("demo-admin")
-                                                             for k in live)):
-                    continue
-                name = f"demo-{role}"
-                if config_repo.find_key(s, name) is not None:
-                    name = f"demo-{role}-{int(time.time())}"
-                _, created[role] = config_repo.create_key(s, name, role)
-        keep = {**valid, **{r: k for r, k in created.items() if r != "admin"}}
-        if keep != kept:
-            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-            with os.fdopen(fd, "w", encoding="utf-8") as fh:
-                json.dump(keep, fh, indent=2)
+        try:
+            with session_scope(self.factory) as s:
+                leases.serialize(s)  # fleet workers starting together: one at a time
+                live = [k for k in config_repo.list_keys(s) if k.revoked_at is None]
+                valid = {r: kept[r] for r in ("read", "operate")
+                         if isinstance(kept.get(r), str) and config_repo.authenticate(s, kept[r]) is not None}
+                for role in ("read", "operate", "admin"):
+                    if role in valid or (role == "admin" and any(k.role == "admin" and k.name.startswith("demo-admin")
+                                                                 for k in live)):
+                        continue
+                    name = f"demo-{role}"
+                    if config_repo.find_key(s, name) is not None:
+                        name = f"demo-{role}-{int(time.time())}"
+                    _, created[role] = config_repo.create_key(s, name, role)
+                # written before the keys are committed: a key nobody can read is never created
+                keep = {**valid, **{r: k for r, k in created.items() if r != "admin"}}
+                if keep != kept:
+                    write_secret_file(path, json.dumps(keep, indent=2))
+                if "admin" in created:
+                    write_secret_file(data_dir / ADMIN_KEY_FILE, created["admin"] + "\n")
+        except OSError as exc:
+            log.warning("demo keys not created: cannot write them under %s (%s); the next start tries again",
+                        data_dir, exc.strerror or exc)
+            return {}
         return created
 
     # -- operations for the API ------------------------------------------------------------------

@@ -239,17 +239,14 @@ def axis_plot(request: Request, axis_id: int, name: str, who: Who, range: str = 
     if name not in figures.NAMES:
         raise NotFoundError("figure", name)
     svc = request.app.state.service
-    # a figure changes with a new measurement (the status cache knows the newest one, and is
-    # invalidated when a cycle is saved) and, for the history ranges, with the hour
+    # the service's figure cache (shared with the REST plots) knows what each figure is drawn
+    # from; the range starts on the hour, so that a figure is drawn once an hour at most
+    # while no measurement comes
     st = svc.status.get(axis_id)
-    now = views.utcnow()
-    key = (axis_id, name, range, direction, st.latest.cycle_id if st.latest else None, now.strftime("%Y%m%d%H"))
-    png = ui_state(request).figures.get(key)
-    if png is None:
-        with session_scope(svc.factory) as s:
-            png = figures.render(s, axis_id, name, direction=direction, since=views.since_of(range, now), status=st,
-                                 draw=svc.plots.draw)
-        ui_state(request).figures.put(key, png)
+    since = views.since_of(range, views.utcnow().replace(minute=0, second=0, microsecond=0))
+    with session_scope(svc.factory) as s:
+        png = figures.render(s, axis_id, name, direction=direction, since=since, status=st, draw=svc.plots.draw,
+                             cache=svc.figures)
     return Response(png, media_type="image/png", headers={"Cache-Control": "no-cache"})
 
 
@@ -366,10 +363,8 @@ def gap_residual_plot(request: Request, axis_id: int, index: int, who: Who, job:
         raise NotFoundError(f"residual plot of the diagnosis of axis {axis_id}", index)
     r = ctx["report"]
     key = (axis_id, "gap", tuple(r.get("runs_used", ())), r.get("gap_before_um"), index)
-    png = ui_state(request).figures.get(key)
-    if png is None:
-        png = request.app.state.service.plots.draw(plots.gap_residual, curves[index], r["effect"])  # off this interpreter
-        ui_state(request).figures.put(key, png)
+    svc = request.app.state.service
+    png = svc.figures.get_or_render(key, lambda: svc.plots.draw(plots.gap_residual, curves[index], r["effect"]))
     return Response(png, media_type="image/png", headers={"Cache-Control": "no-cache"})
 
 

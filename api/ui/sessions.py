@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import hashlib
 import hmac
-import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -98,34 +97,8 @@ def same_token(sent: str | None, expected: str | None) -> bool:
     return bool(sent) and bool(expected) and hmac.compare_digest(sent, expected)
 
 
-class FigureCache:
-    """The last ``size`` rendered figures (PNG bytes), least recently used dropped first."""
-
-    def __init__(self, size: int = 64):
-        from collections import OrderedDict
-
-        self.size = size
-        self._d: OrderedDict[tuple, bytes] = OrderedDict()
-        self._lock = threading.Lock()
-
-    def get(self, key: tuple) -> bytes | None:
-        with self._lock:
-            png = self._d.get(key)
-            if png is not None:
-                self._d.move_to_end(key)
-            return png
-
-    def put(self, key: tuple, png: bytes) -> None:
-        with self._lock:
-            self._d[key] = png
-            self._d.move_to_end(key)
-            while len(self._d) > self.size:
-                self._d.popitem(last=False)
-
-
 @dataclass
 class UiState:
     """What the dashboard keeps in ``app.state.ui``."""
 
     sessions: UiSessions = field(default_factory=UiSessions)
-    figures: FigureCache = field(default_factory=FigureCache)

@@ -84,7 +84,10 @@ def translate(exc: Exception) -> StorageError:
 
 @contextlib.contextmanager
 def session_scope(factory: sessionmaker[Session]) -> Iterator[Session]:
-    """One unit of work: commit on success, roll back on any error."""
+    """One unit of work: commit on success, roll back on any error. Without a factory (a
+    service whose database is not open yet) :class:`DatabaseUnavailableError`."""
+    if factory is None:
+        raise DatabaseUnavailableError("database unavailable: not open yet")
     session = factory()
     try:
         yield session

@@ -123,20 +123,22 @@ def close_stale_cycles(s: Session, now: datetime | None = None, *, held: dict | 
     """At start-up: cycles left 'running' by a crash become 'interrupted', 'queued' ones
     'cancelled' (an axis is not moved on its own after a restart). Returns how many.
     ``held``: uuid -> (status, reason) of cycles that finished and wait in the spool; a
-    running row of one takes that reason (the spool stores the rest of it later)."""
+    running row of one takes that reason (the spool stores the rest of it later) and is
+    not counted: it was not interrupted."""
     now = now or utcnow()
     held = held or {}
     n = 0
     for c in s.scalars(select(Cycle).where(Cycle.status.in_(("running", "queued")))):
+        c.finished_at = now
         if c.uuid in held:
             status, reason = held[c.uuid]
             c.status = "failed" if status == "ok" else status  # (an ok result is stored with the spool file)
             c.failure_reason = reason or "finished; waiting in the spool to be stored"
-        elif c.status == "running":
+            continue
+        if c.status == "running":
             c.status, c.failure_reason = "interrupted", "the service stopped during the cycle"
         else:
             c.status, c.failure_reason = "cancelled", "the service stopped before the cycle started"
-        c.finished_at = now
         n += 1
     s.flush()
     return n
@@ -394,6 +396,23 @@ def latest_result(s: Session, axis_id: int, *, curves: bool = False) -> ResultRe
     r = s.scalar(select(Result).where(Result.axis_id == axis_id)
                  .order_by(Result.measured_at.desc(), Result.id.desc()).limit(1))
     return None if r is None else _result(s, r, curves=curves)
+
+
+def latest_measurement_id(s: Session, axis_id: int) -> int | None:
+    """The id of the newest ok measurement of the axis (the one :func:`latest_result` reads)."""
+    return s.scalar(select(Result.cycle_id).where(Result.axis_id == axis_id)
+                    .order_by(Result.measured_at.desc(), Result.id.desc()).limit(1))
+
+
+def results_signature(s: Session, axis_id: int, since: datetime | None = None) -> tuple[int, int | None, int | None]:
+    """(count, smallest id, largest id) of the axis' ok measurements since ``since``: it
+    changes when one is stored or deleted (retention), and only then (a stored result
+    never changes), so it names the content of a figure drawn from them."""
+    q = select(func.count(Result.id), func.min(Result.id), func.max(Result.id)).where(Result.axis_id == axis_id)
+    if since is not None:
+        q = q.where(Result.measured_at >= since)
+    n, lo, hi = s.execute(q).one()
+    return int(n or 0), lo, hi
 
 
 def get_measurement(s: Session, cycle_id: int, *, curves: bool = True) -> tuple[CycleRecord, ResultRecord | None]:

@@ -27,7 +27,7 @@ def healthz(request: Request, svc: ServiceDep):
                      data_dir="ok" if rep.data_dir_writable else "not writable",
                      free_disk_mb=None if rep.free_disk_bytes is None else round(rep.free_disk_bytes / 1e6, 1),
                      problems=list(rep.problems), version=VERSION, uptime_s=time.time() - svc.started_at,
-                     spooled_cycles=len(svc.executor.pending()) + len(svc.executor.unsaved), opcua=opcua)
+                     spooled_cycles=svc.spooled_count(), opcua=opcua)
     return JSONResponse(body.model_dump(), status_code=200 if rep.ok else 503)
 
 

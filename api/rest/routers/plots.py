@@ -1,4 +1,8 @@
-"""/axes/{id}/plots/{name}.png: the figures a maintenance worker reads (Figs. 5, 9, 10, 14, 15)."""
+"""/axes/{id}/plots/{name}.png: the figures a maintenance worker reads (Figs. 5, 9, 10, 14, 15).
+
+A figure is drawn once per set of inputs (the stored results it shows and its parameters)
+and then served from the service's figure cache, which the dashboard shares: repeated or
+concurrent requests for one figure do not hold the worker threads with renders."""
 
 from __future__ import annotations
 
@@ -37,6 +41,6 @@ def plot(
 ):
     png = figures.render(s, axis_id, name.value, measurement_id=measurement_id, direction=direction,
                          since=utc(since), status=svc.status.get(axis_id) if name is PlotName.prognosis else None,
-                         draw=svc.plots.draw)
+                         draw=svc.plots.draw, cache=svc.figures)
     return Response(content=png, media_type="image/png", headers={"Cache-Control": "no-cache"})
 

@@ -172,12 +172,37 @@ def test_errors_name_the_option(tmp_path, text, where):
         load_settings(p, env={})
 
 
+def test_keys_cli_writes_a_created_secret_to_a_mode_600_file_and_prints_only_where(tmp_path, capsys, monkeypatch):
+    url = f"sqlite:///{tmp_path}/k.sqlite3"
+    monkeypatch.setenv("MEBM_DATABASE_URL", url)
+    monkeypatch.setenv("MEBM_DATA_DIR", str(tmp_path / "data"))
+    assert main(["keys", "create", "--role", "operate", "--name", "cell-3"]) == 0
+    out = capsys.readouterr().out
+    assert main(["keys", "create", "--role", "read", "--json"]) == 0
+    as_json = json.loads(capsys.readouterr().out)
+    assert "key" not in as_json and Path(as_json["key_file"]) == tmp_path / "data" / "keys" / f"{as_json['id']}.key"
+    eng = make_engine(url)
+    try:
+        with session_scope(make_session_factory(eng)) as s:
+            rec = config_repo.find_key(s, "cell-3")
+            path = tmp_path / "data" / "keys" / f"{rec.id}.key"
+            assert str(path) in out and "mebm_" not in out
+            secret = path.read_text().strip()
+            assert config_repo.authenticate(s, secret).name == "cell-3"
+            assert config_repo.authenticate(s, Path(as_json["key_file"]).read_text().strip()).role == "read"
+        assert path.stat().st_mode & 0o777 == 0o600 and path.parent.stat().st_mode & 0o777 == 0o700
+    finally:
+        eng.dispose()
+
+
 def test_keys_cli_create_list_revoke(tmp_path, capsys, monkeypatch):
     url = f"sqlite:///{tmp_path}/k.sqlite3"
     monkeypatch.setenv("MEBM_DATABASE_URL", url)
-    assert main(["keys", "create", "--role", "read", "--name", "mes", "--json"]) == 0
+    monkeypatch.setenv("MEBM_DATA_DIR", str(tmp_path / "data"))
+    assert main(["keys", "create", "--role", "read", "--name", "mes", "--json", "--show-keys"]) == 0
     created = json.loads(capsys.readouterr().out)
     assert created["role"] == "read" and created["key"].startswith("mebm_")
+    assert not (tmp_path / "data" / "keys").exists()  # printed, so written nowhere
     assert main(["keys", "list", "--json"]) == 0
     (row,) = json.loads(capsys.readouterr().out)
     assert row["name"] == "mes" and "key" not in row

@@ -2,7 +2,9 @@
 it) on a small tmpfs filled to the last block while a cycle runs; a normal stop; a restart
 once there is room. The cycle is kept with the reason code storage_full, shown so (never
 running) while it waits, and no empty file is left behind. Below the free-disk floor no
-cycle is started, and /healthz and an alert say why."""
+cycle is started, and /healthz and an alert say why. A restart while the disk is still
+full starts (even when SQLite cannot open its database), says why on /healthz, keeps the
+spooled cycle as it is and stores it once there is room, without another restart."""
 
 from __future__ import annotations
 
@@ -80,6 +82,26 @@ def _full_disk_cycle(small_disk, database_full=False, no_room_for_run=False, spo
     """Start on the small disk, run a cycle that finishes once the disk is full, stop
     normally, free the space and start again. Returns (data folder, uuid, what was seen while
     the disk was full, the restarted app's measurements, alerts, start report, executor)."""
+    data, uuid, seen, settings, keys, axis_id, filler = _finish_on_full_disk(
+        small_disk, database_full=database_full, no_room_for_run=no_room_for_run, spool_refused=spool_refused)
+    filler.unlink()  # the operator frees space, then restarts
+    app = create_app(settings, runner=FakeRunner())
+    with TestClient(app) as client:
+        svc = app.state.service
+        items = client.get(f"/api/v1/axes/{axis_id}/measurements", headers=hdr(keys["read"])).json()["items"]
+        alerts = client.get("/api/v1/alerts", headers=hdr(keys["read"])).json()["items"]
+        assert svc.executor.pending() == [] and svc.executor.held() == {}
+        assert _wait(svc.executor.reserve_ok)  # allocated again
+        report = svc.report
+    assert _empty_files(data) == []
+    assert not [p for p in data.rglob(".*") if p.name != ".reserve" and not p.name.endswith(".lock")]  # no temp file
+    return data, uuid, seen, items, alerts, report
+
+
+def _finish_on_full_disk(small_disk, database_full=False, no_room_for_run=False, spool_refused=False):
+    """Start on the small disk, run a cycle that finishes once the disk is full and stop
+    normally, the disk still full. Returns (data folder, uuid, what was seen while the disk
+    was full, the settings, the keys, the axis id, the filler file)."""
     data = small_disk / "data"
     settings = replace(make_settings("sqlite://", data), database_url=None, min_free_disk_mb=0.0,
                        spool_reserve_mb=1.0)  # the default SQLite database under the data folder
@@ -129,18 +151,7 @@ def _full_disk_cycle(small_disk, database_full=False, no_room_for_run=False, spo
     # a normal stop: the cycle is in the spool or in the database; no empty file anywhere
     seen["spooled_after_stop"] = (data / "spool" / f"{uuid}.json").is_file()
     seen["empty_after_stop"] = _empty_files(data)
-    filler.unlink()  # the operator frees space, then restarts
-    app = create_app(settings, runner=FakeRunner())
-    with TestClient(app) as client:
-        svc = app.state.service
-        items = client.get(f"/api/v1/axes/{axis_id}/measurements", headers=hdr(keys["read"])).json()["items"]
-        alerts = client.get("/api/v1/alerts", headers=hdr(keys["read"])).json()["items"]
-        assert svc.executor.pending() == [] and svc.executor.held() == {}
-        assert _wait(svc.executor.reserve_ok)  # allocated again
-        report = svc.report
-    assert _empty_files(data) == []
-    assert not [p for p in data.rglob(".*") if p.name != ".reserve" and not p.name.endswith(".lock")]  # no temp file
-    return data, uuid, seen, items, alerts, report
+    return data, uuid, seen, settings, keys, axis_id, filler
 
 
 def _assert_kept_as_storage_full(items, alerts):
@@ -228,3 +239,161 @@ def test_a_cycle_kept_in_memory_on_a_full_disk_is_written_to_the_spool_at_a_norm
     assert seen["spooled_after_stop"] and seen["empty_after_stop"] == []  # flushed by the stop
     assert report.replayed == 1 and report.interrupted == 0
     _assert_kept_as_storage_full(items, alerts)
+
+
+def _fill_again(filler: Path) -> None:
+    """Take every byte the stop freed (another writer on the same disk)."""
+    fd = os.open(filler, os.O_WRONLY | os.O_APPEND)
+    try:
+        for size in (65536, 512, 1):
+            try:
+                while True:
+                    os.write(fd, b"\xff" * size)
+            except OSError as exc:
+                assert exc.errno == errno.ENOSPC
+    finally:
+        os.close(fd)
+
+
+def _no_wal(db: Path) -> None:
+    """The write-ahead log emptied into the database and truncated: SQLite must then find
+    room for its log and shared-memory index to open the database at all."""
+    import sqlite3
+
+    con = sqlite3.connect(db)
+    try:
+        assert con.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchone()[0] == 0
+    finally:
+        con.close()
+
+
+@pytest.mark.parametrize("full", ["database_refuses_the_cycle", "database_cannot_be_opened"])
+def test_a_restart_while_the_disk_is_still_full_starts_keeps_the_spooled_cycle_and_stores_it_once_there_is_room(
+        small_disk, full):
+    data, uuid, seen, settings, keys, axis_id, filler = _finish_on_full_disk(small_disk, database_full=True)
+    assert seen["spooled_after_stop"]
+    spooled = data / "spool" / f"{uuid}.json"
+    (kept_id,) = [i["id"] for i in seen["items"]]
+    # the operator restarts before freeing any space; below the floor no cycle may start
+    settings = replace(settings, min_free_disk_mb=2.0, spool_retry_s=0.2)
+    real_save = results_repo.save_finished_cycle
+    if full == "database_cannot_be_opened":
+        _no_wal(data / "mebm.sqlite3")
+        _fill_again(filler)
+    else:  # the database opens (its log has room) but the kept cycle's rows (curves) find no page
+
+        def refuse(s, fc):
+            if fc.uuid == uuid:
+                raise DatabaseUnavailableError("database unavailable: database or disk is full")
+            return real_save(s, fc)
+
+        results_repo.save_finished_cycle = refuse
+    runner = FakeRunner()
+    app = create_app(settings, runner=runner)
+    try:
+        with TestClient(app) as client:  # it starts
+            svc = app.state.service
+            health = client.get("/healthz")
+            assert health.status_code == 503, health.text
+            body = health.json()
+            assert any("no new cycle is started" in p for p in body["problems"]), body  # the floor
+            assert any(p.startswith("storage_full") for p in body["problems"]), body
+            assert body["spooled_cycles"] == 1 and spooled.is_file()  # still kept, waiting for room
+            r = client.post(f"/api/v1/axes/{axis_id}/measurements", headers=hdr(keys["operate"]))
+            if full == "database_cannot_be_opened":
+                assert any("cannot be opened" in p for p in body["problems"]), body
+                assert body["database"] == "unavailable"
+                assert r.status_code == 503, r.text  # nothing is queued without the database
+                assert svc.report.waiting_for_room and svc.report.interrupted == 0
+            else:
+                assert r.status_code in (200, 201, 202), r.text
+                assert svc.scheduler.idle(30)
+                m = client.get(f"/api/v1/measurements/{r.json()['measurement']['id']}", headers=hdr(keys["read"]))
+                assert m.json()["status"] == "cancelled" and m.json()["reason_code"] == "storage_full"
+                (during,) = [i for i in client.get(f"/api/v1/axes/{axis_id}/measurements",
+                                                   headers=hdr(keys["read"])).json()["items"] if i["id"] == kept_id]
+                assert during["status"] == "failed" and during["reason_code"] == "storage_full"  # not interrupted
+                assert svc.report.interrupted == 0 and svc.report.replayed == 0
+            assert runner.calls == 0  # below the floor: the axis was not moved
+            results_repo.save_finished_cycle = real_save
+            filler.unlink()  # room again: the kept cycle is stored without another restart
+            assert _wait(lambda: svc.waiting_for_room is None and svc.executor is not None
+                         and not svc.executor.has_pending(), 30), svc.health.report().problems
+            assert not spooled.exists()
+            items = client.get(f"/api/v1/axes/{axis_id}/measurements", headers=hdr(keys["read"])).json()["items"]
+            alerts = client.get("/api/v1/alerts", headers=hdr(keys["read"])).json()["items"]
+            assert _wait(svc.executor.reserve_ok)
+            svc.health.invalidate()
+            assert client.get("/healthz").status_code == 200, client.get("/healthz").text
+            assert svc.report.interrupted == 0
+    finally:
+        results_repo.save_finished_cycle = real_save
+    _assert_kept_as_storage_full([i for i in items if i["id"] == kept_id], alerts)
+    assert [i["status"] for i in items if i["id"] != kept_id] in ([], ["cancelled"])  # no cycle ran meanwhile
+    assert _empty_files(data) == []
+
+
+def test_the_start_banner_says_the_service_waits_for_disk_and_gives_no_sign_in_link_without_a_database(tmp_path):
+    from api.cli.serve import banner, sign_in_link
+    from api.service.service import StartReport
+
+    why = "the database …/mebm.sqlite3 cannot be opened: the disk under it is full (0.0 MB free)"
+    report = StartReport(database="sqlite:///x", replayed=0, interrupted=0, created_axes=(), demo_keys={},
+                         simulators={}, bootstrap_admin=None, waiting_for_room=why)
+    settings = replace(make_settings("sqlite:///x", tmp_path), demo_keys=True)
+    (tmp_path / "demo-keys.json").write_text('{"read": "mebm_kept"}')
+
+    class NoDatabase:
+        def issue_link(self, secret):
+            raise DatabaseUnavailableError("database unavailable: not open yet")
+
+    link, path, error = sign_in_link(settings, report, "http://127.0.0.1:1", NoDatabase())
+    assert link is None and path is None and "not open yet" in error
+    text = banner(settings, report, "http://127.0.0.1:1", sign_in_error=error)
+    assert f"WAITING FOR DISK: {why}" in text and "no sign-in link" in text
+    assert not (tmp_path / "sign-in-link").exists()
+
+
+def test_a_start_on_a_disk_too_full_to_open_sqlite_answers_healthz_and_completes_once_there_is_room(
+        tmp_path, monkeypatch):
+    """The same without root: the disk's fullness and SQLite's refusal to open are played."""
+    import shutil
+
+    import api.service.service as service_module
+
+    settings = replace(make_settings("sqlite://", tmp_path / "data"), database_url=None, min_free_disk_mb=0.0,
+                       spool_retry_s=0.1)
+    first = create_app(settings, runner=FakeRunner())
+    with TestClient(first) as client:
+        keys, axis_id = _keys(first.state.service)
+    full = threading.Event()
+    full.set()
+    real_usage, real_ping = shutil.disk_usage, service_module.ping
+
+    def usage(path):
+        u = real_usage(path)
+        return u._replace(free=0) if full.is_set() else u
+
+    def ping(engine):
+        if full.is_set():
+            raise DatabaseUnavailableError("database unavailable: disk I/O error")
+        real_ping(engine)
+
+    monkeypatch.setattr(shutil, "disk_usage", usage)
+    monkeypatch.setattr(service_module, "ping", ping)
+    runner = FakeRunner()
+    app = create_app(settings, runner=runner)
+    with TestClient(app) as client:  # it starts
+        svc = app.state.service
+        assert svc.report.waiting_for_room and "cannot be opened" in svc.report.waiting_for_room
+        health = client.get("/healthz")
+        assert health.status_code == 503 and health.json()["database"] == "unavailable"
+        assert any(p.startswith("storage_full: the database") for p in health.json()["problems"])
+        r = client.get(f"/api/v1/axes/{axis_id}/status", headers=hdr(keys["read"]))
+        assert r.status_code == 503, r.text  # a request that needs the database: 503, never a 500
+        full.clear()  # room again
+        assert _wait(lambda: svc.waiting_for_room is None and svc.scheduler is not None, 30)
+        svc.health.invalidate()
+        assert client.get("/healthz").status_code == 200
+        assert client.get(f"/api/v1/axes/{axis_id}/status", headers=hdr(keys["read"])).status_code == 200
+    assert runner.calls == 0

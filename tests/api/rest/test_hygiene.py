@@ -1,11 +1,12 @@
 """Hygiene: redaction, file modes, no-store on secrets, security headers, dates out of
 range, plausibility limits naming the field, a revoked bootstrap key stays revoked,
-demo keys printed only when created, Swagger UI without a CDN."""
+demo keys in mode-600 files and printed only when created and asked for, Swagger UI without a CDN."""
 
 from __future__ import annotations
 
 import logging
 from dataclasses import replace
+from pathlib import Path
 
 import pytest
 
@@ -139,26 +140,105 @@ def test_a_revoked_bootstrap_key_stays_revoked_and_start_up_goes_on(engine, db_u
         again.stop()
 
 
-def test_demo_keys_are_printed_only_when_created_and_the_admin_key_is_kept_nowhere(engine, db_url, tmp_path):
+def _demo_settings(db_url, tmp_path):
     base = make_settings(db_url, tmp_path)
-    demo = replace(base, demo_keys=True, scheduler_enabled=False,
+    return replace(base, demo_keys=True, scheduler_enabled=False,
                    axes=(replace(base.axes[0], settings=replace(base.axes[0].settings, controller_url="sim")),))
+
+
+def test_demo_keys_go_to_mode_600_files_and_stdout_prints_them_only_with_show_keys(engine, db_url, tmp_path):
+    demo = _demo_settings(db_url, tmp_path)
     first = Service(demo, runner=FakeRunner())
     created = first.start()
     first.stop()
     assert set(created.demo_keys) == {"read", "operate", "admin"}
-    text = banner(demo, created, "http://127.0.0.1:1")
-    assert created.demo_keys["admin"] in text
+    quiet = banner(demo, created, "http://127.0.0.1:1")
+    assert not any(k in quiet for k in created.demo_keys.values())
+    assert str(tmp_path / "demo-keys.json") in quiet and str(tmp_path / "admin-key") in quiet
+    assert "--show-keys" in quiet and '"X-API-Key: $K"' in quiet
+    shown = banner(demo, created, "http://127.0.0.1:1", show_keys=True)
+    assert all(k in shown for k in created.demo_keys.values())
+    link, link_file = "http://127.0.0.1:1/ui/sign-in/tok3n", tmp_path / "sign-in-link"
+    assert "tok3n" not in banner(demo, created, "u", sign_in_url=link, sign_in_file=link_file)
+    assert str(link_file) in banner(demo, created, "u", sign_in_url=link, sign_in_file=link_file)
+    assert link in banner(demo, created, "u", sign_in_url=link, sign_in_file=link_file, show_keys=True)
     kept = (tmp_path / "demo-keys.json").read_text()
     assert created.demo_keys["admin"] not in kept and created.demo_keys["read"] in kept
-    assert (tmp_path / "demo-keys.json").stat().st_mode & 0o777 == 0o600
+    assert (tmp_path / "admin-key").read_text().strip() == created.demo_keys["admin"]
+    for name in ("demo-keys.json", "admin-key"):
+        assert (tmp_path / name).stat().st_mode & 0o777 == 0o600
     again = Service(demo, runner=FakeRunner())
     report = again.start()
     try:
         assert report.demo_keys == {}
-        text = banner(demo, report, "http://127.0.0.1:1")
-        assert not any(k in text for k in created.demo_keys.values())
+        text = banner(demo, report, "http://127.0.0.1:1", show_keys=True)
+        assert not any(k in text for k in created.demo_keys.values())  # created before: never printed again
+        assert f"the demo admin key is in {tmp_path / 'admin-key'}" in text
         with session_scope(again.factory) as s:
-            assert config_repo.authenticate(s, created.demo_keys["admin"]).role == "admin"  # still valid, not shown
+            assert config_repo.authenticate(s, created.demo_keys["admin"]).role == "admin"
+        (tmp_path / "admin-key").unlink()  # the operator took it away
+        assert "admin-key" not in banner(demo, report, "http://127.0.0.1:1")
+        assert (tmp_path / "admin-key").exists() is False
     finally:
         again.stop()
+
+
+def test_demo_keys_whose_files_cannot_be_written_are_not_created_and_the_next_start_creates_them(
+        engine, db_url, tmp_path, monkeypatch):
+    import errno
+
+    import api.service.service as service_module
+
+    demo = _demo_settings(db_url, tmp_path)
+    real = service_module.write_secret_file
+
+    def full(path, text):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(service_module, "write_secret_file", full)
+    first = Service(demo, runner=FakeRunner())
+    report = first.start()  # a full disk does not stop the start
+    try:
+        assert report.demo_keys == {}
+        with session_scope(first.factory) as s:
+            assert not [k for k in config_repo.list_keys(s) if k.name.startswith("demo-")]  # no key nobody holds
+    finally:
+        first.stop()
+    monkeypatch.setattr(service_module, "write_secret_file", real)
+    again = Service(demo, runner=FakeRunner())
+    try:
+        assert set(again.start().demo_keys) == {"read", "operate", "admin"}
+        assert (tmp_path / "admin-key").is_file()
+    finally:
+        again.stop()
+
+
+def test_a_secret_file_is_created_exclusively_mode_600_and_replaces_a_planted_link(tmp_path, monkeypatch):
+    import os
+
+    from api.service import secret_files
+
+    opened = []
+    real_open = os.open
+
+    def spy(path, flags, mode=0o777, *a, **k):
+        opened.append((Path(path), flags, mode))
+        return real_open(path, flags, mode, *a, **k)
+
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.write_text("untouched")
+    target = tmp_path / "admin-key"
+    target.symlink_to(elsewhere)  # planted: the secret must not be written through it
+    monkeypatch.setattr(secret_files.os, "open", spy)
+    old_umask = os.umask(0)  # even a permissive umask gives no other user a look
+    try:
+        secret_files.write_secret_file(target, "mebm_secret\n")
+    finally:
+        os.umask(old_umask)
+    ((path, flags, mode),) = opened
+    assert path.parent == tmp_path and path != target  # a fresh name, renamed over the target
+    assert flags & os.O_CREAT and flags & os.O_EXCL and mode == 0o600  # mode 600 from its first byte
+    assert not target.is_symlink() and target.read_text() == "mebm_secret\n"
+    assert target.stat().st_mode & 0o777 == 0o600
+    assert elsewhere.read_text() == "untouched"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["admin-key", "elsewhere"]  # no temporary file left

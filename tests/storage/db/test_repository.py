@@ -176,6 +176,21 @@ def test_stale_cycles_are_closed_at_start_up(factory, axis_id):
     assert sorted(r.status for r in rows) == ["cancelled", "interrupted"]
 
 
+def test_a_cycle_that_finished_and_waits_in_the_spool_is_closed_with_its_reason_and_not_counted_as_interrupted(
+        factory, axis_id):
+    with session_scope(factory) as s:
+        results_repo.queue_cycle(s, axis_id, "u-kept", "manual")
+        results_repo.mark_running(s, "u-kept")
+        results_repo.queue_cycle(s, axis_id, "u-cut", "schedule")
+        results_repo.mark_running(s, "u-cut")
+    reason = "storage_full: the disk under the data folder was full when the cycle finished"
+    with session_scope(factory) as s:
+        assert results_repo.close_stale_cycles(s, held={"u-kept": ("ok", reason)}) == 1  # u-cut only
+        _, rows = results_repo.list_measurements(s, axis_id)
+    by_status = {r.status: r.failure_reason for r in rows}
+    assert by_status == {"failed": reason, "interrupted": "the service stopped during the cycle"}
+
+
 def test_keys_are_hashed_and_revocable(factory, engine):
     with session_scope(factory) as s:
         rec, secret = config_repo.create_key(s, "mes", "read")

@@ -1,0 +1,139 @@
+"""Figures are drawn once per set of inputs: the REST plot endpoints and the dashboard share
+the service's figure cache, keyed by the stored results a figure shows (immutable once
+stored) and its parameters. Renders are counted through the service's drawing function."""
+
+from __future__ import annotations
+
+import re
+import threading
+
+import pytest
+
+from api.service.figure_cache import FigureCache
+from tests.api.rest.conftest import hdr
+
+V1 = "/api/v1"
+
+
+@pytest.fixture
+def drawn(app_env, monkeypatch):
+    """The names of the figure functions the service drew, in order."""
+    _, svc, _, _ = app_env
+    calls = []
+    real = svc.plots.draw
+
+    def counting(fn, *args, **kwargs):
+        calls.append(fn.__name__)
+        return real(fn, *args, **kwargs)
+
+    monkeypatch.setattr(svc.plots, "draw", counting)
+    return calls
+
+
+def _measure(client, svc, keys, axis_id) -> int:
+    r = client.post(f"{V1}/axes/{axis_id}/measurements", headers=hdr(keys["operate"]))
+    assert r.status_code == 202, r.text
+    assert svc.scheduler.idle(30)
+    return r.json()["measurement"]["id"]
+
+
+def _png(client, keys, path) -> bytes:
+    r = client.get(path, headers=hdr(keys["read"]))
+    assert r.status_code == 200 and r.content[:4] == b"\x89PNG", r.text
+    return r.content
+
+
+def test_the_same_plot_of_a_stored_result_is_drawn_once_and_another_result_draws_its_own(app_env, runner, drawn):
+    client, svc, keys, axis_id = app_env
+    first = _measure(client, svc, keys, axis_id)
+    runner.backlash_um += 40.0
+    second = _measure(client, svc, keys, axis_id)
+    plot = f"{V1}/axes/{axis_id}/plots/backlash_profile.png"
+    a = _png(client, keys, f"{plot}?measurement_id={first}")
+    assert drawn == ["backlash_profile"]
+    assert _png(client, keys, f"{plot}?measurement_id={first}") == a
+    assert drawn == ["backlash_profile"]  # the second request: from the cache
+    b = _png(client, keys, f"{plot}?measurement_id={second}")
+    assert drawn == ["backlash_profile"] * 2 and b != a  # another result: its own figure
+    _png(client, keys, plot)  # the newest is the second: drawn already
+    assert drawn == ["backlash_profile"] * 2
+    lead = f"{V1}/axes/{axis_id}/plots/lead_deviation.png?measurement_id={first}"
+    _png(client, keys, lead)
+    _png(client, keys, lead + "&direction=negative")  # another parameter: another figure
+    _png(client, keys, lead)
+    assert drawn == ["backlash_profile"] * 2 + ["lead_deviation"] * 2
+
+
+def test_a_history_plot_is_drawn_again_only_when_a_result_is_stored_or_its_settings_change(app_env, drawn):
+    client, svc, keys, axis_id = app_env
+    _measure(client, svc, keys, axis_id)
+    trend = f"{V1}/axes/{axis_id}/plots/backlash_trend.png"
+    _png(client, keys, trend)
+    _png(client, keys, trend)
+    assert drawn == ["backlash_trend"]
+    _measure(client, svc, keys, axis_id)  # a new result: the history it shows changed
+    _png(client, keys, trend)
+    _png(client, keys, trend)
+    assert drawn == ["backlash_trend"] * 2
+    body = {"tasks": [{"name": "finer", "profile": "circle", "radius_mm": 200, "feed_mm_min": 200,
+                       "tolerance_um": 20}]}
+    assert client.put(f"{V1}/axes/{axis_id}/tasks", json=body, headers=hdr(keys["admin"])).status_code == 200
+    _png(client, keys, trend)  # another backlash limit is drawn
+    _png(client, keys, f"{V1}/axes/{axis_id}/plots/tbe_vs_backlash.png")
+    _png(client, keys, f"{V1}/axes/{axis_id}/plots/tbe_vs_backlash.png")
+    assert drawn == ["backlash_trend"] * 3 + ["tbe_vs_backlash"]
+
+
+def test_the_dashboard_serves_a_figure_the_rest_api_drew(app_env, drawn):
+    client, svc, keys, axis_id = app_env
+    _measure(client, svc, keys, axis_id)
+    _png(client, keys, f"{V1}/axes/{axis_id}/plots/backlash_profile.png")
+    form = client.get("/ui/sign-in")
+    csrf = re.search(r'name="csrf" value="([^"]+)"', form.text).group(1)
+    assert client.post("/ui/sign-in", data={"key": keys["read"], "csrf": csrf}).status_code == 200
+    r = client.get(f"/ui/axes/{axis_id}/plots/backlash_profile.png")
+    assert r.status_code == 200 and r.content[:4] == b"\x89PNG"
+    assert drawn == ["backlash_profile"]  # one cache for both
+
+
+def test_concurrent_requests_for_one_figure_wait_for_one_drawing():
+    cache = FigureCache()
+    started, release = threading.Event(), threading.Event()
+    renders = []
+
+    def render():
+        renders.append(1)
+        started.set()
+        assert release.wait(10)
+        return b"png"
+
+    out = []
+    threads = [threading.Thread(target=lambda: out.append(cache.get_or_render(("k",), render))) for _ in range(8)]
+    for t in threads:
+        t.start()
+    assert started.wait(10)
+    release.set()
+    for t in threads:
+        t.join(10)
+    assert out == [b"png"] * 8 and renders == [1]
+    assert (cache.hits, cache.misses) == (7, 1)
+
+
+def test_a_failed_drawing_is_not_kept_and_the_next_request_draws_it():
+    cache = FigureCache()
+
+    def broken():
+        raise RuntimeError("the plot process died")
+
+    with pytest.raises(RuntimeError):
+        cache.get_or_render(("k",), broken)
+    assert cache.get_or_render(("k",), lambda: b"png") == b"png" and len(cache) == 1
+
+
+def test_the_figure_cache_keeps_the_most_recently_used_up_to_its_size():
+    cache = FigureCache(size=2)
+    for k in ("a", "b"):
+        cache.get_or_render(k, lambda k=k: k.encode())
+    assert cache.get("a") == b"a"  # used: b is now the oldest
+    cache.get_or_render("c", lambda: b"c")
+    assert len(cache) == 2 and cache.get("b") is None and cache.get("a") == b"a" and cache.get("c") == b"c"
