@@ -17,9 +17,10 @@ from core.dataset import AxisSpec
 from core.gap.families import EFFECTS, REGISTRY, ContourFit, Family
 from core.gap.families.backlash_profile import (N_KNOTS, PROFILE_KNOT_SPACING_MM, PROFILE_MAX_KNOTS,
                                                 PROFILE_SMOOTHNESS_WEIGHT, profile_knots, profile_stage)
-from core.gap.families.base import ASSUMED_MASS_KG, ASSUMED_STIFFNESS_N_PER_UM, FRICTION_CHAIN_MIN_MM_S2, NOT_IDENTIFIABLE
-from core.gap.families.compliance import (GUIDE_FRICTION_PRIOR_MM_S2, GUIDE_FRICTION_PRIOR_WEIGHT, LOOP_STABILITY_WEIGHT,
-                                          compliance_stage, loop_damping_floor)
+from core.gap.families.base import (ASSUMED_MASS_KG, ASSUMED_STIFFNESS_N_PER_UM, FRICTION_CHAIN_MIN_MM_S2,
+                                    NOT_IDENTIFIABLE)
+from core.gap.families.compliance import (GUIDE_FRICTION_PRIOR_MM_S2, GUIDE_FRICTION_PRIOR_WEIGHT,
+                                          LOOP_STABILITY_WEIGHT, compliance_stage, loop_damping_floor)
 from core.gap.families.cyclic_error import N_PERIODS, cyclic_stage
 from core.gap.families.friction import friction_chain_stage, friction_stage
 from core.gap.families.sampling_skew import skew_stage

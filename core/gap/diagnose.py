@@ -456,8 +456,8 @@ class _Diagnosis:
             base_refit = base.ct_refit.get(name, {}) if base is not None else {}
             reuse = {a: base_refit[a] for a in todo if a in base_refit}
             fresh = [a for a in todo if a not in reuse]
-            done = dict(zip(fresh, self.in_threads([lambda a=a, fam=fam: fam.contour_refit(self, a, f.rt_fits[a], pieces, bl)
-                                                    for a in fresh])))  # fmt: skip
+            calls = [lambda a=a, fam=fam: fam.contour_refit(self, a, f.rt_fits[a], pieces, bl) for a in fresh]
+            done = dict(zip(fresh, self.in_threads(calls)))
             for a in todo:
                 objs, b_share, params = reuse.get(a) or done[a]
                 fx = pieces[a]

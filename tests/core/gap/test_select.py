@@ -272,8 +272,8 @@ def test_where_a_single_cuts_the_pairs_are_on_top_of_it_and_of_its_ties():
 FAMILIES = set(EFFECTS)
 
 
-@pytest.mark.parametrize("module", ["select.py", "evidence.py", "report.py", "diagnose.py", "candidates.py", "stages.py",
-                                    "contour.py"])
+@pytest.mark.parametrize("module", ["select.py", "evidence.py", "report.py", "diagnose.py", "candidates.py",
+                                    "stages.py", "contour.py"])
 def test_the_decision_names_no_family(module):
     """The search, the decision, the evidence, the report and the round-trip machinery
     reach families through the registry (core.gap.families): no family's name appears in
