@@ -18,9 +18,8 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from core.dataset import AxisSpec
-from core.gap.candidates import SERVO_LOWER, SERVO_NAMES, SERVO_UPPER, servo_piece
 from core.gap.data import Contour
-from core.gap.roundtrip import fit_ls, slow_and_envelope
+from core.gap.roundtrip import slow_and_envelope
 from core.sim import AxisModel, Effects, simulate
 from core.sim.programs import Program
 
@@ -200,37 +199,3 @@ def apparent_gain_per_s(contours: Sequence[Contour], axis: str) -> float | None:
     A = np.stack([v, np.sign(v)], axis=1)  # lag per speed, +- half backlash-like offset
     sol, *_ = np.linalg.lstsq(A, e, rcond=None)
     return float(1.0 / sol[0]) if sol[0] > 1e-6 else None
-
-
-def fit_servo(memo: SimMemo, contours: Sequence[Contour], axes: Mapping[str, AxisSpec],
-              backlash_um: Mapping[str, float], base: Mapping[str, Effects] | None = None):
-    """Servo family per contour axis (:data:`core.gap.candidates.SERVO_NAMES`), fitted on
-    the train contours' tracking error, one axis at a time (the axes do not interact).
-    Starts: the configured K and the apparent gain of the recorded lag, each with and
-    without feed-forward. Returns ({axis: FitResult}, train RSS in µm^2)."""
-    names = sorted({a for c in contours for a in c.axes})
-    out = {}
-    rss = 0.0
-    for a in names:
-        fx0 = (base or {}).get(a) or Effects()
-        mine = [c for c in contours if a in c.axes]
-        spec = axes[a]
-
-        def res(theta, a=a, fx0=fx0, mine=mine, spec=spec):
-            fx = fx0.with_effect("servo_dynamics", servo_piece(dict(zip(SERVO_NAMES, theta))))
-            m = AxisModel(name=a, transmission_mm_per_rev=spec.transmission_mm_per_rev,
-                          screw_lead_mm=spec.screw_lead_mm, position_gain_per_s=float(theta[0]),
-                          backlash_um=max(0.0, float(backlash_um.get(a, 0.0))), effects=fx)  # fmt: skip
-            return np.concatenate([(c.table_mm[a][c.fit_idx] - memo.axis(c, a, m)[c.fit_idx]) * 1e3 for c in mine])
-
-        k = spec.position_gain_per_s
-        k_app = apparent_gain_per_s(mine, a) or k
-        starts = [np.array([k, 0.0, 0.5, 0.3, 0.3]), np.array([k_app, 0.0, 0.5, 0.3, 0.3])]
-        if k_app > k:  # lags less than K predicts: feed-forward at the configured gain
-            starts.append(np.array([k, float(np.clip(1 - k / k_app, 0, 1)), 0.5, 0.3, 0.3]))
-        for ff in (0.5, 0.9):
-            starts.append(np.array([k, ff, 1.0, 0.5, 0.5]))
-        fr = fit_ls(res, starts, SERVO_LOWER, SERVO_UPPER, n_starts=1, max_nfev=20, diff_step=1e-3)
-        out[a] = fr
-        rss += fr.rss
-    return out, rss

@@ -7,7 +7,7 @@
    for an axis without round trips), K and k_a from the axis.
 3. Its test gap: RMS over all test samples of measured minus predicted (table given
    motor for round trips, contour error for circles/lines), and where it lies.
-4. Every registered candidate (:mod:`core.gap.candidates`): the nominal model extended
+4. Every registered family (:data:`core.gap.families.REGISTRY`): the nominal model extended
    with it, fitted on the train runs only, predicting the test runs. A round-trip axis
    takes the extension only if it passes a BIC test on its train fit; contours take the
    round-trip fit through the twin only if it does not worsen the train contours.
@@ -36,16 +36,15 @@ from scipy.ndimage import uniform_filter1d
 from core.dataset import Dataset
 from core.gap import contour as ct
 from core.gap import roundtrip as rt
-from core.gap.candidates import ASSUMED_MASS_KG, ASSUMED_STIFFNESS_N_PER_UM, EFFECTS, FRICTION_CHAIN_MIN_MM_S2, REGISTRY, SERVO_LOWER, SERVO_NAMES, SERVO_UPPER, compose, derived, servo_piece
-from core.gap.candidates import sim_piece, stage_starts, train_residuals
 from core.gap.data import GapError, choose_split, prepare_runs
 from core.gap.evidence import observe
+from core.gap.families import EFFECTS, REGISTRY
+from core.gap.families.base import NOT_IDENTIFIABLE
 from core.gap.report import Candidate, GapReport, explain, selection_dict
 from core.gap.select import Rule, eligible_singles, ranked, select, ties_of
+from core.gap.stages import compose, stage_starts, train_residuals
 from core.gap.where import breakaways, locate, rattles
-from core.sim import AxisModel, Effects, Friction
-
-NOT_IDENTIFIABLE = "not identifiable"
+from core.sim import AxisModel, Effects
 
 
 @dataclass(frozen=True)
@@ -191,7 +190,8 @@ class Fitted:
 
     effects: tuple[str, ...]
     rt_fits: dict[str, _AxisFit] = field(default_factory=dict)
-    servo: dict[str, rt.FitResult] = field(default_factory=dict)
+    # the fits on contours alone of a family fitted there only (Family.contour_fit): {family: {axis: FitResult}}
+    ct_fits: dict[str, dict[str, rt.FitResult]] = field(default_factory=dict)
     params: dict = field(default_factory=dict)
     intervals: dict = field(default_factory=dict)
     n_params: int = 0
@@ -200,16 +200,15 @@ class Fitted:
     rt_res: list = field(default_factory=list)
     ct_res: list = field(default_factory=list)
     gap_after_um: float = float("nan")
-    # friction refitted on the contours, per axis: (effects by name, backlash share µm, params)
-    ct_friction: dict = field(default_factory=dict)
+    # a family refitted on the contours (Family.contour_refit), per axis:
+    # {family: {axis: (effects by name, backlash share µm, params)}}
+    ct_refit: dict = field(default_factory=dict)
 
     def score(self, penalty: float) -> float:
         return self.gap_after_um * (1 + penalty * self.n_params)
 
 
-PRESLIDING_MIN_UM = 0.5  # the contours' pre-sliding friction form: shorter is the Karnopp form
 CONTOUR_SIGNAL_FACTOR = 1.5  # train contours whose residual RMS is within this of their noise show nothing
-CHAIN_CT_NAMES = ("chain_frequency_hz", "coulomb_per_mass_mm_s2", "static_excess_per_mass_mm_s2")
 
 
 def _in_threads(calls: Sequence, workers: int) -> list:
@@ -251,6 +250,10 @@ class _Diagnosis:
             missing = [a for c in self.test_ct for a in c.axes if a not in self.rt_axes]
             if missing:
                 raise GapError(f"test contour(s) of axis {missing[0]!r} with neither train round trips nor train contours")
+
+    def in_threads(self, calls: Sequence) -> list:
+        """The results of ``calls`` in order, in up to the diagnosis' workers threads (:func:`_in_threads`)."""
+        return _in_threads(calls, self.workers)
 
     # ---- nominal -------------------------------------------------------------------
     def fit_nominal(self) -> None:
@@ -342,13 +345,13 @@ class _Diagnosis:
             ref_fit = bfit.fit if bfit else self.nom_fit[a]
             if bfit:
                 f.rt_fits[a] = bfit  # kept unless the new stage is accepted below
-            strat = REGISTRY[new]
-            if strat.stage is None:
+            fam = REGISTRY[new]
+            if fam.stage is None:
                 continue
             resid = train_residuals(ref_model, ref_fit.theta, runs)
-            made = strat.stage(runs, spec, resid)
+            made = fam.stage(runs, spec, resid)
             if made is None:
-                f.notes.append(f"{new} on axis {a}: {NOT_IDENTIFIABLE} (train round trips at one temperature)")
+                f.notes.append(f"{new} on axis {a}: {NOT_IDENTIFIABLE} ({fam.no_stage_reason})")
                 continue
             n = sum(r.fit_idx.size for r in runs)
             # each of the family's forms is fitted; the one with the best BIC is taken if it
@@ -400,7 +403,7 @@ class _Diagnosis:
             f.n_params += af.model.n_extra
             vals = dict(zip(af.model.names, af.fit.theta))
             for e in af.effects:
-                for k, v in derived(e, vals, float(af.fit.theta[0])).items():
+                for k, v in REGISTRY[e].derived(vals, float(af.fit.theta[0])).items():
                     f.params[f"{a}.{k}"] = float(v)
         # contours
         if self.cts:
@@ -408,12 +411,12 @@ class _Diagnosis:
         if not self.rts and any(REGISTRY[e].stage is not None for e in effects):
             f.identifiable = False
             f.notes.append(f"{NOT_IDENTIFIABLE} without round trips")
-        if new == "servo_dynamics" and not self.train_ct:
-            f.identifiable = False
-            f.notes.append(f"{NOT_IDENTIFIABLE} from round trips (acts between command and motor)")
-        if new == "thermal" and not any(a in f.rt_fits and "thermal" in f.rt_fits[a].effects for a in self.rt_axes):
-            if any(NOT_IDENTIFIABLE in n for n in f.notes):
+        if REGISTRY[new].identifiable is not None:
+            ok, note = REGISTRY[new].identifiable(self, f)
+            if not ok:
                 f.identifiable = False
+            if note:
+                f.notes.append(note)
         # test residuals
         f.rt_res = []
         for r in self.test_rt:
@@ -435,7 +438,7 @@ class _Diagnosis:
             b = float(af.fit.theta[0])
             for st in af.stages:
                 mine = {n: vals[n] for n in st.names}
-                piece, b_share = sim_piece(st.effect, mine, st.info, self.axes[a], b)
+                piece, b_share = REGISTRY[st.effect].sim_piece(mine, st.info, self.axes[a], b)
                 for name, pc in piece if isinstance(piece, list) else [(st.effect, piece)]:
                     if pc is not None:
                         fx = fx.with_effect(name, pc)
@@ -443,36 +446,46 @@ class _Diagnosis:
             if not fx.is_nominal:
                 pieces[a] = fx
                 bl[a] = max(0.0, b)
-        # friction's contour refit, per axis (independent: in threads); a pair on top of a
-        # friction fit keeps the base's refit for the axes it made one for
-        todo = [a for a, af in f.rt_fits.items() if "friction" in af.effects and a in pieces and self.train_ct]
-        reuse = {a: base.ct_friction[a] for a in todo if base is not None and a in base.ct_friction}
-        fresh = [a for a in todo if a not in reuse]
-        done = dict(zip(fresh, _in_threads([lambda a=a: self._friction_axis_on_contours(a, f.rt_fits[a], pieces, bl)
-                                            for a in fresh], self.workers)))  # fmt: skip
-        for a in todo:
-            objs, b_share, params = reuse.get(a) or done[a]
-            fx = pieces[a]
-            for name, pc in objs.items():
-                fx = fx.with_effect(name, pc)
-            pieces[a], bl[a] = fx, max(0.0, float(f.rt_fits[a].fit.theta[0]) - b_share)
-            f.params.update({f"{a}.{k}": v for k, v in params.items()})
-            f.ct_friction[a] = (objs, b_share, params)
+        # the families' refits on contours, per axis whose round trips took the family
+        # (independent: in threads); a pair on top of a base keeps the base's refit for the
+        # axes it made one for
+        for name, fam in REGISTRY.items():
+            if fam.contour_refit is None:
+                continue
+            todo = [a for a, af in f.rt_fits.items() if name in af.effects and a in pieces and self.train_ct]
+            base_refit = base.ct_refit.get(name, {}) if base is not None else {}
+            reuse = {a: base_refit[a] for a in todo if a in base_refit}
+            fresh = [a for a in todo if a not in reuse]
+            calls = [lambda a=a, fam=fam: fam.contour_refit(self, a, f.rt_fits[a], pieces, bl) for a in fresh]
+            done = dict(zip(fresh, self.in_threads(calls)))
+            for a in todo:
+                objs, b_share, params = reuse.get(a) or done[a]
+                fx = pieces[a]
+                for effect, pc in objs.items():
+                    fx = fx.with_effect(effect, pc)
+                pieces[a], bl[a] = fx, max(0.0, float(f.rt_fits[a].fit.theta[0]) - b_share)
+                f.params.update({f"{a}.{k}": v for k, v in params.items()})
+                f.ct_refit.setdefault(name, {})[a] = (objs, b_share, params)
+        # the families fitted on contours alone: the new one fitted, a base's kept
         gains = {a: spec.position_gain_per_s for a, spec in self.axes.items()}
-        servo_src = base.servo if base is not None and "servo_dynamics" in base.effects else {}
-        if f.effects[-1] == "servo_dynamics" and self.train_ct:
-            fits, _ = ct.fit_servo(self.memo, self.train_ct, self.axes, bl, pieces)
-            servo_src = fits
-        for a, fr in servo_src.items():
-            vals = dict(zip(SERVO_NAMES, fr.theta))
-            pieces[a] = (pieces.get(a) or Effects()).with_effect("servo_dynamics", servo_piece(vals))
-            gains[a] = float(fr.theta[0])
-            f.servo[a] = fr
-            ivals = rt.intervals(fr, SERVO_NAMES, SERVO_LOWER, SERVO_UPPER)
-            for n, v in vals.items():
-                f.params[f"{a}.{n}"] = float(v)
-                f.intervals[f"{a}.{n}"] = ivals[n]
-            f.n_params += len(SERVO_NAMES)
+        for name, fam in REGISTRY.items():
+            cf = fam.contour_fit
+            if cf is None:
+                continue
+            src = base.ct_fits.get(name, {}) if base is not None and name in base.effects else {}
+            if f.effects[-1] == name and self.train_ct:
+                src = cf.fit(self, bl, pieces)
+            for a, fr in src.items():
+                vals = dict(zip(cf.names, fr.theta))
+                pieces[a] = (pieces.get(a) or Effects()).with_effect(name, cf.piece(vals))
+                if cf.gain is not None:
+                    gains[a] = float(vals[cf.gain])
+                f.ct_fits.setdefault(name, {})[a] = fr
+                ivals = rt.intervals(fr, cf.names, cf.lower, cf.upper)
+                for n, v in vals.items():
+                    f.params[f"{a}.{n}"] = float(v)
+                    f.intervals[f"{a}.{n}"] = ivals[n]
+                f.n_params += len(cf.names)
         if not pieces:
             f.ct_res = list(self.ct_nom)
             return
@@ -488,142 +501,6 @@ class _Diagnosis:
             sims[c.file] = self.memo.table(c, models)
         f.ct_res = [_bounded(ct.contour_residual_um(c, sims[c.file]), f"test contour {c.file}", f.notes)
                     for c in self.test_ct]  # fmt: skip
-
-
-    def _friction_axis_on_contours(self, a: str, af: _AxisFit, pieces: dict, bl: dict):
-        """Friction of axis ``a`` refitted on the train contours: the chain form's refit when
-        the round trips took it and the contours carry fast motion, else the stiff form's
-        (Karnopp or pre-sliding) and, with fast motion, the same friction on a chain, the
-        better kept. Returns (the effects it sets by name, the backlash it accounts for in
-        µm, its parameters)."""
-        b_rt = float(af.fit.theta[0])
-        if not self.ct_shows.get(a, True):  # nothing on the train contours to refit on
-            return {"friction": pieces[a].friction, "compliance": pieces[a].compliance}, b_rt - bl[a], {}
-        fast = self.fast_motion.get(a, False)
-        if fast and any(st.kernel == "friction_chain" for st in af.stages):
-            fx, b_sim, th = self._friction_chain_on_contours(a, pieces, b_rt, dict(zip(af.model.names, af.fit.theta)))
-            return ({"compliance": fx.compliance, "friction": fx.friction}, b_rt - b_sim,
-                    {f"contour_{n}": float(v) for n, v in zip(CHAIN_CT_NAMES, th)})  # fmt: skip
-        fr, b_sim = self._friction_on_contours(a, pieces, bl, b_rt)
-        stiff = pieces[a].with_effect("friction", fr)
-        if fast:  # the same friction on a chain of its own frequency (the assumed chain as the start)
-            k, m = ASSUMED_STIFFNESS_N_PER_UM, ASSUMED_MASS_KG
-            start = {"chain_frequency_hz": math.sqrt(k * 1e6 / m) / (2 * math.pi), "chain_damping_ratio": 0.2,
-                     "coulomb_per_mass_mm_s2": max(fr.coulomb_n / m * 1e3, 1.2 * FRICTION_CHAIN_MIN_MM_S2),
-                     "static_excess_per_mass_mm_s2": max((fr.static_n - fr.coulomb_n) / m * 1e3, 50.0)}  # fmt: skip
-            fx_c, b_c, th = self._friction_chain_on_contours(a, pieces, b_rt, start)
-            if self._axis_envelope_cost(a, fx_c, b_c) < self._axis_envelope_cost(a, stiff, b_sim):
-                return ({"compliance": fx_c.compliance, "friction": fx_c.friction}, b_rt - b_c,
-                        {f"contour_{n}": float(v) for n, v in zip(CHAIN_CT_NAMES, th)})  # fmt: skip
-        params = {"coulomb_lost_motion_um": fr.coulomb_n / ASSUMED_STIFFNESS_N_PER_UM,
-                  "static_to_coulomb": fr.static_n / max(fr.coulomb_n, 1e-9)}  # fmt: skip
-        if fr.model == "lugre":  # the pre-sliding form was kept
-            params["presliding_um"] = fr.coulomb_n / fr.bristle_stiffness_n_per_um
-        return {"friction": fr}, b_rt - b_sim, params
-
-    def _axis_envelope_cost(self, a: str, fx, b_um: float) -> float:
-        """Envelope-scored tracking RSS of axis ``a`` on the train contours for effects ``fx``."""
-        m = AxisModel.from_axis_spec(self.axes[a], max(0.0, b_um), effects=fx)
-        return sum(float(np.sum(ct.tracking_envelope_residual_um(c, {a: self.memo.axis(c, a, m)}, [a]) ** 2))
-                   for c in self.train_ct if a in c.axes)  # fmt: skip
-
-    def _friction_chain_on_contours(self, a: str, pieces: dict, b_rt_um: float, vals: Mapping[str, float]):
-        """Friction on a compliant chain on contours: the chain frequency, Coulomb and static
-        friction (per unit mass) refitted on the train contours of axis ``a``, starting from
-        the round trips' values, scored by :func:`core.gap.contour.envelope_residual_um` (a
-        table that stick-slips or hunts with the loop closed on it is matched by the
-        amplitude and frequency of that motion, not its phase). Returns (Effects, backlash
-        for the twin, fitted (f_n, mu_c, mu_s - mu_c))."""
-        mine = [c for c in self.train_ct if a in c.axes]
-        spec = self.axes[a]
-        info = {"form": "chain"}
-        zeta = vals["chain_damping_ratio"]
-        band = vals.get("stick_band_mm_s", 0.0)  # the round trips' (none from the lost-motion form)
-
-        def make(th):
-            p = {"chain_frequency_hz": th[0], "chain_damping_ratio": zeta, "coulomb_per_mass_mm_s2": th[1],
-                 "static_excess_per_mass_mm_s2": th[2], "stick_band_mm_s": band}  # fmt: skip
-            piece, b_share = sim_piece("friction", p, info, spec, b_rt_um)
-            fx = pieces[a]
-            for name, pc in piece:
-                fx = fx.with_effect(name, pc)
-            return fx, max(0.0, b_rt_um - b_share)
-
-        def res(th):
-            fx, b = make(th)
-            m = AxisModel.from_axis_spec(spec, b, effects=fx)
-            sims = _in_threads([lambda c=c: self.memo.axis(c, a, m) for c in mine], self.workers)
-            return np.concatenate([ct.tracking_envelope_residual_um(c, {a: sim}, [a], stacked=True)
-                                   for c, sim in zip(mine, sims)])  # fmt: skip
-
-        x0 = np.array([vals["chain_frequency_hz"], vals["coulomb_per_mass_mm_s2"], vals["static_excess_per_mass_mm_s2"]])
-        starts = [x0 * np.array([fm, 1.0, em]) for fm in (1.0, 2.0) for em in (1.0, 3.0, 6.0)]
-        lo, hi = np.array([5.0, FRICTION_CHAIN_MIN_MM_S2, 0.0]), np.array([300.0, 20000.0, 40000.0])
-        r = rt.fit_ls(res, starts, lo, hi, n_starts=1, max_nfev=12, diff_step=0.05)
-        fx, b = make(r.theta)
-        return fx, b, r.theta
-
-    def _friction_on_contours(self, a: str, pieces: dict, bl: dict, b_rt_um: float):
-        """Friction on contours, fitted on the train contours' tracking error of axis ``a``:
-        the Coulomb lost motion (which round trips cannot separate from the backlash) and
-        the static excess, on the assumed chain; the round trips' Stribeck velocity and
-        viscous part are kept. Two forms, the one that fits the train contours better is
-        kept:
-
-        * Karnopp (stick until the static friction breaks, then the Stribeck curve), as
-          the round trips' lost-motion form;
-        * the same with **pre-sliding** (LuGre: the friction force builds over a
-          pre-sliding length lp = F_c / sigma_0 of elastic micro-motion before gross
-          sliding, as Dahl's and LuGre's bristles do). After a reversal of a contour the
-          table creeps back through lp while the force turns over, instead of sticking and
-          breaking away: on the twin's LuGre friction (lp 5-60 µm) the Karnopp form left
-          the contours' gap as it was (1.44 -> 1.36 µm on the twin's seed 3101) where the
-          pre-sliding form with the true values leaves 0.40 µm. Round trips do not show
-          lp (the lost motion between the motor and the table is the chain's 2 F_c / k;
-          the bristles deflect between the table and the guide).
-
-        Returns (Friction, backlash for the twin)."""
-        base = pieces[a].friction
-        k = ASSUMED_STIFFNESS_N_PER_UM
-        mine = [c for c in self.train_ct if a in c.axes]
-        spec = self.axes[a]
-
-        def make(th):
-            lc, ex = float(th[0]), float(th[1])
-            pre = {} if len(th) < 3 else {"model": "lugre", "bristle_stiffness_n_per_um": lc * k / float(th[2])}
-            fr = Friction(coulomb_n=lc * k, static_n=(lc + ex) * k, stribeck_velocity_mm_s=base.stribeck_velocity_mm_s,
-                          viscous_n_s_per_mm=base.viscous_n_s_per_mm, **pre)  # fmt: skip
-            return fr, max(0.0, b_rt_um - 2 * lc)
-
-        def res(th):
-            fr, b = make(th)
-            m = AxisModel.from_axis_spec(spec, b, effects=pieces[a].with_effect("friction", fr))
-            sims = _in_threads([lambda c=c: self.memo.axis(c, a, m) for c in mine], self.workers)
-            return np.concatenate([(c.table_mm[a][c.fit_idx] - sim[c.fit_idx]) * 1e3 for c, sim in zip(mine, sims)])
-
-        hi = max(0.45 * b_rt_um, 0.2)
-        x0 = np.array([base.coulomb_n / k, (base.static_n - base.coulomb_n) / k])
-        starts = [x0, np.array([0.1 * hi, 2.0]), np.array([0.5 * hi, 0.3 * hi])]
-        # pre-sliding: lp from PRESLIDING_MIN_UM (stiffer bristles are the Karnopp form) to the
-        # apparent backlash; six starts spread over the Coulomb share and lp, the best pursued
-        lp_hi = max(b_rt_um, 2 * PRESLIDING_MIN_UM)
-        p_starts = [np.array([f_lc * hi, 2.0, min(f_lp * hi, 0.9 * lp_hi)]) for f_lc in (0.25, 0.6)
-                    for f_lp in (0.25, 0.6, 1.2)]  # fmt: skip
-        # Coulomb friction of at least 2 % of the assumed table's weight: below, the twin's
-        # table bounces across the backlash in a limit cycle (core.sim.Friction), which a fit
-        # to slow train contours can pick and fast test contours then show
-        lc_lo = min(0.02 * 9.81 * ASSUMED_MASS_KG / k, 0.5 * hi)
-        # the two forms' fits are independent: side by side
-        r, rp = _in_threads([
-            lambda: rt.fit_ls(res, starts, np.array([0.0, 0.0]), np.array([hi, 150.0]), n_starts=1, max_nfev=12,
-                              diff_step=1e-2),
-            lambda: rt.fit_ls(res, p_starts, np.array([lc_lo, 0.0, PRESLIDING_MIN_UM]), np.array([hi, 150.0, lp_hi]),
-                              n_starts=1, max_nfev=15, diff_step=1e-2),
-        ], self.workers)  # fmt: skip
-        # kept when it fits better with a pre-sliding length off its lower bound (at the bound
-        # it is the Karnopp form, fitted above)
-        presliding = rp.rss < r.rss and rp.theta[2] > 1.01 * PRESLIDING_MIN_UM
-        return make(rp.theta if presliding else r.theta)
 
 
 def _with_gain(m: AxisModel, gain: float) -> AxisModel:
@@ -654,7 +531,7 @@ TOOK_FRACTION = 0.98  # a candidate whose test gap is below this fraction of the
 
 def _took_something(f: Fitted, gap_before: float) -> bool:
     """A candidate that took no axis on its own and cut no test gap is not tried in a pair."""
-    return bool(f.rt_fits or f.servo) or f.gap_after_um < TOOK_FRACTION * gap_before
+    return bool(f.rt_fits or f.ct_fits) or f.gap_after_um < TOOK_FRACTION * gap_before
 
 
 def pair_jobs(singles: Sequence[Fitted], gap_before: float, gate_um: float, rule: Rule) -> list:
@@ -687,7 +564,7 @@ def _candidate(f: Fitted, s: GapSettings) -> Candidate:
     for k, v in f.params.items():
         params[k] = NOT_IDENTIFIABLE if k in f.intervals and f.intervals[k] is None else v
     ivals = {k: (list(v) if v is not None else NOT_IDENTIFIABLE) for k, v in f.intervals.items()}
-    axes_used = tuple(sorted(set(f.rt_fits) | set(f.servo)))
+    axes_used = tuple(sorted(set(f.rt_fits) | {a for fits in f.ct_fits.values() for a in fits}))
     return Candidate("+".join(f.effects), f.gap_after_um, params, f.n_params, f.score(s.penalty_per_param),
                      f.identifiable, "; ".join(f.notes), axes_used, ivals, dict(f.params))  # fmt: skip
 

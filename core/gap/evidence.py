@@ -3,7 +3,7 @@
 An observation is something the data show whatever the fits say: a table that breaks
 away at rest, a table that rattles against the nut (:mod:`core.gap.where`). Each family
 of the registry declares the observations its physics produces
-(:attr:`core.gap.candidates.Strategy.shown_by`); an observation *supports* the families
+(:attr:`core.gap.families.Family.shown_by`); an observation *supports* the families
 that declare it. Evidence weighs only among hypotheses the held-out runs do not tell
 apart: it never names a family whose held-out gap is clearly worse than another's, nor
 one that does not cut the gap.

@@ -7,8 +7,9 @@ residual). Parameters are fitted with ``scipy.optimize.least_squares`` on the tr
 runs only, in physical units (µm, ppm/K, ms). Friction forces are not identifiable
 without the chain stiffness, so friction is fitted as lost motion (µm).
 
-The effects' round-trip stages live in :mod:`core.gap.candidates`, which composes them
-with the nominal play operator into one :class:`RTModel`. Servo dynamics act between
+The effects' round-trip stages live in their families (:mod:`core.gap.families`);
+:mod:`core.gap.stages` composes them with the nominal play operator into one
+:class:`RTModel`. Servo dynamics act between
 the command and the motor and leave the table-given-motor relation unchanged, so they
 have no round-trip stage.
 """

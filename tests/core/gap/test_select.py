@@ -272,10 +272,12 @@ def test_where_a_single_cuts_the_pairs_are_on_top_of_it_and_of_its_ties():
 FAMILIES = set(EFFECTS)
 
 
-@pytest.mark.parametrize("module", ["select.py", "evidence.py", "report.py"])
+@pytest.mark.parametrize("module", ["select.py", "evidence.py", "report.py", "diagnose.py", "candidates.py",
+                                    "stages.py", "contour.py"])
 def test_the_decision_names_no_family(module):
-    """The decision, the evidence and the report read families from the registry: no
-    family's name appears in their code."""
+    """The search, the decision, the evidence, the report and the round-trip machinery
+    reach families through the registry (core.gap.families): no family's name appears in
+    their code."""
     tree = ast.parse((Path(__file__).parents[3] / "core" / "gap" / module).read_text())
     names = [n.value for n in ast.walk(tree) if isinstance(n, ast.Constant) and isinstance(n.value, str)
              and n.value in FAMILIES]  # fmt: skip
