@@ -393,6 +393,8 @@ class _Diagnosis:
                 f.notes.append(f"{new} on axis {a}: no train improvement (kept {'+'.join(base.effects) if bfit else 'nominal'})")
                 continue
             f.rt_fits[a] = _AxisFit(model, fr, stages, tuple(s.effect for s in stages))
+            if fr.capped:
+                f.notes.append(f"{new} on axis {a}: the round-trip fit stopped at its evaluation cap, not at convergence")
         # parameters of the round-trip fits
         for a, af in f.rt_fits.items():
             ivals = rt.intervals(af.fit, af.model.names, af.model.lower, af.model.upper)
@@ -475,6 +477,8 @@ class _Diagnosis:
             src = base.ct_fits.get(name, {}) if base is not None and name in base.effects else {}
             if f.effects[-1] == name and self.train_ct:
                 src = cf.fit(self, bl, pieces)
+                f.notes += [f"{name} on axis {a}: the contour fit stopped at its evaluation cap, not at convergence"
+                            for a, fr in src.items() if fr.capped]  # fmt: skip
             for a, fr in src.items():
                 vals = dict(zip(cf.names, fr.theta))
                 pieces[a] = (pieces.get(a) or Effects()).with_effect(name, cf.piece(vals))
