@@ -250,7 +250,9 @@ temperature_amplitude_c = 0
 [[machines]]
 name = "vmc"
 """
-SIM_AXIS = demo_axis_toml("{name}", task=False, measure_feed_mm_min=3000, schedule_interval_s=1)
+# a 200 mm travel: a round trip of 8 s of machine time, 2 s at the simulator's time scale, so
+# the takeover's cycles before and after the kill are short; each still runs for seconds
+SIM_AXIS = demo_axis_toml("{name}", travel_mm=(0, 200), task=False, measure_feed_mm_min=3000, schedule_interval_s=1)
 
 
 @pytest.mark.slow
