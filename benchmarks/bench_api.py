@@ -55,27 +55,10 @@ from storage.db import (  # noqa: E402
     session_scope,
     upgrade,
 )
+from tests.demo import demo_axis_toml, demo_machine_toml  # noqa: E402
 
-CONFIG = """
-[auth]
-demo_keys = false
-[[machines]]
-name = "bench-vmc"
-  [[machines.axes]]
-  name = "y"
-  transmission_mm_per_rev = 6.857
-  screw_lead_mm = 16
-  position_gain_per_s = 10
-  travel_mm = [0, 1000]
-  controller = "modbus://127.0.0.1:1"
-  schedule_enabled = false
-    [[machines.axes.tasks]]
-    name = "circle R200 F200"
-    profile = "circle"
-    radius_mm = 200
-    feed_mm_min = 200
-    tolerance_um = 45
-"""
+CONFIG = "[auth]\ndemo_keys = false\n" + demo_machine_toml(
+    "bench-vmc", demo_axis_toml(travel_mm=(0, 1000), controller="modbus://127.0.0.1:1", schedule_enabled=False))
 
 
 PUBLISHERS = """
@@ -88,24 +71,8 @@ topic_prefix = "{prefix}"
 urls = ["http://127.0.0.1:{hook_port}/hook"]
 secret = "whsec_{secret}"
 {extra}
-[[machines]]
-name = "bench-sim"
-  [[machines.axes]]
-  name = "x"
-  transmission_mm_per_rev = 6.857
-  screw_lead_mm = 16
-  position_gain_per_s = 10
-  travel_mm = [0, 300]
-  controller = "sim"
-  measure_feed_mm_min = 6000
-  schedule_interval_s = 3
-    [[machines.axes.tasks]]
-    name = "circle R200 F200"
-    profile = "circle"
-    radius_mm = 200
-    feed_mm_min = 200
-    tolerance_um = 45
-"""
+""" + demo_machine_toml("bench-sim", demo_axis_toml("x", travel_mm=(0, 300), measure_feed_mm_min=6000,
+                                                            schedule_interval_s=3))
 # The MTConnect and OPC UA interfaces, on in this run where the service has them (each
 # table is only written when the service's configuration knows it).
 INTERFACE_TABLES = {"mtconnect": "[mtconnect]\nenabled = true\n",

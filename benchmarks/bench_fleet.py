@@ -45,24 +45,7 @@ sys.path.insert(0, str(ROOT))
 
 from storage.db import leases, make_engine, make_session_factory, session_scope, upgrade  # noqa: E402
 from storage.db.models import Cycle  # noqa: E402
-
-AXIS = """
-  [[machines.axes]]
-  name = "{name}"
-  transmission_mm_per_rev = 6.857
-  screw_lead_mm = 16
-  position_gain_per_s = 10
-  travel_mm = [0, {travel}]
-  controller = "sim"
-  measure_feed_mm_min = 3000
-  schedule_interval_s = {interval}
-    [[machines.axes.tasks]]
-    name = "circle R200 F200"
-    profile = "circle"
-    radius_mm = 200
-    feed_mm_min = 200
-    tolerance_um = 45
-"""
+from tests.demo import demo_axis_toml  # noqa: E402
 
 
 def config(axes: int, interval_s: float, lease_s: float, time_scale: float, travel_mm: float) -> str:
@@ -74,7 +57,8 @@ def config(axes: int, interval_s: float, lease_s: float, time_scale: float, trav
     for m in range((axes + per - 1) // per):
         out += ["[[machines]]", f'name = "cell-{m:02d}"']
         for a in range(min(per, axes - m * per)):
-            out.append(AXIS.format(name=f"a{a}", travel=travel_mm, interval=interval_s))
+            out.append(demo_axis_toml(f"a{a}", travel_mm=(0, travel_mm), measure_feed_mm_min=3000,
+                                          schedule_interval_s=interval_s))
     return "\n".join(out) + "\n"
 
 

@@ -48,24 +48,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from storage.db import config_repo, make_engine, make_session_factory, session_scope, upgrade  # noqa: E402
-
-AXIS = """
-  [[machines.axes]]
-  name = "{name}"
-  transmission_mm_per_rev = 6.857
-  screw_lead_mm = 16
-  position_gain_per_s = 10
-  travel_mm = [0, 300]
-  controller = "{controller}"
-  measure_feed_mm_min = 6000
-  schedule_interval_s = {interval}
-    [[machines.axes.tasks]]
-    name = "circle R200 F200"
-    profile = "circle"
-    radius_mm = 200
-    feed_mm_min = 200
-    tolerance_um = 45
-"""
+from tests.demo import demo_axis_toml  # noqa: E402
 
 
 TIME_SCALE = 40  # the built-in simulator's
@@ -77,7 +60,8 @@ def config(controllers: list[str], interval_s: float) -> str:
             '[limits]\ntriggers_per_minute = 30\ntrigger_burst = 5\n'
             '[retention]\nkeep_last_runs = 50\nmax_runs = 400\ninterval_s = 60\n'
             '[[machines]]\nname = "soak-vmc"\n')
-    return head + "".join(AXIS.format(name=n, interval=interval_s, controller=c)
+    return head + "".join(demo_axis_toml(n, travel_mm=(0, 300), controller=c, measure_feed_mm_min=6000,
+                                         schedule_interval_s=interval_s)
                           for n, c in zip("xyzuvw", controllers))
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import random
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +27,16 @@ ROOT = Path(__file__).resolve().parents[2]
 # a round trip with rest before, at the reversal and after (the twin dwells dwell_s at each)
 PROGRAM = RoundTripProgram(-2.0, 22.0, 1000.0, acceleration_mm_s2=500.0, dwell_s=0.3)
 USEFUL = AXIS.travel_mm
+# Polled samples (latched reads, a PLC profile) come at the host's pace: those round trips
+# run at a slow feed (300 mm/min), so that a stall of a loaded host leaves no gap the
+# analysis refuses, in real time or slower. Over a 10 mm travel (with the same 2 mm
+# over-travel each side) each takes half the seconds the 20 mm axis does.
+POLLED_AXIS = replace(AXIS, travel_mm=(0.0, 10.0))
+POLLED_USEFUL = POLLED_AXIS.travel_mm
+
+
+def polled_program(dwell_s: float) -> RoundTripProgram:
+    return RoundTripProgram(-2.0, 12.0, 300.0, acceleration_mm_s2=500.0, dwell_s=dwell_s)
 
 
 def start_cnc(port: int, delay_s: float, program: RoundTripProgram = PROGRAM, *, ack: bool = False) -> subprocess.Popen:
@@ -107,14 +118,14 @@ def test_a_cnc_that_acknowledges_the_end_at_once_is_measured_all_the_same():
 def test_positions_only_on_polled_samples_without_a_trace_buffer():
     """What a controller without a trace buffer or a running flag gives: polled latched
     samples. The round trip is still found, from the positions alone, and measured."""
-    slow = RoundTripProgram(-2.0, 22.0, 300.0, acceleration_mm_s2=500.0, dwell_s=0.5)
+    slow = polled_program(dwell_s=0.5)
     with modbus_peer(time_scale=1.0, mode="latched") as peer:
         server = peer.server
         writes = count_writes(server)
         driver = peer.driver(trigger="passive", running_flag=False, passive={"start_timeout_s": 120.0})
         cnc = start_cnc(server.port, random.uniform(0.3, 1.0), slow)
         try:
-            res = run_cycle(driver, AXIS, slow, useful_travel_mm=USEFUL)
+            res = run_cycle(driver, POLLED_AXIS, slow, useful_travel_mm=POLLED_USEFUL)
         finally:
             cnc.communicate(timeout=60)
         assert res.ok, res.reason
@@ -154,14 +165,14 @@ def test_a_program_running_when_listening_begins_without_its_start_is_waited_out
     """Polled samples only (no trace buffer): a program under way at connect cannot be had
     whole, so it is waited out (the running flag must first be seen clear) and the next
     one, started by the CNC process, is measured."""
-    slow = RoundTripProgram(-2.0, 22.0, 300.0, acceleration_mm_s2=500.0, dwell_s=0.5)
+    slow = polled_program(dwell_s=0.5)
     with modbus_peer(time_scale=1.0, mode="latched") as peer:
         peer.axis.start(slow)  # under way before mebm listens
         driver = peer.driver(trigger="passive", passive={"start_timeout_s": 120.0})
         t_end = slow.duration_s + 1.0
         cnc = start_cnc(peer.server.port, t_end, slow)  # the next one, after the first has ended
         try:
-            res = run_cycle(driver, AXIS, slow, useful_travel_mm=USEFUL)
+            res = run_cycle(driver, POLLED_AXIS, slow, useful_travel_mm=POLLED_USEFUL)
         finally:
             cnc.communicate(timeout=120)
         assert res.ok, res.reason
@@ -239,7 +250,7 @@ def test_a_start_between_the_flag_read_and_the_position_read_is_measured_from_it
 
     profile_file = ROOT / "examples" / "modbus-profiles" / "plc-gateway-float32-cdab.toml"
     profile = load_profile(profile_file)
-    slow = RoundTripProgram(-2.0, 22.0, 300.0, acceleration_mm_s2=500.0, dwell_s=0.3)
+    slow = polled_program(dwell_s=0.3)
     axis = SimAxis(KinematicTwin(backlash_um=120.0, position_gain_per_s=30.0), servo_rate_hz=1000.0, time_scale=0.5)
     axis.prepare(slow)  # the start takes effect at once
     armed_at = time.monotonic() + 1.0
@@ -256,7 +267,7 @@ def test_a_start_between_the_flag_read_and_the_position_read_is_measured_from_it
     with StartsAfterAPositionRead(axis, profile, slow) as sim:
         driver = driver_from_url(f"modbus://127.0.0.1:{sim.port}?profile={profile_file}&start_timeout_s=60",
                                  timeout_s=2.0)
-        res = run_cycle(driver, AXIS, slow, useful_travel_mm=USEFUL)
+        res = run_cycle(driver, POLLED_AXIS, slow, useful_travel_mm=POLLED_USEFUL)
     assert axis.cycles_started == 1
     assert res.ok, res.reason
     assert "flag" in res.trace.notes[0]
@@ -279,7 +290,7 @@ def test_a_profile_controller_gets_passive_mode_from_its_polled_samples(running_
     profile = load_profile(profile_file)
     # polled on the host clock: the PLC runs at half speed so a stall of a loaded host leaves
     # no gap the analysis refuses (as tests/acquisition/test_modbus_paths.py does)
-    slow = RoundTripProgram(-2.0, 22.0, 300.0, acceleration_mm_s2=500.0, dwell_s=0.3)
+    slow = polled_program(dwell_s=0.3)
     axis = SimAxis(KinematicTwin(backlash_um=120.0, position_gain_per_s=30.0), servo_rate_hz=1000.0, time_scale=0.5)
     gc.collect()
     gc.freeze()
@@ -299,7 +310,7 @@ def test_a_profile_controller_gets_passive_mode_from_its_polled_samples(running_
             driver = driver_from_url(url, timeout_s=2.0)
             assert driver.trigger == "passive" and driver.running_flag is running_flag
             threading.Timer(1.0, axis.start, args=(slow,)).start()  # the CNC starts the PLC's program
-            res = run_cycle(driver, AXIS, slow, useful_travel_mm=USEFUL)
+            res = run_cycle(driver, POLLED_AXIS, slow, useful_travel_mm=POLLED_USEFUL)
     finally:
         gc.unfreeze()
     assert res.ok, res.reason

@@ -23,6 +23,7 @@ from storage.db import Schedule, config_repo, results_repo, session_scope
 from storage.db.models import Curve, Result
 from tests.acquisition.test_passive import PROGRAM, start_cnc
 from tests.api.rest.conftest import make_settings
+from tests.demo import demo_axis_toml, demo_machine_toml
 from tests.storage.db import factories as f
 from tests.storage.db.backends import db_url, engine  # noqa: F401 - fixtures
 
@@ -93,18 +94,8 @@ def test_a_round_trip_started_by_the_cnc_is_stored_as_passive(engine, db_url, tm
 
 
 def _config(axis_extra: str, controller: str = "modbus://10.0.4.21:502") -> str:
-    return f"""
-[[machines]]
-name = "vmc"
-[[machines.axes]]
-name = "y"
-transmission_mm_per_rev = 6.857
-screw_lead_mm = 16.0
-position_gain_per_s = 10.0
-travel_mm = [0.0, 500.0]
-controller = "{controller}"
-{axis_extra}
-"""
+    return demo_machine_toml("vmc", demo_axis_toml(travel_mm=(0.0, 500.0), controller=controller, task=False)) \
+        + axis_extra + "\n"
 
 
 def _axis_url(text: str) -> str:

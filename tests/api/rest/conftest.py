@@ -21,11 +21,14 @@ from tests.storage.db.backends import db_url, engine  # noqa: F401 - fixtures
 
 
 class FakeRunner:
-    """Stands in for the controller: a round trip through a play of ``backlash_um``."""
+    """Stands in for the controller: a round trip through a play of ``backlash_um``,
+    sampled every ``step_mm`` of the command (``factories.trace``; a coarser step is fewer
+    samples, for a test that diagnoses the stored runs)."""
 
-    def __init__(self, backlash_um: float = 200.0, temperature_c: float = 20.0):
+    def __init__(self, backlash_um: float = 200.0, temperature_c: float = 20.0, step_mm: float = 0.05):
         self.backlash_um = backlash_um
         self.temperature_c = temperature_c
+        self.step_mm = step_mm
         self.fail: str | None = None
         self.calls = 0
         self.gate: threading.Event | None = None  # set to hold a cycle "running"...
@@ -40,7 +43,7 @@ class FakeRunner:
         self.running.clear()
         if self.fail:
             return CycleOutcome.failed(self.fail, temperature_c=self.temperature_c)
-        t, m, x = f.trace(self.backlash_um)
+        t, m, x = f.trace(self.backlash_um, step_mm=self.step_mm)
         return CycleOutcome(ok=True, time_s=t, motor_rev=m, table_mm=x, temperature_c=self.temperature_c,
                             uncertainty_um=0.8, round_trip=analyse(axis, t, m, x), feed_mm_min=1000.0)
 

@@ -13,6 +13,7 @@ import pytest
 from api.rest.limits import AuthThrottle, TokenBucket
 from storage.db import WaitingCycleError, results_repo, session_scope
 from tests.api.rest.conftest import hdr
+from tests.demo import demo_axis_toml, demo_machine_toml
 
 V1 = "/api/v1"
 
@@ -122,18 +123,8 @@ host = "127.0.0.1"
 port = 0
 [auth]
 demo_keys = false
-[[machines]]
-name = "body-test"
-  [[machines.axes]]
-  name = "y"
-  transmission_mm_per_rev = 6.857
-  screw_lead_mm = 16
-  position_gain_per_s = 10
-  travel_mm = [0, 400]
-  controller = "modbus://127.0.0.1:1"
-  schedule_enabled = false
-  schedule_interval_s = 3600
-"""
+""" + demo_machine_toml("body-test", demo_axis_toml(controller="modbus://127.0.0.1:1", task=False,
+                                                                 schedule_enabled=False, schedule_interval_s=3600))
 
 
 def _peak_rss_kb(pid: int) -> int:

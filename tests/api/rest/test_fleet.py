@@ -42,6 +42,7 @@ from storage.db.leases import WorkerConflictError
 from storage.db.models import AxisLease, Cycle
 from tests.api.rest.conftest import FakeRunner
 from tests.api.rest.test_kill_restart import Server
+from tests.demo import demo_axis_toml
 from tests.waiting import poll
 from tests.storage.db import factories as f
 from tests.storage.db.backends import make_database, truncate_all
@@ -249,17 +250,9 @@ temperature_amplitude_c = 0
 [[machines]]
 name = "vmc"
 """
-SIM_AXIS = """
-  [[machines.axes]]
-  name = "{name}"
-  transmission_mm_per_rev = 6.857
-  screw_lead_mm = 16
-  position_gain_per_s = 10
-  travel_mm = [0, 400]
-  controller = "sim"
-  measure_feed_mm_min = 3000
-  schedule_interval_s = 1
-"""
+# a 200 mm travel: a round trip of 8 s of machine time, 2 s at the simulator's time scale, so
+# the takeover's cycles before and after the kill are short; each still runs for seconds
+SIM_AXIS = demo_axis_toml("{name}", travel_mm=(0, 200), task=False, measure_feed_mm_min=3000, schedule_interval_s=1)
 
 
 @pytest.mark.slow

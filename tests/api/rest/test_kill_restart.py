@@ -18,6 +18,7 @@ import pytest
 
 from storage.db import integrity_problems, make_session_factory, results_repo, session_scope
 from storage.db.models import Cycle
+from tests.demo import demo_axis_toml, demo_machine_toml
 from tests.waiting import poll
 
 pytestmark = pytest.mark.slow
@@ -33,24 +34,7 @@ enabled = false
 [simulator]
 time_scale = 5
 temperature_amplitude_c = 0
-[[machines]]
-name = "kill-test"
-  [[machines.axes]]
-  name = "y"
-  transmission_mm_per_rev = 6.857
-  screw_lead_mm = 16
-  position_gain_per_s = 10
-  travel_mm = [0, 400]
-  controller = "sim"
-  measure_feed_mm_min = 3000
-  schedule_interval_s = 1
-    [[machines.axes.tasks]]
-    name = "circle R200 F200"
-    profile = "circle"
-    radius_mm = 200
-    feed_mm_min = 200
-    tolerance_um = 45
-"""
+""" + demo_machine_toml("kill-test", demo_axis_toml(measure_feed_mm_min=3000, schedule_interval_s=1))
 
 
 class Server:

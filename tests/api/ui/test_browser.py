@@ -7,10 +7,9 @@ import re
 import numpy as np
 import pytest
 
-from core.gap import make_case
-from core.gap.benchmark import SMALL
 from storage.dataset import write_dataset
 from storage.db import config_repo, results_repo, session_scope
+from tests.api.rest.test_gap import _store_case
 from tests.api.ui.conftest import SCREENSHOTS
 from tests.waiting import poll
 
@@ -164,12 +163,12 @@ def test_a_form_post_without_csrf_token_is_refused(page, ui_server, alarm):
     assert status == 403 and page.request.get(link).status == 200
 
 
-def demo_like_history(folder, n_runs: int = 6, travel_mm: float = 150.0, seed: int = 5) -> list[str]:
+def demo_like_history(folder, n_runs: int = 3, travel_mm: float = 60.0, seed: int = 5) -> list[str]:
     """Round trips of the demo axis (api/service/demo.py: its twin's thermal lead, cyclic
     error at the screw lead, encoders and noise; the demo's feed, acceleration and 400 Hz
     servo rate) through a shop temperature swinging 19-23 °C, over a shorter travel than
-    the demo's 1000 mm so that a diagnosis of them is short; stored as the service stores
-    runs. Returns the run files."""
+    the demo's 1000 mm so that a diagnosis of them is short (three 60 mm runs: a dozen CPU
+    seconds); stored as the service stores runs. Returns the run files."""
     from api.service.config import DEMO_SIMULATOR, demo_axis
     from api.service.demo import DEMO_ENCODERS, DEMO_LEAD_ERROR_UM_PER_M, DEMO_LEAD_GROWTH_PPM_PER_K
     from core.dataset import Dataset, MachineSpec
@@ -248,8 +247,7 @@ def test_gap_diagnosis_of_a_demo_like_history_shows_its_progress_then_the_report
 def test_gap_diagnosis_runs_in_the_background_and_arrives(page, ui_server):
     with session_scope(ui_server.svc.factory) as s:
         axis = config_repo.get_axis(s, ui_server.axis_id)
-    case = make_case("cyclic_error", np.random.default_rng(11), SMALL)
-    write_dataset(ui_server.svc.executor.dataset_folder(axis), case.dataset)
+    case = _store_case(ui_server.svc, axis.id, "cyclic_error", seed=11)
     sign_in(page, ui_server, "read")
     page.goto(f"{ui_server.url}/ui/axes/{ui_server.axis_id}/gap")
     page.click("#gap-start")
