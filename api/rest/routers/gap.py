@@ -119,8 +119,12 @@ async def _settle(job: Job) -> None:
     wait_s = WAIT_S
     if not job.future.done():
         job.waiting += 1  # on the event loop only: no lock needed
+        waited = asyncio.wrap_future(job.future)
+        # a job that fails after this request has gone (202) is answered to whoever asks
+        # next; the copy on this loop is read so that asyncio does not log it as lost
+        waited.add_done_callback(lambda f: f.cancelled() or f.exception())
         try:
-            await asyncio.wait({asyncio.wrap_future(job.future)}, timeout=wait_s)  # never cancels the job
+            await asyncio.wait({waited}, timeout=wait_s)  # never cancels the job
         finally:
             job.waiting -= 1
 
