@@ -307,7 +307,7 @@ class CanopenDriver(BlockingLinkDriver):
         with self._sync.lock:
             first = self._sync.k + 1
         self._frames.clear()  # before the start: frames of SYNC >= first may arrive any moment
-        self.cycle.wire = _SyncOrder(first, self.REORDER_HORIZON)
+        self.cycle.wire = SyncOrder(first, self.REORDER_HORIZON)
         self._command(Command.START)
         return first
 
@@ -337,14 +337,14 @@ class CanopenDriver(BlockingLinkDriver):
     def frames_too_late(self) -> int:
         """TPDOs of the cycle under way (or the last one) paired after their SYNC was given up."""
         c = self._cycle or self.last_cycle
-        return c.wire.frames_too_late if c is not None and isinstance(c.wire, _SyncOrder) else 0
+        return c.wire.frames_too_late if c is not None and isinstance(c.wire, SyncOrder) else 0
 
     async def _drain(self) -> SampleBlock:
         if self._emcy is not None:
             e = self._emcy
             raise DeviceFaultError(f"drive node {self.node_id} sent EMCY ({e.get_desc() or 'fault'})", code=e.code)
         self._check_link()
-        order: _SyncOrder = self.cycle.wire
+        order: SyncOrder = self.cycle.wire
         finished = False
         now = time.monotonic()
         if now - order.last_status >= self.status_interval_s:
@@ -368,7 +368,7 @@ class CanopenDriver(BlockingLinkDriver):
         return SampleBlock(arr[:, 0], self.scale.motor_rev(arr[:, 1]), self.scale.table_mm(arr[:, 2]), finished=finished)
 
 
-class _SyncOrder:
+class SyncOrder:
     """One cycle's paired TPDOs put back in SYNC order (per cycle, in ``cycle.wire``).
 
     A missing SYNC holds back the later ones until ``horizon`` later SYNCs have been

@@ -28,7 +28,7 @@ import math
 import time
 
 from acquisition import canopen_od as co
-from acquisition.canopen import CanopenDriver, _SyncOrder
+from acquisition.canopen import CanopenDriver, SyncOrder
 from acquisition.errors import ControllerTimeoutError, ProtocolError
 from acquisition.types import AxisState, Command, ControllerStatus, RoundTripProgram
 from core.errors import InputError
@@ -132,7 +132,7 @@ class CanopenCia402Driver(CanopenDriver):
         dwell_syncs = int(math.ceil(self.cycle.program.dwell_s * self.sync_rate_hz))
         if self._phase == _APPROACH and reached:
             # at the start: samples from the next SYNC on are the round trip's
-            order: _SyncOrder = self.cycle.wire
+            order: SyncOrder = self.cycle.wire
             order.first = order.next_k = k + 1
             self._phase = _DWELL0
             self._phase_until_k = k + 1 + dwell_syncs
@@ -175,7 +175,7 @@ class CanopenCia402Driver(CanopenDriver):
         # _advance); the start request must stay within one timeout, so the move is not waited for here
         self._emcy = None
         self._frames.clear()
-        self.cycle.wire = _SyncOrder(2**62, self.REORDER_HORIZON)
+        self.cycle.wire = SyncOrder(2**62, self.REORDER_HORIZON)
         self._setpoint(self._targets[0])
         self._phase = _APPROACH
         return None

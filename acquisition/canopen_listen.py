@@ -350,13 +350,13 @@ class CanopenListenDriver(BlockingLinkDriver):
         self._refuse("acknowledge a fault")
 
     def _take(self, finished: bool = False) -> SampleBlock:
-        from acquisition.canopen import _SyncOrder
+        from acquisition.canopen import SyncOrder
 
         frames = self.wire.take()
         if self._order is None:
             if not frames:
                 return SampleBlock.empty(finished)
-            self._order = _SyncOrder(min(f[0] for f in frames), self.REORDER_HORIZON)
+            self._order = SyncOrder(min(f[0] for f in frames), self.REORDER_HORIZON)
         for f in frames:
             self._order.take(*f)
         return self.wire.samples(self._order.release(finished), finished)

@@ -25,6 +25,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from urllib.parse import parse_qs, quote, urlsplit
 
+from acquisition.trigger import TRIGGER_KEYS, trigger_kwargs
 from core.errors import InputError
 
 MODES = ("listen-only", "active-cia402", "active-mebm")
@@ -35,8 +36,6 @@ _TABLE_KEYS = {"interface", "channel", "bus"} | _COMMON | _MAPPING
 
 
 def _trigger_keys() -> set[str]:
-    from acquisition.url import TRIGGER_KEYS
-
     return set(TRIGGER_KEYS)
 
 
@@ -85,8 +84,6 @@ def _driver(url: str, where: str, **kwargs):
     if "node" not in q:
         raise InputError(f"controller URL {url!r} needs ?node=N (the drive's CANopen node id)")
     interface = parts.netloc
-    from acquisition.url import _trigger_kwargs
-
     explicit_trigger = kwargs.get("trigger", q.get("trigger"))
     mode = q.get("mode")
     if mode is not None and mode not in MODES:
@@ -100,7 +97,7 @@ def _driver(url: str, where: str, **kwargs):
         tq["trigger"] = wanted
     elif explicit_trigger is not None:
         tq["trigger"] = explicit_trigger
-    kwargs = {**kwargs, **_trigger_kwargs(url, tq)}  # trigger, running_flag, passive settings
+    kwargs = {**kwargs, **trigger_kwargs(url, tq)}  # trigger, running_flag, passive settings
     mode = mode or mode_for(kwargs["trigger"])
     node = _num(f"node", q["node"], int)
     if not 1 <= node <= 127:

@@ -19,55 +19,17 @@ import ipaddress
 import re
 from urllib.parse import parse_qs, urlsplit
 
+# the trigger keys and defaults, shared with the CANopen URL parser; re-exported here for
+# the callers that read them with the URL
+from acquisition.trigger import (  # noqa: F401
+    PASSIVE_KEYS,
+    TRIGGER_KEYS,
+    default_trigger,
+    is_simulator_url,
+    needs_callers_process,
+    trigger_kwargs,
+)
 from core.errors import InputError
-
-PASSIVE_KEYS = ("start_timeout_s", "max_duration_s", "rest_band_mm", "rest_s", "min_stroke_mm",
-                "return_tolerance_mm", "pre_roll_s", "flag_margin_s")
-TRIGGER_KEYS = ("trigger", "running_flag", *PASSIVE_KEYS)
-
-
-def is_simulator_url(url: str) -> bool:
-    """A controller that can only be a simulation: ``sim://``, or CANopen on the in-process bus."""
-    return urlsplit(url).scheme == "sim" or needs_callers_process(url)
-
-
-def needs_callers_process(url: str) -> bool:
-    """A controller reachable only from the process that created it: CANopen on python-can's
-    in-process ``virtual`` bus (a cycle on it cannot run in a worker process)."""
-    parts = urlsplit(url)
-    return parts.scheme == "canopen" and parts.netloc == "virtual"
-
-
-def default_trigger(url: str) -> str:
-    """``active`` for a simulator, ``passive`` for any other controller."""
-    return "active" if is_simulator_url(url) else "passive"
-
-
-def _trigger_kwargs(url: str, q: dict[str, str]) -> dict:
-    """The driver's ``trigger``/``running_flag``/``passive`` arguments from the URL's query."""
-    trigger = q.pop("trigger", None) or default_trigger(url)
-    if trigger not in ("active", "passive"):
-        raise InputError(f"controller URL {url!r}: trigger (={trigger!r}) must be active or passive")
-    out: dict = {"trigger": trigger}
-    if "running_flag" in q:
-        flag = q.pop("running_flag").lower()
-        if flag not in ("0", "1", "true", "false", "yes", "no", "on", "off"):
-            raise InputError(f"controller URL {url!r}: running_flag (={flag!r}) must be 0 or 1")
-        out["running_flag"] = flag in ("1", "true", "yes", "on")
-    passive = {}
-    for key in PASSIVE_KEYS:
-        if key in q:
-            raw = q.pop(key)
-            try:
-                passive[key] = float(raw)
-            except ValueError:
-                raise InputError(f"controller URL {url!r}: {key} (={raw!r}) must be a number") from None
-    if passive:
-        if trigger != "passive":
-            raise InputError(f"controller URL {url!r}: {sorted(passive)} apply to trigger=passive only")
-        out["passive"] = passive
-    return out
-
 
 def driver_from_url(url: str, **kwargs):
     """A :class:`~acquisition.driver.ControllerDriver` for ``url``; ``kwargs`` go to the driver
@@ -79,7 +41,7 @@ def driver_from_url(url: str, **kwargs):
     parts = urlsplit(url)
     q = {k: v[-1] for k, v in parse_qs(parts.query).items()}
     if parts.scheme in ("modbus", "modbus+rtu", "sim"):  # canopen: its mode and the trigger, together (canopen_url)
-        kwargs = {**_trigger_kwargs(url, q), **kwargs}
+        kwargs = {**trigger_kwargs(url, q), **kwargs}
 
     def num(key, cast, default):
         if key not in q:

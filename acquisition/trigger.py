@@ -1,0 +1,59 @@
+"""What a controller URL says of how a cycle starts: active (mebm starts the round trip) or
+passive (mebm waits for the CNC's own program), and the passive settings.
+
+Shared by every URL scheme's parser (:mod:`acquisition.url`, :mod:`acquisition.canopen_url`),
+so neither imports the other for it.
+"""
+
+from __future__ import annotations
+
+from urllib.parse import urlsplit
+
+from core.errors import InputError
+
+PASSIVE_KEYS = ("start_timeout_s", "max_duration_s", "rest_band_mm", "rest_s", "min_stroke_mm",
+                "return_tolerance_mm", "pre_roll_s", "flag_margin_s")
+TRIGGER_KEYS = ("trigger", "running_flag", *PASSIVE_KEYS)
+
+
+def is_simulator_url(url: str) -> bool:
+    """A controller that can only be a simulation: ``sim://``, or CANopen on the in-process bus."""
+    return urlsplit(url).scheme == "sim" or needs_callers_process(url)
+
+
+def needs_callers_process(url: str) -> bool:
+    """A controller reachable only from the process that created it: CANopen on python-can's
+    in-process ``virtual`` bus (a cycle on it cannot run in a worker process)."""
+    parts = urlsplit(url)
+    return parts.scheme == "canopen" and parts.netloc == "virtual"
+
+
+def default_trigger(url: str) -> str:
+    """``active`` for a simulator, ``passive`` for any other controller."""
+    return "active" if is_simulator_url(url) else "passive"
+
+
+def trigger_kwargs(url: str, q: dict[str, str]) -> dict:
+    """The driver's ``trigger``/``running_flag``/``passive`` arguments from the URL's query."""
+    trigger = q.pop("trigger", None) or default_trigger(url)
+    if trigger not in ("active", "passive"):
+        raise InputError(f"controller URL {url!r}: trigger (={trigger!r}) must be active or passive")
+    out: dict = {"trigger": trigger}
+    if "running_flag" in q:
+        flag = q.pop("running_flag").lower()
+        if flag not in ("0", "1", "true", "false", "yes", "no", "on", "off"):
+            raise InputError(f"controller URL {url!r}: running_flag (={flag!r}) must be 0 or 1")
+        out["running_flag"] = flag in ("1", "true", "yes", "on")
+    passive = {}
+    for key in PASSIVE_KEYS:
+        if key in q:
+            raw = q.pop(key)
+            try:
+                passive[key] = float(raw)
+            except ValueError:
+                raise InputError(f"controller URL {url!r}: {key} (={raw!r}) must be a number") from None
+    if passive:
+        if trigger != "passive":
+            raise InputError(f"controller URL {url!r}: {sorted(passive)} apply to trigger=passive only")
+        out["passive"] = passive
+    return out
