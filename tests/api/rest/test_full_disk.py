@@ -39,10 +39,9 @@ def small_disk(tmp_path):
         subprocess.run(["umount", "-l", str(mnt)], check=False)
 
 
-def _fill(disk: Path) -> Path:
-    """Write a filler file until the disk refuses another byte."""
-    filler = disk / "filler"
-    fd = os.open(filler, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+def _write_until_full(filler: Path, flags: int) -> None:
+    """Write to ``filler`` until the disk refuses another byte."""
+    fd = os.open(filler, os.O_WRONLY | flags, 0o600)
     try:
         for size in (65536, 512, 1):  # down to the last byte
             try:
@@ -52,6 +51,12 @@ def _fill(disk: Path) -> Path:
                 assert exc.errno == errno.ENOSPC
     finally:
         os.close(fd)
+
+
+def _fill(disk: Path) -> Path:
+    """Write a filler file until the disk refuses another byte."""
+    filler = disk / "filler"
+    _write_until_full(filler, os.O_CREAT | os.O_TRUNC)
     return filler
 
 
@@ -243,16 +248,7 @@ def test_a_cycle_kept_in_memory_on_a_full_disk_is_written_to_the_spool_at_a_norm
 
 def _fill_again(filler: Path) -> None:
     """Take every byte the stop freed (another writer on the same disk)."""
-    fd = os.open(filler, os.O_WRONLY | os.O_APPEND)
-    try:
-        for size in (65536, 512, 1):
-            try:
-                while True:
-                    os.write(fd, b"\xff" * size)
-            except OSError as exc:
-                assert exc.errno == errno.ENOSPC
-    finally:
-        os.close(fd)
+    _write_until_full(filler, os.O_APPEND)
 
 
 def _no_wal(db: Path) -> None:

@@ -10,7 +10,6 @@ axis one way only.
 """
 
 import math
-import time
 from dataclasses import replace
 
 import numpy as np
@@ -138,10 +137,7 @@ def _circles(start: str, rng) -> Dataset:
 @pytest.mark.parametrize("start", ["rest", "motion"])
 def test_a_nominal_circle_whose_command_moves_at_its_first_sample_is_none_at_the_noise_floor(start):
     ds = _circles(start, np.random.default_rng(7))
-    t0 = time.perf_counter()
     rep = diagnose(ds)
-    print(f"{start}: gap {rep.gap_before_um:.3f} µm, floor {rep.noise_floor_um:.3f} µm, "
-          f"{time.perf_counter() - t0:.1f} s")
     assert rep.effect == "none", rep.text()
     assert rep.gap_before_um <= 2.0 * rep.noise_floor_um, rep.text()
     c = prepare_contour(ds.runs[0], "train", ds.machine.axes)
@@ -183,9 +179,6 @@ def test_a_line_from_rest_starts_its_model_where_the_encoders_put_the_nut():
 
 def test_nominal_lines_stepping_to_their_feed_from_rest_are_none_at_the_noise_floor():
     ds = _lines(np.random.default_rng(7))
-    t0 = time.perf_counter()
     rep = diagnose(ds)
-    print(f"lines: gap {rep.gap_before_um:.3f} µm, floor {rep.noise_floor_um:.3f} µm, "
-          f"{time.perf_counter() - t0:.1f} s")
     assert rep.effect == "none", rep.text()
     assert rep.gap_before_um <= 2.0 * rep.noise_floor_um, rep.text()
