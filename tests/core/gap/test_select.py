@@ -282,3 +282,37 @@ def test_the_decision_names_no_family(module):
     names = [n.value for n in ast.walk(tree) if isinstance(n, ast.Constant) and isinstance(n.value, str)
              and n.value in FAMILIES]  # fmt: skip
     assert names == []
+
+
+def _report(alternatives, effects=("friction",), gap_after=10.0):
+    from core.gap.report import Candidate, GapReport, Where
+
+    cands = (Candidate(effects[0], 10.0, {}, 5, 10.5), Candidate("none", 20.0, {}, 0, 20.0),
+             Candidate("compliance", 12.0, {}, 4, 12.5))
+    return GapReport("m1", effects[0], Where("round_trip", None, None, None, None, "on the round trips"), 20.0,
+                     gap_after, 0.3, ("a.csv",), ("b.csv",), "given", cands, {"x": 50.0}, {}, {}, 100,
+                     f"{effects[0]} cuts the test gap by 50 %.", {"min_reduction": 0.25}, effects=effects,
+                     close_alternatives=alternatives)  # fmt: skip
+
+
+def test_the_report_says_what_it_does_not_tell_apart():
+    rep = _report((("compliance", 12.0004),))
+    assert rep.to_dict()["close_alternatives"] == [{"effect": "compliance", "gap_after_um": pytest.approx(12.0)}]
+    line = next(li for li in rep.text().splitlines() if li.startswith("Not told apart"))
+    assert "compliance (12.00 µm) also cut the test gap by 25 % or more" in line
+    assert "neither friction (10.00 µm) nor they cut the other's gap by another 25 %" in line
+    quiet = _report(())
+    assert quiet.to_dict()["close_alternatives"] == [] and "Not told apart" not in quiet.text()
+
+
+def test_the_headline_is_the_named_effects_own_figure():
+    """With a second effect the first line gives the named effect's own gap; the pair's is
+    the second effect's line."""
+    rep = _report((), effects=("sampling_skew", "friction"), gap_after=1.49)
+    rep = type(rep)(**{**rep.__dict__, "second_effect": "A second effect remains: friction (together the test gap "
+                                                          "falls to 1.49 µm; sampling_skew alone leaves 10.00 µm)."})
+    lines = rep.text().splitlines()
+    assert lines[2].startswith("Diagnosis: sampling_skew. Adding it, fitted on the train runs only, brings the test "
+                               "gap to 10.00 µm (-50 %).")  # fmt: skip
+    assert "1.49" not in lines[2] and "falls to 1.49 µm" in lines[3]
+    assert rep.to_dict()["gap_after_um"] == 1.49  # the JSON: the gap after the diagnosed effects, both
