@@ -80,6 +80,7 @@ class LimitSettings:
     allow_link_local_controllers: bool = False  # 169.254.x.x / fe80:: controllers (cloud metadata lives there)
     gap_diagnoses_pending: int = 2  # gap diagnoses waiting or running at once; more are refused (429)
     gap_diagnosis_timeout_s: float = 900.0  # a gap diagnosis running longer is stopped, and says so
+    gap_diagnosis_nice: int = 10  # the diagnosis' worker process runs this much below the service (0-19)
 
 
 @dataclass(frozen=True)
@@ -757,14 +758,17 @@ def _limits(table: Mapping, base: LimitSettings) -> LimitSettings:
              "triggers_per_minute": float, "trigger_burst": int,
              "auth_failures_per_minute": float, "auth_failure_burst": int,
              "auth_address_failures_per_minute": float, "auth_address_failure_burst": int,
-             "allow_link_local_controllers": bool, "gap_diagnoses_pending": int, "gap_diagnosis_timeout_s": float}
+             "allow_link_local_controllers": bool, "gap_diagnoses_pending": int, "gap_diagnosis_timeout_s": float,
+             "gap_diagnosis_nice": int}
     _unknown(table, set(kinds), "limits")
     out = replace(base, **{k: _get(table, k, kinds[k], "limits") for k in table})
     for k in kinds:
-        if kinds[k] is bool:
+        if kinds[k] is bool or k == "gap_diagnosis_nice":
             continue
         if not getattr(out, k) > 0:
             raise ConfigError(f"limits.{k} (={getattr(out, k)}) must be > 0")
+    if not 0 <= out.gap_diagnosis_nice <= 19:
+        raise ConfigError(f"limits.gap_diagnosis_nice (={out.gap_diagnosis_nice}) must be 0..19 (0: the service's own priority)")
     return out
 
 

@@ -272,13 +272,14 @@ class GapJobs:
 
     def __init__(self, *, max_pending: int = 2, abandon_s: float = 60.0, cache_size: int = 16,
                  timeout_s: float = 900.0, compute: Callable[[str, int], dict] = diagnose_folder,
-                 use_process: bool = True, clock: Callable[[], float] = time.monotonic):
+                 use_process: bool = True, clock: Callable[[], float] = time.monotonic, nice: int = WORKER_NICE):
         self.max_pending = max_pending
         self.abandon_s = abandon_s
         self.cache_size = cache_size
         self.timeout_s = timeout_s
         self.compute = compute
         self.use_process = use_process
+        self.nice = nice  # the worker process' niceness above the service's
         self.clock = clock
         self.crashes = 0
         self.timeouts = 0
@@ -465,7 +466,7 @@ class GapJobs:
 
     def _process(self) -> ProcessPoolExecutor:
         if self._pool is None:
-            self._pool = spawn_pool(what="gap diagnosis", nice=WORKER_NICE)
+            self._pool = spawn_pool(what="gap diagnosis", nice=self.nice)
             self._warm = False
         return self._pool
 

@@ -96,7 +96,8 @@ class Service:
         self.events = EventHub()  # "measurement stored", "cycle failed", "alert changed" -> every interface
         self.render_status = None  # axis_id -> the status body (bytes); set by the REST app
         self.gap_jobs = GapJobs(max_pending=settings.limits.gap_diagnoses_pending,  # gap diagnoses: bounded jobs,
-                                timeout_s=settings.limits.gap_diagnosis_timeout_s)  # computed in a worker process
+                                timeout_s=settings.limits.gap_diagnosis_timeout_s,  # computed in a worker process
+                                nice=settings.limits.gap_diagnosis_nice)
         self.plots = PlotProcess.shared()  # figure renders, in a worker process (not on the API's interpreter)
         self.figures = FigureCache()  # rendered figures, for the REST plot endpoints and the dashboard alike
         self.maintenance = MaintenanceLoop(self, settings.maintenance)  # work orders, repairs, verification

@@ -12,7 +12,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from api.rest import create_app
-from api.service.config import AxisConfig, Settings
+from api.service.config import AxisConfig, LimitSettings, Settings
 from api.service.runner import CycleOutcome, analyse
 from storage.db import Schedule, config_repo, session_scope
 from tests.storage.db import factories as f
@@ -51,8 +51,10 @@ class FakeRunner:
 def make_settings(url: str, data_dir: Path, **kw) -> Settings:
     axis = AxisConfig("vmc-850", f.settings(controller_url="modbus://127.0.0.1:1",
                                             schedule=Schedule(interval_s=3600.0)))
+    # the gap diagnosis' worker at the tests' own priority: at the default nice +10 the
+    # other tests running beside it would starve it (its niceness is tested in test_gap_jobs)
     base = Settings(data_dir=data_dir, database_url=url, machines=(("vmc-850", "test"),), axes=(axis,),
-                    catch_up_missed=False, demo_keys=False)
+                    catch_up_missed=False, demo_keys=False, limits=LimitSettings(gap_diagnosis_nice=0))
     return replace(base, **kw)
 
 

@@ -24,6 +24,7 @@ auth_address_failures_per_minute = 30
 auth_address_failure_burst = 40
 gap_diagnoses_pending = 3
 gap_diagnosis_timeout_s = 300
+gap_diagnosis_nice = 0
 [storage]
 data_dir = "/var/lib/mebm"
 database_url = "postgresql://mebm@db/mebm"
@@ -96,7 +97,8 @@ def test_every_option_is_read(tmp_path):
     lim = s.limits
     assert (lim.max_header_bytes, lim.max_headers, lim.auth_address_failures_per_minute,
             lim.auth_address_failure_burst) == (32768, 50, 30, 40)
-    assert (lim.gap_diagnoses_pending, lim.gap_diagnosis_timeout_s) == (3, 300.0)
+    assert (lim.gap_diagnoses_pending, lim.gap_diagnosis_timeout_s, lim.gap_diagnosis_nice) == (3, 300.0, 0)
+    assert load_settings(None, env={}).limits.gap_diagnosis_nice == 10  # below the service by default
     assert (s.catch_up_missed, s.spool_retry_s, s.log_level) == (False, 10, "warning")
     assert s.simulator.time_scale == 5 and s.simulator.temperature_period_s == 3600
     (axis,) = s.axes
@@ -164,6 +166,8 @@ def test_instrument_errors_name_the_option(tmp_path, text, where):
      "position_gain_per_s=1\ntravel_mm=[0, 10]\n[[machines.axes.tasks]]\nname='c'\nprofile='circle'\n"
      "feed_mm_min=100\ntolerance_um=5\n", "radius_mm"),
     ("not toml =", "mebm.toml"),
+    ("[limits]\ngap_diagnosis_nice = 20", "limits.gap_diagnosis_nice"),
+    ("[limits]\ngap_diagnosis_nice = -1", "limits.gap_diagnosis_nice"),
 ])
 def test_errors_name_the_option(tmp_path, text, where):
     p = tmp_path / "mebm.toml"

@@ -10,7 +10,6 @@ import io
 import json
 import socket
 import threading
-import time
 from datetime import datetime, timedelta, timezone
 
 import pytest
@@ -20,6 +19,7 @@ from api.service.events import Event, order_document
 from storage.db import OrderRequest, maintenance_repo, results_repo, session_scope
 from tests.api.rest.conftest import FakeRunner, hdr, make_settings
 from tests.storage.db import factories as f
+from tests.waiting import until
 
 V1 = "/api/v1"
 
@@ -105,9 +105,7 @@ def test_order_events_carry_the_step_for_mqtt_webhooks(app_env, runner):
     _measure(svc, runner, axis_id, 260.0)
     (o,) = _order(client, keys)
     client.post(f"{V1}/maintenance/orders/{o['id']}/ack", json={"note": "seen"}, headers=hdr(keys["operate"]))
-    deadline = time.monotonic() + 10
-    while len(seen) < 2 and time.monotonic() < deadline:
-        time.sleep(0.05)
+    until(lambda: len(seen) >= 2, "the order's two events", 60.0)
     svc.events.unsubscribe(sub)
     docs = [order_document(ev) for ev in seen]
     assert [(x["from"], x["state"], x["by"]) for x in docs] == [(None, "open", "mebm"),
@@ -132,9 +130,7 @@ def server(tmp_path):
     srv = uvicorn.Server(uvicorn.Config(app, log_level="warning", access_log=False))
     th = threading.Thread(target=srv.run, kwargs={"sockets": [sock]}, daemon=True)
     th.start()
-    deadline = time.monotonic() + 60
-    while not srv.started and time.monotonic() < deadline:
-        time.sleep(0.05)
+    until(lambda: srv.started, "the server's start", 60.0)
     svc = app.state.service
     keys = {}
     with session_scope(svc.factory) as s:
