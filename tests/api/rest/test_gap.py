@@ -81,7 +81,11 @@ def test_diagnoses_stored_runs_with_the_spec_contract(app_env):
     assert d["runs_used"] == [run.spec.file for run in case.dataset.runs]
     assert d["effect"] == case.label
     assert d["gap_after_um"] < d["gap_before_um"]
-    # the next call is served from the cache at once: same body, with its age
+    # the next call is served from the cache at once, without reading the runs again (every
+    # run is damaged, dataset.json, the data version, is not): same body, with its age
+    folder = svc.executor.dataset_folder(next(iter(svc.executor._axes.values())))
+    for run in case.dataset.runs:
+        (folder / run.spec.file).write_text("time_s\n0\n")
     again = client.get(f"/api/v1/axes/{axis_id}/gap", headers=hdr(keys["read"]))
     assert again.status_code == 200
     later = again.json()

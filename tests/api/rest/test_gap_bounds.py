@@ -1,6 +1,6 @@
 """GET /axes/{id}/gap has bounded work: few jobs at once (429 beyond), abandoned jobs
-are dropped, a cached answer does not read the runs again. The job queue is held busy
-with a real job (an Event) so the bounds are seen deterministically."""
+are dropped (that a cached answer does not read the runs again is in test_gap.py). The job
+queue is held busy with a real job (an Event) so the bounds are seen deterministically."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from api.rest.routers import gap
 from api.service.gap_jobs import JobAbandoned
 from core.gap import GapError
 from tests.api.rest.conftest import hdr
-from tests.api.rest.test_gap import _store_case, get_report
+from tests.api.rest.test_gap import _store_case
 
 
 @pytest.fixture
@@ -56,22 +56,6 @@ def test_a_job_nobody_asks_for_any_more_is_dropped_before_it_starts(app_env, bus
     with pytest.raises(JobAbandoned):
         fut.result(timeout=60)
     assert key not in svc.gap_jobs.pending_keys()  # the next request computes it anew
-
-
-def test_a_cached_answer_does_not_read_the_runs_again(app_env):
-    client, svc, keys, axis_id = app_env
-    case = _store_case(svc, axis_id, "cyclic_error", seed=11)
-    url = f"/api/v1/axes/{axis_id}/gap"
-    first = get_report(client, url, hdr(keys["read"]))
-    assert first.status_code == 200
-    folder = svc.executor.dataset_folder(next(iter(svc.executor._axes.values())))
-    for run in case.dataset.runs:  # damage every run; dataset.json (the data version) is unchanged
-        (folder / run.spec.file).write_text("time_s\n0\n")
-    again = client.get(url, headers=hdr(keys["read"]))
-    assert again.status_code == 200
-    a, f = again.json(), first.json()
-    assert a.pop("age_s") >= f.pop("age_s") >= 0  # a cached answer says how old it is
-    assert a == f
 
 
 def test_waiting_gap_requests_hold_no_worker_thread(tmp_path, monkeypatch):
