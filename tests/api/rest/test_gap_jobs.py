@@ -31,6 +31,15 @@ def jobs():
     j.close()
 
 
+@pytest.fixture
+def own_priority_jobs():
+    """Jobs whose worker runs at the tests' own priority (``nice=0``): at the default +10
+    the tests running beside it on a busy machine would starve it."""
+    j = GapJobs(compute=where_am_i, nice=0)
+    yield j
+    j.close()
+
+
 def test_the_diagnosis_runs_in_another_process_which_is_kept_for_the_next_job(jobs, tmp_path):
     first = jobs.submit(("a", 2), tmp_path, 2).result(timeout=120)
     second = jobs.submit(("a", 3), tmp_path, 3).result(timeout=120)
@@ -41,7 +50,8 @@ def test_the_diagnosis_runs_in_another_process_which_is_kept_for_the_next_job(jo
     assert jobs.submit(("a", 2), tmp_path, 2).result(timeout=1) == first  # the cached answer
 
 
-def test_a_worker_that_dies_fails_its_job_and_is_replaced(jobs, tmp_path):
+def test_a_worker_that_dies_fails_its_job_and_is_replaced(own_priority_jobs, tmp_path):
+    jobs = own_priority_jobs
     before = jobs.submit(("b", 2), tmp_path, 2).result(timeout=120)
     with pytest.raises(DiagnosisCrashed, match="died"):
         jobs.submit(("b", 99), tmp_path, 99).result(timeout=120)
@@ -56,7 +66,7 @@ def test_a_worker_that_dies_fails_its_job_and_is_replaced(jobs, tmp_path):
 
 def test_closing_ends_a_running_diagnosis_at_once_without_counting_a_crash(tmp_path):
     """The stop does not wait for a diagnosis (it is asked again), and leaves no process."""
-    j = GapJobs(compute=where_am_i)
+    j = GapJobs(compute=where_am_i, nice=0)
     fut = j.submit(("c", 98), tmp_path, 98)
     deadline = time.monotonic() + 120
     while not (tmp_path / "running").exists() and time.monotonic() < deadline:
