@@ -184,10 +184,13 @@ def test_one_case_of_a_benchmark_again_and_its_dataset_written(tmp_path, capsys)
 
 
 def test_a_kept_dataset_is_the_one_diagnosed_and_generated_once(monkeypatch):
+    """The harness, not the diagnosis: the diagnosis is a recorder here (what it makes of
+    a benchmark case is tested by the other tests of this file and in tests/core/gap)."""
     import importlib
 
     bm = importlib.import_module("core.gap.benchmark")
-    made, kept = [], []
+    dg = importlib.import_module("core.gap.diagnose")  # the module (core.gap.diagnose is also the function)
+    made, kept, diagnosed = [], [], []
     real = bm._plant_case
 
     def counted(*a, **k):
@@ -195,10 +198,16 @@ def test_a_kept_dataset_is_the_one_diagnosed_and_generated_once(monkeypatch):
         made.append(out[0])
         return out
 
+    def recorded(ds, *a, **k):
+        diagnosed.append(ds)
+        raise ValueError("recorded, not diagnosed")
+
     monkeypatch.setattr(bm, "_plant_case", counted)
+    monkeypatch.setattr(dg, "diagnose", recorded)
     res = bm.run_benchmark(3, 4, bm.SMALL, only=[2], keep_dataset=lambda i, labs, ds, truth: kept.append((i, labs, ds)))
     assert len(made) == 1 and [(i, labs) for i, labs, _ in kept] == [(2, ())]
-    assert kept[0][2] is made[0] and res.cases[0].index == 2
+    assert kept[0][2] is made[0] and len(diagnosed) == 1 and diagnosed[0] is made[0]
+    assert res.cases[0].index == 2 and res.cases[0].diagnosed == "error"
 
 
 @pytest.mark.parametrize("only", ["0", "4", "x", ","])
