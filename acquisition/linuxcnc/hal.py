@@ -1,0 +1,185 @@
+"""LinuxCNC's HAL through its own tools: ``halcmd`` for pins and threads, ``halsampler``
+for the sampler's FIFO. Both talk to the HAL of this host (its shared memory), so the
+driver runs on the LinuxCNC computer, as the LinuxCNC user or root.
+
+:class:`HalSampler` runs ``halsampler -t -c N`` and parses its lines (the sample number,
+then the sampler's pins in order) in a reader thread; ``overrun`` lines (the FIFO was full
+and the sampler dropped samples) are counted, never skipped.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from acquisition.errors import ControllerConnectionError, ControllerTimeoutError
+from acquisition.linuxcnc.errors import HalPinError
+
+S32 = 1 << 32
+
+
+def _tool(name: str) -> str:
+    path = shutil.which(name)
+    if path is None:
+        raise ControllerConnectionError(f"{name} not found: mebm's LinuxCNC driver runs on the LinuxCNC computer "
+                                        "(linuxcnc-uspace installed)")
+    return path
+
+
+def halcmd(*args: str, timeout_s: float = 5.0) -> str:
+    """``halcmd -s ARGS`` (script output); a failure to reach HAL is a connection error."""
+    try:
+        proc = subprocess.run([_tool("halcmd"), "-s", *args], capture_output=True, text=True, timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        raise ControllerTimeoutError(f"halcmd {' '.join(args)} did not answer within {timeout_s:g} s") from None
+    if proc.returncode != 0:
+        err = (proc.stderr or proc.stdout).strip()
+        if "not found" in err:
+            raise HalPinError(f"HAL: {err}", pin=args[-1])
+        raise ControllerConnectionError(f"halcmd {' '.join(args)} failed ({err or proc.returncode}): is LinuxCNC "
+                                        "(its HAL) running?")
+    return proc.stdout
+
+
+@dataclass(frozen=True)
+class HalPin:
+    """One line of ``halcmd -s show pin``."""
+
+    name: str
+    type: str
+    direction: str
+    signal: str | None
+
+
+def show_pin(name: str) -> HalPin:
+    """The pin called exactly ``name``; :class:`HalPinError` when there is none."""
+    for line in halcmd("show", "pin", name).splitlines():
+        w = line.split()
+        if len(w) >= 5 and w[4] == name:
+            return HalPin(name, w[1], w[2], w[6] if len(w) >= 7 else None)
+    raise HalPinError(f"HAL has no pin {name!r}: check the pin name (halcmd show pin) in the controller URL",
+                      pin=name)
+
+
+def thread_period_s(function: str) -> float:
+    """The period of the realtime thread that runs ``function`` (``halcmd show thread``)."""
+    for line in halcmd("show", "thread").splitlines():
+        w = line.split()
+        if len(w) >= 5 and function in w[5:]:
+            return int(w[0]) * 1e-9
+    raise HalPinError(f"no HAL thread runs {function!r}: add 'addf {function} servo-thread' "
+                      "(docs/controllers.md)", pin=function)
+
+
+def getp(name: str) -> str:
+    return halcmd("getp", name).strip()
+
+
+def setp(name: str, value: str) -> None:
+    halcmd("setp", name, value)
+
+
+class HalSampler:
+    """``halsampler -t -c CHANNEL``, its lines parsed in a thread: :meth:`take` hands over
+    ``(sample numbers unwrapped, values [n, columns])`` and the overruns seen since."""
+
+    def __init__(self, channel: int, columns: int):
+        self.channel, self.columns = int(channel), int(columns)
+        self._proc: subprocess.Popen | None = None
+        self._thread: threading.Thread | None = None
+        self._lock = threading.Lock()
+        self._rows: deque = deque()
+        self.overruns = 0  # 'overrun' lines: gaps in the data
+        self.bad_lines = 0
+        self.lines = 0
+        self.eof = False
+        self.stderr = ""
+        self._last_tag: int | None = None
+        self._wrap = 0
+        self.t_last_line = time.monotonic()
+
+    @property
+    def pid(self) -> int | None:
+        return self._proc.pid if self._proc is not None else None
+
+    def start(self) -> None:
+        cmd = [_tool("halsampler"), "-t", "-c", str(self.channel)]
+        stdbuf = shutil.which("stdbuf")
+        if stdbuf:
+            cmd = [stdbuf, "-oL", *cmd]  # a line as soon as it is read from the FIFO
+        self._proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, bufsize=1)
+        self._thread = threading.Thread(target=self._read, name=f"halsampler-{self.channel}", daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        proc = self._proc
+        for line in proc.stdout:
+            self.t_last_line = time.monotonic()
+            w = line.split()
+            if not w:
+                continue
+            with self._lock:
+                self.lines += 1
+                if w[0] == "overrun":
+                    self.overruns += 1
+                    continue
+                if len(w) != self.columns + 1:
+                    self.bad_lines += 1
+                    continue
+                try:
+                    tag = int(w[0])
+                    vals = [float(x) for x in w[1:]]
+                except ValueError:
+                    self.bad_lines += 1
+                    continue
+                if self._last_tag is not None and tag < self._last_tag - S32 // 2:
+                    self._wrap += S32  # the s32 sample number wrapped
+                self._last_tag = tag
+                self._rows.append((tag + self._wrap, vals))
+        self.stderr = proc.stderr.read() if proc.stderr else ""
+        self.eof = True
+
+    def take(self) -> tuple[np.ndarray, np.ndarray]:
+        with self._lock:
+            rows = list(self._rows)
+            self._rows.clear()
+        if not rows:
+            return np.zeros(0, dtype=np.int64), np.zeros((0, self.columns))
+        return (np.fromiter((r[0] for r in rows), dtype=np.int64, count=len(rows)),
+                np.asarray([r[1] for r in rows], dtype=float))
+
+    def wait_quiet(self, quiet_s: float, timeout_s: float) -> None:
+        """Until no line came for ``quiet_s`` (the FIFO's backlog is read)."""
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            if self.eof or time.monotonic() - self.t_last_line >= quiet_s:
+                return
+            time.sleep(0.01)
+        raise ControllerTimeoutError(f"halsampler -c {self.channel} still reading after {timeout_s:g} s with the "
+                                     "sampler disabled: is another sampler writing to it?")
+
+    def stop(self) -> None:
+        proc, self._proc = self._proc, None
+        if proc is not None:
+            if proc.poll() is None:
+                proc.terminate()
+                try:
+                    proc.wait(2.0)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait(2.0)
+        if self._thread is not None:
+            self._thread.join(2.0)  # it reads to the end of the output, then stops
+            self._thread = None
+        if proc is not None:
+            for f in (proc.stdout, proc.stderr):
+                try:
+                    f.close()
+                except (OSError, ValueError):
+                    pass
