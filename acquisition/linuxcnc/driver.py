@@ -99,7 +99,8 @@ class LinuxcncDriver(ControllerDriver):
         self._t_run = 0.0
         self._commands: list[np.ndarray] = []
         self.last_command_mm = np.zeros(0)  # the commanded position beside the last trace's samples
-        self.last_counter = np.zeros(0, dtype=np.int64)
+        self._links = 0  # links opened (a trace is read on one link)
+        self.samples_read = 0  # samples handed to the cycle under way (the tests wait on it)
 
     def describe(self) -> str:
         return f"linuxcnc://{self.host}:{self.port}?joint={self.joint}"
@@ -112,12 +113,10 @@ class LinuxcncDriver(ControllerDriver):
     # -- the link -------------------------------------------------------------------------------
     async def _connect(self) -> None:
         cycle = self._cycle
-        if cycle is not None and cycle.wire == "drained":
-            # samples were drained in this cycle: those of the outage are gone for good
-            raise LostSamplesError(f"the link to {self.describe()} was lost mid-trace: the samples while it was "
-                                   "down are not in the trace", lost_samples=1)
+        self._links += 1
         if cycle is not None and not cycle.ever_connected:
             self._commands = []
+            self.samples_read = 0
         self.rsh = RshClient(self.host, self.port, timeout_s=self.timeout_s)
         await self.rsh.open(enable=self.trigger == "active")
         await asyncio.to_thread(self._open_sampler)
@@ -173,8 +172,14 @@ class LinuxcncDriver(ControllerDriver):
     # -- state --------------------------------------------------------------------------------
     async def _state(self) -> tuple[bool, bool, str]:
         rsh = self._rsh()
-        estop = (await rsh.get("estop"))[0].upper() == "ON"
+        # machine first: an e-stop between the two reads then shows as the e-stop it is
         machine = (await rsh.get("machine"))[0].upper() == "ON"
+        estop = (await rsh.get("estop"))[0].upper() == "ON"
+        for _ in range(3):  # an e-stop passes through machine off before task reports it
+            if machine or estop:
+                break
+            await asyncio.sleep(0.05)
+            estop = (await rsh.get("estop"))[0].upper() == "ON"
         program = (await rsh.get("program_status"))[0].upper()
         return estop, machine, program
 
@@ -207,6 +212,15 @@ class LinuxcncDriver(ControllerDriver):
                 f"G53 G1 {a}{program.start_mm:.4f} F{f:.1f}\n{dwell}M2\n")
 
     async def _start(self, program: RoundTripProgram) -> int | None:
+        try:
+            return await self._run_program(program)
+        except ProtocolError:
+            # a refused command: because of the machine's state (e-stop, off)? say so
+            estop, machine, _ = await self._state()
+            self._raise_for(estop, machine, " while mebm started the round trip")
+            raise
+
+    async def _run_program(self, program: RoundTripProgram) -> int | None:
         rsh = self._rsh()
         idx = AXIS_LETTERS.index(self.axis_letter)
         here = float((await rsh.get("abs_cmd_pos"))[idx])
@@ -226,6 +240,7 @@ class LinuxcncDriver(ControllerDriver):
         await rsh.set(f"open {path}")
         self.sampler.take()  # the trace begins with the program
         self._commands = []
+        self.samples_read = 0
         self._seen_running = False
         self._t_run = time.monotonic()
         await rsh.set("run")
@@ -240,23 +255,41 @@ class LinuxcncDriver(ControllerDriver):
 
     async def _abort(self) -> None:
         if self.rsh is not None and self.rsh.enabled:
-            await self.rsh.set("abort")
+            try:
+                await self.rsh.set("abort")
+            except ProtocolError:
+                estop, machine, _ = await self._state()
+                if not (estop or not machine):
+                    raise  # refused on a running machine
+                # an e-stop or a machine off has stopped the axis already
 
     async def _acknowledge(self) -> None:
         return None  # LinuxCNC's states need the operator (e-stop, machine on): _read_status raises for them
 
     # -- samples --------------------------------------------------------------------------------
-    def _samples(self, finished: bool = False) -> SampleBlock:
+    async def _samples(self, finished: bool = False) -> SampleBlock:
+        """The samples halsampler printed since the last call. The sampler's ``overruns`` pin
+        is read after them: a sample written after a drop is in hand only once the drop is
+        counted there (halsampler's ``overrun`` line may come later than the samples)."""
         s = self.sampler
         if s is None:
             raise ControllerConnectionError(f"not connected to {self.describe()}")
+        cycle = self._cycle
+        if cycle is not None and cycle.wire is not None and cycle.wire != self._links:
+            # samples were drained on a link that was lost: those of the outage are gone for good
+            raise LostSamplesError(f"the link to {self.describe()} was lost mid-trace: the samples while it was "
+                                   "down are not in the trace", lost_samples=1)
         tags, vals = s.take()
-        if s.overruns:
-            lost = max(int(hal.getp(f"sampler.{self.sampler_channel}.overruns")) - self._overruns0, s.overruns)
-            raise LostSamplesError(
-                f"sampler.{self.sampler_channel} overran {s.overruns} time(s) ({lost} samples dropped): halsampler "
-                "did not keep up (a busy host, or a FIFO too small: depth= in the sampler line)", lost_samples=lost)
-        if s.eof and not tags.size:
+        eof = s.eof
+        if not eof:
+            dropped = int(await asyncio.to_thread(hal.getp, f"sampler.{self.sampler_channel}.overruns"))
+            dropped -= self._overruns0
+            if dropped or s.overruns:
+                lost = max(dropped, s.overruns)
+                raise LostSamplesError(
+                    f"sampler.{self.sampler_channel} dropped {lost} sample(s) so far (FIFO full): halsampler did not keep up "
+                    "(a busy host, or a FIFO too small: depth= in the sampler line)", lost_samples=lost)
+        elif not tags.size:
             raise ControllerConnectionError(f"halsampler ended ({s.stderr.strip() or 'HAL gone'}): LinuxCNC stopped "
                                             "mid-trace")
         if s.bad_lines:
@@ -265,9 +298,10 @@ class LinuxcncDriver(ControllerDriver):
         if not tags.size:
             return SampleBlock.empty(finished)
         motor = vals[:, 0] if self.motor_units == "rev" else vals[:, 0] / self.cycle.axis.transmission_mm_per_rev
+        if cycle is not None:
+            cycle.wire = self._links  # the link the trace is read on
         self._commands.append(vals[:, 2])
-        if self._cycle is not None:
-            self._cycle.wire = "drained"  # from now on a lost link loses samples
+        self.samples_read += int(tags.size)
         return SampleBlock(tags, motor, vals[:, 1], finished=finished, time_s=tags / self.servo_rate_hz)
 
     async def _poll_state(self, when: str) -> str | None:
@@ -281,21 +315,24 @@ class LinuxcncDriver(ControllerDriver):
         return program
 
     async def _drain(self) -> SampleBlock:
+        """Samples and the program's state, together every ``STATUS_INTERVAL_S``."""
         program = await self._poll_state(" during the round trip")
+        if program is None:
+            return SampleBlock.empty()
         finished = False
-        if program is not None:
-            if program in ("RUNNING", "PAUSED"):
-                self._seen_running = True
-            elif self._seen_running:
-                finished = True  # the program ended (its last dwell is in the trace)
-            elif time.monotonic() - self._t_run > 3.0:
-                raise ProtocolError(f"LinuxCNC at {self.describe()} did not run the round-trip program "
-                                    f"(program status {program})")
-        block = self._samples(finished)
+        if program in ("RUNNING", "PAUSED"):
+            self._seen_running = True
+        elif self._seen_running:
+            finished = True  # the program ended (its last dwell is in the trace)
+        elif time.monotonic() - self._t_run > 3.0:
+            raise ProtocolError(f"LinuxCNC at {self.describe()} did not run the round-trip program "
+                                f"(program status {program})")
+        block = await self._samples(finished)
         if finished:
             self.last_command_mm = np.concatenate(self._commands) if self._commands else np.zeros(0)
         return block
 
     async def _passive_drain(self) -> SampleBlock:
-        await self._poll_state(" while mebm listened for a round trip")
-        return self._samples()
+        if await self._poll_state(" while mebm listened for a round trip") is None:
+            return SampleBlock.empty()
+        return await self._samples()
