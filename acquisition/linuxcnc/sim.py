@@ -106,6 +106,7 @@ class LinuxcncSim:
     def __init__(self, settings: SimSettings = SimSettings(), *, run_dir: str | Path | None = None,
                  user: str | None = None):
         self.settings = settings
+        self._own_dir = run_dir is None  # a temporary directory of ours: removed by stop()
         self.run_dir = Path(run_dir) if run_dir is not None else Path(tempfile.mkdtemp(prefix="mebm-linuxcnc-"))
         self.user = user
         self.proc: subprocess.Popen | None = None
@@ -172,7 +173,7 @@ class LinuxcncSim:
         while not _answers(self.settings.port):
             if self.proc.poll() is not None or time.monotonic() > end:
                 tail = self.log_text()[-2000:]
-                self.stop()
+                self.stop()  # (removes a temporary run directory: the log's end is in the message)
                 raise SimStartError(f"LinuxCNC did not start (linuxcncrsh on port {self.settings.port}):\n{tail}")
             time.sleep(0.1)
 
@@ -243,6 +244,8 @@ class LinuxcncSim:
                 proc.wait(10.0)
             except subprocess.TimeoutExpired:
                 pass
+        if self._own_dir:
+            shutil.rmtree(self.run_dir, ignore_errors=True)
 
     def __enter__(self) -> "LinuxcncSim":
         self.start()
