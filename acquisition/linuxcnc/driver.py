@@ -92,8 +92,7 @@ class LinuxcncDriver(ControllerDriver):
         self.program_dir = program_dir
         self.rsh: RshClient | None = None
         self.sampler: hal.HalSampler | None = None
-        self._enable_before: str | None = None
-        self._overruns0 = 0
+        self.session: hal.SamplerSession | None = None
         self._t_status = 0.0
         self._seen_running = False
         self._t_run = 0.0
@@ -135,36 +134,16 @@ class LinuxcncDriver(ControllerDriver):
                     f"sampler.{n}.pin.{col} ({COLUMNS[col]}) records signal {dst.signal or 'none'}, but {pin} is on "
                     f"{src.signal or 'no signal'}: net {pin} to sampler.{n}.pin.{col} (docs/controllers.md)", pin=pin)
         self.servo_rate_hz = 1.0 / hal.thread_period_s(f"sampler.{n}")
-        self._enable_before = hal.getp(f"sampler.{n}.enable")
-        hal.setp(f"sampler.{n}.enable", "0")  # the backlog is read and dropped; nothing new comes in
-        self.sampler = hal.HalSampler(n, len(COLUMNS))
-        self.sampler.start()
-        self.sampler.wait_quiet(0.1, 5.0)
-        if self.sampler.eof:
-            raise ControllerConnectionError(f"halsampler -c {n} ended at once: {self.sampler.stderr.strip()}")
-        self.sampler.take()
-        self.sampler.overruns = 0
-        self._overruns0 = int(hal.getp(f"sampler.{n}.overruns"))
-        lines = self.sampler.lines
-        hal.setp(f"sampler.{n}.enable", "1")
-        end = time.monotonic() + self.timeout_s
-        while self.sampler.lines == lines:
-            if time.monotonic() > end or self.sampler.eof:
-                raise ControllerTimeoutError(f"sampler.{n} recorded nothing in {self.timeout_s:g} s: is its thread "
-                                             "running (LinuxCNC started)?")
-            time.sleep(0.002)
+        self.session = hal.SamplerSession(n, len(COLUMNS))
+        try:
+            self.session.open(self.timeout_s)
+        finally:
+            self.sampler = self.session.reader
 
     async def _close(self) -> None:
-        sampler, self.sampler = self.sampler, None
-        if sampler is not None:
-            await asyncio.to_thread(sampler.stop)
-        if self._enable_before is not None:
-            try:  # the sampler as it was found
-                await asyncio.to_thread(hal.setp, f"sampler.{self.sampler_channel}.enable",
-                                        "1" if self._enable_before.upper() in ("TRUE", "1") else "0")
-            except Exception:  # noqa: BLE001 - closing never fails (LinuxCNC may be gone)
-                pass
-            self._enable_before = None
+        session, self.session, self.sampler = self.session, None, None
+        if session is not None:
+            await asyncio.to_thread(session.close)
         if self.rsh is not None:
             await self.rsh.close()
             self.rsh = None
@@ -282,13 +261,11 @@ class LinuxcncDriver(ControllerDriver):
         tags, vals = s.take()
         eof = s.eof
         if not eof:
-            dropped = int(await asyncio.to_thread(hal.getp, f"sampler.{self.sampler_channel}.overruns"))
-            dropped -= self._overruns0
-            if dropped or s.overruns:
-                lost = max(dropped, s.overruns)
+            lost = await asyncio.to_thread(self.session.dropped)
+            if lost:
                 raise LostSamplesError(
-                    f"sampler.{self.sampler_channel} dropped {lost} sample(s) so far (FIFO full): halsampler did not keep up "
-                    "(a busy host, or a FIFO too small: depth= in the sampler line)", lost_samples=lost)
+                    f"sampler.{self.sampler_channel} dropped {lost} sample(s) so far (FIFO full): halsampler did not "
+                    "keep up (a busy host, or a FIFO too small: depth= in the sampler line)", lost_samples=lost)
         elif not tags.size:
             raise ControllerConnectionError(f"halsampler ended ({s.stderr.strip() or 'HAL gone'}): LinuxCNC stopped "
                                             "mid-trace")

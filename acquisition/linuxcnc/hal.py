@@ -183,3 +183,54 @@ class HalSampler:
                     f.close()
                 except (OSError, ValueError):
                     pass
+
+
+class SamplerSession:
+    """A sampler read from the present servo period on: ``open()`` disables the sampler,
+    starts halsampler, reads and drops the FIFO's backlog, notes the ``overruns`` pin and
+    enables the sampler again; ``dropped()`` is how many samples the FIFO has dropped since
+    (read after taking samples: any sample written after a drop is then counted);
+    ``close()`` stops halsampler and leaves ``enable`` as it was found."""
+
+    def __init__(self, channel: int, columns: int):
+        self.channel, self.columns = int(channel), int(columns)
+        self.reader: HalSampler | None = None
+        self._enable_before: str | None = None
+        self._overruns0 = 0
+
+    def open(self, timeout_s: float) -> None:
+        n = self.channel
+        self._enable_before = getp(f"sampler.{n}.enable")
+        setp(f"sampler.{n}.enable", "0")  # the backlog is read and dropped; nothing new comes in
+        self.reader = HalSampler(n, self.columns)
+        self.reader.start()
+        self.reader.wait_quiet(0.1, 5.0)
+        if self.reader.eof:
+            raise ControllerConnectionError(f"halsampler -c {n} ended at once: {self.reader.stderr.strip()}")
+        self.reader.take()
+        self.reader.overruns = 0
+        self._overruns0 = int(getp(f"sampler.{n}.overruns"))
+        lines = self.reader.lines
+        setp(f"sampler.{n}.enable", "1")
+        end = time.monotonic() + timeout_s
+        while self.reader.lines == lines:
+            if time.monotonic() > end or self.reader.eof:
+                raise ControllerTimeoutError(f"sampler.{n} recorded nothing in {timeout_s:g} s: is its thread "
+                                             "running (LinuxCNC started)?")
+            time.sleep(0.002)
+
+    def dropped(self) -> int:
+        """Samples the FIFO dropped since :meth:`open` (the pin, or halsampler's overrun lines)."""
+        pin = int(getp(f"sampler.{self.channel}.overruns")) - self._overruns0
+        return max(pin, self.reader.overruns if self.reader is not None else 0)
+
+    def close(self) -> None:
+        reader, self.reader = self.reader, None
+        if reader is not None:
+            reader.stop()
+        if self._enable_before is not None:
+            try:  # the sampler as it was found
+                setp(f"sampler.{self.channel}.enable", "1" if self._enable_before.upper() in ("TRUE", "1") else "0")
+            except Exception:  # noqa: BLE001 - closing never fails (LinuxCNC may be gone)
+                pass
+            self._enable_before = None
