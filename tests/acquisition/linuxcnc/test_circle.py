@@ -8,25 +8,18 @@ agree with Eq. 8 evaluated at mebm's b̄ within 10 %. One LinuxCNC start for the
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from acquisition.cycle import run_cycle
+from acquisition.linuxcnc.closed_loop import half_circle_gcode, quadrant_bumps_um
 from acquisition.linuxcnc.contour import record_contour
 from acquisition.linuxcnc.sim import SimSettings
 from acquisition.url import driver_from_url
-from core.tbe.formulas import circle_steady_lag_um, tbe_circle_um
+from core.tbe.formulas import tbe_circle_um
 from tests.acquisition.linuxcnc.rig import AXIS, BACKLASH_UM, PROGRAM, running_sim
 
 RADIUS_MM, FEED_MM_MIN = 50.0, 2000.0
 K_PER_S = AXIS.position_gain_per_s
-
-
-def half_circle_gcode(radius_mm: float, feed_mm_min: float) -> str:
-    """G3 (counter-clockwise) from -45° to 135° about the origin, after a move to its start."""
-    c = radius_mm / np.sqrt(2.0)
-    return (f"G21 G90 G17 G61 G54\nG1 X{c:.4f} Y{-c:.4f} F{feed_mm_min:g}\nG4 P0.5\n"
-            f"G3 X{-c:.4f} Y{c:.4f} I{-c:.4f} J{c:.4f} F{feed_mm_min:g}\nG4 P0.3\nM2\n")
 
 
 @pytest.fixture(scope="module")
@@ -49,14 +42,7 @@ def test_the_circle_s_quadrant_bumps_agree_with_eq_8_at_mebm_s_backlash(measured
     cycle, rec = measured
     assert cycle.ok, cycle.reason
     tbe_um = float(tbe_circle_um(cycle.result.backlash_mean_um, RADIUS_MM, FEED_MM_MIN, K_PER_S))
-    (x, y), (xc, yc) = rec.table_mm, rec.command_mm
-    on_arc = np.abs(np.hypot(xc, yc) - RADIUS_MM) < 1e-3
-    angle_deg = np.degrees(np.arctan2(yc, xc))
-    # Eq. 8 is the deviation from the circle the loop traces without backlash, R cos φ
-    radial_um = np.hypot(x, y) * 1e3 - (RADIUS_MM * 1e3 - circle_steady_lag_um(RADIUS_MM, FEED_MM_MIN, K_PER_S))
-    between = on_arc & (((angle_deg > -30) & (angle_deg < -5)) | ((angle_deg > 50) & (angle_deg < 85)))
-    assert abs(np.median(radial_um[between])) < 0.05 * tbe_um  # away from the transitions: R cos φ
-    for quadrant_deg in (0.0, 90.0):  # X reverses at 0°, Y at 90°
-        after = on_arc & (angle_deg >= quadrant_deg) & (angle_deg < quadrant_deg + 40.0)
-        bump_um = float(radial_um[after].max())
+    bumps, between_um = quadrant_bumps_um(rec, RADIUS_MM, FEED_MM_MIN, K_PER_S)
+    assert abs(between_um) < 0.05 * tbe_um  # away from the transitions the loop traces R cos φ
+    for quadrant_deg, bump_um in bumps.items():  # X reverses at 0°, Y at 90°
         assert bump_um == pytest.approx(tbe_um, rel=0.10), (quadrant_deg, bump_um, tbe_um)

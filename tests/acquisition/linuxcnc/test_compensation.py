@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from acquisition.cycle import run_cycle
+from acquisition.linuxcnc.closed_loop import reversal_lost_motion_um
 from acquisition.linuxcnc.sim import SimSettings
 from acquisition.types import RoundTripProgram
 from acquisition.url import driver_from_url
@@ -33,28 +34,11 @@ ROOT = Path(__file__).resolve().parents[3]
 PROGRAM = RoundTripProgram(-1.5, 13.5, 1200.0, acceleration_mm_s2=500.0, dwell_s=0.5)
 
 
-def lost_motion_um(table_mm: np.ndarray, command_mm: np.ndarray, program: RoundTripProgram) -> float:
-    """Table minus command at rest at the reversal (approached moving +) minus the same at
-    rest back at the start (approached moving -): the lost motion of the reversal. Each
-    rest is the last fifth of the samples whose command sits at that end."""
-    err = table_mm - command_mm
-    at_end = np.flatnonzero(np.abs(command_mm - program.end_mm) < 1e-6)
-    turn = int(at_end[-1])
-    back = np.flatnonzero(np.abs(command_mm - program.start_mm) < 1e-6)
-    back = back[back > turn]
-
-    def settled(idx: np.ndarray) -> float:
-        assert idx.size > 50, idx.size
-        return float(np.mean(err[idx[-idx.size // 5:]]))
-
-    return abs(settled(at_end) - settled(back)) * 1e3
-
-
 def measure(sim):
     drv = driver_from_url(sim.url + "&trigger=active", timeout_s=2.0)
     r = run_cycle(drv, AXIS, PROGRAM)
     assert r.ok, r.reason
-    return r, lost_motion_um(r.trace.table_mm, drv.last_command_mm, PROGRAM)
+    return r, reversal_lost_motion_um(r.trace.table_mm, drv.last_command_mm, PROGRAM)
 
 
 @pytest.fixture(scope="module")

@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import pytest
 
+from acquisition.linuxcnc.closed_loop import half_circle_gcode
 from acquisition.linuxcnc.contour import record_contour
 from acquisition.linuxcnc.sim import SimSettings
 from core.dataset import AxisSpec, Dataset, MachineSpec, Run, RunSpec
 from core.gap import diagnose
 from core.gap.diagnose import GapSettings
 from tests.acquisition.linuxcnc.rig import AXIS, BACKLASH_UM, running_sim
-from tests.acquisition.linuxcnc.test_circle import half_circle_gcode
 
 RADIUS_MM = 20.0
 FEEDS = ((1000.0, "train"), (2000.0, "test"))
