@@ -28,7 +28,7 @@ from core.errors import InputError, MebmError
 SIM_DIR = Path(__file__).resolve().parent / "sim"
 LOOPS = ("semi", "full")
 #: The HAL pins of the simulated X axis (joint 0) that mebm's driver reads.
-MOTOR_PIN, SCALE_PIN = "x-motor.out", "x-table.out"
+MOTOR_PIN, SCALE_PIN = "x-motor.out", "x-scale.out"
 
 
 class SimStartError(MebmError, RuntimeError):
@@ -41,14 +41,16 @@ class SimSettings:
     """The simulated machine. ``loop``: ``semi`` (pid on the motor encoder) or ``full`` (on
     the linear scale); ``p_gain_per_s``: pid P (the position loop gain K, 1/s); ``ff1``: pid
     FF1 (1: full velocity feed-forward); ``drive_tau_s``: the drive's velocity loop time
-    constant; ``comp_file``: a LinuxCNC compensation table for joints 0 and 1
-    (``COMP_FILE_TYPE`` = ``comp_type``)."""
+    constant; ``scale_resolution_um``: the linear scales' resolution (their reading is
+    rounded to it: the quantisation is their noise); ``comp_file``: a LinuxCNC compensation
+    table for joints 0 and 1 (``COMP_FILE_TYPE`` = ``comp_type``)."""
 
     backlash_um: float = 120.0
     loop: str = "semi"
     p_gain_per_s: float = 30.0
     ff1: float = 0.0
     drive_tau_s: float = 0.0
+    scale_resolution_um: float = 0.001
     port: int = 5007
     servo_period_ns: int = 1_000_000
     comp_file: str | None = None
@@ -65,6 +67,8 @@ class SimSettings:
             raise InputError(f"ff1 (={self.ff1}) must be in 0..2")
         if not 0 <= self.drive_tau_s < 1:
             raise InputError(f"drive_tau_s (={self.drive_tau_s}) must be in 0..1 s")
+        if not 0.001 <= self.scale_resolution_um <= 100:
+            raise InputError(f"scale_resolution_um (={self.scale_resolution_um}) must be in 0.001..100")
         if not 1 <= self.port <= 65535:
             raise InputError(f"port (={self.port}) must be 1..65535")
         if not 100_000 <= self.servo_period_ns <= 10_000_000:
@@ -132,6 +136,10 @@ class LinuxcncSim:
         ini = set_ini(ini, "MEBM_CHAIN", "BACKLASH_NEG_HALF_MM", f"{-half_mm:.6f}")
         period_s = s.servo_period_ns * 1e-9
         ini = set_ini(ini, "MEBM_CHAIN", "DRIVE_GAIN", f"{period_s / (s.drive_tau_s + period_s):.6f}")
+        res_mm = s.scale_resolution_um / 1000.0
+        ini = set_ini(ini, "MEBM_CHAIN", "SCALE_RESOLUTION_MM", f"{res_mm:.9f}")
+        ini = set_ini(ini, "MEBM_CHAIN", "SCALE_COUNTS_PER_MM", f"{1.0 / res_mm:.6f}")
+        ini = set_ini(ini, "MEBM_CHAIN", "SCALE_ZERO_MM", f"{-1e6 * res_mm:.9f}")
         ini = ini.replace("HALFILE = loop_semi.hal", f"HALFILE = loop_{s.loop}.hal")
         for j in (0, 1):
             ini = set_ini(ini, f"JOINT_{j}", "P", f"{s.p_gain_per_s:g}")

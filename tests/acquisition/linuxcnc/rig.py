@@ -19,9 +19,11 @@ from pathlib import Path
 
 import pytest
 
+from acquisition.linuxcnc.closed_loop import half_circle_gcode
+from acquisition.linuxcnc.contour import record_contour
 from acquisition.linuxcnc.sim import LinuxcncSim, SimSettings, linuxcnc_available
 from acquisition.types import RoundTripProgram
-from core.dataset import AxisSpec
+from core.dataset import AxisSpec, Dataset, MachineSpec, Run, RunSpec
 
 USER = "mebm-linuxcnc"
 #: The simulated X axis as mebm knows it (K is the sim's P).
@@ -102,3 +104,27 @@ def in_thread(fn, *args, **kwargs):
     t = threading.Thread(target=body, daemon=True)
     t.start()
     return t, out
+
+
+def circles_dataset(sim: LinuxcncSim, radius_mm: float, feeds, recorded=None) -> Dataset:
+    """The half circles at ``feeds`` ((feed, split), ...) as a dataset of both axes;
+    ``recorded``: recordings already made, by feed."""
+    ka = AXIS.transmission_mm_per_rev
+    axes = {a: AxisSpec(a, ka, AXIS.screw_lead_mm, AXIS.position_gain_per_s, (-60.0, 60.0)) for a in "xy"}
+    runs = []
+    for i, (feed, split) in enumerate(feeds):
+        rec = (recorded or {}).get(feed)
+        if rec is None:
+            program = sim.run_dir / f"circle_{i}.ngc"
+            program.write_text(half_circle_gcode(radius_mm, feed))
+            program.chmod(0o644)
+            rec = record_contour("127.0.0.1", sim.settings.port, str(program))
+        cols = {"time_s": rec.time_s}
+        for k, a in enumerate("xy"):
+            cols[f"{a}_motor_rev"] = rec.motor_mm[k] / ka
+            cols[f"{a}_table_mm"] = rec.table_mm[k]
+            cols[f"{a}_command_mm"] = rec.command_mm[k]
+        runs.append(Run(RunSpec(f"circle_{i:02d}.csv", "circle", ("x", "y"), feed, 20.0, split=split,
+                                radius_mm=radius_mm, centre_mm=(0.0, 0.0), direction="ccw", start_angle_deg=-45.0,
+                                sweep_deg=180.0), cols))
+    return Dataset(MachineSpec("linuxcnc-sim", axes), tuple(runs))

@@ -9,7 +9,7 @@ from acquisition.linuxcnc import LinuxcncDriver
 from acquisition.url import driver_from_url
 from core.errors import InputError
 
-BASE = "linuxcnc://127.0.0.1:5007?joint=1&motor_pin=y-motor.out&scale_pin=y-table.out"
+BASE = "linuxcnc://127.0.0.1:5007?joint=1&motor_pin=y-motor.out&scale_pin=y-scale.out"
 
 
 def test_a_linuxcnc_url_is_a_passive_driver_of_that_joint_by_default():
