@@ -19,16 +19,36 @@ from core.tbe.formulas import circle_steady_lag_um
 #: Y's (90°) to START_DEG + 180°.
 START_DEG = -45.0
 QUADRANTS_DEG = (0.0, 90.0)
+#: The data arc (start, sweep) for the gap diagnosis: from 20° after the start to the end.
+#: The first 20° start from rest, with the Y axis reversing (it came out along the radius
+#: moving -): the start-up transient the diagnosis sets apart.
+DATA_ARC_DEG = (START_DEG + 20.0, 160.0)
 
 
 def half_circle_gcode(radius_mm: float, feed_mm_min: float) -> str:
-    """G3 about the origin (G54) from -45° to 135°, after a straight move to its start and a
-    dwell (the start's own transient settles before the first quadrant point)."""
+    """G3 about the origin (G54) from -45° to 135°. Before it, the axes stop at the centre
+    and go out along the start's radius, so every recording of it begins the same way
+    (:func:`from_the_radial_approach`), and dwell at the start (its own transient settles
+    before the first quadrant point)."""
     if not (radius_mm > 0 and feed_mm_min > 0):
         raise InputError(f"radius_mm (={radius_mm}) and feed_mm_min (={feed_mm_min}) must be > 0")
     c = radius_mm / np.sqrt(2.0)
-    return (f"G21 G90 G17 G61 G54\nG1 X{c:.4f} Y{-c:.4f} F{feed_mm_min:g}\nG4 P0.5\n"
+    return (f"G21 G90 G17 G61 G54\nG1 X0 Y0 F{feed_mm_min:g}\nG4 P0.3\nG1 X{c:.4f} Y{-c:.4f}\nG4 P0.5\n"
             f"G3 X{-c:.4f} Y{c:.4f} I{-c:.4f} J{c:.4f} F{feed_mm_min:g}\nG4 P0.3\nM2\n")
+
+
+def from_the_radial_approach(rec: ContourRecording, off_centre_mm: float = 0.5) -> ContourRecording:
+    """The recording of :func:`half_circle_gcode` from the radial approach on (its command
+    ``off_centre_mm`` out of the centre): the same start whatever came before, its angle
+    the circle's start, the axes moving as they will into the arc."""
+    r = np.hypot(*rec.command_mm)
+    at_centre = np.flatnonzero(r < 1e-6)
+    if at_centre.size == 0:
+        raise InputError("the recording does not pass the circle's centre (not a half_circle_gcode run)")
+    out = at_centre[-1] + np.flatnonzero(r[at_centre[-1]:] > off_centre_mm)
+    if out.size == 0:
+        raise InputError("the recording does not leave the circle's centre")
+    return rec.since(int(out[0]))
 
 
 def quadrant_bumps_um(rec: ContourRecording, radius_mm: float, feed_mm_min: float,

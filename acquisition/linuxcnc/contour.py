@@ -38,6 +38,12 @@ class ContourRecording:
     def __len__(self) -> int:
         return int(self.time_s.shape[0])
 
+    def since(self, i: int) -> "ContourRecording":
+        """The recording from sample ``i`` on."""
+        return ContourRecording(self.time_s[i:], tuple(a[i:] for a in self.motor_mm),
+                                tuple(a[i:] for a in self.table_mm), tuple(a[i:] for a in self.command_mm),
+                                self.servo_rate_hz)
+
 
 async def _run(host: str, port: int, program_path: str, sampler: int, timeout_s: float,
                max_duration_s: float) -> ContourRecording:

@@ -7,7 +7,8 @@ root, give the account LinuxCNC runs as (rtapi_app refuses root):
 Prints one Markdown table: b̄ against the chain's backlash (semi- and full-closed), the
 circle's quadrant bumps against Eq. 8 at mebm's b̄, the reversal's lost motion before and
 after the table of ``mebm export-comp --format linuxcnc --comp-type 1`` is loaded as
-COMP_FILE, and the gap diagnosis' answer with FF1 off and on. About a minute.
+COMP_FILE, and the gap diagnosis' answer with FF1 off and on (1 µm scales in the
+full-closed runs). About a minute and a half.
 """
 
 from __future__ import annotations
@@ -21,7 +22,13 @@ from pathlib import Path
 import numpy as np
 
 from acquisition.cycle import run_cycle
-from acquisition.linuxcnc.closed_loop import half_circle_gcode, quadrant_bumps_um, reversal_lost_motion_um
+from acquisition.linuxcnc.closed_loop import (
+    DATA_ARC_DEG,
+    from_the_radial_approach,
+    half_circle_gcode,
+    quadrant_bumps_um,
+    reversal_lost_motion_um,
+)
 from acquisition.linuxcnc.contour import record_contour
 from acquisition.linuxcnc.sim import LinuxcncSim, SimSettings
 from acquisition.types import RoundTripProgram
@@ -54,21 +61,25 @@ def program(sim, name: str, radius_mm: float, feed: float):
     return record_contour("127.0.0.1", sim.settings.port, str(path))
 
 
-def gap_answer(sim) -> str:
+def gap_answer(sim, radius_mm: float, feeds, recorded=None) -> str:
+    """The gap diagnosis of half circles at ``feeds`` ((feed, split), ...): its answer."""
     ka = AXIS.transmission_mm_per_rev
     axes = {a: AxisSpec(a, ka, 16.0, K, (-60.0, 60.0)) for a in "xy"}
     runs = []
-    for i, (feed, split) in enumerate(((1000.0, "train"), (2000.0, "test"))):
-        rec = program(sim, f"gap_{i}.ngc", 20.0, feed)
+    for i, (feed, split) in enumerate(feeds):
+        rec = (recorded or {}).get(feed) or program(sim, f"gap_{i}.ngc", radius_mm, feed)
+        rec = from_the_radial_approach(rec)
         cols = {"time_s": rec.time_s}
         for k, a in enumerate("xy"):
             cols.update({f"{a}_motor_rev": rec.motor_mm[k] / ka, f"{a}_table_mm": rec.table_mm[k],
                          f"{a}_command_mm": rec.command_mm[k]})
-        runs.append(Run(RunSpec(f"circle_{i:02d}.csv", "circle", ("x", "y"), feed, 20.0, split=split, radius_mm=20.0,
-                                centre_mm=(0.0, 0.0), direction="ccw", start_angle_deg=-45.0, sweep_deg=180.0), cols))
+        runs.append(Run(RunSpec(f"circle_{i:02d}.csv", "circle", ("x", "y"), feed, 20.0, split=split,
+                                radius_mm=radius_mm, centre_mm=(0.0, 0.0), direction="ccw",
+                                start_angle_deg=DATA_ARC_DEG[0], sweep_deg=DATA_ARC_DEG[1]), cols))
     rep = diagnose(Dataset(MachineSpec("linuxcnc-sim", axes), tuple(runs)),
                    GapSettings(second_effect=False, keep_curves=False))
-    return f"`{rep.effect}` (test gap {rep.gap_before_um:.2f} µm -> {rep.gap_after_um:.2f} µm)"
+    return (f"`{rep.effect}` (test gap {rep.gap_before_um:.2f} µm, noise floor {rep.noise_floor_um:.2f} µm, "
+            f"after {rep.gap_after_um:.2f} µm)")
 
 
 def main() -> int:
@@ -88,17 +99,19 @@ def main() -> int:
     with LinuxcncSim(SimSettings(backlash_um=B_UM, loop="semi", comp_file=str(table)), user=a.user) as sim:
         sim.power_on()
         comp, lost_after = round_trip(sim)
-    with LinuxcncSim(SimSettings(backlash_um=B_UM, loop="full"), user=a.user) as sim:
+    with LinuxcncSim(SimSettings(backlash_um=B_UM, loop="full", scale_resolution_um=1.0), user=a.user) as sim:
         sim.power_on()
         full, _ = round_trip(sim)
-        bumps, _ = quadrant_bumps_um(program(sim, "circle.ngc", R_MM, F_MM_MIN), R_MM, F_MM_MIN, K)
-        gap_p = gap_answer(sim)
-    with LinuxcncSim(SimSettings(backlash_um=B_UM, loop="full", ff1=1.0), user=a.user) as sim:
+        circle = program(sim, "circle.ngc", R_MM, F_MM_MIN)
+        bumps, _ = quadrant_bumps_um(circle, R_MM, F_MM_MIN, K)
+        gap_p = gap_answer(sim, R_MM, ((1500.0, "train"), (F_MM_MIN, "test")), recorded={F_MM_MIN: circle})
+    with LinuxcncSim(SimSettings(backlash_um=B_UM, loop="full", ff1=1.0, scale_resolution_um=1.0),
+                     user=a.user) as sim:
         sim.power_on()
-        gap_ff1 = gap_answer(sim)
+        gap_ff1 = gap_answer(sim, 20.0, ((1000.0, "train"), (2000.0, "test")))
     tbe = float(tbe_circle_um(full.result.backlash_mean_um, R_MM, F_MM_MIN, K))
     rows.append(("b̄, semi-closed (chain 120 µm)", f"{semi.result.backlash_mean_um:.2f} µm"))
-    rows.append(("b̄, full-closed (chain 120 µm)", f"{full.result.backlash_mean_um:.2f} µm"))
+    rows.append(("b̄, full-closed, 1 µm scales (chain 120 µm)", f"{full.result.backlash_mean_um:.2f} µm"))
     rows.append((f"circle R {R_MM:g} mm at {F_MM_MIN:g} mm/min, full-closed P-only: Eq. 8 at b̄",
                  f"{tbe:.1f} µm"))
     for q, bump in bumps.items():
@@ -106,8 +119,8 @@ def main() -> int:
     rows.append(("lost motion at the reversal, semi-closed, no table", f"{lost_before:.1f} µm"))
     rows.append(("  with mebm export-comp's type-1 table as COMP_FILE",
                  f"{lost_after:.2f} µm ({(lost_after / lost_before - 1) * 100:+.1f} %); b̄ {comp.result.backlash_mean_um:.2f} µm"))
-    rows.append(("gap diagnosis, full-closed P-only (R 20 mm, 1000/2000 mm/min)", gap_p))
-    rows.append(("gap diagnosis, full-closed FF1 = 1", gap_ff1))
+    rows.append((f"gap diagnosis, full-closed P-only (R {R_MM:g} mm, 1500/2000 mm/min)", gap_p))
+    rows.append(("gap diagnosis, full-closed FF1 = 1 (R 20 mm, 1000/2000 mm/min)", gap_ff1))
     print("| quantity | LinuxCNC 2.9 (simulated machine) |\n|---|---|")
     for k, v in rows:
         print(f"| {k} | {v} |")

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from acquisition.linuxcnc.closed_loop import half_circle_gcode
+from acquisition.linuxcnc.closed_loop import DATA_ARC_DEG, from_the_radial_approach, half_circle_gcode
 from acquisition.linuxcnc.contour import record_contour
 from acquisition.linuxcnc.sim import LinuxcncSim, SimSettings, linuxcnc_available
 from acquisition.types import RoundTripProgram
@@ -119,12 +119,13 @@ def circles_dataset(sim: LinuxcncSim, radius_mm: float, feeds, recorded=None) ->
             program.write_text(half_circle_gcode(radius_mm, feed))
             program.chmod(0o644)
             rec = record_contour("127.0.0.1", sim.settings.port, str(program))
+        rec = from_the_radial_approach(rec)
         cols = {"time_s": rec.time_s}
         for k, a in enumerate("xy"):
             cols[f"{a}_motor_rev"] = rec.motor_mm[k] / ka
             cols[f"{a}_table_mm"] = rec.table_mm[k]
             cols[f"{a}_command_mm"] = rec.command_mm[k]
         runs.append(Run(RunSpec(f"circle_{i:02d}.csv", "circle", ("x", "y"), feed, 20.0, split=split,
-                                radius_mm=radius_mm, centre_mm=(0.0, 0.0), direction="ccw", start_angle_deg=-45.0,
-                                sweep_deg=180.0), cols))
+                                radius_mm=radius_mm, centre_mm=(0.0, 0.0), direction="ccw",
+                                start_angle_deg=DATA_ARC_DEG[0], sweep_deg=DATA_ARC_DEG[1]), cols))
     return Dataset(MachineSpec("linuxcnc-sim", axes), tuple(runs))
