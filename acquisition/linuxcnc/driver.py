@@ -93,6 +93,7 @@ class LinuxcncDriver(ControllerDriver):
         self.rsh: RshClient | None = None
         self.sampler: hal.HalSampler | None = None
         self.session: hal.SamplerSession | None = None
+        self._program_path: Path | None = None  # the active round trip's .ngc, removed after the cycle
         self._t_status = 0.0
         self._seen_running = False
         self._t_run = 0.0
@@ -141,6 +142,8 @@ class LinuxcncDriver(ControllerDriver):
             self.sampler = self.session.reader
 
     async def _close(self) -> None:
+        if self._cycle is None or not self._cycle.started:
+            self._forget_program()  # the round trip ran to its end
         session, self.session, self.sampler = self.session, None, None
         if session is not None:
             await asyncio.to_thread(session.close)
@@ -230,17 +233,24 @@ class LinuxcncDriver(ControllerDriver):
         path = folder / f"mebm-round-trip-j{self.joint}-{os.getpid()}.ngc"
         path.write_text(self.round_trip_gcode(program))
         path.chmod(0o644)  # LinuxCNC may run as another user
+        self._program_path = path
         return str(path)
+
+    def _forget_program(self) -> None:
+        if self._program_path is not None:
+            self._program_path.unlink(missing_ok=True)
+            self._program_path = None
 
     async def _abort(self) -> None:
         if self.rsh is not None and self.rsh.enabled:
             try:
                 await self.rsh.set("abort")
+                self._forget_program()
             except ProtocolError:
                 estop, machine, _ = await self._state()
                 if not (estop or not machine):
                     raise  # refused on a running machine
-                # an e-stop or a machine off has stopped the axis already
+                self._forget_program()  # an e-stop or a machine off has stopped the axis already
 
     async def _acknowledge(self) -> None:
         return None  # LinuxCNC's states need the operator (e-stop, machine on): _read_status raises for them

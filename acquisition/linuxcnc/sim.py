@@ -161,7 +161,8 @@ class LinuxcncSim:
         cmd = ["linuxcnc", str(ini)]
         if os.geteuid() == 0:
             if not self.user:
-                raise InputError("LinuxCNC refuses to run as root (rtapi_app): give the simulated machine a user")
+                raise InputError("LinuxCNC refuses to run as root (rtapi_app): name an unprivileged account for it "
+                                 "(--user NAME)")
             cmd = ["runuser", "-u", self.user, "--", "env", f"HOME={self.run_dir}", *cmd]
         return cmd
 
@@ -172,11 +173,15 @@ class LinuxcncSim:
             raise SimStartError(why)
         if _answers(self.settings.port):
             raise SimStartError(f"port {self.settings.port} already answers: another LinuxCNC is running")
-        ini = self.write_config()
-        log = open(self.log_path, "w")
-        self.proc = subprocess.Popen(self._command(ini), cwd=self.run_dir, stdout=log, stderr=subprocess.STDOUT,
-                                     stdin=subprocess.DEVNULL, start_new_session=True)
-        log.close()
+        try:
+            ini = self.write_config()
+            cmd = self._command(ini)
+            with open(self.log_path, "w") as log:
+                self.proc = subprocess.Popen(cmd, cwd=self.run_dir, stdout=log, stderr=subprocess.STDOUT,
+                                             stdin=subprocess.DEVNULL, start_new_session=True)
+        except BaseException:
+            self._remove_own_dir()
+            raise
         end = time.monotonic() + timeout_s
         while not _answers(self.settings.port):
             if self.proc.poll() is not None or time.monotonic() > end:
@@ -231,6 +236,7 @@ class LinuxcncSim:
         """Shut LinuxCNC down (its own shutdown first, then its process group)."""
         proc, self.proc = self.proc, None
         if proc is None:
+            self._remove_own_dir()
             return
         if proc.poll() is None:
             try:
@@ -252,6 +258,9 @@ class LinuxcncSim:
                 proc.wait(10.0)
             except subprocess.TimeoutExpired:
                 pass
+        self._remove_own_dir()
+
+    def _remove_own_dir(self) -> None:
         if self._own_dir:
             shutil.rmtree(self.run_dir, ignore_errors=True)
 

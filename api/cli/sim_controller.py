@@ -78,6 +78,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     x.add_argument("--p-gain-per-s", type=float, default=30.0, help="pid P, the position loop gain K (1/s), default 30")
     x.add_argument("--ff1", type=float, default=0.0, help="pid FF1 (velocity feed-forward), default 0")
     x.add_argument("--drive-tau-s", type=float, default=0.0, help="drive velocity loop time constant (s), default 0")
+    x.add_argument("--scale-resolution-um", type=float, default=0.001,
+                   help="linear scales' resolution (µm), their reading rounded to it; default 0.001")
     x.add_argument("--port", type=int, default=5007, help="linuxcncrsh port, default 5007")
     x.add_argument("--comp-file", default=None,
                    help="a LinuxCNC compensation table for joints 0 and 1 (mebm export-comp --format linuxcnc)")
@@ -97,7 +99,8 @@ def run_linuxcnc(a: argparse.Namespace) -> int:
     from acquisition.linuxcnc.sim import LinuxcncSim, SimSettings
 
     sim = LinuxcncSim(SimSettings(backlash_um=a.backlash_um, loop=a.loop, p_gain_per_s=a.p_gain_per_s, ff1=a.ff1,
-                                  drive_tau_s=a.drive_tau_s, port=a.port, comp_file=a.comp_file,
+                                  drive_tau_s=a.drive_tau_s, scale_resolution_um=a.scale_resolution_um,
+                                  port=a.port, comp_file=a.comp_file,
                                   comp_type=a.comp_type), run_dir=a.run_dir, user=a.user)
     sim.start()
     try:
