@@ -41,7 +41,9 @@ def halcmd(*args: str, timeout_s: float = 5.0) -> str:
     if proc.returncode != 0:
         err = (proc.stderr or proc.stdout).strip()
         if "not found" in err:
-            raise HalPinError(f"HAL: {err}", pin=args[-1])
+            raise HalPinError(f"HAL: {err}", pin=args[-2] if args[0] == "setp" else args[-1])
+        if "connected to a signal" in err:
+            raise HalPinError(f"HAL: {err}: mebm sets it (leave it unconnected, docs/controllers.md)", pin=args[1])
         raise ControllerConnectionError(f"halcmd {' '.join(args)} failed ({err or proc.returncode}): is LinuxCNC "
                                         "(its HAL) running?")
     return proc.stdout
