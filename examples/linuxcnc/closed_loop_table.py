@@ -19,7 +19,6 @@ import sys
 import tempfile
 from pathlib import Path
 
-import numpy as np
 
 from acquisition.cycle import run_cycle
 from acquisition.linuxcnc.closed_loop import (
