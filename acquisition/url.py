@@ -3,7 +3,8 @@
 ``sim://HOST[:PORT][?...]`` (mebm's own simulated Modbus controller, ``mebm sim-controller
 modbus``) and ``canopen://INTERFACE/CHANNEL?node=N[&mode=listen-only|active-cia402|active-mebm&...]``
 (:mod:`acquisition.canopen_url`; any other query key, e.g. ``bitrate`` or ``port``, is passed
-to the python-can bus).
+to the python-can bus) and ``linuxcnc://HOST[:PORT]?joint=N&motor_pin=PIN&scale_pin=PIN``
+(:mod:`acquisition.linuxcnc.url`).
 
 Every scheme also takes who starts the round trip, ``trigger=active|passive`` (docs/controllers.md,
 "Passive and active round trips"), and for passive mode ``running_flag=0|1`` and the detection
@@ -98,7 +99,12 @@ def driver_from_url(url: str, **kwargs):
         from acquisition.canopen_url import driver_from_canopen_url
 
         return driver_from_canopen_url(url, **kwargs)
-    raise InputError(f"controller URL {url!r}: scheme must be modbus://, modbus+rtu://, sim:// or canopen://")
+    if parts.scheme == "linuxcnc":
+        from acquisition.linuxcnc.url import driver_from_linuxcnc_url
+
+        return driver_from_linuxcnc_url(url, **kwargs)
+    raise InputError(f"controller URL {url!r}: scheme must be modbus://, modbus+rtu://, sim://, canopen:// or "
+                     "linuxcnc://")
 
 
 _SERIAL = ("baudrate", "parity", "stopbits", "bytesize")

@@ -1,4 +1,6 @@
-"""``mebm sim-controller modbus|canopen``: a simulated controller whose axis is the digital twin.
+"""``mebm sim-controller modbus|canopen|linuxcnc``: a simulated controller whose axis is the
+digital twin (``modbus``, ``canopen``), or LinuxCNC itself running a simulated machine with
+a backlash between motor and table (``linuxcnc``, :mod:`acquisition.linuxcnc.sim`).
 
 Runs until interrupted (or ``--duration-s``). Prints one line with the address to use
 as ``mebm measure --controller``.
@@ -43,7 +45,7 @@ def _add_axis_options(p: argparse.ArgumentParser) -> None:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("sim-controller", help="run a simulated Modbus TCP controller or CANopen drive")
+    p = sub.add_parser("sim-controller", help="run a simulated Modbus TCP controller, CANopen drive or LinuxCNC machine")
     sp = p.add_subparsers(dest="protocol", metavar="PROTOCOL")
     sp.required = True
     m = sp.add_parser("modbus", help="simulated controller on Modbus TCP (register map mebm-modbus/1)")
@@ -68,9 +70,53 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "miss the synchronous window (0x1007) is discarded, as CiA 301 says")
     _add_axis_options(c)
     c.set_defaults(func=run)
+    x = sp.add_parser("linuxcnc", help="LinuxCNC (linuxcnc-uspace) running mebm's simulated machine: pid loop, "
+                                        "servo thread and sampler are LinuxCNC's, the feed axes with backlash are HAL")
+    x.add_argument("--loop", choices=("semi", "full"), default="semi",
+                   help="pid closed on the motor encoder (semi, default) or on the linear scale (full)")
+    x.add_argument("--backlash-um", type=float, default=120.0, help="backlash between motor and table (µm), default 120")
+    x.add_argument("--p-gain-per-s", type=float, default=30.0, help="pid P, the position loop gain K (1/s), default 30")
+    x.add_argument("--ff1", type=float, default=0.0, help="pid FF1 (velocity feed-forward), default 0")
+    x.add_argument("--drive-tau-s", type=float, default=0.0, help="drive velocity loop time constant (s), default 0")
+    x.add_argument("--scale-resolution-um", type=float, default=0.001,
+                   help="linear scales' resolution (µm), their reading rounded to it; default 0.001")
+    x.add_argument("--port", type=int, default=5007, help="linuxcncrsh port, default 5007")
+    x.add_argument("--comp-file", default=None,
+                   help="a LinuxCNC compensation table for joints 0 and 1 (mebm export-comp --format linuxcnc)")
+    x.add_argument("--comp-type", type=int, choices=(0, 1), default=1, help="its COMP_FILE_TYPE, default 1")
+    x.add_argument("--user", default=None,
+                   help="the account LinuxCNC runs as when mebm runs as root (rtapi_app refuses root)")
+    x.add_argument("--run-dir", default=None, help="where the configuration is written (default: a new temporary one)")
+    x.add_argument("--duration-s", type=float, default=None, help="stop after this many seconds (default: until Ctrl-C)")
+    x.set_defaults(func=run_linuxcnc)
     r = sp.add_parser("repair", help="repair a running simulated Modbus controller: its wear back to zero")
     r.add_argument("controller", help="the simulator's address, modbus://HOST:PORT")
     r.set_defaults(func=repair)
+
+
+def run_linuxcnc(a: argparse.Namespace) -> int:
+    """Start LinuxCNC on the simulated machine, power it on (it is a simulation) and wait."""
+    from acquisition.linuxcnc.sim import LinuxcncSim, SimSettings
+
+    sim = LinuxcncSim(SimSettings(backlash_um=a.backlash_um, loop=a.loop, p_gain_per_s=a.p_gain_per_s, ff1=a.ff1,
+                                  drive_tau_s=a.drive_tau_s, scale_resolution_um=a.scale_resolution_um,
+                                  port=a.port, comp_file=a.comp_file,
+                                  comp_type=a.comp_type), run_dir=a.run_dir, user=a.user)
+    sim.start()
+    try:
+        sim.power_on()
+        print(f"LinuxCNC running mebm's simulated machine ({a.loop}-closed, b = {a.backlash_um:g} µm, "
+              f"P = {a.p_gain_per_s:g}/s, FF1 = {a.ff1:g}; configuration in {sim.run_dir}); "
+              f"mebm measure --controller '{sim.url}' records the round trips it runs, "
+              "add &trigger=active to have mebm run them", flush=True)
+        deadline = time.monotonic() + (a.duration_s if a.duration_s is not None else float("inf"))
+        while time.monotonic() < deadline and sim.proc is not None and sim.proc.poll() is None:
+            time.sleep(min(0.5, max(deadline - time.monotonic(), 0.0)))
+    except KeyboardInterrupt:
+        pass
+    finally:
+        sim.stop()
+    return 0
 
 
 def build_twin(a: argparse.Namespace):
