@@ -28,7 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--controller", required=True, metavar="URL",
                    help="modbus://HOST:PORT[?mode=trace|latched|separate|profile=P.toml], "
                         "modbus+rtu:///dev/DEVICE?baudrate=N[&parity=E&profile=P.toml], sim://HOST:PORT "
-                        "(mebm sim-controller) or canopen://INTERFACE/CHANNEL?node=N[&rate_hz=250]")
+                        "(mebm sim-controller), canopen://INTERFACE/CHANNEL?node=N[&rate_hz=250] or "
+                        "linuxcnc://HOST:PORT?joint=N&motor_pin=PIN&scale_pin=PIN")
     p.add_argument("--trigger", choices=("active", "passive"), default=None,
                    help="who starts the round trip: active (mebm commands it) or passive (the CNC runs it, mebm "
                         "records). Default: active for a simulator (sim://, canopen://virtual/...), else passive")
