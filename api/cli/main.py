@@ -32,7 +32,7 @@ COMMANDS: tuple[CommandGroup, ...] = (
     CommandGroup("demo", "api.cli.demo", "analyse a simulated round trip of the paper's Y axis and give the verdict"),
     CommandGroup("sim", "api.cli.sim", "simulate a feed drive (the digital twin) and write a dataset run"),
     CommandGroup("measure", "api.cli.measure", "measure an axis' backlash and lead criteria on the machine"),
-    CommandGroup("sim-controller", "api.cli.sim_controller", "run a simulated Modbus TCP controller or CANopen drive"),
+    CommandGroup("sim-controller", "api.cli.sim_controller", "run a simulated Modbus TCP controller, CANopen drive or LinuxCNC machine"),
     CommandGroup("serve", "api.cli.serve",
                  "run the service: REST API, scheduled measurements, simulated demo controller"),
     CommandGroup("keys", "api.cli.keys", "create, list and revoke API keys"),
