@@ -47,8 +47,7 @@ def _direct_diagnosis(label, seed):
 
 def get_report(client, url, headers, timeout_s=600.0):
     """Poll as an MES would: 202 with Retry-After until the report is ready. The deadline
-    only catches a diagnosis that never ends: the worker runs at nice +10, so on a machine
-    loaded to 13 (seen with other sessions' work) a small diagnosis took over 120 s."""
+    only catches a diagnosis that never ends, on however busy a machine."""
     deadline = time.monotonic() + timeout_s
     while True:
         r = client.get(url, headers=headers)
