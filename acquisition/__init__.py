@@ -1,6 +1,6 @@
 """Acquisition: drivers for Modbus TCP and CANopen controllers, simulated controllers, the cycle.
 
-- ``acquisition.driver.ControllerDriver``: the base class that owns the measurement loop
+- ``acquisition.driver.base.ControllerDriver``: the base class that owns the measurement loop
   (idle check, start, drain, abort on failure), composed of ``retry.RetryPolicy`` (every
   exchange), ``trace_assembler.TraceAssembler`` (counter continuity, gaps, duplicates),
   ``encoder_monitor.EncoderMonitor`` (stuck/jumping/glitching encoders) and a fresh

@@ -1,6 +1,6 @@
 """CANopen driver (canopen on python-can): SYNC-latched TPDO acquisition from a CiA 402 drive.
 
-Only the wire lives here; the measurement loop is :class:`acquisition.driver.ControllerDriver`.
+Only the wire lives here; the measurement loop is :class:`acquisition.driver.base.ControllerDriver`.
 The driver produces SYNC at the measurement rate (its own thread); the drive answers
 each SYNC with TPDO1 = (0x6064 motor, 0x60E4 sub 1 table), both latched at that SYNC,
 within the synchronous window (0x1007, written at start-up). A TPDO is paired with its
@@ -24,7 +24,7 @@ import numpy as np
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from acquisition import canopen_od as co
-from acquisition.driver import BlockingLinkDriver, raise_device_fault
+from acquisition.driver.base import BlockingLinkDriver, raise_device_fault
 from acquisition.errors import (
     ControllerConnectionError,
     ControllerTimeoutError,

@@ -27,7 +27,7 @@ import can
 import numpy as np
 
 from acquisition.canopen_mapping import ListenMapping
-from acquisition.driver import BlockingLinkDriver
+from acquisition.driver.base import BlockingLinkDriver
 from acquisition.errors import (
     ControllerConnectionError,
     ControllerTimeoutError,

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from acquisition.driver import ControllerDriver
+from acquisition.driver.base import ControllerDriver
 from acquisition.errors import AcquisitionError, IncompleteTraceError
 from acquisition.types import AcquiredTrace, RoundTripProgram
 from core.criteria import RoundTripResult, RoundTripSettings, analyze_round_trip

@@ -32,7 +32,7 @@ from acquisition.trigger import (  # noqa: F401
 from core.errors import InputError
 
 def driver_from_url(url: str, **kwargs):
-    """A :class:`~acquisition.driver.ControllerDriver` for ``url``; ``kwargs`` go to the driver
+    """A :class:`~acquisition.driver.base.ControllerDriver` for ``url``; ``kwargs`` go to the driver
     (``timeout_s``, ``retries``, ...)."""
     bad = next((c for c in url if c.isspace() or ord(c) < 32 or ord(c) == 127), None)
     if bad is not None:

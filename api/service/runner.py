@@ -31,7 +31,7 @@ from typing import Protocol
 import numpy as np
 
 from acquisition import cycle as acq_cycle
-from acquisition.driver import ControllerDriver
+from acquisition.driver.base import ControllerDriver
 from acquisition.url import driver_from_url, needs_callers_process
 from api.service.config_input import resolve_profile
 from api.service.worker_process import end_pool, spawn_pool

@@ -124,7 +124,7 @@ def test_many_glitches_are_an_encoder_fault_online():
 
 
 def test_encoder_monitor_judges_a_glitch_on_a_block_edge_with_the_next_block():
-    from acquisition.driver import EncoderMonitor
+    from acquisition.driver.base import EncoderMonitor
 
     mon = EncoderMonitor(PROGRAM, 6.857, 500.0, jump_margin_mm=0.05, stuck_travel_mm=1.0)
     x = -2.0 + np.arange(600) * (1000.0 / 60.0 / 500.0)  # 1000 mm/min at 500 Hz

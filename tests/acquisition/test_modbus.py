@@ -15,7 +15,7 @@ from acquisition.cycle import run_cycle, run_cycle_async
 from acquisition.errors import ControllerConnectionError, DeviceBusyError, ProtocolError
 from acquisition.modbus import ModbusDriver
 from acquisition.scale import EncoderScale
-from acquisition.retry import RetryPolicy
+from acquisition.driver.retry import RetryPolicy
 from acquisition.types import AxisState, Command, RoundTripProgram
 from tests.acquisition.conftest import AXIS, PROGRAM, modbus_peer
 from tests.acquisition.fake_modbus import FakeController, busy

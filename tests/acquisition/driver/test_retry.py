@@ -7,7 +7,7 @@ import asyncio
 import pytest
 
 from acquisition.errors import ControllerConnectionError, ControllerTimeoutError, ProtocolError
-from acquisition.retry import RetryPolicy
+from acquisition.driver.retry import RetryPolicy
 from core.errors import InputError
 
 

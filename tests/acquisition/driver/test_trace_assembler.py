@@ -7,7 +7,7 @@ import pytest
 
 from acquisition import modbus_map as mm
 from acquisition.errors import LostSamplesError, ProtocolError
-from acquisition.trace_assembler import TraceAssembler
+from acquisition.driver.trace_assembler import TraceAssembler
 from acquisition.types import SampleBlock
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from acquisition.encoder_monitor import EncoderMonitor
+from acquisition.driver.encoder_monitor import EncoderMonitor
 from acquisition.errors import EncoderFaultError
 from acquisition.types import RoundTripProgram
 

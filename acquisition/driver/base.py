@@ -4,11 +4,11 @@ Like python-can's ``BusABC.recv()`` over ``_recv_internal()``: :meth:`Controller
 checks the axis is idle, starts the round trip and drains samples until the controller
 reports the end. The pieces it composes, each in its own module:
 
-- :class:`acquisition.retry.RetryPolicy`: how every exchange (connection set-up, each
+- :class:`acquisition.driver.retry.RetryPolicy`: how every exchange (connection set-up, each
   request, the abort) is retried, boundedly;
-- :class:`acquisition.trace_assembler.TraceAssembler`: counter continuity, gaps, duplicates;
-- :class:`acquisition.encoder_monitor.EncoderMonitor`: stuck, jumping and glitching encoders;
-- :class:`acquisition.acquisition_cycle.AcquisitionCycle`: everything one cycle knows, made
+- :class:`acquisition.driver.trace_assembler.TraceAssembler`: counter continuity, gaps, duplicates;
+- :class:`acquisition.driver.encoder_monitor.EncoderMonitor`: stuck, jumping and glitching encoders;
+- :class:`acquisition.driver.cycle_state.AcquisitionCycle`: everything one cycle knows, made
   fresh by each :meth:`acquire_async`, so a driver carries nothing from one cycle to the next.
 
 On any failure after the start an abort is sent, so the axis is left stopped. Subclasses
@@ -19,7 +19,7 @@ implement the ``_connect``/``_close``/``_read_status``/``_start``/``_abort``/``_
 mebm only records. The base connects, polls samples through the wire's
 ``_passive_drain`` (the one coroutine a wire adds for passive mode: samples since the
 last call, with the controller's "program running" flag when it has one) and feeds them
-to :class:`acquisition.round_trip_detector.RoundTripDetector`; it never writes a start,
+to :class:`acquisition.driver.round_trip_detector.RoundTripDetector`; it never writes a start,
 an abort or an acknowledge. The program of the returned trace is what was observed.
 """
 
@@ -33,8 +33,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from acquisition.acquisition_cycle import AcquisitionCycle
-from acquisition.encoder_monitor import EncoderMonitor
+from acquisition.driver.cycle_state import AcquisitionCycle
+from acquisition.driver.encoder_monitor import EncoderMonitor
 from acquisition.errors import (
     AcquisitionError,
     AxisBusyError,
@@ -46,9 +46,9 @@ from acquisition.errors import (
     LostSamplesError,
     ProtocolError,
 )
-from acquisition.retry import RetryPolicy
-from acquisition.round_trip_detector import DetectedRoundTrip, DetectorSettings, RoundTripDetector
-from acquisition.trace_assembler import TraceAssembler
+from acquisition.driver.retry import RetryPolicy
+from acquisition.driver.round_trip_detector import DetectedRoundTrip, DetectorSettings, RoundTripDetector
+from acquisition.driver.trace_assembler import TraceAssembler
 from acquisition.types import AcquiredTrace, AxisState, ControllerStatus, RoundTripProgram, SampleBlock
 from core.dataset import AxisSpec
 from core.errors import InputError, require_positive

@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from acquisition.errors import IncompleteRoundTrip, NoRoundTripSeen, RoundTripTooLong
-from acquisition.round_trip_detector import DetectorSettings, RoundTripDetector
+from acquisition.driver.round_trip_detector import DetectorSettings, RoundTripDetector
 from core.errors import InputError
 
 RATE_HZ = 1000.0

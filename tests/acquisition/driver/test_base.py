@@ -12,7 +12,7 @@ from acquisition import modbus_map as mm
 from acquisition.cycle import run_cycle
 from acquisition.errors import DriverMisuseError
 from acquisition.modbus import ModbusDriver
-from acquisition.retry import RetryPolicy
+from acquisition.driver.retry import RetryPolicy
 from acquisition.types import AxisState, Command
 from tests.acquisition.conftest import AXIS, PROGRAM
 from tests.acquisition.fake_modbus import FakeController

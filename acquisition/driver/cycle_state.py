@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from acquisition.trace_assembler import TraceAssembler
+from acquisition.driver.trace_assembler import TraceAssembler
 from acquisition.types import RoundTripProgram
 from core.dataset import AxisSpec
 
