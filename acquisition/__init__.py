@@ -4,12 +4,12 @@
   (idle check, start, drain, abort on failure), composed of ``retry.RetryPolicy`` (every
   exchange), ``trace_assembler.TraceAssembler`` (counter continuity, gaps, duplicates),
   ``encoder_monitor.EncoderMonitor`` (stuck/jumping/glitching encoders) and a fresh
-  ``acquisition_cycle.AcquisitionCycle`` per cycle; ``acquisition.modbus.ModbusDriver``
+  ``acquisition_cycle.AcquisitionCycle`` per cycle; ``acquisition.modbus.driver.ModbusDriver``
   (with its register map, ``modbus_map``) and ``acquisition.canopen.CanopenDriver``
   implement only their wire. See docs/acquisition.md.
-- ``acquisition.modbus_profile``: Modbus register profiles (where a PLC keeps the positions,
+- ``acquisition.modbus.profile``: Modbus register profiles (where a PLC keeps the positions,
   their types, byte/word orders, scales; validated with errors naming the field) and
-  ``acquisition.modbus_polled.ProfileModbusDriver``, which polls them (one PDU when it can,
+  ``acquisition.modbus.polled.ProfileModbusDriver``, which polls them (one PDU when it can,
   else separate reads with the skew reported); its ``poll()`` reads one sample now.
 - ``acquisition.cycle.run_cycle`` / ``run_cycle_async``: one measurement cycle ->
   ``CycleResult`` (ok/failed with a reason, trace, criteria, decision, uncertainty).

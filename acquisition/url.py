@@ -52,8 +52,8 @@ def driver_from_url(url: str, **kwargs):
             raise InputError(f"controller URL {url!r}: {key} (={q[key]!r}) must be a number") from None
 
     if parts.scheme in ("modbus", "modbus+rtu", "sim"):
-        from acquisition.modbus import ModbusDriver
-        from acquisition.modbus_profile import BUILTIN, RegisterProfile, load_profile
+        from acquisition.modbus.driver import ModbusDriver
+        from acquisition.modbus.profile import BUILTIN, RegisterProfile, load_profile
 
         known = {"device_id", "mode", "profile", *(_SERIAL if parts.scheme == "modbus+rtu" else ())}
         unknown = sorted(set(q) - known)
@@ -87,7 +87,7 @@ def driver_from_url(url: str, **kwargs):
         if isinstance(profile, str) and profile != BUILTIN:
             profile = load_profile(profile)
         if isinstance(profile, RegisterProfile):
-            from acquisition.modbus_polled import ProfileModbusDriver
+            from acquisition.modbus.polled import ProfileModbusDriver
 
             if "mode" in q:
                 raise InputError(f"controller URL {url!r}: mode= is for mebm-modbus/1; a profile's mode follows "

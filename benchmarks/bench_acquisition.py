@@ -34,11 +34,11 @@ from pathlib import Path
 
 from pymodbus.client import AsyncModbusTcpClient
 
-from acquisition import modbus_map as mm
+from acquisition.modbus import register_map as mm
 from acquisition.canopen import CanopenDriver
-from acquisition.modbus import ModbusDriver
-from acquisition.modbus_polled import ProfileModbusDriver
-from acquisition.modbus_profile import load_profile
+from acquisition.modbus.driver import ModbusDriver
+from acquisition.modbus.polled import ProfileModbusDriver
+from acquisition.modbus.profile import load_profile
 from acquisition.sim.axis import SimAxis
 from acquisition.sim.profile_server import SimProfileController
 from acquisition.sim.canopen_drive import SimCanopenDrive

@@ -19,7 +19,7 @@ from pymodbus.datastore import ModbusServerContext
 from pymodbus.datastore.context import ModbusBaseDeviceContext
 from pymodbus.server import ModbusTcpServer
 
-from acquisition import modbus_map as mm
+from acquisition.modbus import register_map as mm
 from acquisition.sim.axis import SimAxis
 from acquisition.sim import wear as sim_wear
 from acquisition.sim.loop_thread import LoopThread

@@ -3,7 +3,7 @@
 Where :class:`~acquisition.sim.modbus_server.SimModbusController` speaks mebm's own
 register map, this server puts the :class:`SimAxis`' latched positions, temperature,
 running and done flags at the addresses, types and orders a profile
-(:mod:`acquisition.modbus_profile`) names, as a PLC gateway would. Writing the start
+(:mod:`acquisition.modbus.profile`) names, as a PLC gateway would. Writing the start
 value starts the PLC's own round-trip program (fixed at construction, as a part program
 in the CNC is); writing the abort value aborts it. Modbus TCP or, with ``serial=``,
 Modbus RTU on a serial device (a pseudo-terminal in the tests).
@@ -20,7 +20,7 @@ from pymodbus.datastore.context import ModbusBaseDeviceContext
 from pymodbus.framer import FramerType
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 
-from acquisition.modbus_profile import RegisterProfile
+from acquisition.modbus.profile import RegisterProfile
 from acquisition.sim.axis import SimAxis
 from acquisition.sim.loop_thread import LoopThread
 from acquisition.types import AxisState, RoundTripProgram

@@ -363,7 +363,7 @@ def _axis(a: Mapping, machine: str, where: str, instruments: Instruments = Instr
 def _modbus_profile(a: Mapping, controller: str, where: str) -> str:
     """``modbus_profile``: the register profile file of a Modbus controller (docs/controllers.md),
     validated now and carried in the controller URL (``profile=``) to the driver."""
-    from acquisition.modbus_profile import BUILTIN, load_profile
+    from acquisition.modbus.profile import BUILTIN, load_profile
 
     path = _get(a, "modbus_profile", str, where)
     if path is None or path == BUILTIN:

@@ -165,7 +165,7 @@ def schedule_of(body: ScheduleIn) -> Schedule:
 def _profile_names(url: str) -> list[str]:
     from urllib.parse import parse_qs
 
-    from acquisition.modbus_profile import BUILTIN
+    from acquisition.modbus.profile import BUILTIN
 
     return [n for n in parse_qs(urlsplit(url).query).get("profile", []) if n != BUILTIN]
 
@@ -174,7 +174,7 @@ def check_profile_name(url: str) -> None:
     """A register profile named in a controller URL sent to the API (``profile=``) is a
     plain file name inside the profiles folder (``[storage] profiles_dir``): no folder, no
     absolute path, no ``..``; the file is then read as
-    :func:`acquisition.modbus_profile.load_profile` reads it (a regular file, 64 kB at
+    :func:`acquisition.modbus.profile.load_profile` reads it (a regular file, 64 kB at
     most). Absolute paths are for the configuration file (``modbus_profile``), which the
     operator writes."""
     for name in _profile_names(url):

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from acquisition.canopen import CanopenDriver
-from acquisition.modbus import ModbusDriver
+from acquisition.modbus.driver import ModbusDriver
 from acquisition.sim.axis import SimAxis
 from acquisition.sim.canopen_drive import SimCanopenDrive
 from acquisition.sim.faults import parse_fault

@@ -11,7 +11,7 @@ import pytest
 
 from acquisition.canopen import CanopenDriver
 from acquisition.cycle import default_program, run_cycle
-from acquisition.modbus import ModbusDriver
+from acquisition.modbus.driver import ModbusDriver
 from acquisition.sim.axis import SimAxis
 from acquisition.sim.canopen_drive import SimCanopenDrive
 from acquisition.sim.modbus_server import SimModbusController

@@ -7,7 +7,7 @@ import math
 import pytest
 
 from acquisition.canopen import CanopenDriver
-from acquisition.modbus import ModbusDriver
+from acquisition.modbus.driver import ModbusDriver
 from acquisition.scale import EncoderScale
 from acquisition.sim.faults import Fault, parse_fault
 from acquisition.types import RoundTripProgram

@@ -15,7 +15,7 @@ import time
 
 import pytest
 
-from acquisition import modbus_map as mm
+from acquisition.modbus import register_map as mm
 from acquisition.types import AxisState, RoundTripProgram
 
 MBPOLL = shutil.which("mbpoll")

@@ -93,7 +93,7 @@ def test_measure_a_simulated_controller_in_another_process(tmp_path, capsys):
 
 
 def test_nothing_listening_fails_fast_with_one_line(tmp_path, capsys):
-    # how few attempts a refused connection gets is counted in tests/acquisition/test_modbus.py
+    # how few attempts a refused connection gets is counted in tests/acquisition/modbus/test_driver.py
     port = _free_port()
     code = main(["measure", "--controller", f"modbus://127.0.0.1:{port}", "--travel-mm", "100",
                  "--feed-mm-min", "1000", "--out", str(tmp_path / "ds"), "--timeout-s", "1.5"])

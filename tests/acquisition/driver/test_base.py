@@ -8,14 +8,14 @@ import asyncio
 import pytest
 from pymodbus.exceptions import ModbusIOException
 
-from acquisition import modbus_map as mm
+from acquisition.modbus import register_map as mm
 from acquisition.cycle import run_cycle
 from acquisition.errors import DriverMisuseError
-from acquisition.modbus import ModbusDriver
+from acquisition.modbus.driver import ModbusDriver
 from acquisition.driver.retry import RetryPolicy
 from acquisition.types import AxisState, Command
 from tests.acquisition.conftest import AXIS, PROGRAM
-from tests.acquisition.fake_modbus import FakeController
+from tests.acquisition.modbus.fake_modbus import FakeController
 
 
 async def _no_sleep(_s: float) -> None:

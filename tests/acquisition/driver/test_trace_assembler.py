@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from acquisition import modbus_map as mm
+from acquisition.modbus import register_map as mm
 from acquisition.errors import LostSamplesError, ProtocolError
 from acquisition.driver.trace_assembler import TraceAssembler
 from acquisition.types import SampleBlock

@@ -1,4 +1,4 @@
-"""Modbus driver for a controller described by a register profile (:mod:`acquisition.modbus_profile`).
+"""Modbus driver for a controller described by a register profile (:mod:`acquisition.modbus.profile`).
 
 The controller has no trace ring: each sample is polled, with the reads the profile
 planned (one request when motor and table lie in one block: mode ``latched``; two when
@@ -10,7 +10,7 @@ Active mode (this driver's :meth:`acquire_async`): mebm writes the profile's sta
 coil/register, polls until the done flag rises or the running flag falls, then releases
 the start (writes 0). :meth:`poll` is the plain "read one sample now" path that a
 passive recorder (the CNC starts the round trip) uses. TCP or RTU, as
-:class:`~acquisition.modbus.ModbusDriver`.
+:class:`~acquisition.modbus.driver.ModbusDriver`.
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from acquisition.errors import AcquisitionError
-from acquisition.modbus import ModbusDriver
-from acquisition.modbus_profile import RegisterProfile, ValueSpec
+from acquisition.modbus.driver import ModbusDriver
+from acquisition.modbus.profile import RegisterProfile, ValueSpec
 from acquisition.types import AcquiredTrace, AxisState, ControllerStatus, RoundTripProgram, SampleBlock
 
 COUNTER_HZ = 1e6  # the counter of polled samples: microseconds of the host clock since the start

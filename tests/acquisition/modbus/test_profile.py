@@ -9,14 +9,14 @@ from pathlib import Path
 
 import pytest
 
-from acquisition.modbus import ModbusDriver
-from acquisition.modbus_polled import ProfileModbusDriver
-from acquisition.modbus_profile import ProfileError, ValueSpec, load_profile, parse_profile
+from acquisition.modbus.driver import ModbusDriver
+from acquisition.modbus.polled import ProfileModbusDriver
+from acquisition.modbus.profile import ProfileError, ValueSpec, load_profile, parse_profile
 from acquisition.url import driver_from_url
 from api.service.config import ConfigError, load_settings
 from core.errors import InputError
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "examples" / "modbus-profiles"
+EXAMPLES = Path(__file__).resolve().parents[3] / "examples" / "modbus-profiles"
 
 
 def _doc(**values):
@@ -240,7 +240,7 @@ def test_a_device_or_a_folder_is_refused_at_once_without_being_read(tmp_path):
 
 
 def test_a_file_larger_than_a_profile_is_refused(tmp_path):
-    from acquisition.modbus_profile import MAX_PROFILE_BYTES
+    from acquisition.modbus.profile import MAX_PROFILE_BYTES
 
     big = tmp_path / "big.toml"
     big.write_text("# x\n" * (MAX_PROFILE_BYTES // 4 + 1))

@@ -10,15 +10,15 @@ import pytest
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusIOException
 
-from acquisition import modbus_map as mm
+from acquisition.modbus import register_map as mm
 from acquisition.cycle import run_cycle, run_cycle_async
 from acquisition.errors import ControllerConnectionError, DeviceBusyError, ProtocolError
-from acquisition.modbus import ModbusDriver
+from acquisition.modbus.driver import ModbusDriver
 from acquisition.scale import EncoderScale
 from acquisition.driver.retry import RetryPolicy
 from acquisition.types import AxisState, Command, RoundTripProgram
 from tests.acquisition.conftest import AXIS, PROGRAM, modbus_peer
-from tests.acquisition.fake_modbus import FakeController, busy
+from tests.acquisition.modbus.fake_modbus import FakeController, busy
 
 
 def _free_port() -> int:
@@ -300,7 +300,7 @@ async def _no_sleep(_s: float) -> None:
 
 
 def test_exception_codes_map_to_classes_whose_transience_is_fixed():
-    from acquisition.modbus import exception_error
+    from acquisition.modbus.driver import exception_error
 
     assert type(exception_error(6, "x")) is DeviceBusyError and DeviceBusyError.transient
     assert type(exception_error(2, "x")) is ProtocolError and not ProtocolError.transient

@@ -15,7 +15,7 @@ import numpy as np
 from pymodbus.pdu import ExceptionResponse
 from pymodbus.pdu.register_message import ReadHoldingRegistersResponse, WriteMultipleRegistersResponse
 
-from acquisition import modbus_map as mm
+from acquisition.modbus import register_map as mm
 from acquisition.scale import EncoderScale
 from acquisition.types import AxisState, Command
 

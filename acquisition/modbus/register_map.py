@@ -3,7 +3,7 @@
 All data are holding registers (function 3 read, 16 write), 0-based addresses.
 32-bit values use two registers, high word first. Together with
 :mod:`acquisition.scale`, this is the only module that sees raw register words: the
-driver (:mod:`acquisition.modbus`) asks :class:`RegisterMapV1` where to read and gets
+driver (:mod:`acquisition.modbus.driver`) asks :class:`RegisterMapV1` where to read and gets
 typed values back (:class:`StatusBlock`, :class:`MapConfig`, unwrapped counters and
 physical positions). A register profile for another controller is another
 object with the same methods, handed to the driver as ``register_map``.

@@ -23,8 +23,8 @@ from pathlib import Path
 import pytest
 
 from acquisition.cycle import run_cycle
-from acquisition.modbus_polled import ProfileModbusDriver
-from acquisition.modbus_profile import load_profile
+from acquisition.modbus.polled import ProfileModbusDriver
+from acquisition.modbus.profile import load_profile
 from acquisition.sim.axis import SimAxis
 from acquisition.sim.profile_server import SimProfileController, profile_words
 from acquisition.sim.twin import KinematicTwin
@@ -44,7 +44,7 @@ PROGRAM = RoundTripProgram(-2.5, 7.5, 160.0, acceleration_mm_s2=500.0, dwell_s=0
 TIME_SCALE = 0.5
 TIMEOUT_S = 2.0  # the drain deadline grows by 3 timeouts: room for the half-speed round trip
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "examples" / "modbus-profiles"
+EXAMPLES = Path(__file__).resolve().parents[3] / "examples" / "modbus-profiles"
 FLOAT_CDAB = load_profile(EXAMPLES / "plc-gateway-float32-cdab.toml")
 INT32_SEPARATE = load_profile(EXAMPLES / "drive-int32-input-separate.toml")
 SERVO_HZ = 1000.0

@@ -1,7 +1,7 @@
 """Modbus TCP driver (pymodbus async client) for register map ``mebm-modbus/1``.
 
 Only the wire lives here; the measurement loop is :class:`acquisition.driver.base.ControllerDriver`,
-and every register word is decoded by the register map (:mod:`acquisition.modbus_map`,
+and every register word is decoded by the register map (:mod:`acquisition.modbus.register_map`,
 ``register_map``): this module sees typed values only. Modes: ``trace`` (default) drains
 the controller's trace ring buffer in block reads, so every servo-cycle sample is kept;
 ``latched`` polls the latched sample (one read, both positions of one cycle, decimated);
@@ -19,7 +19,7 @@ import numpy as np
 from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
-from acquisition import modbus_map as mm
+from acquisition.modbus import register_map as mm
 from acquisition.driver.base import ControllerDriver, raise_device_fault
 from acquisition.errors import (
     AcquisitionError,

@@ -17,7 +17,7 @@ request, so when motor and table share one request they come from one PDU (mode
 ``latched``); otherwise they are read in two requests (mode ``separate``) and the driver
 reports the skew uncertainty. :data:`MEBM_MODBUS_1` is mebm's own register map, the
 built-in default profile, served by its own wire with the trace ring
-(:mod:`acquisition.modbus_map`).
+(:mod:`acquisition.modbus.register_map`).
 """
 
 from __future__ import annotations
