@@ -5,7 +5,7 @@
   exchange), ``trace_assembler.TraceAssembler`` (counter continuity, gaps, duplicates),
   ``encoder_monitor.EncoderMonitor`` (stuck/jumping/glitching encoders) and a fresh
   ``acquisition_cycle.AcquisitionCycle`` per cycle; ``acquisition.modbus.driver.ModbusDriver``
-  (with its register map, ``modbus_map``) and ``acquisition.canopen.CanopenDriver``
+  (with its register map, ``modbus_map``) and ``acquisition.canopen.driver.CanopenDriver``
   implement only their wire. See docs/acquisition.md.
 - ``acquisition.modbus.profile``: Modbus register profiles (where a PLC keeps the positions,
   their types, byte/word orders, scales; validated with errors naming the field) and

@@ -1,7 +1,7 @@
 """What a controller URL says of how a cycle starts: active (mebm starts the round trip) or
 passive (mebm waits for the CNC's own program), and the passive settings.
 
-Shared by every URL scheme's parser (:mod:`acquisition.url`, :mod:`acquisition.canopen_url`),
+Shared by every URL scheme's parser (:mod:`acquisition.url`, :mod:`acquisition.canopen.url`),
 so neither imports the other for it.
 """
 

@@ -2,7 +2,7 @@
 ``modbus+rtu:///dev/ttyUSB0[?baudrate=19200&parity=N|E|O&stopbits=1|2&bytesize=8&device_id=N&profile=...]``,
 ``sim://HOST[:PORT][?...]`` (mebm's own simulated Modbus controller, ``mebm sim-controller
 modbus``) and ``canopen://INTERFACE/CHANNEL?node=N[&mode=listen-only|active-cia402|active-mebm&...]``
-(:mod:`acquisition.canopen_url`; any other query key, e.g. ``bitrate`` or ``port``, is passed
+(:mod:`acquisition.canopen.url`; any other query key, e.g. ``bitrate`` or ``port``, is passed
 to the python-can bus).
 
 Every scheme also takes who starts the round trip, ``trigger=active|passive`` (docs/controllers.md,
@@ -95,7 +95,7 @@ def driver_from_url(url: str, **kwargs):
             return ProfileModbusDriver(host, port, profile=profile, device_id=device_id, serial=serial, **kwargs)
         return ModbusDriver(host, port, device_id=device_id, mode=q.get("mode", "trace"), serial=serial, **kwargs)
     if parts.scheme == "canopen":
-        from acquisition.canopen_url import driver_from_canopen_url
+        from acquisition.canopen.url import driver_from_canopen_url
 
         return driver_from_canopen_url(url, **kwargs)
     raise InputError(f"controller URL {url!r}: scheme must be modbus://, modbus+rtu://, sim:// or canopen://")

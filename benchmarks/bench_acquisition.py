@@ -35,7 +35,7 @@ from pathlib import Path
 from pymodbus.client import AsyncModbusTcpClient
 
 from acquisition.modbus import register_map as mm
-from acquisition.canopen import CanopenDriver
+from acquisition.canopen.driver import CanopenDriver
 from acquisition.modbus.driver import ModbusDriver
 from acquisition.modbus.polled import ProfileModbusDriver
 from acquisition.modbus.profile import load_profile

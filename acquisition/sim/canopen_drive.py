@@ -28,7 +28,7 @@ import canopen
 import numpy as np
 from canopen.sdo import SdoAbortedError
 
-from acquisition import canopen_od as co
+from acquisition.canopen import objects as co
 from acquisition.scale import EncoderScale
 from acquisition.sim.axis import SimAxis
 from acquisition.sim import wear as sim_wear

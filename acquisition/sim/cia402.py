@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 
-from acquisition import canopen_od as co
+from acquisition.canopen import objects as co
 from acquisition.scale import EncoderScale
 from core.errors import InputError
 

@@ -25,10 +25,10 @@ import can
 import canopen
 import numpy as np
 
-from acquisition import canopen_od as co
+from acquisition.canopen import objects as co
 from acquisition.sim.cia402 import _Move
 from acquisition.sim.twin import trapezoid_round_trip
-from acquisition.sync_matcher import sync_counter_byte
+from acquisition.canopen.sync_matcher import sync_counter_byte
 from acquisition.types import RoundTripProgram
 from core.errors import InputError, require_positive
 

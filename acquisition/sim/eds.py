@@ -1,7 +1,7 @@
 """The simulated drive's EDS and DCF files (``examples/canopen/``), written with canopen's export.
 
 ``python -m acquisition.sim.eds examples/canopen`` rewrites them; a test checks that the
-shipped files still describe :func:`acquisition.canopen_od.object_dictionary`.
+shipped files still describe :func:`acquisition.canopen.objects.object_dictionary`.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from pathlib import Path
 
 import canopen
 
-from acquisition import canopen_od as co
+from acquisition.canopen import objects as co
 
 EDS_NAME = "mebm-sim-drive.eds"
 DCF_NAME = "mebm-sim-drive-node7-500hz.dcf"

@@ -382,8 +382,8 @@ def _modbus_profile(a: Mapping, controller: str, where: str) -> str:
 
 def _canopen_controller(a: Mapping, controller: str, where: str) -> str:
     """An axis' CANopen controller, checked now: ``[machines.axes.canopen]`` (mode, node, EDS or
-    mapping; folded into the stored URL) or a ``canopen://`` URL (acquisition/canopen_url.py)."""
-    from acquisition.canopen_url import driver_from_canopen_url, url_from_table
+    mapping; folded into the stored URL) or a ``canopen://`` URL (acquisition/canopen/url.py)."""
+    from acquisition.canopen.url import driver_from_canopen_url, url_from_table
 
     try:
         if "canopen" in a:

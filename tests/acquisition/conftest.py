@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acquisition.canopen import CanopenDriver
+from acquisition.canopen.driver import CanopenDriver
 from acquisition.modbus.driver import ModbusDriver
 from acquisition.sim.axis import SimAxis
 from acquisition.sim.canopen_drive import SimCanopenDrive

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from acquisition.canopen import CanopenDriver
+from acquisition.canopen.driver import CanopenDriver
 from acquisition.cycle import default_program, run_cycle
 from acquisition.modbus.driver import ModbusDriver
 from acquisition.sim.axis import SimAxis

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from acquisition.canopen import CanopenDriver
+from acquisition.canopen.driver import CanopenDriver
 from acquisition.modbus.driver import ModbusDriver
 from acquisition.scale import EncoderScale
 from acquisition.sim.faults import Fault, parse_fault

@@ -8,7 +8,7 @@ import canopen
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from acquisition import canopen_od as co
+from acquisition.canopen import objects as co
 from acquisition.cycle import run_cycle
 from acquisition.sim import wear as sw
 from acquisition.sim.twin import KinematicTwin

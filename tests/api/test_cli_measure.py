@@ -123,4 +123,4 @@ def test_bad_controller_url_is_a_usage_error(tmp_path, capsys):
 
 
 # CANopen end to end over real sockets (udp_multicast in a private network namespace, run in CI):
-# tests/acquisition/test_canopen_netns.py
+# tests/acquisition/canopen/test_driver_netns.py

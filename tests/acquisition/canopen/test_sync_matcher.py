@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from acquisition.sync_matcher import SyncMatcher, sync_counter_byte
+from acquisition.canopen.sync_matcher import SyncMatcher, sync_counter_byte
 from core.errors import InputError
 
 PERIOD_S = 0.001

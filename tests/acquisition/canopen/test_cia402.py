@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from acquisition import canopen_od as co
-from acquisition.canopen_cia402 import CanopenCia402Driver
+from acquisition.canopen import objects as co
+from acquisition.canopen.cia402 import CanopenCia402Driver
 from acquisition.cycle import run_cycle
 from acquisition.scale import EncoderScale
 from acquisition.sim.cia402 import (

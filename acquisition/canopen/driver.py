@@ -4,7 +4,7 @@ Only the wire lives here; the measurement loop is :class:`acquisition.driver.bas
 The driver produces SYNC at the measurement rate (its own thread); the drive answers
 each SYNC with TPDO1 = (0x6064 motor, 0x60E4 sub 1 table), both latched at that SYNC,
 within the synchronous window (0x1007, written at start-up). A TPDO is paired with its
-SYNC on bus timestamps by :class:`acquisition.sync_matcher.SyncMatcher`; frames that
+SYNC on bus timestamps by :class:`acquisition.canopen.sync_matcher.SyncMatcher`; frames that
 arrive out of order are put back in SYNC order; a SYNC without its TPDO is a lost
 sample (a counter gap), never filled in. The bus is injected (``bus_factory``). Program, command and state go through SDO; heartbeat and EMCY
 are watched; an EMCY during a cycle aborts it with the error code in the reason.
@@ -23,7 +23,7 @@ import canopen
 import numpy as np
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
-from acquisition import canopen_od as co
+from acquisition.canopen import objects as co
 from acquisition.driver.base import BlockingLinkDriver, raise_device_fault
 from acquisition.errors import (
     ControllerConnectionError,
@@ -32,7 +32,7 @@ from acquisition.errors import (
     ProtocolError,
 )
 from acquisition.scale import EncoderScale
-from acquisition.sync_matcher import SyncMatcher, sync_counter_byte
+from acquisition.canopen.sync_matcher import SyncMatcher, sync_counter_byte
 from acquisition.types import AxisState, Command, ControllerStatus, RoundTripProgram, SampleBlock
 from core.errors import InputError, require_positive
 

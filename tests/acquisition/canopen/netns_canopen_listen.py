@@ -36,7 +36,7 @@ NODE = 7
 ADDR = {"master": "10.77.0.1", "drive": "10.77.0.2", "mebm": "10.77.0.3"}
 PROBE_ID = 0x6FF
 SCRIPT = Path(__file__).resolve()
-ROOT = SCRIPT.parents[2]
+ROOT = SCRIPT.parents[3]
 EDS = ROOT / "examples" / "canopen" / "mebm-sim-drive.eds"
 RATE_HZ = 250.0  # SYNC rate of the machine: a 4 ms cycle of machine time
 # The master and the drive stand for hardware; on a shared host they run at 0.4 of real time
@@ -114,7 +114,7 @@ def role_master() -> None:
 
 
 def role_mebm() -> None:
-    from acquisition.canopen_url import driver_from_canopen_url
+    from acquisition.canopen.url import driver_from_canopen_url
     from acquisition.cycle import run_cycle
     from acquisition.types import RoundTripProgram
     from core.dataset import AxisSpec

@@ -3,11 +3,11 @@
 The CNC is the NMT master and the SYNC producer; its drive answers every SYNC with a
 TPDO carrying 0x6064 (motor) and 0x60E4 sub 1 (table), latched at that SYNC. mebm
 opens the bus, hears both, and pairs each TPDO with the latest SYNC within the
-synchronous window on their bus timestamps (:class:`acquisition.sync_matcher.SyncMatcher`),
+synchronous window on their bus timestamps (:class:`acquisition.canopen.sync_matcher.SyncMatcher`),
 exactly as in the active mode, but the SYNCs are the master's. It sends no NMT, no
 SYNC, no SDO, no heartbeat: the bus it opens is wrapped so that a send raises (a bug,
 never a frame). The mapping comes from the configuration or the drive's EDS/DCF
-(:mod:`acquisition.canopen_mapping`).
+(:mod:`acquisition.canopen.mapping`).
 
 SYNCs are numbered from their CiA 301 counter byte when the master sends one (a SYNC
 this host missed is then a counter gap, a lost sample), else from their spacing
@@ -26,7 +26,7 @@ from dataclasses import replace
 import can
 import numpy as np
 
-from acquisition.canopen_mapping import ListenMapping
+from acquisition.canopen.mapping import ListenMapping
 from acquisition.driver.base import BlockingLinkDriver
 from acquisition.errors import (
     ControllerConnectionError,
@@ -35,7 +35,7 @@ from acquisition.errors import (
     DriverMisuseError,
     LostSamplesError,
 )
-from acquisition.sync_matcher import SYNC_COUNTER_MAX, SyncMatcher
+from acquisition.canopen.sync_matcher import SYNC_COUNTER_MAX, SyncMatcher
 from acquisition.types import AcquiredTrace, AxisState, ControllerStatus, SampleBlock
 from core.errors import InputError
 
@@ -350,7 +350,7 @@ class CanopenListenDriver(BlockingLinkDriver):
         self._refuse("acknowledge a fault")
 
     def _take(self, finished: bool = False) -> SampleBlock:
-        from acquisition.canopen import SyncOrder
+        from acquisition.canopen.driver import SyncOrder
 
         frames = self.wire.take()
         if self._order is None:

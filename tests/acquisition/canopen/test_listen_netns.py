@@ -21,11 +21,11 @@ import pytest
 
 from acquisition.cycle import run_cycle
 from acquisition.sim.twin import KinematicTwin
-from tests.acquisition import netns_canopen_listen as hub  # the addresses, ids and twin the hub uses
+from tests.acquisition.canopen import netns_canopen_listen as hub  # the addresses, ids and twin the hub uses
 from tests.acquisition.conftest import AXIS, PROGRAM, modbus_peer, realtime_rig
 
 SCRIPT = Path(hub.__file__)
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def _unavailable(reason: str):

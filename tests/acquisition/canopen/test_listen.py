@@ -13,12 +13,12 @@ import can
 import numpy as np
 import pytest
 
-from acquisition import canopen_od as co
-from acquisition.canopen import CanopenDriver
-from acquisition.canopen_cia402 import CanopenCia402Driver
-from acquisition.canopen_listen import CanopenListenDriver, ListenOnlyBusError, SyncListener, _ListenOnlyBus
-from acquisition.canopen_mapping import ListenMapping, PdoField, default_mapping, mapping_from_eds
-from acquisition.canopen_url import driver_from_canopen_url
+from acquisition.canopen import objects as co
+from acquisition.canopen.driver import CanopenDriver
+from acquisition.canopen.cia402 import CanopenCia402Driver
+from acquisition.canopen.listen import CanopenListenDriver, ListenOnlyBusError, SyncListener, _ListenOnlyBus
+from acquisition.canopen.mapping import ListenMapping, PdoField, default_mapping, mapping_from_eds
+from acquisition.canopen.url import driver_from_canopen_url
 from acquisition.url import driver_from_url
 from acquisition.cycle import run_cycle
 from acquisition.sim import eds as sim_eds
@@ -30,7 +30,7 @@ from api.service.config import ConfigError, parse_settings
 from core.errors import InputError
 from tests.acquisition.conftest import AXIS, PROGRAM
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 EXAMPLES = ROOT / "examples" / "canopen"
 EDS = EXAMPLES / sim_eds.EDS_NAME
 DCF = EXAMPLES / sim_eds.DCF_NAME

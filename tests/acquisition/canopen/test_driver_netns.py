@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acquisition.sync_matcher import sync_counter_byte
+from acquisition.canopen.sync_matcher import sync_counter_byte
 from tests.acquisition.conftest import realtime_rig
 
 SCRIPT = Path(__file__).with_name("netns_canopen.py")
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def _unavailable(reason: str):

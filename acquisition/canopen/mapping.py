@@ -17,7 +17,7 @@ import struct
 from dataclasses import dataclass
 from pathlib import Path
 
-from acquisition import canopen_od as co
+from acquisition.canopen import objects as co
 from core.errors import InputError
 
 _INT_TYPES = {  # CiA 301 data type -> (struct code, bytes)

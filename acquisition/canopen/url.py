@@ -110,7 +110,7 @@ def _driver(url: str, where: str, **kwargs):
     window_s = _num(f"window_ms", q["window_ms"], float) / 1000.0 if "window_ms" in q else None
     time_scale = _num(f"time_scale", q.get("time_scale", 1.0), float)
     if mode == "listen-only":
-        from acquisition.canopen_listen import CanopenListenDriver
+        from acquisition.canopen.listen import CanopenListenDriver
 
         if "max_lost_samples" in q:
             kwargs["max_lost_samples"] = _num("max_lost_samples", q["max_lost_samples"], int)
@@ -123,20 +123,20 @@ def _driver(url: str, where: str, **kwargs):
     common = dict(interface=interface, sync_rate_hz=rate or 250.0, time_scale=time_scale, bus_kwargs=bus_kwargs,
                   sync_window_s=window_s)
     if mode == "active-cia402":
-        from acquisition.canopen_cia402 import CanopenCia402Driver
+        from acquisition.canopen.cia402 import CanopenCia402Driver
 
         nm = _num(f"table_nm_per_count", q["table_nm_per_count"], float) if "table_nm_per_count" in q else None
         return CanopenCia402Driver(channel, node, table_nm_per_count=nm, **common, **kwargs)
     if "table_nm_per_count" in q:
         raise InputError(f"table_nm_per_count does not apply to mode=active-mebm (read from 0x2005)")
-    from acquisition.canopen import CanopenDriver
+    from acquisition.canopen.driver import CanopenDriver
 
     return CanopenDriver(channel, node, **common, **kwargs)
 
 
 def listen_mapping(q: Mapping[str, str], node: int, where: str):
     """The listen-only PDO mapping from URL keys: ``eds`` (overridable scale), or the keys one by one."""
-    from acquisition.canopen_mapping import PdoField, default_mapping, mapping_from_eds, pdo_type
+    from acquisition.canopen.mapping import PdoField, default_mapping, mapping_from_eds, pdo_type
 
     def num(key, cast):
         return _num(f"{key}", q[key], cast) if key in q else None

@@ -1,6 +1,6 @@
 """CANopen active mode through standard CiA 402 objects, for a drive on a bench.
 
-Like :class:`acquisition.canopen.CanopenDriver` (mebm is the NMT master and the SYNC
+Like :class:`acquisition.canopen.driver.CanopenDriver` (mebm is the NMT master and the SYNC
 producer; TPDO1 = 0x6064, 0x60E4 sub 1 latched on every SYNC), but the round trip is
 commanded in Profile Position mode through the standard objects instead of mebm's
 manufacturer objects 0x2000-0x2006, so any CiA 402 drive will do:
@@ -27,8 +27,8 @@ from __future__ import annotations
 import math
 import time
 
-from acquisition import canopen_od as co
-from acquisition.canopen import CanopenDriver, SyncOrder
+from acquisition.canopen import objects as co
+from acquisition.canopen.driver import CanopenDriver, SyncOrder
 from acquisition.errors import ControllerTimeoutError, ProtocolError
 from acquisition.types import AxisState, Command, ControllerStatus, RoundTripProgram
 from core.errors import InputError
