@@ -22,7 +22,7 @@ from dataclasses import replace
 import numpy as np
 
 from acquisition.sim.axis import SimAxis
-from acquisition.sim.modbus_server import SimModbusController
+from acquisition.sim.modbus.server import SimModbusController
 from acquisition.sim.twin import CoreSimTwin, TwinTrace
 from acquisition.sim.wear import REPAIR_MAGIC, REPAIR_REG, Wear
 from acquisition.types import RoundTripProgram

@@ -13,8 +13,8 @@ from acquisition.canopen.driver import CanopenDriver
 from acquisition.cycle import default_program, run_cycle
 from acquisition.modbus.driver import ModbusDriver
 from acquisition.sim.axis import SimAxis
-from acquisition.sim.canopen_drive import SimCanopenDrive
-from acquisition.sim.modbus_server import SimModbusController
+from acquisition.sim.canopen.drive import SimCanopenDrive
+from acquisition.sim.modbus.server import SimModbusController
 from acquisition.sim.twin import CoreSimTwin
 from core.criteria import analyze_round_trip
 from core.dataset import AxisSpec

@@ -245,7 +245,7 @@ def test_a_start_between_the_flag_read_and_the_position_read_is_measured_from_it
 
     from acquisition.modbus.profile import load_profile
     from acquisition.sim.axis import SimAxis
-    from acquisition.sim.profile_server import SimProfileController
+    from acquisition.sim.modbus.profile_server import SimProfileController
     from acquisition.sim.twin import KinematicTwin
 
     profile_file = ROOT / "examples" / "modbus-profiles" / "plc-gateway-float32-cdab.toml"
@@ -283,7 +283,7 @@ def test_a_profile_controller_gets_passive_mode_from_its_polled_samples(running_
 
     from acquisition.modbus.profile import load_profile
     from acquisition.sim.axis import SimAxis
-    from acquisition.sim.profile_server import SimProfileController
+    from acquisition.sim.modbus.profile_server import SimProfileController
     from acquisition.sim.twin import KinematicTwin
 
     profile_file = ROOT / "examples" / "modbus-profiles" / "plc-gateway-float32-cdab.toml"

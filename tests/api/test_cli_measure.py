@@ -104,7 +104,7 @@ def test_nothing_listening_fails_fast_with_one_line(tmp_path, capsys):
 
 
 def test_wrong_node_id_fails_within_the_timeout(tmp_path, capsys):
-    from acquisition.sim.canopen_drive import SimCanopenDrive
+    from acquisition.sim.canopen.drive import SimCanopenDrive
     from acquisition.sim.twin import KinematicTwin
 
     with SimCanopenDrive(KinematicTwin(), node_id=5, channel="mebm-cli-wrong-node"):

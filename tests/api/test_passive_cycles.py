@@ -12,7 +12,7 @@ import pytest
 from sqlalchemy import func, select
 
 from acquisition.sim.axis import SimAxis
-from acquisition.sim.modbus_server import SimModbusController
+from acquisition.sim.modbus.server import SimModbusController
 from acquisition.sim.twin import KinematicTwin
 from api.service.config import AxisConfig, ConfigError, parse_settings
 from api.service.runner import DriverRunner

@@ -8,7 +8,7 @@ import pytest
 
 from acquisition.sim.axis import SimAxis
 from acquisition.sim.faults import parse_fault
-from acquisition.sim.modbus_server import SimModbusController
+from acquisition.sim.modbus.server import SimModbusController
 from acquisition.sim.twin import KinematicTwin
 from core.criteria.uncertainty import inputs_of_run
 from storage.dataset import read_dataset

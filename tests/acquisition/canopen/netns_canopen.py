@@ -28,7 +28,7 @@ def _setup_namespace() -> None:
 def _drive(conn, delay_s: float, jitter_s: float) -> None:
     import numpy as np
 
-    from acquisition.sim.canopen_drive import SimCanopenDrive
+    from acquisition.sim.canopen.drive import SimCanopenDrive
     from acquisition.sim.faults import parse_fault
     from acquisition.sim.twin import KinematicTwin
 

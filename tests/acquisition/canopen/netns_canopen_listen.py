@@ -4,7 +4,7 @@
 The hub (this script, in the private namespace the test made) builds a bridge and
 three more namespaces on it, one process each, each with its own address:
 
-    10.77.0.1  the CNC master: NMT master, SYNC producer, CSP commands (acquisition/sim/cnc_master.py)
+    10.77.0.1  the CNC master: NMT master, SYNC producer, CSP commands (acquisition/sim/canopen/cnc_master.py)
     10.77.0.2  the simulated drive: answers each SYNC with its TPDO
     10.77.0.3  mebm, listen-only: measures the round trip
 
@@ -86,7 +86,7 @@ def _wait_line() -> str:
 def role_drive() -> None:
     import numpy as np
 
-    from acquisition.sim.canopen_drive import SimCanopenDrive
+    from acquisition.sim.canopen.drive import SimCanopenDrive
     from acquisition.sim.twin import KinematicTwin
 
     sched = _hardware_priority()
@@ -101,7 +101,7 @@ def role_drive() -> None:
 
 
 def role_master() -> None:
-    from acquisition.sim.cnc_master import CncMaster
+    from acquisition.sim.canopen.cnc_master import CncMaster
     from acquisition.types import RoundTripProgram
 
     sched = _hardware_priority()

@@ -8,7 +8,7 @@ from acquisition.canopen import objects as co
 from acquisition.canopen.cia402 import CanopenCia402Driver
 from acquisition.cycle import run_cycle
 from acquisition.scale import EncoderScale
-from acquisition.sim.cia402 import (
+from acquisition.sim.canopen.cia402 import (
     OPERATION_ENABLED,
     READY_TO_SWITCH_ON,
     SWITCH_ON_DISABLED,

@@ -21,9 +21,9 @@ from acquisition.canopen.mapping import ListenMapping, PdoField, default_mapping
 from acquisition.canopen.url import driver_from_canopen_url
 from acquisition.url import driver_from_url
 from acquisition.cycle import run_cycle
-from acquisition.sim import eds as sim_eds
-from acquisition.sim.canopen_drive import SimCanopenDrive
-from acquisition.sim.cnc_master import CncMaster
+from acquisition.sim.canopen import eds as sim_eds
+from acquisition.sim.canopen.drive import SimCanopenDrive
+from acquisition.sim.canopen.cnc_master import CncMaster
 from acquisition.sim.twin import KinematicTwin
 from acquisition.types import RoundTripProgram
 from api.service.config import ConfigError, parse_settings
@@ -41,7 +41,7 @@ _channels = itertools.count()
 def test_shipped_eds_and_dcf_are_what_the_simulated_drive_offers(tmp_path):
     written = sim_eds.write_files(tmp_path)
     for p in written:
-        assert (EXAMPLES / p.name).read_text() == p.read_text(), f"regenerate: python -m acquisition.sim.eds {EXAMPLES}"
+        assert (EXAMPLES / p.name).read_text() == p.read_text(), f"regenerate: python -m acquisition.sim.canopen.eds {EXAMPLES}"
 
 
 def test_mapping_from_the_eds_resolves_the_node_id_and_reads_the_scale():

@@ -26,7 +26,7 @@ from acquisition.cycle import run_cycle
 from acquisition.modbus.polled import ProfileModbusDriver
 from acquisition.modbus.profile import load_profile
 from acquisition.sim.axis import SimAxis
-from acquisition.sim.profile_server import SimProfileController, profile_words
+from acquisition.sim.modbus.profile_server import SimProfileController, profile_words
 from acquisition.sim.twin import KinematicTwin
 from acquisition.types import AxisState, RoundTripProgram
 from acquisition.url import driver_from_url
@@ -233,7 +233,7 @@ def test_mebm_modbus_1_trace_mode_over_rtu(trace_mode_b_um, tmp_path):
     from pymodbus.framer import FramerType
     from pymodbus.server import ModbusSerialServer
 
-    from acquisition.sim import modbus_server
+    from acquisition.sim.modbus import server as modbus_server
 
     axis = SimAxis(_twin(), servo_rate_hz=SERVO_HZ, time_scale=2.0, ring_records=10906)
     sim = modbus_server.SimModbusController(axis)

@@ -189,7 +189,7 @@ def test_bad_modbus_urls_are_refused_naming_the_option(url, words):
 # -- the driver's two entry points: poll one sample (passive), start the PLC's program (active) ----
 def _plc(profile):
     from acquisition.sim.axis import SimAxis
-    from acquisition.sim.profile_server import SimProfileController
+    from acquisition.sim.modbus.profile_server import SimProfileController
     from acquisition.sim.twin import KinematicTwin
     from tests.acquisition.conftest import PROGRAM
 

@@ -9,7 +9,7 @@ then every communication cycle sends SYNC (with the CiA 301 counter byte) and RP
 with TPDO1 (0x6064, 0x60E4 sub 1). mebm in listen-only mode hears all of this and sends
 nothing (docs/canopen-objects.md).
 
-    python -m acquisition.sim.cnc_master --interface udp_multicast --channel 239.74.163.2 \\
+    python -m acquisition.sim.canopen.cnc_master --interface udp_multicast --channel 239.74.163.2 \\
         --bus-port 43113 --node 7 --rate-hz 500 --start-mm -2 --end-mm 22 --feed-mm-min 1000
 """
 
@@ -26,7 +26,7 @@ import canopen
 import numpy as np
 
 from acquisition.canopen import objects as co
-from acquisition.sim.cia402 import _Move
+from acquisition.sim.canopen.cia402 import _Move
 from acquisition.sim.twin import trapezoid_round_trip
 from acquisition.canopen.sync_matcher import sync_counter_byte
 from acquisition.types import RoundTripProgram
@@ -155,7 +155,7 @@ class CncMaster:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m acquisition.sim.cnc_master", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m acquisition.sim.canopen.cnc_master", description=__doc__.splitlines()[0])
     p.add_argument("--interface", default="udp_multicast")
     p.add_argument("--channel", default="239.74.163.2")
     p.add_argument("--bus-port", type=int, default=None, help="udp_multicast port")

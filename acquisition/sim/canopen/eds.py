@@ -1,6 +1,6 @@
 """The simulated drive's EDS and DCF files (``examples/canopen/``), written with canopen's export.
 
-``python -m acquisition.sim.eds examples/canopen`` rewrites them; a test checks that the
+``python -m acquisition.sim.canopen.eds examples/canopen`` rewrites them; a test checks that the
 shipped files still describe :func:`acquisition.canopen.objects.object_dictionary`.
 """
 

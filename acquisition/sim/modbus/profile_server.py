@@ -1,6 +1,6 @@
 """A simulated PLC laid out by a register profile: the twin's round trip behind any layout.
 
-Where :class:`~acquisition.sim.modbus_server.SimModbusController` speaks mebm's own
+Where :class:`~acquisition.sim.modbus.server.SimModbusController` speaks mebm's own
 register map, this server puts the :class:`SimAxis`' latched positions, temperature,
 running and done flags at the addresses, types and orders a profile
 (:mod:`acquisition.modbus.profile`) names, as a PLC gateway would. Writing the start
@@ -22,7 +22,7 @@ from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 
 from acquisition.modbus.profile import RegisterProfile
 from acquisition.sim.axis import SimAxis
-from acquisition.sim.loop_thread import LoopThread
+from acquisition.sim.modbus.loop_thread import LoopThread
 from acquisition.types import AxisState, RoundTripProgram
 from core.errors import InputError
 

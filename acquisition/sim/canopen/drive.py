@@ -32,7 +32,7 @@ from acquisition.canopen import objects as co
 from acquisition.scale import EncoderScale
 from acquisition.sim.axis import SimAxis
 from acquisition.sim import wear as sim_wear
-from acquisition.sim.cia402 import Cia402Motion
+from acquisition.sim.canopen.cia402 import Cia402Motion
 from acquisition.sim.twin import Twin
 from acquisition.types import AxisState, Command, RoundTripProgram
 from core.errors import InputError
@@ -319,7 +319,7 @@ class SimCanopenDrive:
             elif cmd == Command.ACKNOWLEDGE:
                 self.axis.acknowledge()
 
-    # -- CiA 402 position control (acquisition/sim/cia402.py) ------------------------------------------
+    # -- CiA 402 position control (acquisition/sim/canopen/cia402.py) ------------------------------------------
     def _init_cia402(self, twin: Twin) -> None:
         self.cia402 = Cia402Motion(twin, self.scale)
         self._cia402_lock = threading.Lock()

@@ -22,7 +22,7 @@ from pymodbus.server import ModbusTcpServer
 from acquisition.modbus import register_map as mm
 from acquisition.sim.axis import SimAxis
 from acquisition.sim import wear as sim_wear
-from acquisition.sim.loop_thread import LoopThread
+from acquisition.sim.modbus.loop_thread import LoopThread
 from acquisition.types import AxisState, Command
 from core.errors import InputError
 
