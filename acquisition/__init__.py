@@ -11,7 +11,7 @@
   their types, byte/word orders, scales; validated with errors naming the field) and
   ``acquisition.modbus.polled.ProfileModbusDriver``, which polls them (one PDU when it can,
   else separate reads with the skew reported); its ``poll()`` reads one sample now.
-- ``acquisition.cycle.run_cycle`` / ``run_cycle_async``: one measurement cycle ->
+- ``acquisition.measurement.run_cycle`` / ``run_cycle_async``: one measurement cycle ->
   ``CycleResult`` (ok/failed with a reason, trace, criteria, decision, uncertainty).
 - ``acquisition.url.driver_from_url``: ``modbus://HOST:PORT[?profile=P.toml]``,
   ``modbus+rtu:///dev/DEVICE?baudrate=N`` / ``canopen://INTERFACE/CHANNEL?node=N``.

@@ -3,7 +3,7 @@
 A runner takes the stored axis and the controller URL and returns a
 :class:`CycleOutcome`; it never raises for a failed measurement (the failure is an
 outcome with its reason). The production runner is the acquisition layer's cycle
-(``acquisition.cycle.run_cycle``: a round trip with over-travel, trace validation,
+(``acquisition.measurement.run_cycle``: a round trip with over-travel, trace validation,
 criteria); tests inject their own.
 
 The production runner runs each cycle in a warm worker process (:class:`CycleProcesses`)
@@ -30,7 +30,7 @@ from typing import Protocol
 
 import numpy as np
 
-from acquisition import cycle as acq_cycle
+from acquisition import measurement
 from acquisition.driver.base import ControllerDriver
 from acquisition.url import driver_from_url, needs_callers_process
 from api.service.config_input import resolve_profile
@@ -86,7 +86,7 @@ def analyse(axis: AxisRecord, time_s, motor_rev, table_mm, *,
             uncertainty: UncertaintyInputs | None = None) -> RoundTripResult:
     """Backlash profile and lead criteria of a raw round trip (core, Section 3).
 
-    A trace programmed with over-travel (``acquisition.cycle.default_program``) is
+    A trace programmed with over-travel (``acquisition.measurement.default_program``) is
     analysed over the whole travel, like the live cycle, so a spooled run re-analysed
     after a database outage gives the same result; a shorter one over the inset
     :func:`useful_travel_mm`. Without ``uncertainty``, the budget has the axis' instruments
@@ -267,11 +267,11 @@ class DriverRunner:
         st = axis.settings
         try:
             driver = self.driver_factory(controller_url)
-            program = acq_cycle.default_program(st.spec, st.measure_feed_mm_min,
+            program = measurement.default_program(st.spec, st.measure_feed_mm_min,
                                                 acceleration_mm_s2=st.measure_acceleration_mm_s2)
         except MebmError as exc:
             return CycleOutcome.failed(f"{type(exc).__name__}: {exc}")
-        res = acq_cycle.run_cycle(driver, st.spec, program, instruments=st.instruments)
+        res = measurement.run_cycle(driver, st.spec, program, instruments=st.instruments)
         trace = res.trace
         temp = trace.temperature_c if trace is not None and math.isfinite(trace.temperature_c) else None
         raw = {}

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from acquisition.canopen.driver import CanopenDriver
-from acquisition.cycle import default_program, run_cycle
+from acquisition.measurement import default_program, run_cycle
 from acquisition.modbus.driver import ModbusDriver
 from acquisition.sim.axis import SimAxis
 from acquisition.sim.canopen.drive import SimCanopenDrive

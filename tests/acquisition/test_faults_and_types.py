@@ -81,7 +81,7 @@ def test_every_acquisition_error_names_its_own_reason_code():
     import inspect
 
     from acquisition import errors
-    from acquisition.cycle import reason_code
+    from acquisition.measurement import reason_code
     from core.errors import TraceError
 
     classes = [c for _, c in inspect.getmembers(errors, inspect.isclass) if issubclass(c, errors.AcquisitionError)]

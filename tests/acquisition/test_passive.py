@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from acquisition.modbus import register_map as mm
-from acquisition.cycle import run_cycle
+from acquisition.measurement import run_cycle
 from acquisition.errors import NoRoundTripSeen
 from acquisition.modbus.driver import ModbusDriver
 from acquisition.types import RoundTripProgram

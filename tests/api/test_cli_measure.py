@@ -12,7 +12,7 @@ import sys
 import numpy as np
 import pytest
 
-from acquisition.cycle import default_program
+from acquisition.measurement import default_program
 from acquisition.sim.twin import CoreSimTwin
 from api.cli.main import main
 from core.dataset import AxisSpec, MachineSpec, Run, RunSpec

@@ -57,7 +57,7 @@ def _drive(conn, delay_s: float, jitter_s: float) -> None:
 def main() -> None:
     _setup_namespace()
     from acquisition.canopen.driver import CanopenDriver
-    from acquisition.cycle import run_cycle
+    from acquisition.measurement import run_cycle
     from acquisition.types import RoundTripProgram
     from core.dataset import AxisSpec
 

@@ -115,7 +115,7 @@ def role_master() -> None:
 
 def role_mebm() -> None:
     from acquisition.canopen.url import driver_from_canopen_url
-    from acquisition.cycle import run_cycle
+    from acquisition.measurement import run_cycle
     from acquisition.types import RoundTripProgram
     from core.dataset import AxisSpec
 

@@ -6,7 +6,7 @@ import pytest
 
 from acquisition.canopen import objects as co
 from acquisition.canopen.cia402 import CanopenCia402Driver
-from acquisition.cycle import run_cycle
+from acquisition.measurement import run_cycle
 from acquisition.scale import EncoderScale
 from acquisition.sim.canopen.cia402 import (
     OPERATION_ENABLED,

@@ -7,7 +7,7 @@ import struct
 import numpy as np
 
 from acquisition.canopen import objects as co
-from acquisition.cycle import run_cycle
+from acquisition.measurement import run_cycle
 from acquisition.types import AxisState
 from tests.acquisition.conftest import AXIS, PROGRAM, canopen_peer
 

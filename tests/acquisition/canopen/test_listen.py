@@ -20,7 +20,7 @@ from acquisition.canopen.listen import CanopenListenDriver, ListenOnlyBusError, 
 from acquisition.canopen.mapping import ListenMapping, PdoField, default_mapping, mapping_from_eds
 from acquisition.canopen.url import driver_from_canopen_url
 from acquisition.url import driver_from_url
-from acquisition.cycle import run_cycle
+from acquisition.measurement import run_cycle
 from acquisition.sim.canopen import eds as sim_eds
 from acquisition.sim.canopen.drive import SimCanopenDrive
 from acquisition.sim.canopen.cnc_master import CncMaster

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from acquisition.cycle import run_cycle
+from acquisition.measurement import run_cycle
 from acquisition.sim.twin import KinematicTwin
 from tests.acquisition.canopen import netns_canopen_listen as hub  # the addresses, ids and twin the hub uses
 from tests.acquisition.conftest import AXIS, PROGRAM, modbus_peer, realtime_rig

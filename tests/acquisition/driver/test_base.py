@@ -9,7 +9,7 @@ import pytest
 from pymodbus.exceptions import ModbusIOException
 
 from acquisition.modbus import register_map as mm
-from acquisition.cycle import run_cycle
+from acquisition.measurement import run_cycle
 from acquisition.errors import DriverMisuseError
 from acquisition.modbus.driver import ModbusDriver
 from acquisition.driver.retry import RetryPolicy

@@ -11,7 +11,7 @@ from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusIOException
 
 from acquisition.modbus import register_map as mm
-from acquisition.cycle import run_cycle, run_cycle_async
+from acquisition.measurement import run_cycle, run_cycle_async
 from acquisition.errors import ControllerConnectionError, DeviceBusyError, ProtocolError
 from acquisition.modbus.driver import ModbusDriver
 from acquisition.scale import EncoderScale

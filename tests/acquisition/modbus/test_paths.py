@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-from acquisition.cycle import run_cycle
+from acquisition.measurement import run_cycle
 from acquisition.modbus.polled import ProfileModbusDriver
 from acquisition.modbus.profile import load_profile
 from acquisition.sim.axis import SimAxis

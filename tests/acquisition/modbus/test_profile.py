@@ -219,7 +219,7 @@ def test_poll_reads_one_sample_with_its_flags():
 
 
 def test_a_profile_without_start_refuses_an_active_measurement_and_moves_nothing():
-    from acquisition.cycle import run_cycle
+    from acquisition.measurement import run_cycle
     from tests.acquisition.conftest import AXIS, PROGRAM
 
     doc = _doc(running={"function": "discrete_input", "address": 0})

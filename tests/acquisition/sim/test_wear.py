@@ -9,7 +9,7 @@ import pytest
 from pymodbus.client import ModbusTcpClient
 
 from acquisition.canopen import objects as co
-from acquisition.cycle import run_cycle
+from acquisition.measurement import run_cycle
 from acquisition.sim import wear as sw
 from acquisition.sim.twin import KinematicTwin
 from api.cli.main import main

@@ -9,7 +9,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from acquisition.cycle import default_program, run_cycle, run_cycle_async, validate_trace
+from acquisition.measurement import default_program, run_cycle, run_cycle_async, validate_trace
 from acquisition.errors import IncompleteTraceError
 from acquisition.types import AcquiredTrace, RoundTripProgram
 from core.dataset import validate_columns, validate_run_spec, MachineSpec
