@@ -8,13 +8,13 @@
   ``table_offset_bytes`` (``motor_type``/``table_type`` i32 by default), ``counts_per_rev``,
   ``table_nm_per_count`` (the node's TPDO1 of mebm's objects when none is given),
   ``max_lost_samples``. The round trip is found passively (``trigger=passive`` and the
-  detection keys of :mod:`acquisition.url`).
+  detection keys of :mod:`acquisition.trigger`).
 - ``active-cia402``: mebm is the NMT master and SYNC producer and commands the drive
   through CiA 402 Profile Position (a drive on a bench). ``table_nm_per_count`` unless
   the drive has 0x2005.
 - ``active-mebm``: as above through mebm's objects 0x2000-0x2006 (the simulated drive's).
 
-``mode`` and ``trigger`` (:mod:`acquisition.url`) agree: ``listen-only`` is the passive
+``mode`` and ``trigger`` (:mod:`acquisition.trigger`) agree: ``listen-only`` is the passive
 mode, the two others are active. Without ``mode``, the trigger decides: passive (the
 default for any bus but the in-process ``virtual`` one) is ``listen-only``, active is
 ``active-mebm``; a ``mode`` that contradicts an explicit ``trigger`` is refused.
@@ -23,9 +23,9 @@ default for any bus but the in-process ``virtual`` one) is ``listen-only``, acti
 from __future__ import annotations
 
 from collections.abc import Mapping
-from urllib.parse import parse_qs, quote, urlsplit
+from urllib.parse import quote, urlsplit
 
-from acquisition.trigger import TRIGGER_KEYS, trigger_kwargs
+from acquisition.trigger import TRIGGER_KEYS, query_of, trigger_kwargs
 from core.errors import InputError
 
 MODES = ("listen-only", "active-cia402", "active-mebm")
@@ -76,7 +76,7 @@ def driver_from_canopen_url(url: str, *, where: str | None = None, **kwargs):
 
 def _driver(url: str, where: str, **kwargs):
     parts = urlsplit(url)
-    q = {k: v[-1] for k, v in parse_qs(parts.query).items()}
+    q = query_of(url)
     channel = parts.path.lstrip("/")
     if not parts.netloc or not channel:
         raise InputError(f"controller URL {url!r} must be canopen://INTERFACE/CHANNEL?node=N "
@@ -177,7 +177,7 @@ def url_from_table(table: Mapping, controller: str | None, where: str) -> str:
             raise InputError(f"{where}: the axis' controller (={controller!r}) must be canopen://... or left out")
         interface = interface or parts.netloc
         channel = channel or parts.path.lstrip("/")
-        base_q = {k: v[-1] for k, v in parse_qs(parts.query).items()}
+        base_q = query_of(controller)
     for key, val in (("interface", interface), ("channel", channel)):
         if not isinstance(val, str) or not val:
             raise InputError(f"{where}.{key} is needed (or controller = \"canopen://INTERFACE/CHANNEL\")")

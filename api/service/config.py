@@ -364,13 +364,14 @@ def _modbus_profile(a: Mapping, controller: str, where: str) -> str:
     """``modbus_profile``: the register profile file of a Modbus controller (docs/controllers.md),
     validated now and carried in the controller URL (``profile=``) to the driver."""
     from acquisition.modbus.profile import BUILTIN, load_profile
+    from acquisition.trigger import query_of
 
     path = _get(a, "modbus_profile", str, where)
     if path is None or path == BUILTIN:
         return controller
     if not controller.startswith(("modbus://", "modbus+rtu://")):
         raise ConfigError(f"{where}.modbus_profile needs a modbus:// or modbus+rtu:// controller (={controller!r})")
-    if "profile=" in urlsplit(controller).query:
+    if "profile" in query_of(controller):
         raise ConfigError(f"{where}: the profile is given twice (modbus_profile and the controller URL's profile=)")
     try:
         load_profile(path)
@@ -405,7 +406,8 @@ def _with_trigger(controller: str, a: Mapping, spec: AxisSpec, where: str) -> st
     """The controller URL with the axis' ``trigger`` and ``passive`` settings in its query
     (where the drivers read them, and where they are stored with the axis), checked now:
     a driver is made for the URL (no connection) and its detection settings for the axis."""
-    from acquisition.url import PASSIVE_KEYS, default_trigger, driver_from_url
+    from acquisition.trigger import PASSIVE_KEYS, default_trigger, query_of
+    from acquisition.url import driver_from_url
 
     trigger = _get(a, "trigger", str, where)
     if trigger is not None and trigger not in ("active", "passive"):
@@ -427,10 +429,11 @@ def _with_trigger(controller: str, a: Mapping, spec: AxisSpec, where: str) -> st
             raise ConfigError(f"{where}: the built-in simulator ('sim') has no CNC to start a round trip: it is "
                               "always active (for passive mode, point controller at a controller the CNC drives)")
         return controller
-    effective = trigger or _query_trigger(controller) or default_trigger(controller)
-    if trigger is not None and _query_trigger(controller) not in (None, trigger):
+    in_url = query_of(controller).get("trigger")
+    effective = trigger or in_url or default_trigger(controller)
+    if trigger is not None and in_url not in (None, trigger):
         raise ConfigError(f"{where}: trigger = {trigger!r} contradicts the controller URL's "
-                          f"trigger={_query_trigger(controller)}")
+                          f"trigger={in_url}")
     if passive and effective != "passive":
         raise ConfigError(f"{where}.passive applies to trigger = 'passive' only (this axis is {effective})")
     if trigger is not None:
@@ -444,13 +447,6 @@ def _with_trigger(controller: str, a: Mapping, spec: AxisSpec, where: str) -> st
     except InputError as exc:
         raise ConfigError(f"{where}: {exc}") from exc
     return url
-
-
-def _query_trigger(url: str) -> str | None:
-    from urllib.parse import parse_qs
-
-    values = parse_qs(urlsplit(url).query).get("trigger")
-    return values[-1] if values else None
 
 
 def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:

@@ -18,7 +18,8 @@ from acquisition.measurement import run_cycle
 from acquisition.errors import NoRoundTripSeen
 from acquisition.modbus.driver import ModbusDriver
 from acquisition.types import RoundTripProgram
-from acquisition.url import default_trigger, driver_from_url
+from acquisition.trigger import default_trigger
+from acquisition.url import driver_from_url
 from core.errors import InputError
 from tests.acquisition import cnc_process
 from tests.acquisition.conftest import AXIS, modbus_peer
