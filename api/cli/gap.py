@@ -70,8 +70,8 @@ def run_diagnose(a: argparse.Namespace) -> int:
 def write_plots(report, folder: Path) -> list[Path]:
     """PNGs of the test residuals: nominal vs corrected by the diagnosed effect
     (along the travel for round trips, versus angle for circles); the dashboard's gap
-    page draws the same figure (api.service.plots.gap_residual)."""
-    from api.service.plots import gap_residual
+    page draws the same figure (api.service.figures.plots.gap_residual)."""
+    from api.service.figures.plots import gap_residual
 
     folder.mkdir(parents=True, exist_ok=True)
     out = []

@@ -195,7 +195,7 @@ def _serve(a: argparse.Namespace) -> int:
     import uvicorn
 
     from api.rest import create_app
-    from api.service.plot_process import PlotProcess
+    from api.service.figures.process import PlotProcess
     from api.service.service import Service
 
     # The service's threads (cycles, the in-process simulator, the event publishers) are

@@ -23,10 +23,10 @@ from sqlalchemy import text
 
 from api.service.config import SIM_CONTROLLER, Settings
 from api.service.cycles import CycleExecutor
-from api.service.figure_cache import FigureCache
+from api.service.figures.cache import FigureCache
 from api.service.folders import axis_folders
 from api.service.gap_jobs import GapJobs
-from api.service.plot_process import PlotProcess
+from api.service.figures.process import PlotProcess
 from api.service.demo import DemoController
 from api.service.health import HealthProbe
 from api.service.leases import FleetScheduler

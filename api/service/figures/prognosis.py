@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from datetime import datetime
 
-from api.service.plots import _figure, _png, _thin, with_temperature_axis
+from api.service.figures.plots import _figure, _png, _thin, with_temperature_axis
 
 
 def prognosis(t: list[datetime], backlash_um: list[float], temperature_c: list[float | None], *,

@@ -12,9 +12,9 @@ from datetime import datetime, timezone
 
 import numpy as np
 
-from api.service import plots
-from api.service.figure_cache import FigureCache
-from api.service.plot_prognosis import prognosis as prognosis_plot
+from api.service.figures import plots
+from api.service.figures.cache import FigureCache
+from api.service.figures.prognosis import prognosis as prognosis_plot
 from core.prognosis import forecast_band
 from core.errors import MebmError
 from storage.db import NotFoundError, config_repo, maintenance_repo, results_repo
@@ -45,8 +45,8 @@ def render(s, axis_id: int, name: str, *, measurement_id: int | None = None, dir
     empty figure when there is nothing to draw yet. ``status`` (the axis' AxisStatus,
     from the service's status cache) is needed for the prognosis. The database is read
     here; the drawing goes through ``draw(fn, *args, **kwargs)`` (the service's
-    :class:`~api.service.plot_process.PlotProcess`; default: on this thread). With
-    ``cache`` (the service's :class:`~api.service.figure_cache.FigureCache`) a figure
+    :class:`~api.service.figures.process.PlotProcess`; default: on this thread). With
+    ``cache`` (the service's :class:`~api.service.figures.cache.FigureCache`) a figure
     whose inputs (:func:`figure_key`) were drawn before is not drawn again."""
     draw = draw or _here
     if name not in NAMES:

@@ -2,7 +2,7 @@
 cache for both.
 
 A figure is a function of stored results, which never change once stored, and of a few
-settings (the axis' title, tasks and limit, the plotted range): :func:`api.service.figures.figure_key`
+settings (the axis' title, tasks and limit, the plotted range): :func:`api.service.figures.axis.figure_key`
 names all of them, so a cached PNG is served only while every input is the one it was
 drawn from, and never goes stale. Bounded: the ``size`` most recently used figures are
 kept. Requests for a figure that is being drawn wait for that one drawing instead of

@@ -3,7 +3,7 @@
 A matplotlib render (165-240 ms for Fig. 10 of a long history) is Python and Agg code that
 holds the interpreter lock. On the service's threads it made every status poll wait: in a
 soak profile (py-spy --gil) renders held the lock ~40 % of the time, and status p99 was
-~50 ms against a goal of 25 ms. :func:`api.service.figures.render` queries the database on
+~50 ms against a goal of 25 ms. :func:`api.service.figures.axis.render` queries the database on
 the request's thread and hands only the drawing (plain arrays, dates and tasks) to
 :meth:`PlotProcess.draw`, which runs it in a spawned process of its own.
 
@@ -138,7 +138,7 @@ class PlotProcess:
 
 def _warm() -> int:
     """In the plot process: import matplotlib and draw with its fonts once."""
-    from api.service.plots import empty
+    from api.service.figures.plots import empty
 
     empty("warm-up", "the plot process is ready")
     return os.getpid()

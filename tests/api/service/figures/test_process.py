@@ -1,4 +1,4 @@
-"""Figure renders in a worker process (api/service/plot_process.py): same bytes as on the
+"""Figure renders in a worker process (api/service/figures/process.py): same bytes as on the
 caller's thread, another interpreter, and a dead or stuck process is a typed error and
 is replaced."""
 
@@ -10,8 +10,8 @@ from datetime import datetime, timedelta, timezone
 
 import pytest
 
-from api.service import plots
-from api.service.plot_process import PlotProcess, RenderCrashed, RenderTimeout
+from api.service.figures import plots
+from api.service.figures.process import PlotProcess, RenderCrashed, RenderTimeout
 
 
 def pid_of_renderer() -> int:
