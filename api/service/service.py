@@ -34,7 +34,7 @@ from api.service.runner import CycleProcesses, CycleRunner, DriverRunner
 from api.service.scheduler import CycleScheduler
 from api.service.secret_files import ADMIN_KEY_FILE, DEMO_KEYS_FILE, write_secret_file
 from api.service.events import Event, EventHub, events_of_saved_cycle
-from api.service.maintenance import MaintenanceLoop
+from api.service.maintenance.loop import MaintenanceLoop
 from api.service.status import StatusCache
 from core.errors import MebmError
 from storage.retention import apply_retention

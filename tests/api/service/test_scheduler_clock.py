@@ -8,7 +8,7 @@ from tests.waiting import poll
 
 
 def test_a_one_shot_job_due_seconds_ago_still_runs():
-    """A verification cycle's date job (api.service.maintenance) that the clock reaches 5 s
+    """A verification cycle's date job (api.service.maintenance.loop) that the clock reaches 5 s
     late, as on a busy host: APScheduler's default 1 s misfire grace would skip it for good."""
     sch = CycleScheduler(None, None)
     ran = threading.Event()

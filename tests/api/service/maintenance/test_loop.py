@@ -12,7 +12,7 @@ import pytest
 
 from api.service.config import MaintenanceSettings
 from api.service.events import EventHub
-from api.service.maintenance import MaintenanceLoop, next_verify_time
+from api.service.maintenance.loop import MaintenanceLoop, next_verify_time
 from api.service.status import compute_status
 from storage.db import config_repo, maintenance_repo, make_session_factory, results_repo, session_scope
 from tests.storage.db import factories as f
