@@ -42,7 +42,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from api.service.config import demo_axis  # noqa: E402
-from api.service.runner import analyse  # noqa: E402
+from api.service.cycles.runner import analyse  # noqa: E402
 from core.criteria import BacklashProfile  # noqa: E402
 from core.tbe import decide  # noqa: E402
 from storage.db import (  # noqa: E402

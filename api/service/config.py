@@ -185,7 +185,7 @@ class Settings:
     scheduler_enabled: bool = True
     catch_up_missed: bool = True
     spool_retry_s: float = 30.0
-    # cycles run in up to this many worker processes (api.service.runner.CycleProcesses); 0: on
+    # cycles run in up to this many worker processes (api.service.cycles.runner.CycleProcesses); 0: on
     # the scheduler's threads (the library's default; `mebm serve` uses 2, default_settings)
     cycle_processes: int = 0
     machines: tuple[tuple[str, str], ...] = ()  # (name, description)

@@ -15,7 +15,7 @@ from acquisition.sim.axis import SimAxis
 from acquisition.sim.modbus.server import SimModbusController
 from acquisition.sim.twin import KinematicTwin
 from api.service.config import AxisConfig, ConfigError, parse_settings
-from api.service.runner import DriverRunner
+from api.service.cycles.runner import DriverRunner
 from api.service.service import Service
 from core.dataset import AxisSpec
 from storage.dataset import read_dataset

@@ -10,7 +10,7 @@ import numpy as np
 from sqlalchemy import text
 
 from api.service.config import AxisConfig
-from api.service.runner import CycleOutcome, analyse
+from api.service.cycles.runner import CycleOutcome, analyse
 from api.service.service import Service
 from core.dataset import Dataset, MachineSpec
 from storage.dataset import read_dataset, write_dataset

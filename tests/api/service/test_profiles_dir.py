@@ -10,7 +10,7 @@ import pytest
 
 from api.service.config import load_settings
 from api.service.config_input import resolve_profile
-from api.service.runner import DriverRunner
+from api.service.cycles.runner import DriverRunner
 from core.errors import InputError
 
 FOLDER = Path("/srv/mebm/profiles")

@@ -105,8 +105,8 @@ log = logging.getLogger(__name__)
 CLOSE_GRACE_S = 10.0
 
 # what a cycle process imports when it starts, so its first cycle is as fast as the others
-CYCLE_IMPORTS = ("api.service.runner", "acquisition.modbus.driver", "acquisition.modbus.polled", "acquisition.canopen.driver",
-                 "acquisition.canopen.listen", "core.criteria")
+CYCLE_IMPORTS = ("api.service.cycles.runner", "acquisition.modbus.driver", "acquisition.modbus.polled",
+                 "acquisition.canopen.driver", "acquisition.canopen.listen", "core.criteria")
 
 
 class NoFreeProcess(Exception):

@@ -24,7 +24,7 @@ from apscheduler.schedulers.background import BackgroundScheduler
 from apscheduler.triggers.cron import CronTrigger
 from apscheduler.triggers.interval import IntervalTrigger
 
-from api.service.cycles import CycleExecutor, CycleRequest
+from api.service.cycles.executor import CycleExecutor, CycleRequest
 from core.errors import InputError
 from storage.db import (
     AxisRecord,

@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from api.service.folders import (
+from api.service.cycles.folders import (
     axis_folders,
     axis_owner,
     claim_folder,
@@ -56,7 +56,7 @@ from api.service.folders import (
     judge_folder,
     migrate_legacy_folders,
 )
-from api.service.runner import CycleOutcome, CycleRunner, analyse
+from api.service.cycles.runner import CycleOutcome, CycleRunner, analyse
 from core.dataset import MachineSpec, Run, RunSpec
 from core.criteria.roundtrip import with_history_uncertainty
 from core.errors import MebmError
@@ -222,7 +222,7 @@ class CycleExecutor:
         self._verdicts: dict[str, tuple] = {}  # folder -> ((mtime, size, axis uuid), Verdict) for readers
         if status is not None:
             status.held = self.held
-        # fleet (api.service.leases): (request, start time) -> whether this worker may run it; None: it may
+        # fleet (api.service.cycles.leases): (request, start time) -> whether this worker may run it; None: it may
         self.claim = None
 
     def migrate_folders(self, axes) -> None:

@@ -19,7 +19,7 @@ Each worker runs one loop, every ``WorkerSettings.period_s`` (2 s by default):
 A cycle starts only if :func:`storage.db.leases.claim_cycle` moves it from queued to
 running while the worker holds the axis' lease: one running cycle per axis, fleet-wide,
 and a manual trigger runs exactly once. Without the database a worker starts no cycle.
-The per-axis threads and the cycle executor are those of :mod:`api.service.scheduler`.
+The per-axis threads and the cycle executor are those of :mod:`api.service.cycles.scheduler`.
 """
 
 from __future__ import annotations
@@ -36,8 +36,8 @@ import uuid as uuidlib
 from datetime import datetime, timedelta, timezone
 
 from api.service.config import SIM_CONTROLLER, WorkerSettings
-from api.service.cycles import CycleExecutor, CycleRequest
-from api.service.scheduler import _STOP, CycleScheduler, make_trigger
+from api.service.cycles.executor import CycleExecutor, CycleRequest
+from api.service.cycles.scheduler import _STOP, CycleScheduler, make_trigger
 from storage.db import AxisRecord, CycleRecord, StorageError, config_repo, results_repo, session_scope, utcnow
 from storage.db import leases
 

@@ -3,7 +3,7 @@
 import threading
 from datetime import datetime, timedelta, timezone
 
-from api.service.scheduler import CycleScheduler
+from api.service.cycles.scheduler import CycleScheduler
 from tests.waiting import poll
 
 
