@@ -12,7 +12,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from api.service.config import load_settings
+from api.service.config.loading import load_settings
 from api.service.secret_files import ADMIN_KEY_FILE, DEMO_KEYS_FILE, SIGN_IN_LINK_FILE, write_secret_file
 
 

@@ -26,7 +26,7 @@ from acquisition.sim.modbus.server import SimModbusController
 from acquisition.sim.twin import CoreSimTwin, TwinTrace
 from acquisition.sim.wear import REPAIR_MAGIC, REPAIR_REG, Wear
 from acquisition.types import RoundTripProgram
-from api.service.config import SimulatorSettings
+from api.service.config.settings import SimulatorSettings
 from core.dataset import AxisSpec
 from core.sim import AxisModel, CyclicError, Effects, Encoders, Thermal
 

@@ -21,7 +21,7 @@ from urllib.parse import parse_qsl, urlencode, urlsplit
 
 from sqlalchemy import text
 
-from api.service.config import SIM_CONTROLLER, Settings
+from api.service.config.settings import SIM_CONTROLLER, Settings
 from api.service.cycles.executor import CycleExecutor
 from api.service.figures.cache import FigureCache
 from api.service.cycles.folders import axis_folders

@@ -14,7 +14,8 @@ from sqlalchemy import func, select
 from acquisition.sim.axis import SimAxis
 from acquisition.sim.modbus.server import SimModbusController
 from acquisition.sim.twin import KinematicTwin
-from api.service.config import AxisConfig, ConfigError, parse_settings
+from api.service.config.loading import parse_settings
+from api.service.config.settings import AxisConfig, ConfigError
 from api.service.cycles.runner import DriverRunner
 from api.service.service import Service
 from core.dataset import AxisSpec

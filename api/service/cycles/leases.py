@@ -35,7 +35,7 @@ import time
 import uuid as uuidlib
 from datetime import datetime, timedelta, timezone
 
-from api.service.config import SIM_CONTROLLER, WorkerSettings
+from api.service.config.settings import SIM_CONTROLLER, WorkerSettings
 from api.service.cycles.executor import CycleExecutor, CycleRequest
 from api.service.cycles.scheduler import _STOP, CycleScheduler, make_trigger
 from storage.db import AxisRecord, CycleRecord, StorageError, config_repo, results_repo, session_scope, utcnow

@@ -34,7 +34,7 @@ from acquisition import measurement
 from acquisition.driver.base import ControllerDriver
 from acquisition.trigger import needs_callers_process
 from acquisition.url import driver_from_url
-from api.service.config_input import resolve_profile
+from api.service.config.input import resolve_profile
 from api.service.worker_process import end_pool, spawn_pool
 from core.criteria import RoundTripResult, analyze_round_trip
 from core.criteria.uncertainty import UncertaintyInputs

@@ -21,7 +21,7 @@ import logging
 import math
 from datetime import datetime, time as dtime, timedelta, timezone
 
-from api.service.config import SIM_CONTROLLER, MaintenanceSettings
+from api.service.config.settings import SIM_CONTROLLER, MaintenanceSettings
 from api.service.events import Event
 from core.errors import MebmError
 from core.maintenance import summarise_axis, verify_repair

@@ -26,7 +26,8 @@ from acquisition.sim.canopen.drive import SimCanopenDrive
 from acquisition.sim.canopen.cnc_master import CncMaster
 from acquisition.sim.twin import KinematicTwin
 from acquisition.types import RoundTripProgram
-from api.service.config import ConfigError, parse_settings
+from api.service.config.loading import parse_settings
+from api.service.config.settings import ConfigError
 from core.errors import InputError
 from tests.acquisition.conftest import AXIS, PROGRAM
 

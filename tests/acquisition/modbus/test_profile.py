@@ -13,7 +13,8 @@ from acquisition.modbus.driver import ModbusDriver
 from acquisition.modbus.polled import ProfileModbusDriver
 from acquisition.modbus.profile import ProfileError, ValueSpec, load_profile, parse_profile
 from acquisition.url import driver_from_url
-from api.service.config import ConfigError, load_settings
+from api.service.config.loading import load_settings
+from api.service.config.settings import ConfigError
 from core.errors import InputError
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "examples" / "modbus-profiles"

@@ -12,7 +12,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from api.rest import create_app
-from api.service.config import AxisConfig, Settings
+from api.service.config.settings import AxisConfig, Settings
 from api.service.cycles.runner import CycleOutcome, analyse
 from storage.db import Schedule, config_repo, session_scope
 from tests.storage.db import factories as f

@@ -14,7 +14,8 @@ from dataclasses import replace
 
 import pytest
 
-from api.service.config import ConfigError, default_settings, parse_settings
+from api.service.config.loading import parse_settings
+from api.service.config.settings import ConfigError, default_settings
 from api.service.cycles.runner import CycleProcessDied, CycleProcesses, DriverRunner, NoFreeProcess
 from api.service.service import Service
 from api.service.worker_process import end_pool, spawn_pool, still_running, wait_for_sentinels

@@ -8,8 +8,8 @@ from types import SimpleNamespace
 
 import pytest
 
-from api.service.config import load_settings
-from api.service.config_input import resolve_profile
+from api.service.config.loading import load_settings
+from api.service.config.input import resolve_profile
 from api.service.cycles.runner import DriverRunner
 from core.errors import InputError
 

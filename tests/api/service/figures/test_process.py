@@ -92,7 +92,7 @@ def test_a_warm_up_spawns_the_process_in_the_background_and_the_first_draw_uses_
 
 
 def test_a_service_warms_its_renderer_at_start(tmp_path):
-    from api.service.config import Settings
+    from api.service.config.settings import Settings
     from api.service.service import Service
 
     svc = Service(Settings(data_dir=tmp_path, database_url=f"sqlite:///{tmp_path}/m.sqlite3", demo_keys=False,

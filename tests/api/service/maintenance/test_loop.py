@@ -10,7 +10,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from api.service.config import MaintenanceSettings
+from api.service.config.settings import MaintenanceSettings
 from api.service.events import EventHub
 from api.service.maintenance.loop import MaintenanceLoop, next_verify_time
 from api.service.status import compute_status
@@ -104,7 +104,8 @@ def test_verify_at_a_configured_time():
 
 
 def test_maintenance_and_wear_settings_are_read_and_checked():
-    from api.service.config import DEMO_SIMULATOR, ConfigError, default_settings, parse_settings
+    from api.service.config.loading import parse_settings
+    from api.service.config.settings import DEMO_SIMULATOR, ConfigError, default_settings
 
     s = parse_settings({"maintenance": {"horizon_days": 14, "verify_at": "06:00", "fixed_interval_days": 60},
                         "simulator": {"wear_um_per_day": 2.5, "utility_days_per_s": 0.5}})

@@ -2,19 +2,21 @@
 once for every writer: the REST API's request bodies (``api.rest.schemas`` re-exports
 these models) and the dashboard's forms (``api.ui``) both validate with these models and
 build the stored settings with the functions below, so a value refused by one is refused
-by the other with the same message. The TOML file (``api.service.config``) is read at
-start-up with its own option names.
+by the other with the same message. The TOML file (:mod:`api.service.config.loading`) is read at
+start-up with its own option names; an axis' controller URL from it is completed and checked
+here (:func:`with_modbus_profile`, :func:`checked_canopen_controller`, :func:`with_trigger`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
-from urllib.parse import urlsplit
-
 from typing import Literal
+from urllib.parse import urlencode, urlsplit
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from api.service.config.settings import SIM_CONTROLLER, ConfigError
 from core.criteria.uncertainty import (
     DEFAULT_SCALE_ACCURACY_UM,
     DEFAULT_SCALE_ACCURACY_UM_PER_M,
@@ -238,3 +240,82 @@ def axis_settings(body: AxisIn, *, allow_link_local: bool, profiles_dir: Path) -
                                 thermometer_class=body.thermometer_class,
                                 thermal_expansion_per_k=body.thermal_expansion_per_k),
     )
+
+
+# -- the controller URL of an axis in the configuration file ---------------------------------
+
+
+def with_modbus_profile(controller: str, path: str | None, where: str) -> str:
+    """``modbus_profile`` (``path``): the register profile file of a Modbus controller
+    (docs/controllers.md), validated now and carried in the controller URL (``profile=``) to
+    the driver."""
+    from acquisition.modbus.profile import BUILTIN, load_profile
+    from acquisition.trigger import query_of
+
+    if path is None or path == BUILTIN:
+        return controller
+    if not controller.startswith(("modbus://", "modbus+rtu://")):
+        raise ConfigError(f"{where}.modbus_profile needs a modbus:// or modbus+rtu:// controller (={controller!r})")
+    if "profile" in query_of(controller):
+        raise ConfigError(f"{where}: the profile is given twice (modbus_profile and the controller URL's profile=)")
+    try:
+        load_profile(path)
+    except InputError as exc:
+        raise ConfigError(f"{where}.modbus_profile: {exc}") from exc
+    sep = "&" if "?" in controller else "?"
+    return f"{controller}{sep}{urlencode({'profile': str(Path(path).resolve())})}"
+
+
+def checked_canopen_controller(controller: str, table: Mapping | None, given: str | None, where: str) -> str:
+    """An axis' CANopen controller, checked now: its ``[machines.axes.canopen]`` ``table`` (mode,
+    node, EDS or mapping; folded into the stored URL, over ``given``, the axis' ``controller``)
+    or a ``canopen://`` URL (acquisition/canopen/url.py)."""
+    from acquisition.canopen.url import driver_from_canopen_url, url_from_table
+
+    try:
+        if table is not None:
+            if not isinstance(table, Mapping):
+                raise ConfigError(f"{where}.canopen must be a table")
+            return url_from_table(table, given if given and given != SIM_CONTROLLER else None, f"{where}.canopen")
+        if controller.startswith("canopen://"):
+            driver_from_canopen_url(controller, where=f"{where}.controller (={controller!r}):")
+    except ConfigError:
+        raise
+    except InputError as exc:
+        raise ConfigError(str(exc)) from exc
+    return controller
+
+
+def with_trigger(controller: str, trigger: str | None, passive: Mapping[str, str], spec: AxisSpec,
+                 where: str) -> str:
+    """The controller URL with the axis' ``trigger`` (``active``, ``passive`` or None) and
+    ``passive`` settings (query values) in its query (where the drivers read them, and where
+    they are stored with the axis), checked now: a driver is made for the URL (no connection)
+    and its detection settings for the axis."""
+    from acquisition.trigger import default_trigger, query_of
+    from acquisition.url import driver_from_url
+
+    if controller == SIM_CONTROLLER:
+        if trigger == "passive" or passive:
+            raise ConfigError(f"{where}: the built-in simulator ('sim') has no CNC to start a round trip: it is "
+                              "always active (for passive mode, point controller at a controller the CNC drives)")
+        return controller
+    in_url = query_of(controller).get("trigger")
+    effective = trigger or in_url or default_trigger(controller)
+    if trigger is not None and in_url not in (None, trigger):
+        raise ConfigError(f"{where}: trigger = {trigger!r} contradicts the controller URL's "
+                          f"trigger={in_url}")
+    if passive and effective != "passive":
+        raise ConfigError(f"{where}.passive applies to trigger = 'passive' only (this axis is {effective})")
+    query = dict(passive)
+    if trigger is not None:
+        query = {"trigger": trigger, **query}
+    url = controller
+    if query:
+        sep = "&" if urlsplit(controller).query else "?"
+        url = controller + sep + "&".join(f"{k}={v}" for k, v in query.items())
+    try:
+        driver_from_url(url).detector_settings(spec)
+    except InputError as exc:
+        raise ConfigError(f"{where}: {exc}") from exc
+    return url
