@@ -8,7 +8,7 @@ import json
 import sys
 from pathlib import Path
 
-from api.cli.output import _clean
+from api.cli.output import json_safe
 from core.gap import LABELS, CaseSize, diagnose, run_benchmark
 from core.errors import InputError
 from core.gap.benchmark import SMALL
@@ -46,7 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _write_json(obj, target: str) -> None:
-    text = json.dumps(_clean(obj), indent=2, ensure_ascii=False) + "\n"
+    text = json.dumps(json_safe(obj), indent=2, ensure_ascii=False) + "\n"
     if target == "-":
         sys.stdout.write(text)
     else:

@@ -82,7 +82,7 @@ class PositionFollower:
         return self.nut_mm / self.k_a, table
 
 
-class _Move:
+class TrapezoidMove:
     """Trapezoidal (or triangular) move from rest to rest, ``s(t)`` in increments."""
 
     def __init__(self, p0: float, p1: float, v: float, a: float, d: float):
@@ -124,7 +124,7 @@ class Cia402Motion:
         self.engaged = False  # positions come from here since CiA 402 first enabled operation
         self.demand = 0.0  # position demand, increments
         self._pending_csp: int | None = None  # RPDO target, applied on the next SYNC
-        self._move: _Move | None = None
+        self._move: TrapezoidMove | None = None
         self._move_t = 0.0
         self._ack = False
         self.moves = 0  # PP set-points accepted
@@ -183,7 +183,7 @@ class Cia402Motion:
             new = cw & co.CW_NEW_SETPOINT and not prev & co.CW_NEW_SETPOINT
             done = self._move is None or self._move_t >= self._move.duration_s
             if new and done:
-                self._move = _Move(self.demand, float(self.target), float(self.velocity), float(self.acceleration),
+                self._move = TrapezoidMove(self.demand, float(self.target), float(self.velocity), float(self.acceleration),
                                    float(self.deceleration or self.acceleration))
                 self._move_t = 0.0
                 self._ack = True

@@ -26,7 +26,7 @@ import canopen
 import numpy as np
 
 from acquisition.canopen import objects as co
-from acquisition.sim.canopen.cia402 import _Move
+from acquisition.sim.canopen.cia402 import TrapezoidMove
 from acquisition.sim.twin import trapezoid_round_trip
 from acquisition.canopen.sync_matcher import sync_counter_byte
 from acquisition.types import RoundTripProgram
@@ -41,7 +41,7 @@ def csp_trajectory_mm(x0_mm: float, program: RoundTripProgram, rate_hz: float, *
     dt = 1.0 / rate_hz
     parts = [np.full(int(round(rest_before_s * rate_hz)), x0_mm)]
     if abs(program.start_mm - x0_mm) > 1e-6:
-        mv = _Move(x0_mm, program.start_mm, program.speed_mm_s, program.acceleration_mm_s2,
+        mv = TrapezoidMove(x0_mm, program.start_mm, program.speed_mm_s, program.acceleration_mm_s2,
                    program.acceleration_mm_s2)
         n = int(math.ceil(mv.duration_s / dt)) + 1
         parts.append(np.array([mv.at(i * dt) for i in range(1, n + 1)]))

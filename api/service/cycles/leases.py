@@ -37,7 +37,7 @@ from datetime import datetime, timedelta, timezone
 
 from api.service.config.settings import SIM_CONTROLLER, WorkerSettings
 from api.service.cycles.executor import CycleExecutor, CycleRequest
-from api.service.cycles.scheduler import _STOP, CycleScheduler, make_trigger
+from api.service.cycles.scheduler import STOP, CycleScheduler, make_trigger
 from storage.db import AxisRecord, CycleRecord, StorageError, config_repo, results_repo, session_scope, utcnow
 from storage.db import leases
 
@@ -201,7 +201,7 @@ class FleetScheduler(CycleScheduler):
                 w.queue.task_done()
             with w.lock:
                 w.waiting.clear()
-            w.queue.put(_STOP)
+            w.queue.put(STOP)
         deadline = time.monotonic() + wait_s
         for w in self.workers.values():
             w.join(max(0.0, deadline - time.monotonic()))

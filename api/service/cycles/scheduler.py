@@ -38,7 +38,7 @@ from storage.db import (
 )
 
 log = logging.getLogger("mebm.scheduler")
-_STOP = object()
+STOP = object()  # put on an axis' queue, ends its worker thread (the fleet scheduler's too)
 
 
 def make_trigger(schedule: Schedule):
@@ -79,7 +79,7 @@ class AxisWorker(threading.Thread):
     def run(self) -> None:
         while True:
             req = self.queue.get()
-            if req is _STOP:
+            if req is STOP:
                 return
             with self.lock:
                 self.waiting.pop(req.uuid, None)
@@ -205,7 +205,7 @@ class CycleScheduler:
             self.clock.shutdown(wait=False)
             self._started = False
         for w in self.workers.values():
-            w.queue.put(_STOP)
+            w.queue.put(STOP)
         for w in self.workers.values():
             w.join(wait_s)
 

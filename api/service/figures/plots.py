@@ -30,13 +30,15 @@ NAMES = ("backlash_profile", "lead_deviation", "tbe_vs_backlash", "tbe_history",
 COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2")
 
 
-def _png(fig: Figure) -> bytes:
+def png_bytes(fig: Figure) -> bytes:
+    """The figure as PNG bytes, on its own Agg canvas."""
     buf = io.BytesIO()
     FigureCanvasAgg(fig).print_png(buf)
     return buf.getvalue()
 
 
-def _figure(w=9.0, h=5.0, rows=1) -> tuple[Figure, list]:
+def new_figure(w=9.0, h=5.0, rows=1) -> tuple[Figure, list]:
+    """A figure of ``w`` x ``h`` inches with ``rows`` gridded axes, one below the other."""
     fig = Figure(figsize=(w, h), dpi=100, layout="constrained")
     axes = [fig.add_subplot(rows, 1, i + 1) for i in range(rows)]
     for ax in axes:
@@ -45,11 +47,11 @@ def _figure(w=9.0, h=5.0, rows=1) -> tuple[Figure, list]:
 
 
 def _empty(title: str, message: str) -> bytes:
-    fig, (ax,) = _figure(7, 3)
+    fig, (ax,) = new_figure(7, 3)
     ax.set_axis_off()
     ax.set_title(title)
     ax.text(0.5, 0.5, message, ha="center", va="center", fontsize=12, wrap=True)
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def empty(title: str, message: str) -> bytes:
@@ -61,7 +63,7 @@ def backlash_profile(position_mm, backlash_um, pos_dev_um, neg_dev_um, *, mean_u
                      limit_um: float | None, title: str) -> bytes:
     """Fig. 9: (a) the upward side k_a x_m ~ x_l+ and downward side k_a x_m ~ x_l- as
     deviations from the nominal travel, (b) the backlash width b(x) = x_l- - x_l+."""
-    fig, (a, b) = _figure(9, 6.5, rows=2)
+    fig, (a, b) = new_figure(9, 6.5, rows=2)
     a.plot(position_mm, pos_dev_um, color="#d62728", lw=1.2, label="upward side  x_l+ − k_a·x_m (feeding +)")
     a.plot(position_mm, neg_dev_um, color="#1f77b4", lw=1.2, label="downward side  x_l− − k_a·x_m (feeding −)")
     a.set_ylabel("table − nominal travel (µm)")
@@ -75,7 +77,7 @@ def backlash_profile(position_mm, backlash_um, pos_dev_um, neg_dev_um, *, mean_u
     b.set_ylabel("backlash width b (µm)")
     b.set_title("(b) backlash width along the travel")
     b.legend(loc="best", fontsize=8)
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def _worst_window(position_mm: np.ndarray, resid: np.ndarray, window_mm: float) -> tuple[float, float, float, float]:
@@ -101,7 +103,7 @@ def lead_deviation(lc: LeadCriteria, *, screw_lead_mm: float, title: str) -> byt
     la = np.asarray(lc.travel_deviation_um, float) - offset
     lm = np.asarray(lc.mean_travel_deviation_um, float) - offset
     resid = la - lm
-    fig, (ax,) = _figure(10, 5.5)
+    fig, (ax,) = new_figure(10, 5.5)
     ax.plot(x, la, color="black", lw=1.0, label="actual travel l_a")
     ax.plot(x, lm, color="#1f77b4", lw=1.6, label="actual mean travel l_m", zorder=4)
     ax.axhline(0.0, color="#d62728", lw=1.4, label="nominal travel l₀", zorder=1)
@@ -126,7 +128,7 @@ def lead_deviation(lc: LeadCriteria, *, screw_lead_mm: float, title: str) -> byt
             f"v_300 = {lc.v_300_um:.2f} µm   v_2π = {lc.v_2pi_um:.2f} µm",
             transform=ax.transAxes, fontsize=9, bbox=dict(facecolor="white", alpha=0.8, edgecolor="none"))
     ax.legend(loc="upper right", fontsize=8, ncol=2, framealpha=0.9)
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def _safe_tbe(task: MachiningTask, b: np.ndarray) -> np.ndarray:
@@ -152,7 +154,7 @@ def tbe_vs_backlash(tasks: Sequence[MachiningTask], limits_um: Sequence[float | 
     finite = [v for v in limits_um if v is not None]
     top = max([*finite, backlash_um or 0.0, 100.0]) * 1.3
     b = np.linspace(0.0, top, 300)
-    fig, (ax,) = _figure(9, 5.5)
+    fig, (ax,) = new_figure(9, 5.5)
     for i, (task, limit) in enumerate(zip(tasks, limits_um)):
         c = COLORS[i % len(COLORS)]
         # one task: the paper's colours (TBE black, tolerance red, backlash limit blue)
@@ -182,10 +184,10 @@ def tbe_vs_backlash(tasks: Sequence[MachiningTask], limits_um: Sequence[float | 
     ax.set_ylim(bottom=0)
     ax.set_title(f"TBE vs backlash and their warning thresholds ({rule} decision rule) — {title}")
     ax.legend(loc="upper left", fontsize=8)
-    return _png(fig)
+    return png_bytes(fig)
 
 
-def _thin(values, *others, max_points: int = SCREEN_POINTS):
+def thin_for_screen(values, *others, max_points: int = SCREEN_POINTS):
     """The series (and its companions) downsampled for the screen (min/max per bucket)."""
     idx = minmax_indices(values, max_points)
     if len(idx) == len(values):
@@ -207,10 +209,10 @@ def tbe_history(series: dict[str, tuple[list[datetime], list[float], list[float]
     """Fig. 15: the estimated TBE of each task over time against its threshold (repairs marked)."""
     thinned = {}
     for name, (t, tbe, tol) in series.items():
-        tbe_d, t_d, tol_d = _thin(tbe, t, tol)
+        tbe_d, t_d, tol_d = thin_for_screen(tbe, t, tol)
         thinned[name] = (t_d, tbe_d, tol_d)
     series = thinned
-    fig, (ax,) = _figure(10, 5)
+    fig, (ax,) = new_figure(10, 5)
     for i, (name, (t, tbe, tol)) in enumerate(series.items()):
         c = COLORS[i % len(COLORS)]
         tbe_a, tol_a = np.asarray(tbe, float), np.asarray(tol, float)
@@ -226,7 +228,7 @@ def tbe_history(series: dict[str, tuple[list[datetime], list[float], list[float]
     ax.set_title(f"TBE caused by the backlash — {title}")
     ax.legend(loc="best", fontsize=8)
     fig.autofmt_xdate()
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def with_temperature_axis(ax, t, temperature_c, fmt: str, **style) -> tuple[list, list]:
@@ -246,8 +248,8 @@ def with_temperature_axis(ax, t, temperature_c, fmt: str, **style) -> tuple[list
 def backlash_trend(t: list[datetime], backlash_um: list[float], temperature_c: list[float | None], *,
                    limit_um: float | None, title: str, repairs: Sequence[tuple[datetime, str]] = ()) -> bytes:
     """Fig. 10: mean backlash b̄ and ambient temperature over time, repairs marked."""
-    backlash_um, t, temperature_c = _thin(backlash_um, t, temperature_c)
-    fig, (ax,) = _figure(10, 5)
+    backlash_um, t, temperature_c = thin_for_screen(backlash_um, t, temperature_c)
+    fig, (ax,) = new_figure(10, 5)
     ax.plot(t, backlash_um, "o-", color="black", ms=4, lw=1.2, label="mean backlash b̄")
     if limit_um is not None:
         ax.axhline(limit_um, color="#d62728", ls="-.", lw=1.4, label=f"backlash limit {limit_um:.1f} µm")
@@ -258,7 +260,7 @@ def backlash_trend(t: list[datetime], backlash_um: list[float], temperature_c: l
     ax.legend(lines, labels, loc="best", fontsize=8, framealpha=0.9)
     ax.set_title(f"mean backlash and temperature — {title}")
     fig.autofmt_xdate()
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def _rms(x) -> float:
@@ -272,7 +274,7 @@ def gap_residual(curve: dict, effect: str) -> bytes:
     along the nut travel for a round trip (``u_mm``), against the angle or the distance
     along the path for a contour (``angle_deg``). The RMS of each is in its legend."""
     label = effect if effect != "none" else "nominal (no effect named)"
-    fig, (ax,) = _figure(9, 3.6)
+    fig, (ax,) = new_figure(9, 3.6)
     nominal, corrected = np.asarray(curve["nominal_um"], float), np.asarray(curve["corrected_um"], float)
     if "u_mm" in curve:
         x = np.asarray(curve["u_mm"], float)
@@ -292,7 +294,7 @@ def gap_residual(curve: dict, effect: str) -> bytes:
                 ax.axvline(q, color="0.8", lw=0.5)
         ax.set_title(f"{curve['file']} ({curve['kind']}, test run)")
     ax.legend(loc="best", fontsize=8, markerscale=8)
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def thin_residuals(curve: dict, max_points: int = SCREEN_POINTS) -> dict:

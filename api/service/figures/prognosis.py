@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from datetime import datetime
 
-from api.service.figures.plots import _figure, _png, _thin, with_temperature_axis
+from api.service.figures.plots import new_figure, png_bytes, thin_for_screen, with_temperature_axis
 
 
 def prognosis(t: list[datetime], backlash_um: list[float], temperature_c: list[float | None], *,
@@ -18,8 +18,8 @@ def prognosis(t: list[datetime], backlash_um: list[float], temperature_c: list[f
               note: str, title: str) -> bytes:
     """Fig. 10 extended: b̄ and temperature over time, and the forecast of b̄ at the
     worst-case temperature with its confidence band, up to the backlash limit."""
-    backlash_um, t, temperature_c = _thin(backlash_um, t, temperature_c)
-    fig, (ax,) = _figure(10, 5)
+    backlash_um, t, temperature_c = thin_for_screen(backlash_um, t, temperature_c)
+    fig, (ax,) = new_figure(10, 5)
     ax.plot(t, backlash_um, "o", color="black", ms=3, label="mean backlash b̄ (measured)")
     if forecast_t:
         ax.plot(forecast_t, forecast_um, "-", color="#1f77b4", lw=1.6,
@@ -36,4 +36,4 @@ def prognosis(t: list[datetime], backlash_um: list[float], temperature_c: list[f
     ax.legend(lines, labels, loc="upper left", fontsize=8, framealpha=0.9)
     ax.set_title(f"backlash prognosis — {title}\n{note}", fontsize=10)
     fig.autofmt_xdate()
-    return _png(fig)
+    return png_bytes(fig)
