@@ -12,7 +12,7 @@ from acquisition.sim.modbus.server import SimModbusController
 from acquisition.sim.twin import KinematicTwin
 from core.criteria.uncertainty import inputs_of_run
 from storage.dataset import read_dataset
-from tests.api.test_passive_cycles import passive_service, run_one
+from tests.api.service.cycles.test_passive_cycles import passive_service, run_one
 from tests.storage.db.backends import make_database
 
 FEED_MM_MIN = 240.0

@@ -50,7 +50,7 @@ def test_the_folder_is_a_setting_under_storage(tmp_path):
 
 
 def test_a_profile_named_in_the_configuration_file_is_the_operators_path(tmp_path, monkeypatch):
-    profile = Path(__file__).resolve().parents[3] / "examples" / "modbus-profiles" / "drive-int32-input-separate.toml"
+    profile = Path(__file__).resolve().parents[4] / "examples" / "modbus-profiles" / "drive-int32-input-separate.toml"
     (tmp_path / "plc-y.toml").write_text(profile.read_text())
     monkeypatch.chdir(tmp_path)  # where the service is started
     cfg = tmp_path / "mebm.toml"
