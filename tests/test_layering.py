@@ -60,13 +60,16 @@ def test_mtconnect_importing_rest_or_mqtt_breaks_the_contracts(tmp_path):
     assert "Event interfaces depend on the service, not on REST or the CLI BROKEN" in res.stdout
 
 
-def test_a_wire_package_importing_another_breaks_the_contract(tmp_path):
+def _lint_with(tmp_path: Path, module: str, line: str) -> subprocess.CompletedProcess:
+    """import-linter on a copy of the tree in which ``module`` (a path) ends with ``line``."""
     tree = _copy_tree(tmp_path)
-    with open(tree / "acquisition" / "modbus" / "register_map.py", "a") as fh:
-        fh.write("\nimport acquisition.canopen.objects  # noqa\n")
-    res = _lint(tree)
-    assert res.returncode != 0
-    assert "Wire packages (Modbus, CANopen) do not import each other BROKEN" in res.stdout
+    (tree / module).write_text((tree / module).read_text() + f"\n{line}  # noqa\n")
+    return _lint(tree)
+
+
+def test_a_wire_package_importing_another_breaks_the_contract(tmp_path):
+    res = _lint_with(tmp_path, "acquisition/modbus/register_map.py", "import acquisition.canopen.objects")
+    assert res.returncode != 0 and "Wire packages (Modbus, CANopen) do not import each other BROKEN" in res.stdout
 
 
 def _modules() -> list[str]:
