@@ -1,19 +1,25 @@
 """What a controller URL says of how a cycle starts: active (mebm starts the round trip) or
 passive (mebm waits for the CNC's own program), and the passive settings.
 
-Shared by every URL scheme's parser (:mod:`acquisition.url`, :mod:`acquisition.canopen_url`),
-so neither imports the other for it.
+Shared by every URL scheme's parser (:mod:`acquisition.modbus.url`, :mod:`acquisition.canopen.url`),
+so neither imports the other for it; so is :func:`query_of`, the one reading of a URL's query.
 """
 
 from __future__ import annotations
 
-from urllib.parse import urlsplit
+from urllib.parse import parse_qs, urlsplit
 
 from core.errors import InputError
 
 PASSIVE_KEYS = ("start_timeout_s", "max_duration_s", "rest_band_mm", "rest_s", "min_stroke_mm",
                 "return_tolerance_mm", "pre_roll_s", "flag_margin_s")
 TRIGGER_KEYS = ("trigger", "running_flag", *PASSIVE_KEYS)
+
+
+def query_of(url: str) -> dict[str, str]:
+    """A controller URL's query, one value per key: the last one given (keys without a value
+    are left out), as every scheme's parser and the configuration read it."""
+    return {k: v[-1] for k, v in parse_qs(urlsplit(url).query).items()}
 
 
 def is_simulator_url(url: str) -> bool:

@@ -1,122 +1,55 @@
-"""Controller URLs: ``modbus://HOST[:PORT][?mode=trace|latched|separate&device_id=N&profile=FILE.toml]``,
-``modbus+rtu:///dev/ttyUSB0[?baudrate=19200&parity=N|E|O&stopbits=1|2&bytesize=8&device_id=N&profile=...]``,
-``sim://HOST[:PORT][?...]`` (mebm's own simulated Modbus controller, ``mebm sim-controller
-modbus``) and ``canopen://INTERFACE/CHANNEL?node=N[&mode=listen-only|active-cia402|active-mebm&...]``
-(:mod:`acquisition.canopen_url`; any other query key, e.g. ``bitrate`` or ``port``, is passed
-to the python-can bus) and ``linuxcnc://HOST[:PORT]?joint=N&motor_pin=PIN&scale_pin=PIN``
-(:mod:`acquisition.linuxcnc.url`).
+"""Controller URLs: which wire package makes the driver for a URL's scheme.
+
+A table of schemes, as python-can keeps one of its bus backends: each scheme names the
+module of its wire package that parses its own URLs and the function that makes the
+driver. The module is imported only when a URL of its scheme is opened, so ``mebm --help``
+loads no wire library and no wire package imports another.
+
+- ``modbus://``, ``modbus+rtu://``, ``sim://`` (mebm's own simulated Modbus controller,
+  ``mebm sim-controller modbus``): :mod:`acquisition.modbus.url`;
+- ``canopen://INTERFACE/CHANNEL?node=N[&mode=listen-only|active-cia402|active-mebm&...]``:
+  :mod:`acquisition.canopen.url` (any other query key, e.g. ``bitrate`` or ``port``, is
+  passed to the python-can bus);
+- ``linuxcnc://HOST[:PORT]?joint=N&motor_pin=PIN&scale_pin=PIN``: :mod:`acquisition.linuxcnc.url`.
+
+A new wire is a package under ``acquisition/`` with a ``url`` module, and one row here.
 
 Every scheme also takes who starts the round trip, ``trigger=active|passive`` (docs/controllers.md,
 "Passive and active round trips"), and for passive mode ``running_flag=0|1`` and the detection
 settings (``start_timeout_s``, ``max_duration_s``, ``rest_band_mm``, ``rest_s``, ``min_stroke_mm``,
-``return_tolerance_mm``, ``pre_roll_s``, ``flag_margin_s``). Without ``trigger`` a simulator
-(``sim://``, or CANopen on python-can's in-process ``virtual`` bus) is active and any other
-controller passive: mebm moves an axis only where it was told to, or where nothing can move.
+``return_tolerance_mm``, ``pre_roll_s``, ``flag_margin_s``): :mod:`acquisition.trigger`, shared
+by every scheme's parser. Without ``trigger`` a simulator (``sim://``, or CANopen on python-can's
+in-process ``virtual`` bus) is active and any other controller passive: mebm moves an axis only
+where it was told to, or where nothing can move.
 """
 
 from __future__ import annotations
 
-import ipaddress
-import re
-from urllib.parse import parse_qs, urlsplit
+import importlib
+from urllib.parse import urlsplit
 
-# the trigger keys and defaults, shared with the CANopen URL parser; re-exported here for
-# the callers that read them with the URL
-from acquisition.trigger import (  # noqa: F401
-    PASSIVE_KEYS,
-    TRIGGER_KEYS,
-    default_trigger,
-    is_simulator_url,
-    needs_callers_process,
-    trigger_kwargs,
-)
 from core.errors import InputError
 
+# scheme -> (module, function): the function takes the URL and the driver's keyword arguments
+SCHEMES: dict[str, tuple[str, str]] = {
+    "modbus": ("acquisition.modbus.url", "driver_from_modbus_url"),
+    "modbus+rtu": ("acquisition.modbus.url", "driver_from_modbus_url"),
+    "sim": ("acquisition.modbus.url", "driver_from_modbus_url"),
+    "canopen": ("acquisition.canopen.url", "driver_from_canopen_url"),
+    "linuxcnc": ("acquisition.linuxcnc.url", "driver_from_linuxcnc_url"),
+}
+
+
 def driver_from_url(url: str, **kwargs):
-    """A :class:`~acquisition.driver.ControllerDriver` for ``url``; ``kwargs`` go to the driver
+    """A :class:`~acquisition.driver.base.ControllerDriver` for ``url``; ``kwargs`` go to the driver
     (``timeout_s``, ``retries``, ...)."""
     bad = next((c for c in url if c.isspace() or ord(c) < 32 or ord(c) == 127), None)
     if bad is not None:
         raise InputError(f"controller URL {url!r}: contains {'a space' if bad == ' ' else repr(bad)}; "
                          "percent-encode it (%20) or remove it")
-    parts = urlsplit(url)
-    q = {k: v[-1] for k, v in parse_qs(parts.query).items()}
-    if parts.scheme in ("modbus", "modbus+rtu", "sim"):  # canopen: its mode and the trigger, together (canopen_url)
-        kwargs = {**trigger_kwargs(url, q), **kwargs}
-
-    def num(key, cast, default):
-        if key not in q:
-            return default
-        try:
-            return cast(q[key])
-        except ValueError:
-            raise InputError(f"controller URL {url!r}: {key} (={q[key]!r}) must be a number") from None
-
-    if parts.scheme in ("modbus", "modbus+rtu", "sim"):
-        from acquisition.modbus import ModbusDriver
-        from acquisition.modbus_profile import BUILTIN, RegisterProfile, load_profile
-
-        known = {"device_id", "mode", "profile", *(_SERIAL if parts.scheme == "modbus+rtu" else ())}
-        unknown = sorted(set(q) - known)
-        if unknown:
-            raise InputError(f"controller URL {url!r}: unknown option(s) {unknown} (allowed: {sorted(known | set(TRIGGER_KEYS))})")
-        device_id = num("device_id", int, 1)
-        if not 0 <= device_id <= 247:
-            raise InputError(f"controller URL {url!r}: device_id (={device_id}) must be 0..247")
-        if parts.scheme in ("modbus", "sim"):
-            if not parts.hostname:
-                raise InputError(f"controller URL {url!r} needs a host: {parts.scheme}://HOST:PORT")
-            try:
-                host, port = parts.hostname, parts.port or 502
-            except ValueError:
-                raise InputError(f"controller URL {url!r}: the port must be a number 1..65535") from None
-            if not _is_host(host):
-                raise InputError(f"controller URL {url!r}: {host!r} is neither an IP address nor a host name "
-                                 "(letters, digits, '-' and '.')")
-            serial = None
-        else:
-            host, port = parts.path, 0
-            if parts.netloc or not host.startswith("/"):
-                raise InputError(f"controller URL {url!r} must be modbus+rtu:///dev/DEVICE?baudrate=...")
-            serial = dict(baudrate=num("baudrate", int, 19200), parity=q.get("parity", "N").upper(),
-                          stopbits=num("stopbits", int, 1), bytesize=num("bytesize", int, 8))
-            if serial["parity"] not in ("N", "E", "O"):
-                raise InputError(f"controller URL {url!r}: parity (={q['parity']!r}) must be N, E or O")
-            if serial["stopbits"] not in (1, 2) or serial["bytesize"] not in (7, 8) or serial["baudrate"] <= 0:
-                raise InputError(f"controller URL {url!r}: stopbits must be 1 or 2, bytesize 7 or 8, baudrate > 0")
-        profile = kwargs.pop("profile", None) or q.get("profile", BUILTIN)
-        if isinstance(profile, str) and profile != BUILTIN:
-            profile = load_profile(profile)
-        if isinstance(profile, RegisterProfile):
-            from acquisition.modbus_polled import ProfileModbusDriver
-
-            if "mode" in q:
-                raise InputError(f"controller URL {url!r}: mode= is for mebm-modbus/1; a profile's mode follows "
-                                 f"its layout ({profile.mode})")
-            return ProfileModbusDriver(host, port, profile=profile, device_id=device_id, serial=serial, **kwargs)
-        return ModbusDriver(host, port, device_id=device_id, mode=q.get("mode", "trace"), serial=serial, **kwargs)
-    if parts.scheme == "canopen":
-        from acquisition.canopen_url import driver_from_canopen_url
-
-        return driver_from_canopen_url(url, **kwargs)
-    if parts.scheme == "linuxcnc":
-        from acquisition.linuxcnc.url import driver_from_linuxcnc_url
-
-        return driver_from_linuxcnc_url(url, **kwargs)
-    raise InputError(f"controller URL {url!r}: scheme must be modbus://, modbus+rtu://, sim://, canopen:// or "
-                     "linuxcnc://")
-
-
-_SERIAL = ("baudrate", "parity", "stopbits", "bytesize")
-_LABEL = re.compile(r"[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?")
-
-
-def _is_host(host: str) -> bool:
-    """An IP address or a DNS host name (RFC 1123 labels)."""
-    try:
-        ipaddress.ip_address(host)
-        return True
-    except ValueError:
-        pass
-    name = host[:-1] if host.endswith(".") else host
-    return 0 < len(name) <= 253 and all(_LABEL.fullmatch(label) for label in name.split("."))
+    scheme = urlsplit(url).scheme
+    if scheme not in SCHEMES:
+        names = [f"{s}://" for s in SCHEMES]
+        raise InputError(f"controller URL {url!r}: scheme must be {', '.join(names[:-1])} or {names[-1]}")
+    module, function = SCHEMES[scheme]
+    return getattr(importlib.import_module(module), function)(url, **kwargs)

@@ -12,7 +12,7 @@ Prints, per driver:
 - Modbus register profiles (no trace ring: one poll per sample): the rate the driver's
   poll reaches with a profile read in one request (float32 CDAB holding, ``latched``)
   and in two requests (int32 input registers far apart, ``separate``), against the
-  simulated PLC of ``acquisition.sim.profile_server`` in a thread of this process.
+  simulated PLC of ``acquisition.sim.modbus.profile_server`` in a thread of this process.
 
 The Modbus controller runs in another process (``mebm sim-controller modbus``), as in
 production; the CANopen drive shares the process (python-can's virtual bus is
@@ -34,14 +34,14 @@ from pathlib import Path
 
 from pymodbus.client import AsyncModbusTcpClient
 
-from acquisition import modbus_map as mm
-from acquisition.canopen import CanopenDriver
-from acquisition.modbus import ModbusDriver
-from acquisition.modbus_polled import ProfileModbusDriver
-from acquisition.modbus_profile import load_profile
+from acquisition.modbus import register_map as mm
+from acquisition.canopen.driver import CanopenDriver
+from acquisition.modbus.driver import ModbusDriver
+from acquisition.modbus.polled import ProfileModbusDriver
+from acquisition.modbus.profile import load_profile
 from acquisition.sim.axis import SimAxis
-from acquisition.sim.profile_server import SimProfileController
-from acquisition.sim.canopen_drive import SimCanopenDrive
+from acquisition.sim.modbus.profile_server import SimProfileController
+from acquisition.sim.canopen.drive import SimCanopenDrive
 from acquisition.sim.twin import KinematicTwin
 from acquisition.types import RoundTripProgram
 from core.dataset import AxisSpec

@@ -41,8 +41,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from api.service.config import demo_axis  # noqa: E402
-from api.service.runner import analyse  # noqa: E402
+from api.service.config.settings import demo_axis  # noqa: E402
+from api.service.cycles.runner import analyse  # noqa: E402
 from core.criteria import BacklashProfile  # noqa: E402
 from core.tbe import decide  # noqa: E402
 from storage.db import (  # noqa: E402
@@ -123,9 +123,9 @@ class Receivers:
 
 
 def _known_tables() -> set[str]:
-    from api.service import config as service_config
+    from api.service.config.loading import TABLES
 
-    return set(getattr(service_config, "_TOP", ()))
+    return set(TABLES)
 
 
 def synthetic_round_trip(axis: AxisRecord):

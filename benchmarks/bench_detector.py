@@ -18,7 +18,7 @@ import numpy as np
 
 from timing import median_s
 
-from acquisition.round_trip_detector import DetectorSettings, RoundTripDetector
+from acquisition.driver.round_trip_detector import DetectorSettings, RoundTripDetector
 
 RATE_HZ = 1000.0
 BLOCK = 100

@@ -32,7 +32,7 @@ from fastapi.testclient import TestClient  # noqa: E402
 from sqlalchemy import func, insert, select  # noqa: E402
 
 from api.rest import create_app  # noqa: E402
-from api.service.config import Settings, demo_axis  # noqa: E402
+from api.service.config.settings import Settings, demo_axis  # noqa: E402
 from storage.db import config_repo, make_engine, make_session_factory, rollup, session_scope, upgrade  # noqa: E402
 from storage.db.models import Cycle, LeadCriteriaRow, Result, TbeRow  # noqa: E402
 

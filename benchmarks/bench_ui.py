@@ -35,7 +35,7 @@ from bench_api import synthetic_round_trip  # noqa: E402
 from fastapi.testclient import TestClient  # noqa: E402
 
 from api.rest import create_app  # noqa: E402
-from api.service.config import Settings, demo_axis  # noqa: E402
+from api.service.config.settings import Settings, demo_axis  # noqa: E402
 from core.criteria import BacklashProfile  # noqa: E402
 from core.tbe import decide  # noqa: E402
 from storage.db import (  # noqa: E402

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from api.service.config import DEMO_TASK
-from api.service.plots import backlash_trend
+from api.service.config.settings import DEMO_TASK
+from api.service.figures.plots import backlash_trend
 from core.maintenance import summarise_axis
 from core.tbe import State, decide
 

@@ -70,7 +70,8 @@ def describe_owner(owner: Mapping | None) -> str:
 REWRITE_JSON = "the file is cut short or not JSON: restore it from a copy or write it again"
 
 
-def _load_json(path: Path) -> dict:
+def load_dataset_json(path: Path) -> dict:
+    """A dataset folder's ``dataset.json``, or a :class:`DatasetError` that says what is wrong with it."""
     if not path.is_file():
         raise DatasetError("dataset.json not found (is this a dataset folder?)", source=str(path))
     try:
@@ -215,7 +216,7 @@ def read_dataset(folder: str | os.PathLike, *, load_runs: bool = True) -> Datase
     if not root.is_dir():
         raise DatasetError("not a folder", source=str(root))
     json_path = root / "dataset.json"
-    doc = _load_json(json_path)
+    doc = load_dataset_json(json_path)
     src = str(json_path)
     if doc.get("format") != FORMAT:
         raise DatasetError(f"format (={doc.get('format')!r}) must be {FORMAT!r}", source=src)
@@ -313,7 +314,7 @@ def fsync_dir(path: Path) -> None:
         os.close(fd)
 
 
-def _atomic_write_text(path: Path, text: str) -> None:
+def atomic_write_text(path: Path, text: str) -> None:
     """Temporary file, fsync, rename, fsync of the folder: the old or the new text,
     never a torn one, and the new one survives a power cut once this returns."""
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
@@ -361,7 +362,7 @@ def write_dataset(folder: str | os.PathLike, dataset: Dataset) -> Path:
         "runs": [run_spec_to_json(r.spec) for r in dataset.runs],
         **dict(dataset.extra),
     }
-    _atomic_write_text(root / "dataset.json", json.dumps(doc, indent=2) + "\n")
+    atomic_write_text(root / "dataset.json", json.dumps(doc, indent=2) + "\n")
     return root
 
 
@@ -398,13 +399,13 @@ def set_owner(folder: str | os.PathLike, owner: Mapping[str, str]) -> None:
     one). Raises :class:`FolderOwnerError` if it records another owner already."""
     with dataset_lock(folder) as root:
         json_path = root / "dataset.json"
-        doc = _load_json(json_path)
+        doc = load_dataset_json(json_path)
         recorded = folder_owner(doc)
         if recorded is not None:
             _check_owner(json_path, recorded, owner, 0)
             return
         read_dataset(root, load_runs=False)  # a malformed file is not rewritten
-        _atomic_write_text(json_path, json.dumps(_ordered({**doc, OWNER_KEY: dict(owner)}), indent=2) + "\n")
+        atomic_write_text(json_path, json.dumps(_ordered({**doc, OWNER_KEY: dict(owner)}), indent=2) + "\n")
 
 
 def _ordered(doc: dict) -> dict:
@@ -430,7 +431,7 @@ def _append_runs_locked(root: Path, machine: MachineSpec, runs: list[Run], owner
             merged_axes[name] = axis
         machine = replace(existing.machine, axes=merged_axes)
         listed = {r.spec.file for r in existing.runs}
-        doc = _load_json(json_path)
+        doc = load_dataset_json(json_path)
         run_docs = doc["runs"]
     else:
         root.mkdir(parents=True, exist_ok=True)
@@ -447,7 +448,7 @@ def _append_runs_locked(root: Path, machine: MachineSpec, runs: list[Run], owner
         listed.add(run.spec.file)
     out = {k: v for k, v in doc.items() if k not in ("format", "machine", "runs")}
     new_doc = _ordered({"format": FORMAT, "machine": machine_to_json(machine), "runs": run_docs, **out})
-    _atomic_write_text(json_path, json.dumps(new_doc, indent=2) + "\n")
+    atomic_write_text(json_path, json.dumps(new_doc, indent=2) + "\n")
     return root
 
 
@@ -458,7 +459,7 @@ def next_run_name(folder: str | os.PathLike, stem: str) -> str:
     root = Path(folder)
     listed: set[str] = set()
     with contextlib.suppress(DatasetError, OSError, KeyError, TypeError):
-        listed = {str(r.get("file")) for r in _load_json(root / "dataset.json")["runs"] if isinstance(r, dict)}
+        listed = {str(r.get("file")) for r in load_dataset_json(root / "dataset.json")["runs"] if isinstance(r, dict)}
     i = 0
     while True:
         name = f"{stem}_{i:02d}.csv"

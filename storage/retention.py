@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from core.errors import InputError
-from storage.dataset import _atomic_write_text, _load_json, dataset_lock, fsync_dir
+from storage.dataset import atomic_write_text, load_dataset_json, dataset_lock, fsync_dir
 
 
 @dataclass(frozen=True)
@@ -91,7 +91,7 @@ def apply_retention(folder: str | os.PathLike, policy: RetentionPolicy, event_uu
     events = set(event_uuids)
     compressed = deleted = 0
     with dataset_lock(root):
-        doc = _load_json(root / "dataset.json")
+        doc = load_dataset_json(root / "dataset.json")
         runs = [r for r in doc.get("runs", []) if isinstance(r, dict)]
         n = len(runs)
         protected: set[int] = set(range(max(n - policy.keep_last_runs, 0), n))
@@ -121,7 +121,7 @@ def apply_retention(folder: str | os.PathLike, policy: RetentionPolicy, event_uu
                 to_compress.append(plain)
         if drop:
             doc["runs"] = [r for i, r in enumerate(runs) if i not in drop]
-            _atomic_write_text(root / "dataset.json", json.dumps(doc, indent=2) + "\n")
+            atomic_write_text(root / "dataset.json", json.dumps(doc, indent=2) + "\n")
     # outside the lock (a cycle's write does not wait for it): the names in dataset.json do
     # not change, and readers take the .gz once the plain file is gone
     for plain in to_compress:

@@ -1,11 +1,11 @@
 """The demo axis as a configuration file writes it: one builder for the tests and
 benchmarks that start ``mebm serve`` (or parse a configuration) with the seed paper's Y
-axis (``api.service.config.demo_axis``: k_a 6.857 mm/rev, 16 mm lead, K = 10 1/s) and,
+axis (``api.service.config.settings.demo_axis``: k_a 6.857 mm/rev, 16 mm lead, K = 10 1/s) and,
 if asked, the demo's machining task (``DEMO_TASK``: the circle R200 F200, 45 µm)."""
 
 from __future__ import annotations
 
-from api.service.config import DEMO_TASK, demo_axis
+from api.service.config.settings import DEMO_TASK, demo_axis
 
 
 def _value(v) -> str:

@@ -1,5 +1,7 @@
-"""The layering `api -> acquisition | storage -> core` is a checked fact (import-linter)."""
+"""The layering `api -> acquisition | storage -> core` is a checked fact (import-linter), and
+every module imports on its own, whatever was imported before it (no import cycle)."""
 
+import random
 import shutil
 import subprocess
 import sys
@@ -56,3 +58,44 @@ def test_mtconnect_importing_rest_or_mqtt_breaks_the_contracts(tmp_path):
     assert res.returncode != 0
     assert "Event interfaces (MQTT, webhooks, OPC UA, MTConnect) do not import each other BROKEN" in res.stdout
     assert "Event interfaces depend on the service, not on REST or the CLI BROKEN" in res.stdout
+
+
+def _lint_with(tmp_path: Path, module: str, line: str) -> subprocess.CompletedProcess:
+    """import-linter on a copy of the tree in which ``module`` (a path) ends with ``line``."""
+    tree = _copy_tree(tmp_path)
+    (tree / module).write_text((tree / module).read_text() + f"\n{line}  # noqa\n")
+    return _lint(tree)
+
+
+def test_a_wire_package_importing_another_breaks_the_contract(tmp_path):
+    res = _lint_with(tmp_path, "acquisition/modbus/register_map.py", "import acquisition.canopen.objects")
+    assert res.returncode != 0 and "Wire packages (Modbus, CANopen, LinuxCNC) do not import each other BROKEN" in res.stdout
+
+
+def _modules() -> list[str]:
+    """Every module of the four packages, but ``__main__`` (it runs the CLI) and the
+    migration scripts (alembic runs them, with its own context)."""
+    out = []
+    for pkg in PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            rel = path.relative_to(ROOT).with_suffix("")
+            parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
+            if rel.name == "__main__" or parts[:2] == ("storage", "migrations"):
+                continue
+            out.append(".".join(parts))
+    return out
+
+
+def test_every_module_imports_in_a_fresh_interpreter_in_any_order():
+    modules = _modules()
+    assert "acquisition.modbus.driver" in modules and "api.service.config.settings" in modules
+    code = "import importlib, sys\nfor m in sys.argv[1:]:\n    importlib.import_module(m)\n"
+    procs = []
+    for seed in (1, 2):  # two orders, each in its own interpreter, at once
+        order = modules[:]
+        random.Random(seed).shuffle(order)
+        procs.append(subprocess.Popen([sys.executable, "-c", code, *order], cwd=ROOT, stdout=subprocess.PIPE,
+                                      stderr=subprocess.PIPE, text=True))
+    for p in procs:
+        _, err = p.communicate(timeout=120)
+        assert p.returncode == 0, err[-2000:]

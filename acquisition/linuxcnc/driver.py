@@ -11,7 +11,7 @@ the sampler disabled and thrown away, so the first sample kept is of the present
 period, and from then on every sample number is one servo period.
 
 Passive by default: the CNC runs the round trip (its program, its operator) and
-:class:`~acquisition.round_trip_detector.RoundTripDetector` cuts it from the positions;
+:class:`~acquisition.driver.round_trip_detector.RoundTripDetector` cuts it from the positions;
 mebm's session is not even enabled (linuxcncrsh refuses every ``set`` on it). Active only
 when configured (``trigger=active``): mebm writes the round trip as an ``.ngc`` program
 (machine coordinates, ``G53``), positions the axis at its start by MDI if it is not there,
@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition.driver import ControllerDriver
+from acquisition.driver.base import ControllerDriver
 from acquisition.errors import ControllerConnectionError, ControllerTimeoutError, LostSamplesError, ProtocolError
 from acquisition.linuxcnc import hal
 from acquisition.linuxcnc.errors import EstopError, HalPinError, MachineOffError

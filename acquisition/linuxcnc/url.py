@@ -16,9 +16,9 @@ halsampler), so mebm runs on the LinuxCNC computer. Keys:
 
 from __future__ import annotations
 
-from urllib.parse import parse_qs, urlsplit
+from urllib.parse import urlsplit
 
-from acquisition.trigger import TRIGGER_KEYS, trigger_kwargs
+from acquisition.trigger import TRIGGER_KEYS, query_of, trigger_kwargs
 from core.errors import InputError
 
 KEYS = ("joint", "axis", "motor_pin", "scale_pin", "command_pin", "sampler", "motor_units", "program_dir")
@@ -32,7 +32,7 @@ def driver_from_linuxcnc_url(url: str, **kwargs):
     parts = urlsplit(url)
     if parts.scheme != "linuxcnc":
         raise InputError(f"controller URL {url!r}: scheme must be linuxcnc://")
-    q = {k: v[-1] for k, v in parse_qs(parts.query, keep_blank_values=True).items()}
+    q = query_of(url)
     kwargs = {**trigger_kwargs(url, q), **kwargs}
     unknown = sorted(set(q) - set(KEYS))
     if unknown:

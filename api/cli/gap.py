@@ -8,7 +8,7 @@ import json
 import sys
 from pathlib import Path
 
-from api.cli.output import _clean
+from api.cli.output import json_safe
 from core.gap import LABELS, CaseSize, diagnose, run_benchmark
 from core.errors import InputError
 from core.gap.benchmark import SMALL
@@ -46,7 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _write_json(obj, target: str) -> None:
-    text = json.dumps(_clean(obj), indent=2, ensure_ascii=False) + "\n"
+    text = json.dumps(json_safe(obj), indent=2, ensure_ascii=False) + "\n"
     if target == "-":
         sys.stdout.write(text)
     else:
@@ -70,8 +70,8 @@ def run_diagnose(a: argparse.Namespace) -> int:
 def write_plots(report, folder: Path) -> list[Path]:
     """PNGs of the test residuals: nominal vs corrected by the diagnosed effect
     (along the travel for round trips, versus angle for circles); the dashboard's gap
-    page draws the same figure (api.service.plots.gap_residual)."""
-    from api.service.plots import gap_residual
+    page draws the same figure (api.service.figures.plots.gap_residual)."""
+    from api.service.figures.plots import gap_residual
 
     folder.mkdir(parents=True, exist_ok=True)
     out = []

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from api.cli.output import print_json, print_table
-from api.service.config import load_settings
+from api.service.config.loading import load_settings
 from api.service.secret_files import write_secret_file
 from core.errors import InputError
 from storage.db import config_repo, make_engine, make_session_factory, session_scope, upgrade

@@ -80,7 +80,7 @@ def _task(text: str, i: int, gain: float):
 
 
 def run(a: argparse.Namespace) -> int:
-    from acquisition.cycle import default_program, run_cycle
+    from acquisition.measurement import default_program, run_cycle
     from acquisition.url import driver_from_url
     from storage.dataset import append_runs, next_run_name
 

@@ -8,19 +8,21 @@ import sys
 from collections.abc import Sequence
 
 
-def _clean(obj):
+def json_safe(obj):
+    """``obj`` with every infinite or NaN float as None (JSON has no infinity), in nested
+    dicts, lists and tuples too."""
     if isinstance(obj, float):
         return None if not math.isfinite(obj) else obj
     if isinstance(obj, dict):
-        return {k: _clean(v) for k, v in obj.items()}
+        return {k: json_safe(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
+        return [json_safe(v) for v in obj]
     return obj
 
 
 def print_json(obj) -> None:
     """JSON to stdout; inf/NaN become null (JSON has no infinity)."""
-    json.dump(_clean(obj), sys.stdout, indent=2, ensure_ascii=False)
+    json.dump(json_safe(obj), sys.stdout, indent=2, ensure_ascii=False)
     sys.stdout.write("\n")
 
 

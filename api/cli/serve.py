@@ -12,7 +12,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from api.service.config import load_settings
+from api.service.config.loading import load_settings
 from api.service.secret_files import ADMIN_KEY_FILE, DEMO_KEYS_FILE, SIGN_IN_LINK_FILE, write_secret_file
 
 
@@ -195,7 +195,7 @@ def _serve(a: argparse.Namespace) -> int:
     import uvicorn
 
     from api.rest import create_app
-    from api.service.plot_process import PlotProcess
+    from api.service.figures.process import PlotProcess
     from api.service.service import Service
 
     # The service's threads (cycles, the in-process simulator, the event publishers) are

@@ -196,7 +196,7 @@ def run(a: argparse.Namespace) -> int:
 
 async def _serve_modbus(a, twin, scale, faults) -> int:
     from acquisition.sim.axis import SimAxis
-    from acquisition.sim.modbus_server import SimModbusController
+    from acquisition.sim.modbus.server import SimModbusController
 
     if not 20 <= a.ring_records <= (65536 - 100) // 6:
         raise InputError(f"--ring-records (={a.ring_records}) must be in 20..{(65536 - 100) // 6}")
@@ -221,7 +221,7 @@ async def _serve_modbus(a, twin, scale, faults) -> int:
 
 
 def _serve_canopen(a, twin, scale, faults) -> int:
-    from acquisition.sim.canopen_drive import SimCanopenDrive
+    from acquisition.sim.canopen.drive import SimCanopenDrive
 
     bus_kwargs = {}
     for opt in a.bus_option:

@@ -32,7 +32,7 @@ from urllib.parse import unquote, urlsplit
 
 import paho.mqtt.client as paho
 
-from api.service.config import MqttSettings
+from api.service.config.settings import MqttSettings
 from api.service.events import Event, order_document
 
 log = logging.getLogger("mebm.mqtt")

@@ -22,7 +22,7 @@ from pathlib import Path
 from api.mtconnect.buffer import ObservationBuffer, Window
 from api.mtconnect.documents import Header
 from api.mtconnect.model import Component, Device, Value, component_for, device_for, values_for
-from api.service.config import MtconnectSettings
+from api.service.config.settings import MtconnectSettings
 from api.service.events import Event
 from storage.db import StorageError, config_repo, session_scope, utcnow
 

@@ -10,7 +10,7 @@ from asyncua.crypto.truststore import TrustStore
 from cryptography import x509
 from asyncua.crypto.permission_rules import USER_TYPES, PermissionRuleset, User, UserRole
 
-from api.service.config import OpcuaSettings
+from api.service.config.settings import OpcuaSettings
 
 _REFUSED = (ua.ObjectIds.WriteRequest_Encoding_DefaultBinary, ua.ObjectIds.CallRequest_Encoding_DefaultBinary)
 

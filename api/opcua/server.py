@@ -22,7 +22,7 @@ from asyncua.crypto.validator import CertificateValidator, CertificateValidatorO
 from api.opcua.access import ReadOnlyRuleset, Users
 from api.opcua.nodes import NAMESPACE_URI, AddressSpace
 from api.opcua.values import axis_values
-from api.service.config import OpcuaSettings
+from api.service.config.settings import OpcuaSettings
 from api.service.events import Event
 from storage.db import config_repo, session_scope
 

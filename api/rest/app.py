@@ -24,8 +24,8 @@ from api.rest.routers import (alerts, axes, compensation, gap, health, interface
 from api.rest.routers import workers
 from api.rest.schemas import ERROR_RESPONSES
 from api.rest.status_body import StatusFastPath, status_json
-from api.service.config import Settings
-from api.service.runner import CycleRunner
+from api.service.config.settings import Settings
+from api.service.cycles.runner import CycleRunner
 from api.service.service import Service
 from api.ui import install as install_ui
 

@@ -15,7 +15,7 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
-from api.service.plot_process import RenderUnavailable
+from api.service.figures.process import RenderUnavailable
 from core.errors import InputError, MebmError
 from storage.db import ConflictError, DatabaseUnavailableError, NotFoundError, StorageError, WaitingCycleError
 

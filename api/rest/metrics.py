@@ -10,7 +10,7 @@ from datetime import timedelta
 
 import numpy as np
 
-from api.service.leases import FleetScheduler, workers_overview
+from api.service.cycles.leases import FleetScheduler, workers_overview
 from storage.db import StorageError, leases, results_repo, session_scope, utcnow
 from storage.retention import folder_bytes
 

@@ -9,7 +9,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, Field
 
 # the configuration bodies are the service's: the dashboard's forms validate with them too
-from api.service.config_input import (  # noqa: F401
+from api.service.config.input import (  # noqa: F401
     MAX_PROGRAM_MIN,
     MAX_TRAVEL_MM,
     AxisIn,

@@ -22,11 +22,11 @@ from dataclasses import replace
 import numpy as np
 
 from acquisition.sim.axis import SimAxis
-from acquisition.sim.modbus_server import SimModbusController
+from acquisition.sim.modbus.server import SimModbusController
 from acquisition.sim.twin import CoreSimTwin, TwinTrace
 from acquisition.sim.wear import REPAIR_MAGIC, REPAIR_REG, Wear
 from acquisition.types import RoundTripProgram
-from api.service.config import SimulatorSettings
+from api.service.config.settings import SimulatorSettings
 from core.dataset import AxisSpec
 from core.sim import AxisModel, CyclicError, Effects, Encoders, Thermal
 

@@ -120,7 +120,7 @@ def diagnose_folder(folder: str, n: int) -> dict:
     the JSON body (the spec's gap contract, the text report and the runs used) and the
     test runs' residual curves (``RESIDUALS``, thinned to a screen's worth of points). A
     GapError (an InputError) for data it cannot use travels back as itself."""
-    from api.service.plots import thin_residuals
+    from api.service.figures.plots import thin_residuals
 
     dataset = newest_runs(Path(folder), n)
     report = diagnose(dataset)

@@ -21,20 +21,20 @@ from urllib.parse import parse_qsl, urlencode, urlsplit
 
 from sqlalchemy import text
 
-from api.service.config import SIM_CONTROLLER, Settings
-from api.service.cycles import CycleExecutor
-from api.service.figure_cache import FigureCache
-from api.service.folders import axis_folders
+from api.service.config.settings import SIM_CONTROLLER, Settings
+from api.service.cycles.executor import CycleExecutor
+from api.service.figures.cache import FigureCache
+from api.service.cycles.folders import axis_folders
 from api.service.gap_jobs import GapJobs
-from api.service.plot_process import PlotProcess
+from api.service.figures.process import PlotProcess
 from api.service.demo import DemoController
 from api.service.health import HealthProbe
-from api.service.leases import FleetScheduler
-from api.service.runner import CycleProcesses, CycleRunner, DriverRunner
-from api.service.scheduler import CycleScheduler
+from api.service.cycles.leases import FleetScheduler
+from api.service.cycles.runner import CycleProcesses, CycleRunner, DriverRunner
+from api.service.cycles.scheduler import CycleScheduler
 from api.service.secret_files import ADMIN_KEY_FILE, DEMO_KEYS_FILE, write_secret_file
 from api.service.events import Event, EventHub, events_of_saved_cycle
-from api.service.maintenance import MaintenanceLoop
+from api.service.maintenance.loop import MaintenanceLoop
 from api.service.status import StatusCache
 from core.errors import MebmError
 from storage.retention import apply_retention

@@ -1,6 +1,6 @@
 """The dashboard: server-rendered pages under ``/ui/`` in the API's process.
 
-Jinja2 templates; the figures are the service's matplotlib PNGs (api/service/figures.py),
+Jinja2 templates; the figures are the service's matplotlib PNGs (api/service/figures/axis.py),
 so nothing is fetched from a CDN and no build chain is needed. Data comes through the
 same service functions as the REST routers; this package never imports ``api.rest``
 (an import-linter contract). Sign-in: api/ui/sessions.py. Docs: docs/dashboard.md.

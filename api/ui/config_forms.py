@@ -1,7 +1,7 @@
 """The dashboard's configuration forms (machines, axes, machining tasks, schedules).
 
 A form's fields are read into the same pydantic models as the REST API's request bodies
-(``api.service.config_input``), then built into stored settings by the same functions:
+(``api.service.config.input``), then built into stored settings by the same functions:
 one validation for both. Errors come back keyed by field (``name``, ``tasks.2.radius_mm``,
 ``cron``; ``""`` for the form as a whole) so the template puts each next to its field.
 """
@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 from pydantic import BaseModel, ValidationError
 
-from api.service.config_input import AxisIn, MachineIn, ScheduleIn, TaskIn, TasksIn
+from api.service.config.input import AxisIn, MachineIn, ScheduleIn, TaskIn, TasksIn
 
 TASK_FIELDS = ("name", "profile", "feed_mm_min", "tolerance_um", "radius_mm", "angle_deg")
 AXIS_FIELDS = ("name", "transmission_mm_per_rev", "screw_lead_mm", "position_gain_per_s", "travel_start_mm",

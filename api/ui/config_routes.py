@@ -7,7 +7,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Request
 from fastapi.responses import HTMLResponse
 
-from api.service.config_input import axis_settings, machining_tasks, schedule_of
+from api.service.config.input import axis_settings, machining_tasks, schedule_of
 from api.ui import config_forms as cf
 from api.ui.routes import Posted, Viewer, Who, back, page
 from core.errors import MebmError

@@ -2,7 +2,7 @@
 (registered in api/ui/panels.py), its forms (acknowledge, record a repair, cancel) and
 the fleet's maintenance page with the managers' summary.
 
-The forms read into the REST API's request models (``api.service.maintenance_input``)
+The forms read into the REST API's request models (``api.service.maintenance.input``)
 and call the same service functions as the REST routes (``svc.maintenance``:
 ``record_repair``, ``transition``), so a value or a step refused by one is refused by
 the other with the same message. An operate key is needed to post (a read key sees no
@@ -21,7 +21,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from pydantic import ValidationError
 
-from api.service.maintenance_input import NoteIn, RepairIn, summary_csv, summary_rows
+from api.service.maintenance.input import NoteIn, RepairIn, summary_csv, summary_rows
 from api.ui import panels
 from api.ui.config_forms import field_errors
 from api.ui.routes import Posted, Viewer, Who, axis_ctx, page

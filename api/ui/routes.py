@@ -11,7 +11,8 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from fastapi.templating import Jinja2Templates
 
-from api.service import figures, plots
+from api.service.figures import axis as axis_figures
+from api.service.figures import plots
 from api.service.gap_jobs import RESIDUALS, TooManyJobs, age_s, axis_job, run_bytes, runs_stored_since
 from api.service.throttle import failed_authentication
 from api.ui import format as fmt
@@ -236,7 +237,7 @@ def axis_fragment(request: Request, axis_id: int, part: Literal["verdict", "cycl
 @router.get("/axes/{axis_id}/plots/{name}.png")
 def axis_plot(request: Request, axis_id: int, name: str, who: Who, range: str = "90d",  # noqa: A002
               direction: Annotated[str, Query(pattern="^(positive|negative)$")] = "positive"):
-    if name not in figures.NAMES:
+    if name not in axis_figures.NAMES:
         raise NotFoundError("figure", name)
     svc = request.app.state.service
     # the service's figure cache (shared with the REST plots) knows what each figure is drawn
@@ -245,8 +246,8 @@ def axis_plot(request: Request, axis_id: int, name: str, who: Who, range: str = 
     st = svc.status.get(axis_id)
     since = views.since_of(range, views.utcnow().replace(minute=0, second=0, microsecond=0))
     with session_scope(svc.factory) as s:
-        png = figures.render(s, axis_id, name, direction=direction, since=since, status=st, draw=svc.plots.draw,
-                             cache=svc.figures)
+        png = axis_figures.render(s, axis_id, name, direction=direction, since=since, status=st,
+                                  draw=svc.plots.draw, cache=svc.figures)
     return Response(png, media_type="image/png", headers={"Cache-Control": "no-cache"})
 
 

@@ -39,7 +39,7 @@ import uuid
 from dataclasses import asdict, dataclass
 from datetime import datetime, timedelta, timezone
 
-from api.service.config import WebhookSettings
+from api.service.config.settings import WebhookSettings
 from api.service.events import Event, order_document
 from storage.db import StorageError, session_scope, webhooks_repo
 from storage.db.webhooks_repo import NewMessage

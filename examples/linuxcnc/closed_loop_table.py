@@ -20,7 +20,7 @@ import tempfile
 from pathlib import Path
 
 
-from acquisition.cycle import run_cycle
+from acquisition.measurement import run_cycle
 from acquisition.linuxcnc.closed_loop import (
     DATA_ARC_DEG,
     from_the_radial_approach,

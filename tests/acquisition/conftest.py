@@ -12,12 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acquisition.canopen import CanopenDriver
-from acquisition.modbus import ModbusDriver
+from acquisition.canopen.driver import CanopenDriver
+from acquisition.modbus.driver import ModbusDriver
 from acquisition.sim.axis import SimAxis
-from acquisition.sim.canopen_drive import SimCanopenDrive
+from acquisition.sim.canopen.drive import SimCanopenDrive
 from acquisition.sim.faults import parse_fault
-from acquisition.sim.modbus_server import SimModbusController
+from acquisition.sim.modbus.server import SimModbusController
 from acquisition.sim.twin import KinematicTwin
 from acquisition.types import RoundTripProgram
 from core.dataset import AxisSpec

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from acquisition.cycle import run_cycle
+from acquisition.measurement import run_cycle
 from acquisition.types import AxisState
 from tests.acquisition.conftest import AXIS, PROGRAM
 

@@ -9,12 +9,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from acquisition.canopen import CanopenDriver
-from acquisition.cycle import default_program, run_cycle
-from acquisition.modbus import ModbusDriver
+from acquisition.canopen.driver import CanopenDriver
+from acquisition.measurement import default_program, run_cycle
+from acquisition.modbus.driver import ModbusDriver
 from acquisition.sim.axis import SimAxis
-from acquisition.sim.canopen_drive import SimCanopenDrive
-from acquisition.sim.modbus_server import SimModbusController
+from acquisition.sim.canopen.drive import SimCanopenDrive
+from acquisition.sim.modbus.server import SimModbusController
 from acquisition.sim.twin import CoreSimTwin
 from core.criteria import analyze_round_trip
 from core.dataset import AxisSpec

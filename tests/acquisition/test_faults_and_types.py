@@ -6,8 +6,8 @@ import math
 
 import pytest
 
-from acquisition.canopen import CanopenDriver
-from acquisition.modbus import ModbusDriver
+from acquisition.canopen.driver import CanopenDriver
+from acquisition.modbus.driver import ModbusDriver
 from acquisition.scale import EncoderScale
 from acquisition.sim.faults import Fault, parse_fault
 from acquisition.types import RoundTripProgram
@@ -81,7 +81,7 @@ def test_every_acquisition_error_names_its_own_reason_code():
     import inspect
 
     from acquisition import errors
-    from acquisition.cycle import reason_code
+    from acquisition.measurement import reason_code
     from core.errors import TraceError
 
     classes = [c for _, c in inspect.getmembers(errors, inspect.isclass) if issubclass(c, errors.AcquisitionError)]

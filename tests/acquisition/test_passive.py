@@ -13,12 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acquisition import modbus_map as mm
-from acquisition.cycle import run_cycle
+from acquisition.modbus import register_map as mm
+from acquisition.measurement import run_cycle
 from acquisition.errors import NoRoundTripSeen
-from acquisition.modbus import ModbusDriver
+from acquisition.modbus.driver import ModbusDriver
 from acquisition.types import RoundTripProgram
-from acquisition.url import default_trigger, driver_from_url
+from acquisition.trigger import default_trigger
+from acquisition.url import driver_from_url
 from core.errors import InputError
 from tests.acquisition import cnc_process
 from tests.acquisition.conftest import AXIS, modbus_peer
@@ -243,9 +244,9 @@ def test_a_start_between_the_flag_read_and_the_position_read_is_measured_from_it
     starts at -2 mm, would be refused as cut short."""
     import time
 
-    from acquisition.modbus_profile import load_profile
+    from acquisition.modbus.profile import load_profile
     from acquisition.sim.axis import SimAxis
-    from acquisition.sim.profile_server import SimProfileController
+    from acquisition.sim.modbus.profile_server import SimProfileController
     from acquisition.sim.twin import KinematicTwin
 
     profile_file = ROOT / "examples" / "modbus-profiles" / "plc-gateway-float32-cdab.toml"
@@ -281,15 +282,15 @@ def test_a_profile_controller_gets_passive_mode_from_its_polled_samples(running_
     import gc
     import threading
 
-    from acquisition.modbus_profile import load_profile
+    from acquisition.modbus.profile import load_profile
     from acquisition.sim.axis import SimAxis
-    from acquisition.sim.profile_server import SimProfileController
+    from acquisition.sim.modbus.profile_server import SimProfileController
     from acquisition.sim.twin import KinematicTwin
 
     profile_file = ROOT / "examples" / "modbus-profiles" / "plc-gateway-float32-cdab.toml"
     profile = load_profile(profile_file)
     # polled on the host clock: the PLC runs at half speed so a stall of a loaded host leaves
-    # no gap the analysis refuses (as tests/acquisition/test_modbus_paths.py does)
+    # no gap the analysis refuses (as tests/acquisition/modbus/test_paths.py does)
     slow = polled_program(dwell_s=0.3)
     axis = SimAxis(KinematicTwin(backlash_um=120.0, position_gain_per_s=30.0), servo_rate_hz=1000.0, time_scale=0.5)
     gc.collect()

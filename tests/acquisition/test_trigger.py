@@ -35,6 +35,6 @@ def test_a_bad_trigger_setting_is_an_input_error_that_names_it(query, said):
 
 
 def test_the_canopen_url_parser_does_not_import_the_modbus_one():
-    code = "import sys, acquisition.canopen_url; print('acquisition.url' in sys.modules)"
+    code = "import sys, acquisition.canopen.url; print('acquisition.url' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"

@@ -12,7 +12,7 @@ import sys
 import numpy as np
 import pytest
 
-from acquisition.cycle import default_program
+from acquisition.measurement import default_program
 from acquisition.sim.twin import CoreSimTwin
 from api.cli.main import main
 from core.dataset import AxisSpec, MachineSpec, Run, RunSpec
@@ -93,7 +93,7 @@ def test_measure_a_simulated_controller_in_another_process(tmp_path, capsys):
 
 
 def test_nothing_listening_fails_fast_with_one_line(tmp_path, capsys):
-    # how few attempts a refused connection gets is counted in tests/acquisition/test_modbus.py
+    # how few attempts a refused connection gets is counted in tests/acquisition/modbus/test_driver.py
     port = _free_port()
     code = main(["measure", "--controller", f"modbus://127.0.0.1:{port}", "--travel-mm", "100",
                  "--feed-mm-min", "1000", "--out", str(tmp_path / "ds"), "--timeout-s", "1.5"])
@@ -104,7 +104,7 @@ def test_nothing_listening_fails_fast_with_one_line(tmp_path, capsys):
 
 
 def test_wrong_node_id_fails_within_the_timeout(tmp_path, capsys):
-    from acquisition.sim.canopen_drive import SimCanopenDrive
+    from acquisition.sim.canopen.drive import SimCanopenDrive
     from acquisition.sim.twin import KinematicTwin
 
     with SimCanopenDrive(KinematicTwin(), node_id=5, channel="mebm-cli-wrong-node"):
@@ -123,4 +123,4 @@ def test_bad_controller_url_is_a_usage_error(tmp_path, capsys):
 
 
 # CANopen end to end over real sockets (udp_multicast in a private network namespace, run in CI):
-# tests/acquisition/test_canopen_netns.py
+# tests/acquisition/canopen/test_driver_netns.py

@@ -15,7 +15,7 @@ from fastapi.testclient import TestClient
 from lxml import etree
 
 from api.rest import create_app
-from api.service.config import OpcuaSettings, demo_axis
+from api.service.config.settings import OpcuaSettings, demo_axis
 from storage.db import config_repo, session_scope
 from tests.api.rest.conftest import FakeRunner, make_settings
 from tests.api.ui.test_maintenance_forms import sign_in

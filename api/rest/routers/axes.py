@@ -15,7 +15,7 @@ from api.rest.deps import AxisId, ServiceDep, SessionDep
 from api.rest.errors import TooManyRequestsError
 from api.rest.status_body import cached_status, status_json
 from api.service.prognosis import to_dict as prognosis_body
-from api.service.config_input import machining_tasks, schedule_of
+from api.service.config.input import machining_tasks, schedule_of
 from storage.db import CycleRecord, config_repo, results_repo
 
 router = APIRouter(tags=["axes"])

@@ -19,7 +19,7 @@ from fastapi import APIRouter, Query, Response
 from api.rest.auth import ReadKey
 from api.rest.deps import AxisId, ServiceDep, SessionDep
 from api.service.compensation import LoopOnScaleError, export, load_round_trip
-from api.service.runner import analyse
+from api.service.cycles.runner import analyse
 from core.criteria.uncertainty import inputs_of_spec
 from core.errors import DatasetError
 from storage.dataset import read_dataset

@@ -7,7 +7,7 @@ from fastapi import APIRouter, status
 from api.rest import convert, schemas as sc
 from api.rest.auth import AdminKey, ReadKey
 from api.rest.deps import MachineId, ServiceDep, SessionDep
-from api.service.config_input import axis_settings
+from api.service.config.input import axis_settings
 from storage.db import config_repo
 
 router = APIRouter(tags=["machines"])

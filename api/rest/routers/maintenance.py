@@ -17,7 +17,7 @@ from pydantic import AfterValidator
 
 from api.rest.auth import OperateKey, ReadKey
 from api.rest.deps import AxisId, ServiceDep, SessionDep
-from api.service.maintenance_input import NoteIn, RepairIn, summary_csv, summary_rows, utc
+from api.service.maintenance.input import NoteIn, RepairIn, summary_csv, summary_rows, utc
 from core.maintenance import TransitionError
 from core.tbe import stored_repair_target
 from storage.db import ConflictError, RepairRecord, WorkOrderRecord, config_repo, maintenance_repo, session_scope

@@ -14,7 +14,7 @@ from fastapi import APIRouter, Query, Response
 from api.rest.auth import ReadKey
 from api.rest.deps import AxisId, ServiceDep, SessionDep
 from api.rest.routers.axes import Since, utc
-from api.service import figures
+from api.service.figures import axis as axis_figures
 
 router = APIRouter(tags=["plots"])
 PNG = {200: {"content": {"image/png": {}}, "description": "a PNG image"}}
@@ -39,8 +39,8 @@ def plot(
     direction: Annotated[str, Query(pattern="^(positive|negative)$", description="lead_deviation stroke")] = "positive",
     since: Since = None,
 ):
-    png = figures.render(s, axis_id, name.value, measurement_id=measurement_id, direction=direction,
-                         since=utc(since), status=svc.status.get(axis_id) if name is PlotName.prognosis else None,
-                         draw=svc.plots.draw, cache=svc.figures)
+    png = axis_figures.render(s, axis_id, name.value, measurement_id=measurement_id, direction=direction,
+                              since=utc(since), status=svc.status.get(axis_id) if name is PlotName.prognosis else None,
+                              draw=svc.plots.draw, cache=svc.figures)
     return Response(content=png, media_type="image/png", headers={"Cache-Control": "no-cache"})
 

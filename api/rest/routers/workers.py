@@ -9,7 +9,7 @@ from pydantic import BaseModel, Field
 
 from api.rest.auth import ReadKey
 from api.rest.deps import ServiceDep
-from api.service.leases import workers_overview
+from api.service.cycles.leases import workers_overview
 
 router = APIRouter(tags=["workers"])
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import pytest
 
-from acquisition.cycle import run_cycle
+from acquisition.measurement import run_cycle
 from acquisition.linuxcnc.closed_loop import half_circle_gcode, quadrant_bumps_um
 from acquisition.linuxcnc.contour import record_contour
 from acquisition.linuxcnc.sim import SimSettings

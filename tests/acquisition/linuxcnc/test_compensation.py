@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from acquisition.cycle import run_cycle
+from acquisition.measurement import run_cycle
 from acquisition.linuxcnc.closed_loop import reversal_lost_motion_um
 from acquisition.linuxcnc.sim import MOTOR_PIN, SCALE_PIN, SimSettings
 from acquisition.types import RoundTripProgram

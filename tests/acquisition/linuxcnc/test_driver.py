@@ -18,7 +18,7 @@ import time
 import numpy as np
 import pytest
 
-from acquisition.cycle import run_cycle
+from acquisition.measurement import run_cycle
 from acquisition.url import driver_from_url
 from tests.acquisition.linuxcnc.rig import AXIS, BACKLASH_UM, PROGRAM, in_thread, run_operator_program, running_sim
 from tests.waiting import until

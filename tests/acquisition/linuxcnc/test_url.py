@@ -57,7 +57,7 @@ def test_a_bad_linuxcnc_url_is_refused_naming_what_is_wrong(url, word):
 def test_no_linuxcnc_at_the_address_is_a_connection_failure_saying_so():
     import socket
 
-    from acquisition.cycle import run_cycle
+    from acquisition.measurement import run_cycle
     from tests.acquisition.linuxcnc.rig import AXIS, PROGRAM
 
     with socket.socket() as s:  # a port nothing listens on

@@ -18,7 +18,8 @@ from fastapi.testclient import TestClient
 from lxml import etree
 
 from api.rest import create_app
-from api.service.config import ConfigError, MtconnectSettings, parse_settings
+from api.service.config.loading import parse_settings
+from api.service.config.settings import ConfigError, MtconnectSettings
 from storage.db import config_repo, session_scope
 from tests.api.rest.conftest import FakeRunner, hdr, make_settings
 from tests.waiting import until
@@ -260,7 +261,7 @@ def test_a_key_is_needed_only_when_configured(tmp_path, schemas):
 
 
 def test_failed_keys_are_throttled_per_address_with_the_rest_apis_budget(tmp_path, schemas):
-    from api.service.config import LimitSettings
+    from api.service.config.settings import LimitSettings
 
     settings_kw = dict(mtconnect=MtconnectSettings(require_key=True),
                        limits=LimitSettings(auth_failures_per_minute=1.0, auth_failure_burst=3,

@@ -25,7 +25,8 @@ from api.cli.serve import opcua_line
 from api.opcua import OpcuaServer
 from api.opcua.nodes import UNECE_URI, unece_unit_id
 from api.rest import create_app
-from api.service.config import DEFAULT_OPCUA_ENDPOINT, ConfigError, OpcuaSettings, load_settings, parse_settings
+from api.service.config.loading import load_settings, parse_settings
+from api.service.config.settings import DEFAULT_OPCUA_ENDPOINT, ConfigError, OpcuaSettings
 from storage.db import config_repo, session_scope
 from tests.api.rest.conftest import FakeRunner, hdr, make_settings
 from tests.waiting import until

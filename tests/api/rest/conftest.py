@@ -12,8 +12,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 from api.rest import create_app
-from api.service.config import AxisConfig, LimitSettings, Settings
-from api.service.runner import CycleOutcome, analyse
+from api.service.config.settings import AxisConfig, LimitSettings, Settings
+from api.service.cycles.runner import CycleOutcome, analyse
 from storage.db import Schedule, config_repo, session_scope
 from tests.storage.db import factories as f
 from tests.waiting import poll

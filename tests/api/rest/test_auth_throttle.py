@@ -8,7 +8,8 @@ from __future__ import annotations
 import httpx
 import pytest
 
-from api.service.config import ConfigError, LimitSettings, parse_settings
+from api.service.config.loading import parse_settings
+from api.service.config.settings import ConfigError, LimitSettings
 from api.service.throttle import AuthThrottle
 from storage.db import config_repo, session_scope
 from tests.api.rest.conftest import ServedApp, hdr

@@ -9,7 +9,8 @@ from pathlib import Path
 import pytest
 
 from api.cli.main import main
-from api.service.config import ConfigError, load_settings
+from api.service.config.loading import load_settings
+from api.service.config.settings import ConfigError
 from storage.db import config_repo, make_engine, make_session_factory, session_scope
 
 FULL = """

@@ -1,4 +1,4 @@
-"""Cycles in worker processes (api.service.runner.CycleProcesses): the acquisition and the
+"""Cycles in worker processes (api.service.cycles.runner.CycleProcesses): the acquisition and the
 analysis run off the service's interpreter; a busy or starting pool never delays a cycle;
 a process that dies fails its cycle with a reason and the next one runs in a fresh process."""
 
@@ -14,8 +14,9 @@ from dataclasses import replace
 
 import pytest
 
-from api.service.config import ConfigError, default_settings, parse_settings
-from api.service.runner import CycleProcessDied, CycleProcesses, DriverRunner, NoFreeProcess
+from api.service.config.loading import parse_settings
+from api.service.config.settings import ConfigError, default_settings
+from api.service.cycles.runner import CycleProcessDied, CycleProcesses, DriverRunner, NoFreeProcess
 from api.service.service import Service
 from api.service.worker_process import end_pool, spawn_pool, still_running, wait_for_sentinels
 from storage.db import AxisRecord, config_repo, results_repo, session_scope
@@ -73,7 +74,7 @@ def test_closing_ends_the_processes_and_the_pool_thread_a_stuck_cycle_included(m
     """The stop does not leave the pool's ending to the interpreter's exit hooks (a race there
     once left a worker running and a service that ignored SIGTERM): a cycle still running
     after the grace is terminated, and nothing of the pool is left when close returns."""
-    monkeypatch.setattr("api.service.runner.CLOSE_GRACE_S", 0.5)
+    monkeypatch.setattr("api.service.cycles.runner.CLOSE_GRACE_S", 0.5)
     procs = CycleProcesses(1)
     procs.start()
     assert poll(lambda: started(procs), 60)

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from api.cli.main import build_parser
-from api.service.config import apply_env, parse_settings
+from api.service.config.loading import apply_env, parse_settings
 
 yaml = pytest.importorskip("yaml")
 ROOT = Path(__file__).resolve().parents[3]

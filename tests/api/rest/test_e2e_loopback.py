@@ -10,7 +10,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from api.rest import create_app
-from api.service.config import Settings, SimulatorSettings, demo_axis
+from api.service.config.settings import Settings, SimulatorSettings, demo_axis
 from storage.db import config_repo, integrity_problems, session_scope
 from storage.dataset import read_dataset
 from tests.waiting import poll

@@ -24,9 +24,10 @@ import httpx
 import pytest
 from sqlalchemy import select
 
-from api.service.config import AxisConfig, ConfigError, Settings, WorkerSettings, load_settings
-from api.service.leases import fair_share, latest_due
-from api.service.runner import CycleOutcome
+from api.service.config.loading import load_settings
+from api.service.config.settings import AxisConfig, ConfigError, Settings, WorkerSettings
+from api.service.cycles.leases import fair_share, latest_due
+from api.service.cycles.runner import CycleOutcome
 from api.service.service import Service
 from storage.db import (
     AxisRecord,

@@ -13,7 +13,7 @@ import numpy as np
 from fastapi.testclient import TestClient
 
 from api.rest import create_app
-from api.service.runner import CycleOutcome
+from api.service.cycles.runner import CycleOutcome
 from api.service.gap_jobs import newest_runs
 from core.dataset import Dataset, MachineSpec, Run, RunSpec
 from storage.dataset import LOCK_FILE, read_dataset, write_dataset, write_run_csv

@@ -226,7 +226,8 @@ def test_a_raw_run_with_no_room_anywhere_travels_in_the_spool_file_and_is_kept_a
 
 
 def test_the_spool_reserve_is_configured_in_storage_and_refuses_a_negative_size():
-    from api.service.config import ConfigError, parse_settings
+    from api.service.config.loading import parse_settings
+    from api.service.config.settings import ConfigError
 
     assert parse_settings({"storage": {"spool_reserve_mb": 2.5}}).spool_reserve_mb == 2.5
     assert parse_settings({}).spool_reserve_mb == 16.0

@@ -14,7 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from schemathesis.specs.openapi.checks import positive_data_acceptance
 
 from api.rest import create_app
-from api.service.config import LimitSettings
+from api.service.config.settings import LimitSettings
 from storage.db import config_repo, session_scope
 from tests.api.rest.conftest import FakeRunner, make_settings
 

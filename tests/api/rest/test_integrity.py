@@ -9,8 +9,8 @@ from dataclasses import replace
 import numpy as np
 from sqlalchemy import text
 
-from api.service.config import AxisConfig
-from api.service.runner import CycleOutcome, analyse
+from api.service.config.settings import AxisConfig
+from api.service.cycles.runner import CycleOutcome, analyse
 from api.service.service import Service
 from core.dataset import Dataset, MachineSpec
 from storage.dataset import read_dataset, write_dataset

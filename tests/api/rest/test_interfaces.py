@@ -24,7 +24,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 from api.rest import create_app
-from api.service.config import ConfigError, MqttSettings, WebhookSettings, parse_settings
+from api.service.config.loading import parse_settings
+from api.service.config.settings import ConfigError, MqttSettings, WebhookSettings
 from api.service.events import Event, EventHub
 from storage.db import config_repo, session_scope, utcnow
 from tests.api.rest.conftest import FakeRunner, hdr, make_settings
@@ -393,7 +394,7 @@ def test_bad_interface_settings_are_refused_naming_the_field(doc, field):
 
 
 def test_make_run_defaults_publish_to_a_local_broker_and_the_environment_turns_it_off():
-    from api.service.config import load_settings
+    from api.service.config.loading import load_settings
 
     assert load_settings(None, {}).mqtt.url == "mqtt://127.0.0.1:1883"
     assert load_settings(None, {"MEBM_MQTT_URL": ""}).mqtt.url is None

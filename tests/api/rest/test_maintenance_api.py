@@ -169,7 +169,7 @@ def test_cli_records_a_repair_and_shows_the_order_verified(server, capsys, tmp_p
 
 
 def test_history_plots_mark_the_repairs(app_env, runner):
-    from api.service import plots
+    from api.service.figures import plots
 
     client, svc, keys, axis_id = app_env
     for b in (150.0, 160.0):

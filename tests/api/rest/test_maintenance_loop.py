@@ -14,7 +14,7 @@ from fastapi.testclient import TestClient
 
 from acquisition.sim.wear import Wear
 from api.rest import create_app
-from api.service.config import MaintenanceSettings, Settings, SimulatorSettings, demo_axis
+from api.service.config.settings import MaintenanceSettings, Settings, SimulatorSettings, demo_axis
 from storage.db import integrity_problems, maintenance_repo, results_repo, session_scope
 from tests.waiting import poll
 

@@ -9,7 +9,7 @@ import threading
 
 import pytest
 
-from api.service.figure_cache import FigureCache
+from api.service.figures.cache import FigureCache
 from tests.api.rest.conftest import hdr
 
 V1 = "/api/v1"

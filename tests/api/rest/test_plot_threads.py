@@ -9,7 +9,7 @@ from datetime import datetime, timedelta, timezone
 
 import numpy as np
 
-from api.service import plots
+from api.service.figures import plots
 from core.tbe import MachiningTask
 
 

@@ -9,7 +9,7 @@ from datetime import datetime, timedelta, timezone
 
 import pytest
 
-from api.service.scheduler import missed_since
+from api.service.cycles.scheduler import missed_since
 from api.service.service import Service
 from storage.db import (
     Schedule,
@@ -193,7 +193,7 @@ def test_bootstrap_admin_key_once_and_demo_keys_kept(engine, db_url, tmp_path):
 def test_driver_runner_reports_an_unreachable_controller_as_a_failed_outcome():
     import socket
 
-    from api.service.runner import DriverRunner
+    from api.service.cycles.runner import DriverRunner
     from storage.db import AxisRecord
 
     with socket.socket() as s:  # a free port nobody listens on

@@ -169,7 +169,7 @@ def demo_like_history(folder, n_runs: int = 3, travel_mm: float = 60.0, seed: in
     servo rate) through a shop temperature swinging 19-23 °C, over a shorter travel than
     the demo's 1000 mm so that a diagnosis of them is short (three 60 mm runs: a dozen CPU
     seconds); stored as the service stores runs. Returns the run files."""
-    from api.service.config import DEMO_SIMULATOR, demo_axis
+    from api.service.config.settings import DEMO_SIMULATOR, demo_axis
     from api.service.demo import DEMO_ENCODERS, DEMO_LEAD_ERROR_UM_PER_M, DEMO_LEAD_GROWTH_PPM_PER_K
     from core.dataset import Dataset, MachineSpec
     from core.sim import AxisModel, CyclicError, Effects, Thermal, round_trip, simulate
