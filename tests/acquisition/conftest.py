@@ -3,11 +3,8 @@
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import itertools
 import logging
-import tempfile
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,6 +18,7 @@ from acquisition.sim.modbus.server import SimModbusController
 from acquisition.sim.twin import KinematicTwin
 from acquisition.types import RoundTripProgram
 from core.dataset import AxisSpec
+from tests.host_lock import host_lock
 
 for _name in ("pymodbus", "canopen", "can"):
     logging.getLogger(_name).setLevel(logging.CRITICAL)
@@ -34,18 +32,11 @@ _channels = itertools.count()
 RING_MAX = 10906
 
 
-@contextlib.contextmanager
 def realtime_rig():
     """The network-namespace rigs run their simulated master and drive at real-time priority
     (they stand for hardware); two rigs at once on a 2-core host starve each other's replies
-    out of the synchronous window. Rigs take turns: an exclusive lock on one file in the
-    temporary directory, held for the rig's run (each rig bounds its own run)."""
-    with open(Path(tempfile.gettempdir()) / "mebm-realtime-rig.lock", "a") as f:
-        fcntl.flock(f, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(f, fcntl.LOCK_UN)
+    out of the synchronous window. Rigs take turns (each rig bounds its own run)."""
+    return host_lock("realtime-rig")
 
 
 class Peer:

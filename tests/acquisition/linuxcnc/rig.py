@@ -9,13 +9,10 @@ fail (``.ci/run`` installs linuxcnc-uspace).
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import os
 import pwd
 import subprocess
-import tempfile
 import threading
-from pathlib import Path
 
 import pytest
 
@@ -24,6 +21,7 @@ from acquisition.linuxcnc.contour import record_contour
 from acquisition.linuxcnc.sim import LinuxcncSim, SimSettings, linuxcnc_available
 from acquisition.types import RoundTripProgram
 from core.dataset import AxisSpec, Dataset, MachineSpec, Run, RunSpec
+from tests.host_lock import host_lock
 
 USER = "mebm-linuxcnc"
 #: The simulated X axis as mebm knows it (K is the sim's P).
@@ -53,15 +51,9 @@ def linuxcnc_user() -> str | None:
     return USER
 
 
-@contextlib.contextmanager
 def one_linuxcnc_at_a_time():
-    """An exclusive lock for the machine's one HAL, held while a test module's LinuxCNC runs."""
-    with open(Path(tempfile.gettempdir()) / "mebm-linuxcnc.lock", "a") as f:
-        fcntl.flock(f, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(f, fcntl.LOCK_UN)
+    """The machine's one HAL, taken in turns while a test module's LinuxCNC runs."""
+    return host_lock("linuxcnc")
 
 
 @contextlib.contextmanager
