@@ -1,8 +1,9 @@
 """What a controller URL says of how a cycle starts: active (mebm starts the round trip) or
 passive (mebm waits for the CNC's own program), and the passive settings.
 
-Shared by every URL scheme's parser (:mod:`acquisition.modbus.url`, :mod:`acquisition.canopen.url`),
-so neither imports the other for it; so is :func:`query_of`, the one reading of a URL's query.
+Shared by every URL scheme's parser (:mod:`acquisition.modbus.url`, :mod:`acquisition.canopen.url`,
+:mod:`acquisition.linuxcnc.url`), so none imports another for it; so are :func:`query_of`, the
+one reading of a URL's query, and :func:`query_number`.
 """
 
 from __future__ import annotations
@@ -20,6 +21,18 @@ def query_of(url: str) -> dict[str, str]:
     """A controller URL's query, one value per key: the last one given (keys without a value
     are left out), as every scheme's parser and the configuration read it."""
     return {k: v[-1] for k, v in parse_qs(urlsplit(url).query).items()}
+
+
+def query_number(url: str, q: dict[str, str], key: str, cast: type, default):
+    """The query's ``key`` as ``cast`` (``int`` or ``float``), ``default`` when it is not
+    given; an :class:`~core.errors.InputError` naming the URL and the key when it is no number."""
+    if key not in q:
+        return default
+    try:
+        return cast(q[key])
+    except ValueError:
+        kind = "an integer" if cast is int else "a number"
+        raise InputError(f"controller URL {url!r}: {key} (={q[key]!r}) must be {kind}") from None
 
 
 def is_simulator_url(url: str) -> bool:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from urllib.parse import urlsplit
 
-from acquisition.trigger import TRIGGER_KEYS, query_of, trigger_kwargs
+from acquisition.trigger import TRIGGER_KEYS, query_number, query_of, trigger_kwargs
 from core.errors import InputError
 
 KEYS = ("joint", "axis", "motor_pin", "scale_pin", "command_pin", "sampler", "motor_units", "program_dir")
@@ -50,12 +50,7 @@ def driver_from_linuxcnc_url(url: str, **kwargs):
                              "docs/controllers.md)")
 
     def integer(key: str, default: int) -> int:
-        if key not in q:
-            return default
-        try:
-            return int(q[key])
-        except ValueError:
-            raise InputError(f"controller URL {url!r}: {key} (={q[key]!r}) must be an integer") from None
+        return query_number(url, q, key, int, default)
 
     return LinuxcncDriver(parts.hostname, port, joint=integer("joint", 0), motor_pin=q["motor_pin"],
                           scale_pin=q["scale_pin"], command_pin=q.get("command_pin") or None,

@@ -13,7 +13,7 @@ import ipaddress
 import re
 from urllib.parse import urlsplit
 
-from acquisition.trigger import TRIGGER_KEYS, query_of, trigger_kwargs
+from acquisition.trigger import TRIGGER_KEYS, query_number, query_of, trigger_kwargs
 from core.errors import InputError
 
 SCHEMES = ("modbus", "modbus+rtu", "sim")
@@ -30,12 +30,7 @@ def driver_from_modbus_url(url: str, **kwargs):
     kwargs = {**trigger_kwargs(url, q), **kwargs}
 
     def num(key, cast, default):
-        if key not in q:
-            return default
-        try:
-            return cast(q[key])
-        except ValueError:
-            raise InputError(f"controller URL {url!r}: {key} (={q[key]!r}) must be a number") from None
+        return query_number(url, q, key, cast, default)
 
     from acquisition.modbus.driver import ModbusDriver
     from acquisition.modbus.profile import BUILTIN, RegisterProfile, load_profile
