@@ -8,7 +8,8 @@ share the CPU.
 ``spawn``, not ``fork``: the service has threads, and a fork would copy locks they hold.
 A pool worker whose parent was killed (SIGKILL, a crash) waits forever on its call queue,
 whose pipe it holds open itself (seen as orphaned idle processes after killed services),
-so a watchdog thread ends it once its parent is gone.
+so a watchdog thread ends it once its parent is gone: at once where the parent can be
+waited on (a pidfd), else within ``PARENT_POLL_S``.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import importlib
 import logging
 import multiprocessing
 import os
+import select
 import signal
 import threading
 import time
@@ -48,6 +50,12 @@ def _worker_init(parent_pid: int, nice: int, what: str, imports: tuple[str, ...]
             log.warning("the %s process could not lower its priority", what)
 
     def watch() -> None:
+        try:  # readable once the parent has ended (Linux 5.3+)
+            parent = os.pidfd_open(parent_pid)
+        except (AttributeError, OSError):
+            parent = None
+        if parent is not None and os.getppid() == parent_pid:  # the fd is of the parent, not of a reused pid
+            select.select([parent], [], [])
         while os.getppid() == parent_pid:
             time.sleep(PARENT_POLL_S)
         os._exit(0)

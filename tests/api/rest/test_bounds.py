@@ -117,12 +117,22 @@ def test_failed_authentication_is_logged_without_the_key_and_throttled(app_env, 
     assert not any(wrong in r.getMessage() or keys["read"] in r.getMessage() for r in caplog.records)
 
 
+# `mebm serve` with what a request body meets (its uvicorn protocol, the app's limits); no
+# OPC UA server, MQTT client or cycle process, which no request here reaches and whose
+# start (seconds of CPU for the OPC UA address space, two spawned processes) the test
+# would only sit in
 BODY_CONFIG = """
 [server]
 host = "127.0.0.1"
 port = 0
 [auth]
 demo_keys = false
+[opcua]
+enabled = false
+[mqtt]
+url = ""
+[scheduler]
+cycle_processes = 0
 """ + demo_machine_toml("body-test", demo_axis_toml(controller="modbus://127.0.0.1:1", task=False,
                                                                  schedule_enabled=False, schedule_interval_s=3600))
 

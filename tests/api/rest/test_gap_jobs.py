@@ -11,17 +11,7 @@ import time
 import pytest
 
 from api.service.gap_jobs import FIRST_DIAGNOSIS_EXTRA_S, WORKER_NICE, DiagnosisCrashed, DiagnosisTimedOut, GapJobs, TooManyJobs
-
-
-def where_am_i(folder: str, runs: int) -> dict:
-    """A stand-in for the diagnosis (module level: the spawned worker imports it). runs=99
-    dies the way an out-of-memory kill does: the process ends without an answer."""
-    if runs == 99:
-        os._exit(137)
-    if runs == 98:  # a diagnosis that never ends by itself: marks that it runs, then takes an hour
-        open(os.path.join(folder, "running"), "w").close()  # noqa: SIM115
-        time.sleep(3600)
-    return {"pid": os.getpid(), "folder": folder, "runs": runs, "nice": os.nice(0)}
+from tests.api.rest.stand_in_diagnosis import where_am_i  # light: the spawned worker imports it
 
 
 @pytest.fixture
@@ -108,9 +98,9 @@ def test_the_worker_ends_when_the_service_process_is_killed(tmp_path):
     script = tmp_path / "svc.py"
     script.write_text(
         "import os, sys\n"
-        f"sys.path[:0] = [{str(Path(__file__).resolve().parents[3])!r}, {str(Path(__file__).parent)!r}]\n"
+        f"sys.path[:0] = [{str(Path(__file__).resolve().parents[3])!r}]\n"
         "from api.service.gap_jobs import GapJobs\n"
-        "from test_gap_jobs import where_am_i\n"
+        "from tests.api.rest.stand_in_diagnosis import where_am_i\n"
         "if __name__ == '__main__':\n"
         "    j = GapJobs(compute=where_am_i)\n"
         "    print(j.submit(('k', 2), '.', 2).result(timeout=120)['pid'], flush=True)\n"
@@ -122,7 +112,7 @@ def test_the_worker_ends_when_the_service_process_is_killed(tmp_path):
     finally:
         svc.send_signal(signal.SIGKILL)
         svc.wait(30)
-    for _ in range(300):  # the watchdog looks every PARENT_POLL_S; wait up to 30 s
+    for _ in range(300):  # the worker's watchdog sees its parent end; wait up to 30 s
         if not Path(f"/proc/{worker}").exists() or Path(f"/proc/{worker}/stat").read_text().split()[2] == "Z":
             break
         time.sleep(0.1)
@@ -202,10 +192,10 @@ def test_progress_says_the_place_in_the_queue_and_the_expected_time(tmp_path):
 
 
 def test_a_diagnosis_past_the_time_limit_is_stopped_and_says_what_to_do(tmp_path):
-    j = GapJobs(compute=where_am_i, timeout_s=5.0)
+    j = GapJobs(compute=where_am_i, timeout_s=1.0)
     try:
         slow = j.start(("t", 98), tmp_path, 98, version=(1, 1))
-        with pytest.raises(DiagnosisTimedOut, match="ran longer than 5 s and was stopped. Diagnose fewer runs"):
+        with pytest.raises(DiagnosisTimedOut, match="ran longer than 1 s and was stopped. Diagnose fewer runs"):
             slow.future.result(timeout=300)
         assert j.timeouts == 1 and slow.state == "failed"
         assert "limits.gap_diagnosis_timeout_s" in j.progress(slow)["detail"]
