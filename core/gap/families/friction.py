@@ -38,6 +38,31 @@ def friction_stage() -> Stage:
     )  # fmt: skip
 
 
+def friction_presliding_stage() -> Stage:
+    """Friction on a stiff chain with pre-sliding (Dahl): the friction builds over the
+    table's travel, df/dx = (1 - f sgn(dx)) / l_p (f the friction over its Coulomb level,
+    l_p the pre-sliding length F_c / sigma_0), and the chain's stretch, a Coulomb lost
+    motion L_c = 2 F_c / k from one flank's sliding to the other's, balances it (a massless
+    table, :func:`core.gap.play.play_dahl`). Where the nut leaves a flank at a reversal the
+    chain unloads and the table springs back, while the nut crosses the gap, by
+    l_p ln(1 + |f|) (0.69 l_p after steady sliding); on the other flank it moves while the
+    friction builds. That is the reversal-phase gap a Coulomb lost motion of a few µm on a
+    stiff chain leaves, which neither Karnopp's sticking (the lost motion is then a step,
+    inside the apparent backlash) nor a latch skew (a gap that scales with the speed on
+    both strokes) follows. ``backlash_um`` is the apparent backlash, gap plus L_c; as
+    l_p -> 0 the form is the nominal model. On contours it is the twin's LuGre friction on
+    the assumed chain (:func:`sim_piece`), refitted there as the lost-motion form is
+    (:func:`stiff_on_contours`). Not covered: a static friction above the Coulomb level,
+    a speed-dependent (Stribeck, viscous) part (the lost-motion form has them), the chain's
+    own dynamics."""
+    return Stage(
+        NAME, ("lost_motion_um", "presliding_length_um"), np.array([4.0, 4.0]), np.array([0.0, 0.05]),
+        np.array([100.0, 100.0]), kernel="presliding",
+        starts=tuple(np.array([lc, lp]) for lc in (2.0, 8.0, 25.0) for lp in (1.0, 4.0, 15.0)),
+        info={"form": "presliding"}, diff_step=1e-4,
+    )  # fmt: skip
+
+
 def friction_chain_stage() -> Stage:
     """Friction on a compliant chain (per unit table mass): the table is a mass behind
     the nut's spring-damper, held by Coulomb friction and a static friction above it
@@ -97,6 +122,11 @@ def sim_piece(p: Mapping[str, float], info: Mapping, axis: AxisSpec, b_um: float
                       stick_band_mm_s=p.get("stick_band_mm_s", 0.0))  # fmt: skip
         return [("compliance", comp), ("friction", fr)], 2e3 * mu / (w * w)
     k = ASSUMED_STIFFNESS_N_PER_UM
+    if info.get("form") == "presliding":  # LuGre on the assumed chain: F_c = k L_c / 2, sigma_0 = F_c / l_p
+        coulomb_um = min(0.5 * p["lost_motion_um"], 0.45 * b_um)
+        fr = Friction(coulomb_n=max(coulomb_um * k, 1e-6), model="lugre",
+                      bristle_stiffness_n_per_um=max(coulomb_um * k, 1e-6) / max(p["presliding_length_um"], 0.05))
+        return fr, 2 * coulomb_um
     coulomb_um = min(4.0 * p["breakaway_lost_motion_um"], 0.45 * b_um)  # static = 1.25 Coulomb assumed
     fr = Friction(coulomb_n=coulomb_um * k, static_n=(coulomb_um + p["breakaway_lost_motion_um"]) * k,
                   stribeck_velocity_mm_s=p["stribeck_velocity_mm_s"],
@@ -109,6 +139,8 @@ def derived(params: Mapping[str, float], b_um: float) -> dict[str, float]:
         w2 = (2 * math.pi * params["chain_frequency_hz"]) ** 2
         return {"coulomb_lost_motion_um": 2e3 * params["coulomb_per_mass_mm_s2"] / w2,
                 "breakaway_excess_um": 1e3 * params["static_excess_per_mass_mm_s2"] / w2}  # fmt: skip
+    if "presliding_length_um" in params:  # the spring-back at a reversal after steady sliding
+        return {"reversal_spring_back_um": math.log(2.0) * params["presliding_length_um"]}
     return {"static_excess_n_at_200n_per_um": params["breakaway_lost_motion_um"] * ASSUMED_STIFFNESS_N_PER_UM}
 
 
@@ -256,6 +288,6 @@ def stiff_on_contours(d, a: str, pieces: dict, bl: dict, b_rt_um: float):
 
 # static friction above the Coulomb level holds a table at rest and lets it jump; below
 # its critical speed it sticks and slips out and back alike
-FAMILY = Family(NAME, f"{friction_stage.__doc__}\n{friction_chain_stage.__doc__}",
-                lambda runs, axis, resid: (friction_stage(), friction_chain_stage()), sim_piece=sim_piece,
+FAMILY = Family(NAME, f"{friction_stage.__doc__}\n{friction_presliding_stage.__doc__}\n{friction_chain_stage.__doc__}",
+                lambda runs, axis, resid: (friction_stage(), friction_presliding_stage(), friction_chain_stage()), sim_piece=sim_piece,
                 derived=derived, shown_by=("breakaway", "stick_slip"), contour_refit=refit_on_contours)  # fmt: skip
