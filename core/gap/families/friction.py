@@ -28,8 +28,8 @@ def friction_stage() -> Stage:
     the Coulomb part and the static excess are refitted on the assumed chain, with and
     without pre-sliding (LuGre, a pre-sliding length of 0.5 µm or more; see
     :func:`stiff_on_contours`). Not covered: the chain's own
-    dynamics (see :func:`friction_chain_stage`), pre-sliding on round trips (they do not
-    show it), position-dependent friction."""
+    dynamics (see :func:`friction_chain_stage`), pre-sliding on round trips (see
+    :func:`friction_presliding_stage`), position-dependent friction."""
     return Stage(
         NAME, ("breakaway_lost_motion_um", "stribeck_velocity_mm_s", "viscous_lost_motion_um_per_mm_s"),
         np.array([1.0, 2.0, 0.0]), np.array([0.0, 0.05, 0.0]), np.array([100.0, 20.0, 0.3]), kernel="lost_motion",
@@ -238,9 +238,9 @@ def stiff_on_contours(d, a: str, pieces: dict, bl: dict, b_rt_um: float):
       table creeps back through lp while the force turns over, instead of sticking and
       breaking away: on the twin's LuGre friction (lp 5-60 µm) the Karnopp form left
       the contours' gap as it was (1.44 -> 1.36 µm on the twin's seed 3101) where the
-      pre-sliding form with the true values leaves 0.40 µm. Round trips do not show
-      lp (the lost motion between the motor and the table is the chain's 2 F_c / k;
-      the bristles deflect between the table and the guide).
+      pre-sliding form with the true values leaves 0.40 µm. On round trips lp shows as
+      the table's spring-back at a reversal where the chain is stiff
+      (:func:`friction_presliding_stage`, whose lp starts this form when it was taken).
 
     Returns (Friction, backlash for the twin)."""
     base = pieces[a].friction
@@ -269,6 +269,10 @@ def stiff_on_contours(d, a: str, pieces: dict, bl: dict, b_rt_um: float):
     lp_hi = max(b_rt_um, 2 * PRESLIDING_MIN_UM)
     p_starts = [np.array([f_lc * hi, 2.0, min(f_lp * hi, 0.9 * lp_hi)]) for f_lc in (0.25, 0.6)
                 for f_lp in (0.25, 0.6, 1.2)]  # fmt: skip
+    if base.model == "lugre":  # the round trips' pre-sliding form: its Coulomb part and length
+        p_starts.append(np.array([min(base.coulomb_n / k, 0.9 * hi), 0.0,
+                                  min(max(base.coulomb_n / base.bristle_stiffness_n_per_um, PRESLIDING_MIN_UM),
+                                      0.9 * lp_hi)]))  # fmt: skip
     # Coulomb friction of at least 2 % of the assumed table's weight: below, the twin's
     # table bounces across the backlash in a limit cycle (core.sim.Friction), which a fit
     # to slow train contours can pick and fast test contours then show
