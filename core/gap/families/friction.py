@@ -293,5 +293,6 @@ def stiff_on_contours(d, a: str, pieces: dict, bl: dict, b_rt_um: float):
 # static friction above the Coulomb level holds a table at rest and lets it jump; below
 # its critical speed it sticks and slips out and back alike
 FAMILY = Family(NAME, f"{friction_stage.__doc__}\n{friction_presliding_stage.__doc__}\n{friction_chain_stage.__doc__}",
-                lambda runs, axis, resid: (friction_stage(), friction_presliding_stage(), friction_chain_stage()), sim_piece=sim_piece,
+                lambda runs, axis, resid: (friction_stage(), friction_presliding_stage(), friction_chain_stage()),
+                sim_piece=sim_piece,
                 derived=derived, shown_by=("breakaway", "stick_slip"), contour_refit=refit_on_contours)  # fmt: skip
