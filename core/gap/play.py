@@ -142,8 +142,9 @@ def play_dahl(u, half_width, coulomb_mm, presliding_mm, x0):
     ln(1 + |f|): 0.69 presliding_mm after steady sliding); on the other flank it moves
     while the friction builds, and once sliding it lags the nut by b/2 + coulomb_mm.
     Each sample's place is solved exactly (Dahl's law integrated in closed form, the
-    balance by bisection: it is monotone in x), so the sampling rate does not matter.
-    Positions in mm; the table starts at ``x0`` with the friction the chain holds there."""
+    balance by Newton's method kept inside a bracket: the balance is monotone in the
+    table's travel), so the sampling rate does not matter. Positions in mm; the table
+    starts at ``x0`` with the friction the chain holds there."""
     n = u.size
     out = np.empty(n)
     x = x0
@@ -155,22 +156,27 @@ def play_dahl(u, half_width, coulomb_mm, presliding_mm, x0):
         g0 = _penetration(u[i], x, hb) - lc * f
         if g0 != 0.0:
             s = 1.0 if g0 > 0.0 else -1.0
-            # bracket: g(x + s d) changes sign within d = |g0| (the nut's press taken up)
-            # + the spring-back to f = 0, lp ln(1 + |f|)
+            # s g(d) falls from s g0 > 0 as the table travels d in direction s; it is <= 0
+            # by d = |g0| (the nut's press taken up) + lp ln(1 + |f|) (the spring-back to f = 0)
             lo, hi = 0.0, abs(g0) + lp * math.log(2.0 + abs(f))
-            for _ in range(80):
-                mid = 0.5 * (lo + hi)
-                xm = x + s * mid
-                g = _penetration(u[i], xm, hb) - lc * _dahl_force(xm, x, f, s, lp)
-                if g * s > 0.0:
-                    lo = mid
+            d = min(abs(g0), hi)
+            for _ in range(60):
+                xm = x + s * d
+                e = math.exp(-d / lp)
+                g = s * (_penetration(u[i], xm, hb) - lc * (s - (s - f) * e))
+                if g > 0.0:
+                    lo = d
                 else:
-                    hi = mid
-                if hi - lo < 1e-12:
+                    hi = d
+                if hi - lo < 1e-13 or abs(g) < 1e-14:
                     break
-            d = 0.5 * (lo + hi)
-            xn = x + s * d
-            f = _dahl_force(xn, x, f, s, lp)
-            x = xn
+                # slope of s g in d: the press (1 in contact) and the friction's build-up
+                dm = u[i] - xm
+                contact = 1.0 if (dm > hb or dm < -hb) else 0.0
+                slope = -contact - lc * (1.0 - s * f) * e / lp
+                dn = d - g / slope if slope < 0.0 else -1.0
+                d = dn if lo < dn < hi else 0.5 * (lo + hi)
+            f = _dahl_force(x + s * d, x, f, s, lp)
+            x = x + s * d
         out[i] = x
     return out
