@@ -11,6 +11,9 @@ Kernels (``Stage.kernel``):
 * ``"lost_motion"``: the play operator with a speed-dependent lost motion and a
   break-away threshold, parameters (break-away lost motion µm, Stribeck velocity mm/s,
   viscous lost motion µm per mm/s);
+* ``"presliding"``: the play operator with Dahl pre-sliding friction on a stiff chain,
+  parameters (Coulomb lost motion µm, pre-sliding length µm); ``backlash_um`` is the
+  apparent backlash (the gap plus the Coulomb lost motion);
 * ``"friction_chain"``: the table as a mass behind the nut's spring-damper, held by
   Coulomb and static friction, parameters (frequency Hz, damping ratio, Coulomb and static
   excess per unit mass mm/s², stick band mm/s), with a fixed guide damping
@@ -30,7 +33,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from core.gap.data import RoundTrip
-from core.gap.play import play, play_friction, play_inertia
+from core.gap.play import play, play_dahl, play_friction, play_inertia
 from core.gap.roundtrip import ENVELOPE_WINDOW_S, TRAIN_ENVELOPE_WINDOWS_S, RTModel, residual_env_um, residual_um
 
 GUIDE_DAMPING_PER_S = 1.0  # friction on a chain: a light oil-film damping of the table (1/s)
@@ -58,7 +61,7 @@ class Stage:
     info: dict = field(default_factory=dict)
     u_map: Callable | None = None  # (theta, run, u) -> u
     width: Callable | None = None  # (theta, run, u, hb) -> hb   (mm)
-    kernel: str | None = None  # "lost_motion" | "friction_chain" | "compliant_chain"
+    kernel: str | None = None  # "lost_motion" | "presliding" | "friction_chain" | "compliant_chain"
     out_map: Callable | None = None  # (theta, run, x) -> x
     prior: Callable | None = None  # theta -> extra residuals
     starts: tuple[np.ndarray, ...] = ()
@@ -131,6 +134,10 @@ def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
             v = _speed_mm_s(run)
             lost = 1e-3 * (ls * np.exp(-((v / vs) ** 2)) + cv * v)
             x = play_friction(u, hb, lost, 1e-3 * ls, run.start_table_mm(float(hb[0])))
+        elif kern[0].kernel == "presliding":
+            lc, lp = kern[1]
+            hbc = np.maximum(0.0, hb - 0.5e-3 * lc)  # backlash_um is the apparent one
+            x = play_dahl(u, hbc, 0.5e-3 * lc, 1e-3 * lp, run.start_table_mm(float(hb[0])))
         else:
             if kern[0].kernel == "friction_chain":
                 fn, zeta, mu, ex, v_band = kern[1]

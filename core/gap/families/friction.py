@@ -28,13 +28,38 @@ def friction_stage() -> Stage:
     the Coulomb part and the static excess are refitted on the assumed chain, with and
     without pre-sliding (LuGre, a pre-sliding length of 0.5 µm or more; see
     :func:`stiff_on_contours`). Not covered: the chain's own
-    dynamics (see :func:`friction_chain_stage`), pre-sliding on round trips (they do not
-    show it), position-dependent friction."""
+    dynamics (see :func:`friction_chain_stage`), pre-sliding on round trips (see
+    :func:`friction_presliding_stage`), position-dependent friction."""
     return Stage(
         NAME, ("breakaway_lost_motion_um", "stribeck_velocity_mm_s", "viscous_lost_motion_um_per_mm_s"),
         np.array([1.0, 2.0, 0.0]), np.array([0.0, 0.05, 0.0]), np.array([100.0, 20.0, 0.3]), kernel="lost_motion",
         starts=tuple(np.array([ls, vs, cv]) for ls in (1.0, 4.0, 12.0) for vs in (0.5, 3.0) for cv in (0.01, 0.05)),
         info={"form": "lost_motion"},
+    )  # fmt: skip
+
+
+def friction_presliding_stage() -> Stage:
+    """Friction on a stiff chain with pre-sliding (Dahl): the friction builds over the
+    table's travel, df/dx = (1 - f sgn(dx)) / l_p (f the friction over its Coulomb level,
+    l_p the pre-sliding length F_c / sigma_0), and the chain's stretch, a Coulomb lost
+    motion L_c = 2 F_c / k from one flank's sliding to the other's, balances it (a massless
+    table, :func:`core.gap.play.play_dahl`). Where the nut leaves a flank at a reversal the
+    chain unloads and the table springs back, while the nut crosses the gap, by
+    l_p ln(1 + |f|) (0.69 l_p after steady sliding); on the other flank it moves while the
+    friction builds. That is the reversal-phase gap a Coulomb lost motion of a few µm on a
+    stiff chain leaves, which neither Karnopp's sticking (the lost motion is then a step,
+    inside the apparent backlash) nor a latch skew (a gap that scales with the speed on
+    both strokes) follows. ``backlash_um`` is the apparent backlash, gap plus L_c; as
+    l_p -> 0 the form is the nominal model. On contours it is the twin's LuGre friction on
+    the assumed chain (:func:`sim_piece`), refitted there as the lost-motion form is
+    (:func:`stiff_on_contours`). Not covered: a static friction above the Coulomb level,
+    a speed-dependent (Stribeck, viscous) part (the lost-motion form has them), the chain's
+    own dynamics."""
+    return Stage(
+        NAME, ("lost_motion_um", "presliding_length_um"), np.array([4.0, 4.0]), np.array([0.0, 0.05]),
+        np.array([100.0, 100.0]), kernel="presliding",
+        starts=tuple(np.array([lc, lp]) for lc in (2.0, 8.0, 25.0) for lp in (1.0, 4.0, 15.0)),
+        info={"form": "presliding"}, diff_step=1e-4,
     )  # fmt: skip
 
 
@@ -97,6 +122,11 @@ def sim_piece(p: Mapping[str, float], info: Mapping, axis: AxisSpec, b_um: float
                       stick_band_mm_s=p.get("stick_band_mm_s", 0.0))  # fmt: skip
         return [("compliance", comp), ("friction", fr)], 2e3 * mu / (w * w)
     k = ASSUMED_STIFFNESS_N_PER_UM
+    if info.get("form") == "presliding":  # LuGre on the assumed chain: F_c = k L_c / 2, sigma_0 = F_c / l_p
+        coulomb_um = min(0.5 * p["lost_motion_um"], 0.45 * b_um)
+        fr = Friction(coulomb_n=max(coulomb_um * k, 1e-6), model="lugre",
+                      bristle_stiffness_n_per_um=max(coulomb_um * k, 1e-6) / max(p["presliding_length_um"], 0.05))
+        return fr, 2 * coulomb_um
     coulomb_um = min(4.0 * p["breakaway_lost_motion_um"], 0.45 * b_um)  # static = 1.25 Coulomb assumed
     fr = Friction(coulomb_n=coulomb_um * k, static_n=(coulomb_um + p["breakaway_lost_motion_um"]) * k,
                   stribeck_velocity_mm_s=p["stribeck_velocity_mm_s"],
@@ -109,6 +139,8 @@ def derived(params: Mapping[str, float], b_um: float) -> dict[str, float]:
         w2 = (2 * math.pi * params["chain_frequency_hz"]) ** 2
         return {"coulomb_lost_motion_um": 2e3 * params["coulomb_per_mass_mm_s2"] / w2,
                 "breakaway_excess_um": 1e3 * params["static_excess_per_mass_mm_s2"] / w2}  # fmt: skip
+    if "presliding_length_um" in params:  # the spring-back at a reversal after steady sliding
+        return {"reversal_spring_back_um": math.log(2.0) * params["presliding_length_um"]}
     return {"static_excess_n_at_200n_per_um": params["breakaway_lost_motion_um"] * ASSUMED_STIFFNESS_N_PER_UM}
 
 
@@ -206,9 +238,9 @@ def stiff_on_contours(d, a: str, pieces: dict, bl: dict, b_rt_um: float):
       table creeps back through lp while the force turns over, instead of sticking and
       breaking away: on the twin's LuGre friction (lp 5-60 µm) the Karnopp form left
       the contours' gap as it was (1.44 -> 1.36 µm on the twin's seed 3101) where the
-      pre-sliding form with the true values leaves 0.40 µm. Round trips do not show
-      lp (the lost motion between the motor and the table is the chain's 2 F_c / k;
-      the bristles deflect between the table and the guide).
+      pre-sliding form with the true values leaves 0.40 µm. On round trips lp shows as
+      the table's spring-back at a reversal where the chain is stiff
+      (:func:`friction_presliding_stage`, whose lp starts this form when it was taken).
 
     Returns (Friction, backlash for the twin)."""
     base = pieces[a].friction
@@ -237,6 +269,10 @@ def stiff_on_contours(d, a: str, pieces: dict, bl: dict, b_rt_um: float):
     lp_hi = max(b_rt_um, 2 * PRESLIDING_MIN_UM)
     p_starts = [np.array([f_lc * hi, 2.0, min(f_lp * hi, 0.9 * lp_hi)]) for f_lc in (0.25, 0.6)
                 for f_lp in (0.25, 0.6, 1.2)]  # fmt: skip
+    if base.model == "lugre":  # the round trips' pre-sliding form: its Coulomb part and length
+        p_starts.append(np.array([min(base.coulomb_n / k, 0.9 * hi), 0.0,
+                                  min(max(base.coulomb_n / base.bristle_stiffness_n_per_um, PRESLIDING_MIN_UM),
+                                      0.9 * lp_hi)]))  # fmt: skip
     # Coulomb friction of at least 2 % of the assumed table's weight: below, the twin's
     # table bounces across the backlash in a limit cycle (core.sim.Friction), which a fit
     # to slow train contours can pick and fast test contours then show
@@ -256,6 +292,7 @@ def stiff_on_contours(d, a: str, pieces: dict, bl: dict, b_rt_um: float):
 
 # static friction above the Coulomb level holds a table at rest and lets it jump; below
 # its critical speed it sticks and slips out and back alike
-FAMILY = Family(NAME, f"{friction_stage.__doc__}\n{friction_chain_stage.__doc__}",
-                lambda runs, axis, resid: (friction_stage(), friction_chain_stage()), sim_piece=sim_piece,
+FAMILY = Family(NAME, f"{friction_stage.__doc__}\n{friction_presliding_stage.__doc__}\n{friction_chain_stage.__doc__}",
+                lambda runs, axis, resid: (friction_stage(), friction_presliding_stage(), friction_chain_stage()),
+                sim_piece=sim_piece,
                 derived=derived, shown_by=("breakaway", "stick_slip"), contour_refit=refit_on_contours)  # fmt: skip

@@ -118,15 +118,15 @@ def test_servo_dynamics_is_named_from_circles_and_its_gap_halved():
 
 def test_friction_with_pre_sliding_is_named_from_circles_and_its_length_found():
     """LuGre friction (the force builds over a pre-sliding length F_c/sigma_0 = 20 µm): the
-    round trips see only its lost motion, the circles its creep after each reversal, which
-    the Karnopp form cannot follow (tuning seeds 3101/3102 of the benchmark: contour gap
-    1.44 -> 1.36 µm with it, 0.56 with pre-sliding).
+    round trips see its lost motion and the table's spring-back at each reversal (their
+    pre-sliding form takes a length of about 28 µm on this 200 N/µm chain, whose inertia
+    shows too), the circles its creep after each reversal, which the Karnopp form cannot
+    follow (tuning seeds 3101/3102 of the benchmark: contour gap 1.44 -> 1.36 µm with it,
+    0.56 with pre-sliding).
 
-    Without a viscous part: with one (6 N s/mm) the circles' gap still falls by two thirds
-    (2.26 -> 0.78 µm), but the test round trip, faster than every train one, keeps its
-    gap (1.00 -> 0.99 µm; the round trips' friction fit takes the chain form, which has no
-    viscous part), so the whole gap falls by 36 % only: a known limit
-    (docs/gap-diagnosis.md)."""
+    Without a viscous part: with one (6 N s/mm) friction alone cuts the whole gap by half
+    only (1.47 -> 0.73 µm): the round trips' pre-sliding form has no viscous part, and the
+    test round trip is faster than every train one (docs/gap-diagnosis.md, "Friction")."""
     fr = Friction(coulomb_n=2500.0, static_n=3000.0, stribeck_velocity_mm_s=3.0, viscous_n_s_per_mm=0.0,
                   model="lugre", bristle_stiffness_n_per_um=125.0)
     axes = {a: AxisModel(name=a, transmission_mm_per_rev=6.857, backlash_um=b, effects=Effects(friction=fr), encoders=ENC)

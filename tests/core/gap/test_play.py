@@ -5,7 +5,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from core.gap.data import prepare_round_trip
-from core.gap.play import play, play_inertia
+from core.gap.play import play, play_dahl, play_inertia
 from core.gap.roundtrip import nominal_model, predict_nominal, residual_um
 from core.sim import AxisModel, Compliance, Effects, round_trip, simulate
 
@@ -28,6 +28,38 @@ def test_given_motor_play_reproduces_the_nominal_simulator_exactly():
     r_wrong = residual_um(predict_nominal(np.array([70.0]), run), run)
     assert np.max(np.abs(r_wrong)) > 4.0
     assert nominal_model(80.0).n_extra == 0
+
+
+def _out_and_back(n_per_mm: int) -> np.ndarray:
+    """The nut 1 mm out and back, and out again, ``n_per_mm`` samples per mm."""
+    out = np.linspace(0.0, 1.0, n_per_mm + 1)
+    return np.concatenate([out, out[::-1][1:], out[1:]])
+
+
+def test_dahl_play_springs_back_by_the_presliding_length_times_ln2_and_then_lags_as_play():
+    """After steady sliding the chain unloads in the gap and the table springs back by
+    l_p ln 2 (its friction falling from F_c to zero, Dahl's law integrated); once sliding
+    on the other flank it lags the nut by b/2 + L, as a play of the apparent backlash."""
+    u = _out_and_back(1000)
+    hb, lc, lp = 0.03, 0.0025, 0.005
+    x = play_dahl(u, np.full(u.size, hb), lc, lp, -hb - lc)
+    xp = play(u, np.full(u.size, hb + lc), -hb - lc)
+    back = (x - xp)[1001:1040] * 1e3  # within the gap after the first reversal (60 µm + 5 µm of nut travel)
+    assert np.min(back) < 0 and abs(np.min(back) + lp * np.log(2) * 1e3) < 0.01
+    for i in (500, 1500, 2500):  # sliding: the play of the apparent backlash
+        assert abs(x[i] - xp[i]) < 1e-9
+
+
+def test_dahl_play_without_presliding_is_the_play_of_the_apparent_backlash_and_is_rate_independent():
+    hb, lc = 0.03, 0.0025
+    u = _out_and_back(1000)
+    x0 = play_dahl(u, np.full(u.size, hb), lc, 1e-7, -hb - lc)
+    assert np.max(np.abs(x0 - play(u, np.full(u.size, hb + lc), -hb - lc))) < 1e-6  # mm
+    # each sample is solved exactly: a 10x coarser sampling gives the same table where both sample
+    fine = play_dahl(u, np.full(u.size, hb), lc, 0.005, -hb - lc)
+    uc = _out_and_back(100)
+    coarse = play_dahl(uc, np.full(uc.size, hb), lc, 0.005, -hb - lc)
+    assert np.max(np.abs(fine[::10] - coarse)) < 1e-9
 
 
 def test_inertia_model_lags_by_friction_and_damping_over_stiffness_at_constant_speed():
