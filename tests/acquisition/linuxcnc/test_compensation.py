@@ -27,7 +27,7 @@ from acquisition.linuxcnc.sim import MOTOR_PIN, SCALE_PIN, SimSettings
 from acquisition.types import RoundTripProgram
 from acquisition.url import driver_from_url
 from api.rest import create_app
-from api.service.config import AxisConfig, Settings
+from api.service.config.settings import AxisConfig, Settings
 from core.tbe import MachiningTask
 from storage.db import Schedule, config_repo, session_scope
 from storage.db.records import AxisSettings
