@@ -30,7 +30,7 @@ import httpx  # noqa: E402
 
 from storage.db import config_repo, session_scope  # noqa: E402
 from tests.api.rest.conftest import ServedApp, hdr  # noqa: E402
-from tests.api.rest.test_gap import _store_case  # noqa: E402
+from tests.api.rest.test_gap import store_case  # noqa: E402
 
 
 async def _load(url: str, key: str, axis_id: int, clients: int) -> tuple[list[float], list[int], float]:
@@ -64,7 +64,7 @@ def main(argv=None) -> int:
                 with session_scope(svc.factory) as s:
                     key = config_repo.create_key(s, "bench", "read")[1]
                     axis_id = config_repo.list_axes(s)[0].id
-                _store_case(svc, axis_id, "cyclic_error", seed=11)
+                store_case(svc, axis_id, "cyclic_error", seed=11)
                 health, codes, took_s = asyncio.run(_load(served.url, key, axis_id, args.clients))
             finally:
                 served.close()

@@ -99,3 +99,27 @@ def test_every_module_imports_in_a_fresh_interpreter_in_any_order():
     for p in procs:
         _, err = p.communicate(timeout=120)
         assert p.returncode == 0, err[-2000:]
+
+
+def _private_imports(root: Path) -> list[str]:
+    """Every ``from X import _name`` of a project module, in the product, tests and benchmarks:
+    what another module uses is public and says what it is."""
+    import ast
+
+    out = []
+    for pkg in (*PACKAGES, "tests", "benchmarks"):
+        for path in sorted((root / pkg).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module \
+                        and node.module.split(".")[0] in (*PACKAGES, "tests"):
+                    out += [f"{path.relative_to(root)}:{node.lineno} {node.module}.{a.name}" for a in node.names
+                            if a.name.startswith("_") and not a.name.startswith("__")]
+    return out
+
+
+def test_no_private_name_is_imported_across_modules(tmp_path):
+    assert _private_imports(ROOT) == []
+    # and the check sees one when there is one
+    (tmp_path / "tests").mkdir()
+    (tmp_path / "tests" / "test_x.py").write_text("from core.gap.diagnose import _hidden\n")
+    assert _private_imports(tmp_path) == ["tests/test_x.py:1 core.gap.diagnose._hidden"]

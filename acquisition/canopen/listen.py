@@ -49,7 +49,7 @@ class ListenOnlyBusError(DriverMisuseError):
     """Something tried to send on a bus opened listen-only (a bug in mebm: nothing was sent)."""
 
 
-class _ListenOnlyBus:
+class ListenOnlyBus:
     """A python-can bus whose ``send`` refuses: everything else is passed through."""
 
     def __init__(self, bus: can.BusABC):
@@ -190,7 +190,7 @@ class CanopenListenWire:
         self.window_s = window_s or mapping.window_s
         self.bus_kwargs = dict(bus_kwargs or {})
         self.bus_factory = bus_factory or self._open_bus
-        self.bus: _ListenOnlyBus | None = None
+        self.bus: ListenOnlyBus | None = None
         self.notifier: can.Notifier | None = None
         self.listener: SyncListener | None = None
         self.last_stats: dict[str, int] = {}
@@ -210,7 +210,7 @@ class CanopenListenWire:
         self.listener = SyncListener(self.mapping, wall_period_s=wall, window_s=self.window_s,
                                      emcy_cob_id=self.emcy_cob_id)
         try:
-            self.bus = _ListenOnlyBus(self.bus_factory())
+            self.bus = ListenOnlyBus(self.bus_factory())
             self.notifier = can.Notifier(self.bus._bus, [self.listener], timeout=0.1)
         except (CanError, OSError, ValueError, ImportError) as exc:
             self.close()

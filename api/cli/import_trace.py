@@ -50,7 +50,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _load_profile(path: Path) -> dict:
+def load_trace_profile(path: Path) -> dict:
+    """The trace profile's TOML as a table; a :class:`TraceImportError` naming the file when
+    it cannot be read or is not TOML."""
     try:
         return tomllib.loads(path.read_text(encoding="utf-8"))
     except OSError as exc:
@@ -61,7 +63,7 @@ def _load_profile(path: Path) -> dict:
 
 def run(a: argparse.Namespace) -> int:
     src = str(a.profile)
-    doc = _load_profile(Path(a.profile))
+    doc = load_trace_profile(Path(a.profile))
     # an axis without travel_mm gets it from the trace (below); the profile is checked
     # with the field there, so that every other field gets the dataset's checks
     no_travel = _axes_without_travel(doc)

@@ -200,7 +200,7 @@ class Service:
     def _wait_for_room(self, why: str) -> StartReport:
         self.waiting_for_room = why
         log.error("%s", why)
-        self.report = StartReport(database=_redact(self.settings.db_url), replayed=0, interrupted=0, created_axes=(),
+        self.report = StartReport(database=redact_secrets(self.settings.db_url), replayed=0, interrupted=0, created_axes=(),
                                   demo_keys={}, simulators={}, bootstrap_admin=None, waiting_for_room=why)
         self._room_waiter = threading.Thread(target=self._complete_start_when_room, name="mebm-wait-for-room",
                                              daemon=True)
@@ -315,7 +315,7 @@ class Service:
         if isinstance(self.scheduler, FleetScheduler):
             interrupted += self.scheduler.closed  # those of a dead worker, closed when its axes were taken
         self.report = StartReport(
-            database=_redact(st.db_url), replayed=replayed, interrupted=interrupted, created_axes=tuple(created),
+            database=redact_secrets(st.db_url), replayed=replayed, interrupted=interrupted, created_axes=tuple(created),
             demo_keys=demo_keys, simulators={a: s.url for a, s in self.simulators.items()}, bootstrap_admin=admin,
             worker=self._worker_line(), folders_moved_aside=aside,
         )
@@ -557,7 +557,7 @@ def _restrict(path: Path, mode: int) -> None:
         log.warning("could not restrict %s to mode %o: %s", path, mode, exc)
 
 
-def _redact(url: str) -> str:
+def redact_secrets(url: str) -> str:
     """``url`` with every password-like part replaced by ``***``: the user info's password,
     query parameters and fragment parameters named like a secret (``?password=``,
     ``sslpassword``, ``api_key``...)."""

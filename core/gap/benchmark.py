@@ -438,7 +438,10 @@ def benchmark_case(plant: str, n_cases: int, seed: int, index: int,
     return labs, ds, truth
 
 
-def _one_case(args) -> CaseResult:
+def diagnose_case(args) -> CaseResult:
+    """One benchmark case, generated and diagnosed (a worker process' job when ``jobs`` > 1):
+    ``args`` is (index, labels, seed, size, plant, with_split, keep_dataset). A diagnosis
+    that raises is a result, scored wrong, not a stopped benchmark."""
     from core.gap.diagnose import GapSettings, diagnose
 
     i, labs, seed, size, plant, with_split, keep_dataset = args
@@ -481,7 +484,7 @@ def run_benchmark(n_cases: int, seed: int, size: CaseSize = CaseSize(),
     out = []
     if jobs == 1:
         for w in work:
-            res = _one_case(w)
+            res = diagnose_case(w)
             out.append(res)
             if progress is not None:
                 progress(res)
@@ -489,7 +492,7 @@ def run_benchmark(n_cases: int, seed: int, size: CaseSize = CaseSize(),
         from concurrent.futures import ProcessPoolExecutor
 
         with ProcessPoolExecutor(max_workers=jobs) as pool:
-            for res in pool.map(_one_case, work):
+            for res in pool.map(diagnose_case, work):
                 out.append(res)
                 if progress is not None:
                     progress(res)

@@ -426,7 +426,7 @@ class _Diagnosis:
             if af is None:
                 f.rt_res.append(rt.model_residual_um(self.nom_model[r.axis], self.nom_fit[r.axis].theta, r, envelope=True))
             else:
-                f.rt_res.append(_bounded(rt.model_residual_um(af.model, af.fit.theta, r, envelope=True),
+                f.rt_res.append(bounded_residual(rt.model_residual_um(af.model, af.fit.theta, r, envelope=True),
                                          f"test round trip {r.file}", f.notes))
         f.gap_after_um = _rms_all(f.rt_res + f.ct_res)
         return f
@@ -503,7 +503,7 @@ class _Diagnosis:
             return
         for c in self.test_ct:
             sims[c.file] = self.memo.table(c, models)
-        f.ct_res = [_bounded(ct.contour_residual_um(c, sims[c.file]), f"test contour {c.file}", f.notes)
+        f.ct_res = [bounded_residual(ct.contour_residual_um(c, sims[c.file]), f"test contour {c.file}", f.notes)
                     for c in self.test_ct]  # fmt: skip
 
 
@@ -514,7 +514,7 @@ def _with_gain(m: AxisModel, gain: float) -> AxisModel:
                      m.effects, m.encoders)  # fmt: skip
 
 
-def _bounded(resid_um: np.ndarray, what: str, notes: list[str]) -> np.ndarray:
+def bounded_residual(resid_um: np.ndarray, what: str, notes: list[str]) -> np.ndarray:
     """A test residual whose simulation diverged (non-finite, or beyond
     ``rt.NONFINITE_RESIDUAL``: seen on the independent plant, a friction chain fitted on
     round trips that grew to 1e68 µm on a test circle its train circles never showed)

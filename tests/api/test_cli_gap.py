@@ -122,7 +122,7 @@ def test_benchmark_counts_answers_that_came_with_a_close_alternative():
 def test_a_case_whose_diagnosis_raises_is_scored_wrong_not_a_stopped_benchmark(monkeypatch):
     import importlib
 
-    from core.gap.benchmark import SMALL, _one_case
+    from core.gap.benchmark import SMALL, diagnose_case
 
     dg = importlib.import_module("core.gap.diagnose")  # the module (core.gap.diagnose is also the function)
 
@@ -130,7 +130,7 @@ def test_a_case_whose_diagnosis_raises_is_scored_wrong_not_a_stopped_benchmark(m
         raise ValueError("array must not contain infs or NaNs")
 
     monkeypatch.setattr(dg, "diagnose", boom)
-    res = _one_case((0, ("thermal",), 5, SMALL, "twin", True, None))
+    res = diagnose_case((0, ("thermal",), 5, SMALL, "twin", True, None))
     assert res.diagnosed == "error" and not res.correct and "infs or NaNs" in res.axis
 
 

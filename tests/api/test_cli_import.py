@@ -157,10 +157,10 @@ def test_the_shipped_counts_profile_reads_raw_encoder_counts(tmp_path, capsys, t
     assert np.allclose(run.table_mm("x"), twin_run.table_mm("y"), atol=0.05e-3)  # one count
     assert np.allclose(run.motor_rev("x"), twin_run.motor_rev("y"), atol=1.0 / 2**20)
     # the other shipped profile parses too
-    from api.cli.import_trace import _load_profile
+    from api.cli.import_trace import load_trace_profile
     from acquisition.trace_import import parse_profile
 
-    doc = _load_profile(root / "examples/trace-profiles/scope-semicolon-decimal-comma.toml")
+    doc = load_trace_profile(root / "examples/trace-profiles/scope-semicolon-decimal-comma.toml")
     assert {c.target for c in parse_profile(doc, ("y",), {"y": KA}).columns} >= {"time_s", "y_motor_rev", "y_table_mm"}
 
 

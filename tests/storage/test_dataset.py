@@ -13,7 +13,7 @@ from storage.dataset import append_runs, next_run_name, read_dataset, write_data
 MACHINE = MachineSpec(id="m1", axes={"y": AxisSpec("y", 6.857, 16.0, 10.0, (0.0, 100.0))})
 
 
-def _run(file="rt_y_00.csv", n=5):
+def small_run(file="rt_y_00.csv", n=5):
     t = np.arange(n) * 0.001
     cols = {"time_s": t, "y_command_mm": t * 10, "y_motor_rev": t * 10 / 6.857, "y_table_mm": t * 10 - 0.05}
     spec = RunSpec(file=file, kind="round_trip", axes=("y",), feed_mm_min=600.0, temperature_c=21.5,
@@ -23,7 +23,7 @@ def _run(file="rt_y_00.csv", n=5):
 
 @pytest.fixture
 def folder(tmp_path):
-    write_dataset(tmp_path / "ds", Dataset(MACHINE, (_run(),), extra={"source": "test"}))
+    write_dataset(tmp_path / "ds", Dataset(MACHINE, (small_run(),), extra={"source": "test"}))
     return tmp_path / "ds"
 
 
@@ -31,8 +31,8 @@ def test_write_then_read_is_exact_and_keeps_unknown_fields(folder):
     ds = read_dataset(folder)
     assert ds.machine == MACHINE and ds.extra == {"source": "test"}
     (run,) = ds.runs
-    assert run.spec == _run().spec and run.spec.extra == {"note": "kept"}
-    for name, col in _run().columns.items():
+    assert run.spec == small_run().spec and run.spec.extra == {"note": "kept"}
+    for name, col in small_run().columns.items():
         assert np.array_equal(run.columns[name], col)
 
 
@@ -136,10 +136,10 @@ def test_a_truncated_dataset_json_names_the_file_the_position_and_what_to_do(fol
 
 def test_appending_a_listed_file_or_a_different_axis_is_refused(folder):
     with pytest.raises(DatasetError, match="already in the dataset"):
-        append_runs(folder, MACHINE, [_run()])
+        append_runs(folder, MACHINE, [small_run()])
     other = MachineSpec("m1", {"y": AxisSpec("y", 5.0, 16.0, 10.0, (0.0, 100.0))})
     with pytest.raises(DatasetError, match="differs"):
-        append_runs(folder, other, [_run("rt_y_01.csv")])
+        append_runs(folder, other, [small_run("rt_y_01.csv")])
 
 
 def test_concurrent_writers_under_the_folder_lock_lose_no_run_and_reuse_no_name(tmp_path):
@@ -157,7 +157,7 @@ def test_concurrent_writers_under_the_folder_lock_lose_no_run_and_reuse_no_name(
             try:
                 with dataset_lock(folder):
                     name = next_run_name(folder, "rt_y_20260101T000000")
-                    append_runs(folder, MACHINE, [_run(name)])
+                    append_runs(folder, MACHINE, [small_run(name)])
             except Exception as exc:  # noqa: BLE001 - collected and asserted below
                 errors.append(exc)
 
@@ -181,5 +181,5 @@ def test_a_name_listed_in_dataset_json_is_not_reused_even_when_its_file_is_gone(
 
 
 def test_dataset_json_is_replaced_atomically_and_leaves_no_temporary_file(folder):
-    append_runs(folder, MACHINE, [_run("rt_y_01.csv")])
+    append_runs(folder, MACHINE, [small_run("rt_y_01.csv")])
     assert sorted(p.name for p in folder.iterdir() if p.name.startswith(".") and p.name != ".dataset.lock") == []

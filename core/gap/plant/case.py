@@ -91,7 +91,7 @@ def _check_labels(labels: tuple[str, ...]) -> tuple[str, ...]:
     return labels
 
 
-def _record(prog: Program, axes: tuple[str, ...], temp_c: float, rate_hz: float, nominal: dict, effects: dict,
+def record_program(prog: Program, axes: tuple[str, ...], temp_c: float, rate_hz: float, nominal: dict, effects: dict,
             skew: dict | None, rng: np.random.Generator, noise: bool = True) -> dict[str, np.ndarray]:  # fmt: skip
     """Simulate the program on each axis and sample both encoders and the command.
 
@@ -174,7 +174,7 @@ def make_plant_case(labels: tuple[str, ...], rng: np.random.Generator, size: Pla
             length = float(np.clip(feed / 60.0 * (size.rt_duration_s - 3.0) / 2.0, 30.0, hi - lo))
             start = _u(rng, lo, hi - length) if test else lo + (hi - lo - length) * (i / max(n_tr - 1, 1))
             prog = round_trip_program(a, start, start + length, feed, acc, 1.0, layout.jerk_time_s)
-            cols = _record(prog, (a,), temp, size.rt_rate_hz, nominal, effects, skew, rng)
+            cols = record_program(prog, (a,), temp, size.rt_rate_hz, nominal, effects, skew, rng)
             spec = RunSpec(file=f"rt_{a}_{k:02d}.csv", kind="round_trip", axes=(a,), feed_mm_min=feed,
                            temperature_c=temp, utility_day=day, acceleration_mm_s2=acc, split=split(test),
                            extra={"stroke_mm": [start, start + length], "dwell_s": 1.0})  # fmt: skip
@@ -195,7 +195,7 @@ def make_plant_case(labels: tuple[str, ...], rng: np.random.Generator, size: Pla
         lead_in, lead_out = (0.0 if rng.random() < 0.25 else _u(rng, 0.0, 180.0) for _ in range(2))
         prog, _ = circle_program(AXES, radius, centre, feed, acc, direction, start_deg, 360.0, lead_in, lead_out,
                                  layout.jerk_time_s)  # fmt: skip
-        cols = _record(prog, AXES, temp, size.circle_rate_hz, nominal, effects, skew, rng)
+        cols = record_program(prog, AXES, temp, size.circle_rate_hz, nominal, effects, skew, rng)
         extra = {"lead_in_deg": lead_in, "lead_out_deg": lead_out} if layout.writes_lead else {}
         spec = RunSpec(file=f"circle_{i:02d}.csv", kind="circle", axes=AXES, feed_mm_min=feed, temperature_c=temp,
                        utility_day=day, acceleration_mm_s2=acc, split=split(test), radius_mm=radius,

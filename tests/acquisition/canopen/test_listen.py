@@ -16,7 +16,7 @@ import pytest
 from acquisition.canopen import objects as co
 from acquisition.canopen.driver import CanopenDriver
 from acquisition.canopen.cia402 import CanopenCia402Driver
-from acquisition.canopen.listen import CanopenListenDriver, ListenOnlyBusError, SyncListener, _ListenOnlyBus
+from acquisition.canopen.listen import CanopenListenDriver, ListenOnlyBusError, SyncListener, ListenOnlyBus
 from acquisition.canopen.mapping import ListenMapping, PdoField, default_mapping, mapping_from_eds
 from acquisition.canopen.url import driver_from_canopen_url
 from acquisition.url import driver_from_url
@@ -221,7 +221,7 @@ def test_without_a_sync_counter_the_spacing_numbers_the_syncs():
 
 
 def test_the_listen_only_bus_refuses_to_send():
-    bus = _ListenOnlyBus(can.Bus(interface="virtual", channel=f"guard-{next(_channels)}"))
+    bus = ListenOnlyBus(can.Bus(interface="virtual", channel=f"guard-{next(_channels)}"))
     try:
         with pytest.raises(ListenOnlyBusError, match="refused to send CAN frame 0x080"):
             bus.send(_msg(0x80, [], 0.0))

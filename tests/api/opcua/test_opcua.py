@@ -30,7 +30,7 @@ from api.service.config.settings import DEFAULT_OPCUA_ENDPOINT, ConfigError, Opc
 from storage.db import config_repo, session_scope
 from tests.api.rest.conftest import FakeRunner, hdr, make_settings
 from tests.waiting import until
-from tests.api.rest.test_prognosis import _bulk_history
+from tests.api.rest.test_prognosis import bulk_history
 
 LOOPBACK = "opc.tcp://127.0.0.1:0/mebm/"
 CLIENT_URI = "urn:mebm:test-client"  # a client certificate's URI must be the client's ApplicationUri
@@ -302,7 +302,7 @@ def test_opcua_configuration_is_checked_by_name(tmp_path):
 def test_predicted_time_is_the_prognosis_limit_date_once_the_history_supports_one(env):
     """Last in the module: it adds a history of 80 measurements to the shared database."""
     env["runner"].backlash_um, env["runner"].temperature_c = 200.0, 20.0
-    _bulk_history(env["svc"], env["axis_id"])  # b̄ = 200 + 2 (T - 20) + 0.02 d: wear towards 236 µm at 30 °C
+    bulk_history(env["svc"], env["axis_id"])  # b̄ = 200 + 2 (T - 20) + 0.02 d: wear towards 236 µm at 30 °C
     _measure(env)
     rest = env["client"].get(f"/api/v1/axes/{env['axis_id']}/status", headers=hdr(env["read"])).json()
     assert rest["prognosis"]["identifiable"] is True and rest["prognosis"]["limit_date"] is not None, rest["prognosis"]

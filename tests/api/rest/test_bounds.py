@@ -213,7 +213,7 @@ def test_trend_series_are_downsampled_to_the_screen_keeping_every_excursion(tmp_
     from storage.db import make_engine, make_session_factory, session_scope, upgrade
     from storage.db import config_repo, results_repo
     from tests.storage.db import factories as f
-    from tests.storage.db.test_rollup import CYCLE_OFFSET, _bulk
+    from tests.storage.db.test_rollup import CYCLE_OFFSET, bulk_load_results
 
     n = 100_000
     engine = make_engine(f"sqlite:///{tmp_path}/t.sqlite3")
@@ -224,7 +224,7 @@ def test_trend_series_are_downsampled_to_the_screen_keeping_every_excursion(tmp_
     b = np.full(n, 200.0) + np.sin(np.arange(n) / 500.0)
     b[77_777] = 262.0  # the one measurement that raised an alert
     temps = 20.0 + (b - 200.0) / 2.0
-    _bulk(engine, axis_id, np.arange(n), temps, b, step=timedelta(milliseconds=30))
+    bulk_load_results(engine, axis_id, np.arange(n), temps, b, step=timedelta(milliseconds=30))
     with session_scope(factory) as s:
         out = convert.trend(axis_id, results_repo.trend(s, axis_id, max_points=2000))
     engine.dispose()

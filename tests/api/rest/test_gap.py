@@ -29,7 +29,7 @@ def api_case(label, seed):
     return replace(case, dataset=replace(case.dataset, runs=runs))
 
 
-def _store_case(svc, axis_id, label, seed, case=None):
+def store_case(svc, axis_id, label, seed, case=None):
     """Store ``case`` (default: ``api_case(label, seed)``) as the axis' runs."""
     with session_scope(svc.factory) as s:
         axis = config_repo.get_axis(s, axis_id)
@@ -40,7 +40,7 @@ def _store_case(svc, axis_id, label, seed, case=None):
 
 @functools.cache
 def _direct_diagnosis(label, seed):
-    """The core diagnosis of the case ``_store_case`` stores, once per test process: the
+    """The core diagnosis of the case ``store_case`` stores, once per test process: the
     backends' tests compare their REST body with the same report."""
     return diagnose(api_case(label, seed).dataset)
 
@@ -67,7 +67,7 @@ def test_no_stored_runs_is_404(app_env):
 
 def test_diagnoses_stored_runs_with_the_spec_contract(app_env):
     client, svc, keys, axis_id = app_env
-    case = _store_case(svc, axis_id, "cyclic_error", seed=11)
+    case = store_case(svc, axis_id, "cyclic_error", seed=11)
     r = get_report(client, f"/api/v1/axes/{axis_id}/gap", hdr(keys["read"]))
     assert r.status_code == 200, r.text
     d = r.json()
@@ -95,7 +95,7 @@ def test_diagnoses_stored_runs_with_the_spec_contract(app_env):
 def test_too_few_runs_and_bad_parameters_are_422(app_env):
     client, svc, keys, axis_id = app_env
     # the whole small case: its newest two runs are a train and a test circle (a diagnosis of a second)
-    _store_case(svc, axis_id, "none", seed=12, case=make_case("none", np.random.default_rng(12), SMALL))
+    store_case(svc, axis_id, "none", seed=12, case=make_case("none", np.random.default_rng(12), SMALL))
     r = client.get(f"/api/v1/axes/{axis_id}/gap?runs=1", headers=hdr(keys["read"]))
     assert r.status_code == 422 and "runs" in r.json()["detail"]
     r = get_report(client, f"/api/v1/axes/{axis_id}/gap?runs=2", hdr(keys["read"]))

@@ -12,7 +12,7 @@ from api.rest.routers import gap
 from api.service.gap_jobs import JobAbandoned
 from core.gap import GapError
 from tests.api.rest.conftest import hdr
-from tests.api.rest.test_gap import _store_case
+from tests.api.rest.test_gap import store_case
 
 
 @pytest.fixture
@@ -34,7 +34,7 @@ def busy_queue(app_env, monkeypatch):
 
 def test_more_pending_diagnoses_than_the_bound_are_refused_with_retry_after(app_env, busy_queue):
     client, svc, keys, axis_id = app_env
-    _store_case(svc, axis_id, "cyclic_error", seed=11)
+    store_case(svc, axis_id, "cyclic_error", seed=11)
     bound = svc.gap_jobs.max_pending
     codes = [client.get(f"/api/v1/axes/{axis_id}/gap", params={"runs": n}, headers=hdr(keys["read"]))
              for n in range(2, 2 + bound + 3)]
@@ -46,7 +46,7 @@ def test_more_pending_diagnoses_than_the_bound_are_refused_with_retry_after(app_
 
 def test_a_job_nobody_asks_for_any_more_is_dropped_before_it_starts(app_env, busy_queue):
     client, svc, keys, axis_id = app_env
-    _store_case(svc, axis_id, "cyclic_error", seed=11)
+    store_case(svc, axis_id, "cyclic_error", seed=11)
     svc.gap_jobs.abandon_s = 0.0
     url = f"/api/v1/axes/{axis_id}/gap"
     assert client.get(url, params={"runs": 3}, headers=hdr(keys["read"])).status_code == 202
@@ -77,7 +77,7 @@ def test_waiting_gap_requests_hold_no_worker_thread(tmp_path, monkeypatch):
         with session_scope(svc.factory) as s:
             key = config_repo.create_key(s, "mes", "read")[1]
             axis_id = config_repo.list_axes(s)[0].id
-        _store_case(svc, axis_id, "cyclic_error", seed=11)
+        store_case(svc, axis_id, "cyclic_error", seed=11)
         started = threading.Event()
         svc.gap_jobs.hold(lambda: (started.set(), release.wait(120)))
         assert started.wait(30)

@@ -16,7 +16,7 @@ from api.rest.routers import gap
 from api.service.gap_jobs import newest_runs
 from storage.dataset import append_runs, read_dataset
 from tests.api.rest.conftest import hdr
-from tests.api.rest.test_gap import _store_case
+from tests.api.rest.test_gap import store_case
 
 
 @pytest.fixture
@@ -46,7 +46,7 @@ def _store_one_more(svc, folder: Path, name: str) -> None:
 
 def test_the_job_is_followed_by_its_location_whatever_is_stored_meanwhile(app_env, held):
     client, svc, keys, axis_id = app_env
-    case = _store_case(svc, axis_id, "cyclic_error", seed=11)
+    case = store_case(svc, axis_id, "cyclic_error", seed=11)
     files = [r.spec.file for r in case.dataset.runs]
     first = client.get(f"/api/v1/axes/{axis_id}/gap", headers=hdr(keys["read"]))
     assert first.status_code == 202
@@ -75,7 +75,7 @@ def test_the_job_is_followed_by_its_location_whatever_is_stored_meanwhile(app_en
 
 def test_a_job_the_service_does_not_know_is_a_404_that_says_what_to_do(app_env, held):
     client, svc, keys, axis_id = app_env
-    _store_case(svc, axis_id, "cyclic_error", seed=11)
+    store_case(svc, axis_id, "cyclic_error", seed=11)
     r = client.get(f"/api/v1/axes/{axis_id}/gap/jobs/999", headers=hdr(keys["read"]))
     assert r.status_code == 404
     assert f"GET /api/v1/axes/{axis_id}/gap starts a new one" in r.json()["detail"]
@@ -83,7 +83,7 @@ def test_a_job_the_service_does_not_know_is_a_404_that_says_what_to_do(app_env, 
 
 def test_a_full_queue_says_when_to_ask_again(app_env, held):
     client, svc, keys, axis_id = app_env
-    _store_case(svc, axis_id, "cyclic_error", seed=11)
+    store_case(svc, axis_id, "cyclic_error", seed=11)
     bound = svc.gap_jobs.max_pending
     assert (bound, svc.gap_jobs.timeout_s) == (svc.settings.limits.gap_diagnoses_pending,
                                                svc.settings.limits.gap_diagnosis_timeout_s)

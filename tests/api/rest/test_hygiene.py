@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from api.cli.serve import banner
-from api.service.service import Service, _redact
+from api.service.service import Service, redact_secrets
 from storage.db import config_repo, session_scope
 from tests.api.rest.conftest import FakeRunner, hdr, make_settings
 
@@ -26,18 +26,18 @@ V1 = "/api/v1"
     "postgresql+psycopg://mebm:s3cret@db:5432/mebm?application_name=x&PASSWORD=s3cret",
 ])
 def test_passwords_are_redacted_in_every_part_of_a_url(url):
-    out = _redact(url)
+    out = redact_secrets(url)
     assert "s3cret" not in out and "***" in out and "db" in out and out.startswith(url.split("://")[0])
 
 
 def test_a_url_without_secrets_is_left_as_it_is():
-    assert _redact("postgresql://mebm@db:5432/mebm?sslmode=require") == "postgresql://mebm@db:5432/mebm?sslmode=require"
+    assert redact_secrets("postgresql://mebm@db:5432/mebm?sslmode=require") == "postgresql://mebm@db:5432/mebm?sslmode=require"
 
 
 @pytest.mark.parametrize("url", ["sqlite:////var/lib/mebm/mebm.sqlite3", "sqlite:///relative.sqlite3", "sqlite://"])
 def test_a_sqlite_url_is_shown_as_written_with_its_slashes(url):
     # the banner's database line: one slash lost turns a path into a host name
-    assert _redact(url) == url
+    assert redact_secrets(url) == url
 
 
 def test_data_folder_is_0700_and_the_database_0600(tmp_path):

@@ -16,7 +16,7 @@ from tests.api.rest.conftest import hdr
 from tests.api.rest.test_api import V1, run_cycle
 
 
-def _bulk_history(svc, axis_id, n=80, days=160.0, seed=0):
+def bulk_history(svc, axis_id, n=80, days=160.0, seed=0):
     """``n`` older results over ``days`` days: b̄ = 200 + 2 (T - 20) + 0.02 d + noise."""
     rng = np.random.default_rng(seed)
     now = utcnow()
@@ -52,7 +52,7 @@ def test_prognosis_endpoint_status_and_plot(app_env, runner):
     run_cycle(client, svc, keys, axis_id)
     p = client.get(f"{V1}/axes/{axis_id}/prognosis", headers=h).json()
     assert p["identifiable"] is False and "too few cycles" in p["reason"]
-    _bulk_history(svc, axis_id)
+    bulk_history(svc, axis_id)
     p = client.get(f"{V1}/axes/{axis_id}/prognosis", headers=h).json()
     assert p["identifiable"] is True and p["rows_used"] == 81, {k: v for k, v in p.items() if k != "reason"}
     lo, hi = p["fit"]["beta"]["interval_um_per_k"]

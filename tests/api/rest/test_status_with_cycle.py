@@ -16,7 +16,7 @@ from api.service.status import StatusCache
 from storage.db import results_repo, session_scope
 from tests.api.rest.conftest import hdr
 from tests.api.rest.test_api import V1, run_cycle
-from tests.api.rest.test_prognosis import _bulk_history
+from tests.api.rest.test_prognosis import bulk_history
 
 
 def _counting(monkeypatch, module, name):
@@ -137,7 +137,7 @@ def test_past_max_rows_the_history_fit_is_redone_once_per_thinning_step(app_env,
     monkeypatch.setattr(prognosis_mod, "MAX_ROWS", 20)
     runner.backlash_um, runner.temperature_c = 200.0, 20.0
     run_cycle(client, svc, keys, axis_id)
-    _bulk_history(svc, axis_id, n=60)  # 61 rows with a temperature: every 4th is read
+    bulk_history(svc, axis_id, n=60)  # 61 rows with a temperature: every 4th is read
     reads = _counting(monkeypatch, prognosis_mod.results_repo, "history_rows")
     svc.status.get(axis_id)
     assert len(reads) == 1

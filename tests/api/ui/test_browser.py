@@ -9,7 +9,7 @@ import pytest
 
 from storage.dataset import write_dataset
 from storage.db import config_repo, results_repo, session_scope
-from tests.api.rest.test_gap import _store_case
+from tests.api.rest.test_gap import store_case
 from tests.api.ui.conftest import SCREENSHOTS
 from tests.waiting import poll
 
@@ -247,7 +247,7 @@ def test_gap_diagnosis_of_a_demo_like_history_shows_its_progress_then_the_report
 def test_gap_diagnosis_runs_in_the_background_and_arrives(page, ui_server):
     with session_scope(ui_server.svc.factory) as s:
         axis = config_repo.get_axis(s, ui_server.axis_id)
-    case = _store_case(ui_server.svc, axis.id, "cyclic_error", seed=11)
+    case = store_case(ui_server.svc, axis.id, "cyclic_error", seed=11)
     sign_in(page, ui_server, "read")
     page.goto(f"{ui_server.url}/ui/axes/{ui_server.axis_id}/gap")
     page.click("#gap-start")

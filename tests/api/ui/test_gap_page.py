@@ -17,7 +17,7 @@ from api.rest import create_app
 from api.service.gap_jobs import DiagnosisTimedOut, newest_runs
 from storage.db import config_repo, session_scope
 from tests.api.rest.conftest import FakeRunner, make_settings
-from tests.api.rest.test_gap import _store_case
+from tests.api.rest.test_gap import store_case
 from tests.api.ui.test_maintenance_forms import sign_in
 
 
@@ -42,7 +42,7 @@ def env(tmp_path, monkeypatch):
 
         monkeypatch.setattr(svc.gap_jobs, "compute", stand_in)
         monkeypatch.setattr(svc.gap_jobs, "use_process", False)
-        _store_case(svc, axis_id, "cyclic_error", seed=11)
+        store_case(svc, axis_id, "cyclic_error", seed=11)
         csrf = sign_in(c, key)
         yield c, svc, axis_id, csrf, release, outcome
         release.set()

@@ -29,14 +29,14 @@ def test_every_start_diverging_returns_the_start_unfitted():
 
 
 def test_a_diverged_test_residual_is_bounded_and_said():
-    from core.gap.diagnose import _bounded
+    from core.gap.diagnose import bounded_residual
 
     notes: list[str] = []
-    r = _bounded(np.array([1.5, np.inf, -1e70, np.nan, -2.0]), "test contour c.csv", notes)
+    r = bounded_residual(np.array([1.5, np.inf, -1e70, np.nan, -2.0]), "test contour c.csv", notes)
     assert r.tolist() == [1.5, NONFINITE_RESIDUAL, -NONFINITE_RESIDUAL, NONFINITE_RESIDUAL, -2.0]
     assert notes == [f"the model's simulation diverged on test contour c.csv (3 samples counted as {NONFINITE_RESIDUAL:g} µm)"]
     ok = np.array([0.3, -0.2])
-    assert _bounded(ok, "x", notes) is ok and len(notes) == 1
+    assert bounded_residual(ok, "x", notes) is ok and len(notes) == 1
 
 
 def test_a_fit_stopped_by_its_evaluation_cap_says_so():

@@ -35,7 +35,7 @@ def _history(n=N, seed=0):
     return i, temp, b
 
 
-def _bulk(engine, axis_id, i, temp, b, step=timedelta(minutes=1)):
+def bulk_load_results(engine, axis_id, i, temp, b, step=timedelta(minutes=1)):
     """Rows as a bulk load writes them (no rollups): cycles, results, both lead rows."""
     when = [T0 + int(k) * step for k in i]
     tc = [None if not np.isfinite(x) else float(x) for x in temp]
@@ -66,7 +66,7 @@ def loaded(engine):
         m = config_repo.create_machine(s, "vmc", "rollup test")
         axis_id = config_repo.create_axis(s, m.id, f.settings()).id
     i, temp, b = _history()
-    _bulk(engine, axis_id, i, temp, b)
+    bulk_load_results(engine, axis_id, i, temp, b)
     with session_scope(factory) as s:
         hours = rollup.rebuild(s, axis_id)
     return factory, axis_id, (i, temp, b), hours
@@ -157,7 +157,7 @@ def test_the_migration_builds_rollups_for_results_stored_before_it(backend, tmp_
             measure_feed_mm_min=2000.0, measure_acceleration_mm_s2=500.0, warning_fraction=0.9,
             schedule_enabled=True, in_service_since=now, created_at=now)).inserted_primary_key[0]
     i, temp, b = _history(300, seed=1)
-    _bulk(engine, axis_id, i, temp, b)
+    bulk_load_results(engine, axis_id, i, temp, b)
     upgrade(engine)
     with session_scope(factory) as s:
         n = s.scalar(select(func.sum(TrendRollup.n)).where(TrendRollup.axis_id == axis_id))

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from core.gap.plant.case import AXES, _record
+from core.gap.plant.case import AXES, record_program
 from core.gap.plant.program import circle_program, round_trip_program
 
 K_PER_S = 15.0
@@ -21,7 +21,7 @@ def round_trip(nom: dict, effects: dict | None = None, *, start=100.0, end=400.0
                temp=20.0, skew=None, jerk_s=0.01, rate=1000.0):  # fmt: skip
     """(t_s, command_mm, nut-side travel u_mm, table_mm) of a noise-free round trip of axis x."""
     prog = round_trip_program("x", start, end, feed, acc, 1.0, jerk_s)
-    cols = _record(prog, ("x",), temp, rate, {"x": nom}, {"x": effects or {}}, skew, np.random.default_rng(0),
+    cols = record_program(prog, ("x",), temp, rate, {"x": nom}, {"x": effects or {}}, skew, np.random.default_rng(0),
                    noise=False)  # fmt: skip
     t = cols["time_s"] - cols["time_s"][0]
     u = (cols["x_motor_rev"] - nom["motor_zero_rev"]) * nom["transmission_mm_per_rev"]
@@ -33,6 +33,6 @@ def circle(noms: dict, effects: dict | None = None, *, radius=50.0, feed=3000.0,
     prog, t_data = circle_program(AXES, radius, (400.0, 400.0), feed, acc, direction, start, 360.0, lead_in,
                                   lead_out, 0.01)  # fmt: skip
     eff = effects or {a: {} for a in AXES}
-    cols = _record(prog, AXES, temp, 500.0, noms, eff, None, np.random.default_rng(0), noise=False)
+    cols = record_program(prog, AXES, temp, 500.0, noms, eff, None, np.random.default_rng(0), noise=False)
     t = cols["time_s"] - cols["time_s"][0]
     return t, t_data, cols
