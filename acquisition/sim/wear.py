@@ -6,13 +6,10 @@ use in minutes). :meth:`Wear.repair` restores the backlash to its value as built
 
 The simulated controllers expose it on the wire, outside the mebm register map and
 object dictionary proper (a real controller has no "repair" register; the simulator's is
-what a technician's work is in the demo):
-
-- Modbus (``mebm-modbus/1`` + this block): holding register ``REPAIR_REG`` (60): write
-  ``REPAIR_MAGIC`` (0x5250, "RP") to repair; ``REPAIRS_REG`` (61, u16) counts repairs;
-  ``WEAR_REG`` (62-63, u32, 0.01 µm) is the backlash the wear adds now.
-- CANopen: object ``REPAIR_OBJECT`` 0x2100 (u16, write 0x5250 to repair),
-  ``WEAR_OBJECT`` 0x2101 (u32, 0.01 µm, read-only), ``REPAIRS_OBJECT`` 0x2102 (u16).
+what a technician's work is in the demo), each wire in its own module: a write of
+``REPAIR_MAGIC`` (0x5250, "RP") repairs, and the wear added now can be read
+(:mod:`acquisition.sim.modbus.wear`: holding registers 60-63; :mod:`acquisition.sim.canopen.wear`:
+objects 0x2100-0x2102).
 """
 
 from __future__ import annotations
@@ -24,10 +21,7 @@ from dataclasses import replace
 
 from core.errors import InputError
 
-REPAIR_MAGIC = 0x5250
-REPAIR_REG, REPAIRS_REG, WEAR_REG = 60, 61, 62  # WEAR_REG: two words, high first
-WEAR_WORDS = 4
-REPAIR_OBJECT, WEAR_OBJECT, REPAIRS_OBJECT = 0x2100, 0x2101, 0x2102
+REPAIR_MAGIC = 0x5250  # written to the repair register or object ("RP")
 
 
 class Wear:
@@ -98,60 +92,3 @@ def wear_of(twin) -> Wear | None:
     """The twin's wear, if it has one."""
     w = getattr(twin, "wear", None)
     return w if isinstance(w, Wear) else None
-
-
-# -- the wire -------------------------------------------------------------------------------------
-def modbus_wear_words(twin) -> list[int]:
-    """The words at REPAIR_REG..REPAIR_REG+3 (zeros without wear)."""
-    w = wear_of(twin)
-    if w is None:
-        return [0] * WEAR_WORDS
-    centi = int(min(round(w.extra_um() * 100), 2**32 - 1))
-    return [0, w.repairs & 0xFFFF, (centi >> 16) & 0xFFFF, centi & 0xFFFF]
-
-
-def modbus_repair_write(twin, address: int, values) -> bool | None:
-    """Handle a write to the wear block: None if ``address`` is not in it, True when
-    applied, False when refused (not the magic value, read-only word, no wear)."""
-    if not REPAIR_REG <= address < REPAIR_REG + WEAR_WORDS:
-        return None
-    w = wear_of(twin)
-    if w is None or address != REPAIR_REG or len(values) != 1 or int(values[0]) != REPAIR_MAGIC:
-        return False
-    w.repair()
-    return True
-
-
-def add_canopen_objects(od) -> None:
-    """The wear objects, added to a simulated drive's object dictionary."""
-    from canopen import objectdictionary as odm
-
-    for name, index, dtype, access in (("Simulated repair", REPAIR_OBJECT, odm.UNSIGNED16, "rw"),
-                                       ("Simulated wear 0.01 um", WEAR_OBJECT, odm.UNSIGNED32, "ro"),
-                                       ("Simulated repairs", REPAIRS_OBJECT, odm.UNSIGNED16, "ro")):
-        v = odm.ODVariable(name, index, 0)
-        v.data_type, v.access_type, v.default = dtype, access, 0
-        od.add_object(v)
-
-
-def canopen_read(twin, index: int) -> int | None:
-    w = wear_of(twin)
-    if index == WEAR_OBJECT:
-        return 0 if w is None else int(min(round(w.extra_um() * 100), 2**32 - 1))
-    if index == REPAIRS_OBJECT:
-        return 0 if w is None else w.repairs & 0xFFFF
-    if index == REPAIR_OBJECT:
-        return 0
-    return None
-
-
-def canopen_repair_write(twin, index: int, data: bytes) -> bool | None:
-    """None if ``index`` is not the repair object; True when repaired; False when refused."""
-    if index != REPAIR_OBJECT:
-        return None
-    w = wear_of(twin)
-    if w is None or int.from_bytes(bytes(data)[:2], "little") != REPAIR_MAGIC:
-        return False
-    w.repair()
-    return True
-

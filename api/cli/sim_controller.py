@@ -154,12 +154,13 @@ def _wear_note(a: argparse.Namespace) -> str:
 
 
 def repair(a: argparse.Namespace) -> int:
-    """Write the simulator's repair register (acquisition.sim.wear) and print the wear it read before."""
+    """Write the simulator's repair register (acquisition.sim.modbus.wear) and print the wear it read before."""
     from urllib.parse import urlsplit
 
     from pymodbus.client import ModbusTcpClient
 
-    from acquisition.sim.wear import REPAIR_MAGIC, REPAIR_REG, WEAR_WORDS
+    from acquisition.sim.modbus.wear import REPAIR_REG, WEAR_WORDS
+    from acquisition.sim.wear import REPAIR_MAGIC
 
     u = urlsplit(a.controller)
     if u.scheme != "modbus" or not u.hostname:

@@ -24,7 +24,8 @@ import numpy as np
 from acquisition.sim.axis import SimAxis
 from acquisition.sim.modbus.server import SimModbusController
 from acquisition.sim.twin import CoreSimTwin, TwinTrace
-from acquisition.sim.wear import REPAIR_MAGIC, REPAIR_REG, Wear
+from acquisition.sim.modbus.wear import REPAIR_REG
+from acquisition.sim.wear import REPAIR_MAGIC, Wear
 from acquisition.types import RoundTripProgram
 from api.service.config.settings import SimulatorSettings
 from core.dataset import AxisSpec

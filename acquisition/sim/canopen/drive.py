@@ -31,7 +31,7 @@ from canopen.sdo import SdoAbortedError
 from acquisition.canopen import objects as co
 from acquisition.scale import EncoderScale
 from acquisition.sim.axis import SimAxis
-from acquisition.sim import wear as sim_wear
+from acquisition.sim.canopen import wear as sim_wear
 from acquisition.sim.canopen.cia402 import Cia402Motion
 from acquisition.sim.twin import Twin
 from acquisition.types import AxisState, Command, RoundTripProgram
@@ -69,7 +69,7 @@ class SimCanopenDrive:
         self.axis.on_fault = self._on_axis_fault
         self.od = co.object_dictionary(self.node_id, counts_per_rev=self.scale.counts_per_rev,
                                        table_nm_per_count=int(round(self.scale.table_nm_per_count)))
-        sim_wear.add_canopen_objects(self.od)  # the simulator's wear and repair objects
+        sim_wear.add_objects(self.od)  # the simulator's wear and repair objects
         self.node = canopen.LocalNode(self.node_id, self.od)
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
@@ -260,7 +260,7 @@ class SimCanopenDrive:
             return int(self.scale.motor_counts(m_rev) if index == co.POSITION_ACTUAL else self.scale.table_counts(t_mm))
         if index in (co.STATUSWORD, co.MODES_DISPLAY):
             return self.cia402.statusword() if index == co.STATUSWORD else self.cia402.mode
-        wear = sim_wear.canopen_read(ax.twin, index)
+        wear = sim_wear.read(ax.twin, index)
         if wear is not None:
             return wear
         if index == co.POSITION_ACTUAL:
@@ -284,7 +284,7 @@ class SimCanopenDrive:
                                 acceleration_mm_s2=float(v[3]), dwell_s=v[4] / 1000.0)
 
     def _on_write(self, index, subindex, od, data):
-        repaired = sim_wear.canopen_repair_write(self.axis.twin, index, data)  # the simulator's repair
+        repaired = sim_wear.repair_write(self.axis.twin, index, data)  # the simulator's repair
         if repaired is False:
             raise SdoAbortedError(ABORT_VALUE_RANGE)
         if index in _CIA402_WRITABLE:

@@ -21,7 +21,7 @@ from pymodbus.server import ModbusTcpServer
 
 from acquisition.modbus import register_map as mm
 from acquisition.sim.axis import SimAxis
-from acquisition.sim import wear as sim_wear
+from acquisition.sim.modbus import wear as sim_wear
 from acquisition.sim.modbus.loop_thread import LoopThread
 from acquisition.types import AxisState, Command
 from core.errors import InputError
@@ -174,8 +174,8 @@ class SimModbusController(LoopThread):
         return words
 
     def _wear_words(self, words: np.ndarray) -> None:
-        """The simulator's wear block (acquisition.sim.wear): repairs and the wear now."""
-        words[sim_wear.REPAIR_REG : sim_wear.REPAIR_REG + sim_wear.WEAR_WORDS] = sim_wear.modbus_wear_words(self.axis.twin)
+        """The simulator's wear block (acquisition.sim.modbus.wear): repairs and the wear now."""
+        words[sim_wear.REPAIR_REG : sim_wear.REPAIR_REG + sim_wear.WEAR_WORDS] = sim_wear.wear_words(self.axis.twin)
 
     async def read(self, func_code: int, address: int, count: int):
         self.requests += 1
@@ -207,7 +207,7 @@ class SimModbusController(LoopThread):
 
     async def write(self, func_code: int, address: int, values):
         self.requests += 1
-        repaired = sim_wear.modbus_repair_write(self.axis.twin, address, values)  # the simulator's repair
+        repaired = sim_wear.repair_write(self.axis.twin, address, values)  # the simulator's repair
         if repaired is not None:
             return None if repaired else ExcCodes.ILLEGAL_VALUE
         lo, hi = mm.COMMAND, mm.COMMAND + mm.CONTROL_WORDS

@@ -11,6 +11,8 @@ from pymodbus.client import ModbusTcpClient
 from acquisition.canopen import objects as co
 from acquisition.measurement import run_cycle
 from acquisition.sim import wear as sw
+from acquisition.sim.canopen import wear as canopen_wear
+from acquisition.sim.modbus import wear as modbus_wear
 from acquisition.sim.twin import KinematicTwin
 from api.cli.main import main
 from core.errors import InputError
@@ -55,10 +57,10 @@ def test_modbus_register_and_cli_repair_what_the_driver_measures(capsys):
         c = ModbusTcpClient("127.0.0.1", port=port)
         assert c.connect()
         try:
-            regs = c.read_holding_registers(sw.REPAIR_REG, count=sw.WEAR_WORDS).registers
+            regs = c.read_holding_registers(modbus_wear.REPAIR_REG, count=modbus_wear.WEAR_WORDS).registers
             assert ((regs[2] << 16) | regs[3]) == 4000 and regs[1] == 0
-            assert c.write_register(sw.REPAIR_REG, 1).isError()  # not the magic value: refused
-            assert c.write_register(sw.REPAIRS_REG, sw.REPAIR_MAGIC).isError()  # a read-only word
+            assert c.write_register(modbus_wear.REPAIR_REG, 1).isError()  # not the magic value: refused
+            assert c.write_register(modbus_wear.REPAIRS_REG, sw.REPAIR_MAGIC).isError()  # a read-only word
         finally:
             c.close()
         assert main(["sim-controller", "repair", f"modbus://127.0.0.1:{port}"]) == 0
@@ -85,14 +87,14 @@ def test_canopen_objects_report_and_repair_the_wear():
         net.connect(interface="virtual", channel=drive.channel)
         try:
             od = co.object_dictionary(5)
-            sw.add_canopen_objects(od)
+            canopen_wear.add_objects(od)
             node = canopen.RemoteNode(5, od)
             net.add_node(node)
-            assert node.sdo[sw.WEAR_OBJECT].raw == 1600  # 2 days x 8 µm, in 0.01 µm
+            assert node.sdo[canopen_wear.WEAR_OBJECT].raw == 1600  # 2 days x 8 µm, in 0.01 µm
             with pytest.raises(canopen.SdoAbortedError):
-                node.sdo[sw.REPAIR_OBJECT].raw = 7
-            node.sdo[sw.REPAIR_OBJECT].raw = sw.REPAIR_MAGIC
-            assert node.sdo[sw.REPAIRS_OBJECT].raw == 1 and node.sdo[sw.WEAR_OBJECT].raw == 0
+                node.sdo[canopen_wear.REPAIR_OBJECT].raw = 7
+            node.sdo[canopen_wear.REPAIR_OBJECT].raw = sw.REPAIR_MAGIC
+            assert node.sdo[canopen_wear.REPAIRS_OBJECT].raw == 1 and node.sdo[canopen_wear.WEAR_OBJECT].raw == 0
         finally:
             net.disconnect()
         r = run_cycle(peer.driver(), AXIS, PROGRAM)
