@@ -324,7 +324,7 @@ def test_a_ring_overrun_over_the_wire_is_counted_and_the_cycle_still_ends():
     # run in order to the controller's last record, and every record from the first to the
     # last is either kept or counted lost. (The losses are gaps between kept records, or
     # records before the first one kept: on a loaded host the whole program can be written
-    # before the first read gets through, seen in stops 40 and 41, and then only the ring's
+    # before the first read gets through, and then only the ring's
     # last 64 records are kept and every earlier one is counted.)
     with modbus_peer(faults=["slow:at=0.3,s=0.05"], ring_records=64) as peer:
         tr = peer.driver(max_lost_samples=10**6).acquire(PROGRAM, AXIS)

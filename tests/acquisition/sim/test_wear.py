@@ -17,14 +17,7 @@ from acquisition.sim.twin import KinematicTwin
 from api.cli.main import main
 from core.errors import InputError
 from tests.acquisition.conftest import AXIS, PROGRAM, canopen_peer, modbus_peer
-
-
-class Clock:
-    def __init__(self):
-        self.t = 0.0
-
-    def __call__(self):
-        return self.t
+from tests.clock import ManualClock
 
 
 def _twin(clock):
@@ -32,7 +25,7 @@ def _twin(clock):
 
 
 def test_wear_grows_per_utility_day_and_a_repair_restores_it():
-    clock = Clock()
+    clock = ManualClock()
     w = sw.Wear(8.0, 2.0, clock=clock)  # 8 µm a day, 2 utility days a second
     clock.t = 3.0
     assert w.utility_days() == pytest.approx(6.0) and w.extra_um() == pytest.approx(48.0)
@@ -47,7 +40,7 @@ def test_wear_grows_per_utility_day_and_a_repair_restores_it():
 
 
 def test_modbus_register_and_cli_repair_what_the_driver_measures(capsys):
-    clock = Clock()
+    clock = ManualClock()
     twin = _twin(clock)
     with modbus_peer(twin=twin) as peer:
         r0 = run_cycle(peer.driver(), AXIS, PROGRAM)
@@ -78,7 +71,7 @@ def test_cli_repair_names_a_bad_address():
 
 
 def test_canopen_objects_report_and_repair_the_wear():
-    clock = Clock()
+    clock = ManualClock()
     twin = _twin(clock)
     with canopen_peer(twin=twin) as peer:
         drive = peer.axis.on_fault.__self__

@@ -12,6 +12,7 @@ import pytest
 
 from api.service.gap_jobs import FIRST_DIAGNOSIS_EXTRA_S, WORKER_NICE, DiagnosisCrashed, DiagnosisTimedOut, GapJobs, TooManyJobs
 from tests.api.rest.stand_in_diagnosis import where_am_i  # light: the spawned worker imports it
+from tests.clock import ManualClock
 
 
 @pytest.fixture
@@ -120,16 +121,6 @@ def test_the_worker_ends_when_the_service_process_is_killed(tmp_path):
         raise AssertionError(f"the diagnosis process {worker} outlived its killed service")
 
 
-class Clock:
-    """The jobs' injected clock: seconds that pass only when a test says so."""
-
-    def __init__(self):
-        self.t = 1000.0
-
-    def __call__(self):
-        return self.t
-
-
 def test_one_pending_job_per_run_set_whatever_is_stored_meanwhile(tmp_path):
     """A run stored while a diagnosis waits (a new data version) joins the pending job
     instead of orphaning it: the page and the API follow the same job id, and the bound
@@ -156,7 +147,7 @@ def test_one_pending_job_per_run_set_whatever_is_stored_meanwhile(tmp_path):
 
 
 def test_progress_says_the_place_in_the_queue_and_the_expected_time(tmp_path):
-    clock = Clock()
+    clock = ManualClock(1000.0)
     go = {n: threading.Event() for n in (4, 8)}
     started = {n: threading.Event() for n in (4, 8)}
 

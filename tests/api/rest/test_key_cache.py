@@ -8,22 +8,15 @@ from __future__ import annotations
 from api.rest.auth import KeyCache
 from storage.db import config_repo, session_scope
 from tests.api.rest.conftest import hdr
+from tests.clock import ManualClock
 
 V1 = "/api/v1"
-
-
-class Clock:
-    def __init__(self):
-        self.t = 1000.0
-
-    def __call__(self) -> float:
-        return self.t
 
 
 def test_a_key_revoked_in_the_database_is_refused_after_one_second_of_cache(app_env):
     client, svc, keys, _ = app_env
     assert KeyCache().ttl_s == 1.0
-    clock = Clock()
+    clock = ManualClock(1000.0)
     client.app.state.key_cache = cache = KeyCache(clock=clock)
     with session_scope(svc.factory) as s:
         rec, secret = config_repo.create_key(s, "mes-2", "read")
@@ -39,7 +32,7 @@ def test_a_key_revoked_in_the_database_is_refused_after_one_second_of_cache(app_
 
 def test_a_key_revoked_through_the_api_is_refused_at_once(app_env):
     client, svc, keys, _ = app_env
-    clock = Clock()
+    clock = ManualClock(1000.0)
     client.app.state.key_cache = KeyCache(clock=clock)
     with session_scope(svc.factory) as s:
         rec, secret = config_repo.create_key(s, "mes-3", "read")

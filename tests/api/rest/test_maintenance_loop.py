@@ -17,18 +17,11 @@ from api.rest import create_app
 from api.service.config.settings import MaintenanceSettings, Settings, SimulatorSettings, demo_axis
 from storage.db import integrity_problems, maintenance_repo, results_repo, session_scope
 from tests.waiting import poll
+from tests.clock import ManualClock
 
 V1 = "/api/v1"
 pytestmark = pytest.mark.slow
 WEAR_UM_PER_DAY = 10.0
-
-
-class Clock:
-    def __init__(self):
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        return self.t
 
 
 @pytest.fixture
@@ -36,7 +29,7 @@ def live(engine, db_url, tmp_path):  # noqa: ARG001 - engine empties the databas
     axis = demo_axis(travel_mm=(0.0, 200.0), interval_s=3600.0)
     # no wear until the test installs its own, on a clock it steps: with the simulator's wear
     # on wall time (10 µm per second here), a start-up measurement that a loaded host delays
-    # by 5 s finds ALARM and opens an order before the test begins (seen in stops 40 and 41)
+    # by 5 s finds ALARM and opens an order before the test begins
     sim = SimulatorSettings(time_scale=20.0, temperature_mean_c=20.0, temperature_amplitude_c=0.0,
                             backlash_um_at_20c=190.0, wear_um_per_day=0.0, utility_days_per_s=1.0)
     settings = Settings(data_dir=tmp_path, database_url=db_url, machines=((axis.machine, "loopback"),), axes=(axis,),
@@ -53,7 +46,7 @@ def test_wear_alarm_order_repair_verification_verified(live):
     read, operate = {"X-API-Key": keys["read"]}, {"X-API-Key": keys["operate"]}
     axis_id = next(iter(svc.simulators))
     sim = svc.simulators[axis_id]
-    clock = Clock()
+    clock = ManualClock()
     sim.twin.wear = Wear(WEAR_UM_PER_DAY, 1.0, clock=clock)  # the chain's use, stepped by the test
     events = []
     sub = svc.events.subscribe("test", lambda ev: events.append(ev) if ev.kind == "work_order_changed" else None)
