@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import signal
 import sys
 import time
 
@@ -94,6 +95,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.set_defaults(func=repair)
 
 
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
 def run_linuxcnc(a: argparse.Namespace) -> int:
     """Start LinuxCNC on the simulated machine, power it on (it is a simulation) and wait."""
     from acquisition.linuxcnc.sim import LinuxcncSim, SimSettings
@@ -102,8 +107,12 @@ def run_linuxcnc(a: argparse.Namespace) -> int:
                                   drive_tau_s=a.drive_tau_s, scale_resolution_um=a.scale_resolution_um,
                                   port=a.port, comp_file=a.comp_file,
                                   comp_type=a.comp_type), run_dir=a.run_dir, user=a.user)
-    sim.start()
+    # LinuxCNC runs in a session of its own (a Ctrl-C in the terminal does not reach it), so
+    # it is stopped here: on Ctrl-C, and on SIGTERM (a service manager, `timeout`, `kill`),
+    # also while it is starting, or it would run on without anyone to stop it
+    signal.signal(signal.SIGTERM, _interrupt)
     try:
+        sim.start()
         sim.power_on()
         print(f"LinuxCNC running mebm's simulated machine ({a.loop}-closed, b = {a.backlash_um:g} µm, "
               f"P = {a.p_gain_per_s:g}/s, FF1 = {a.ff1:g}; configuration in {sim.run_dir}); "

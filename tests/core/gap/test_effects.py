@@ -121,7 +121,7 @@ def test_friction_with_pre_sliding_is_named_from_circles_and_its_length_found():
     round trips see its lost motion and the table's spring-back at each reversal (their
     pre-sliding form takes a length of about 28 µm on this 200 N/µm chain, whose inertia
     shows too), the circles its creep after each reversal, which the Karnopp form cannot
-    follow (tuning seeds 3101/3102 of the benchmark: contour gap 1.44 -> 1.36 µm with it,
+    follow (on the benchmark's seeds 3101/3102: contour gap 1.44 -> 1.36 µm with it,
     0.56 with pre-sliding).
 
     Without a viscous part: with one (6 N s/mm) friction alone cuts the whole gap by half
@@ -138,8 +138,8 @@ def test_friction_with_pre_sliding_is_named_from_circles_and_its_length_found():
         runs.append(tr.to_run(f"c_{i}.csv", split="test" if i == 3 else "train"))
     m = MachineSpec("t", {a: ax.to_axis_spec((0.0, 200.0)) for a, ax in axes.items()})
     # noise factor 1.5: friction leaves 0.47 µm on a 0.25 µm floor, at the default 2x's edge
-    # (on a slower machine it can fall under it: the second-effect step would not run and
-    # the last assertion would have nothing to check); the fits do not depend on it
+    # (a fit a little closer falls under it: the second-effect step would not run and the
+    # last assertion would have nothing to check); the fits do not depend on it
     rep = diagnose(Dataset(m, tuple(runs)), GapSettings(noise_factor=1.5))
     assert rep.effect == "friction", rep.text()
     assert rep.gap_after_um <= 0.5 * rep.gap_before_um, rep.text()
