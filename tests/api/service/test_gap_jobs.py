@@ -11,7 +11,7 @@ import time
 import pytest
 
 from api.service.gap_jobs import FIRST_DIAGNOSIS_EXTRA_S, WORKER_NICE, DiagnosisCrashed, DiagnosisTimedOut, GapJobs, TooManyJobs
-from tests.api.rest.stand_in_diagnosis import where_am_i  # light: the spawned worker imports it
+from tests.api.service.stand_in_diagnosis import where_am_i  # light: the spawned worker imports it
 from tests.clock import ManualClock
 
 
@@ -101,7 +101,7 @@ def test_the_worker_ends_when_the_service_process_is_killed(tmp_path):
         "import os, sys\n"
         f"sys.path[:0] = [{str(Path(__file__).resolve().parents[3])!r}]\n"
         "from api.service.gap_jobs import GapJobs\n"
-        "from tests.api.rest.stand_in_diagnosis import where_am_i\n"
+        "from tests.api.service.stand_in_diagnosis import where_am_i\n"
         "if __name__ == '__main__':\n"
         "    j = GapJobs(compute=where_am_i)\n"
         "    print(j.submit(('k', 2), '.', 2).result(timeout=120)['pid'], flush=True)\n"
