@@ -50,6 +50,18 @@ def pytest_configure_node(node):
     node.workerinput["mebm_hypothesis_seed"] = getattr(node.config, "mebm_hypothesis_seed", None)
 
 
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_auto_num_workers(config):
+    """``-n auto``: two workers per core. Much of the suite waits on something that runs at
+    its own pace (simulated controllers slower than real time, LinuxCNC's servo thread,
+    services starting and stopping, a browser), and a second worker per core computes
+    meanwhile. ``PYTEST_XDIST_AUTO_NUM_WORKERS`` still sets the number."""
+    given = os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS", "").strip()
+    if given.isdigit() and int(given) > 0:
+        return int(given)
+    return 2 * (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
+
+
 def _seed_line(config) -> str | None:
     seed = getattr(config, "mebm_hypothesis_seed", None)
     if seed is None:

@@ -43,6 +43,11 @@ class FigureCache:
             while len(self._d) > self.size:
                 self._d.popitem(last=False)
 
+    def clear(self) -> None:
+        """Drop every cached figure (a figure being drawn is still handed to its waiters)."""
+        with self._lock:
+            self._d.clear()
+
     def get_or_render(self, key: Hashable, render: Callable[[], bytes]) -> bytes:
         """The figure under ``key``, drawn by ``render()`` if no one has. While one
         request draws it, the others for the same key wait for its result (if that

@@ -137,3 +137,12 @@ def test_the_figure_cache_keeps_the_most_recently_used_up_to_its_size():
     assert cache.get("a") == b"a"  # used: b is now the oldest
     cache.get_or_render("c", lambda: b"c")
     assert len(cache) == 2 and cache.get("b") is None and cache.get("a") == b"a" and cache.get("c") == b"c"
+
+
+def test_a_cleared_figure_cache_draws_again():
+    cache = FigureCache()
+    drawn = []
+    cache.get_or_render("a", lambda: drawn.append(1) or b"a")
+    cache.clear()
+    assert len(cache) == 0 and cache.get("a") is None
+    assert cache.get_or_render("a", lambda: drawn.append(2) or b"a2") == b"a2" and drawn == [1, 2]
