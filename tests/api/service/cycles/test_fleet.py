@@ -49,7 +49,7 @@ from tests.storage.db import factories as f
 from tests.storage.db.backends import make_database, truncate_all
 
 LEASE = WorkerSettings(lease_s=3.0, tick_s=0.5)
-ROOT = Path(__file__).resolve().parents[3]
+ROOT = Path(__file__).resolve().parents[4]
 
 
 class SharedRunner(FakeRunner):
