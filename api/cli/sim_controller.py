@@ -124,6 +124,7 @@ def run_linuxcnc(a: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         pass
     finally:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second SIGTERM must not cut the shutdown short
         sim.stop()
     return 0
 
