@@ -5,8 +5,10 @@ of the terminal's Ctrl-C and of a signal to the command alone)."""
 from __future__ import annotations
 
 import os
+import pwd
 import re
 import signal
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -30,12 +32,20 @@ def _processes_naming(text: str) -> list[int]:
     return found
 
 
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
 def test_sigterm_stops_linuxcnc_and_removes_its_configuration():
     why = linuxcnc_available()
     if why:
         unavailable(why)
     user = linuxcnc_user()
-    cmd = [sys.executable, "-m", "api.cli", "sim-controller", "linuxcnc"] + (["--user", user] if user else [])
+    port = _free_port()  # linuxcncrsh's, not the other LinuxCNC tests' default
+    cmd = [sys.executable, "-m", "api.cli", "sim-controller", "linuxcnc", "--port", str(port)]
+    cmd += ["--user", user] if user else []
     with one_linuxcnc_at_a_time():
         proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
@@ -43,7 +53,7 @@ def test_sigterm_stops_linuxcnc_and_removes_its_configuration():
             m = re.search(r"configuration in (\S+)\); mebm measure --controller '(linuxcnc://[^']+)'", line)
             assert m, line + proc.stdout.read()
             run_dir, url = Path(m.group(1)), m.group(2)
-            assert url.startswith("linuxcnc://127.0.0.1:5007?joint=0&motor_pin=") and run_dir.is_dir()
+            assert url.startswith(f"linuxcnc://127.0.0.1:{port}?joint=0&motor_pin=") and run_dir.is_dir()
             assert _processes_naming(str(run_dir)), "no LinuxCNC process runs on the configuration"
             proc.send_signal(signal.SIGTERM)
             assert proc.wait(timeout=120) == 0, proc.stdout.read()
@@ -61,8 +71,6 @@ def _users_processes(user: str | None) -> list[int]:
     """Processes of LinuxCNC's own account (none other runs while the host lock is held)."""
     if user is None:
         return []
-    import pwd
-
     uid = pwd.getpwnam(user).pw_uid
     return [int(d.name) for d in Path("/proc").iterdir() if d.name.isdigit() and _uid(d) == uid]
 
