@@ -324,8 +324,12 @@ class Service:
         # during a request scans only what requests made. Without it the first request that
         # allocates a few thousand objects (a year's /trend) paid a full pass over ~130,000
         # start-up objects: 80-100 ms of its 180-260 ms (benchmarks/bench_history.py).
-        gc.collect()
-        gc.freeze()
+        # Once per process: a process that starts services in turn (the tests) would pay a
+        # full collection of its whole heap at every start, and what the first one froze
+        # stays frozen (its modules and mappers are the next one's too).
+        if gc.get_freeze_count() == 0:
+            gc.collect()
+            gc.freeze()
         return self.report
 
     def _worker_line(self) -> str | None:
@@ -359,7 +363,6 @@ class Service:
         self.simulators.clear()
         if self.engine is not None:
             self.engine.dispose()
-        gc.unfreeze()  # what start froze may be garbage now (a process that starts services in turn: the tests)
 
     def spooled_count(self) -> int:
         """Finished cycles not stored yet: in the spool or kept in memory (before the

@@ -293,3 +293,21 @@ def test_replay_reads_only_its_own_run(service):
     restore()
     assert svc.executor.replay_spool() == 1
     assert len(cycles(svc, status="ok")) == 2
+
+
+def test_the_start_up_heap_is_collected_and_frozen_once_per_process(engine, db_url, tmp_path, monkeypatch):
+    """The first service a process starts moves its start-up objects out of the collector's
+    sight; a service started after it in the same process (as the tests do) finds them
+    frozen already and does not pay a full collection of the heap again."""
+    import gc
+
+    gc.unfreeze()  # a process that has frozen nothing yet
+    collections = []
+    real_collect = gc.collect
+    monkeypatch.setattr(gc, "collect", lambda *a: collections.append(a) or real_collect(*a))
+    for i in range(2):
+        svc = Service(make_settings(db_url, tmp_path / f"s{i}"), runner=FakeRunner())
+        svc.start()
+        assert gc.get_freeze_count() > 0
+        svc.stop()
+    assert len(collections) == 1
