@@ -92,16 +92,16 @@ def test_diagnoses_stored_runs_with_the_spec_contract(app_env):
     assert "residuals" not in d  # the dashboard's curves stay out of the API's body
 
 
-def test_too_few_runs_and_bad_parameters_are_422(app_env):
+def test_one_run_is_422_and_a_train_and_a_test_run_are_diagnosed(app_env):
     client, svc, keys, axis_id = app_env
     # the whole small case: its newest two runs are a train and a test circle (a diagnosis of a second)
     store_case(svc, axis_id, "none", seed=12, case=make_case("none", np.random.default_rng(12), SMALL))
     r = client.get(f"/api/v1/axes/{axis_id}/gap?runs=1", headers=hdr(keys["read"]))
     assert r.status_code == 422 and "runs" in r.json()["detail"]
     r = get_report(client, f"/api/v1/axes/{axis_id}/gap?runs=2", hdr(keys["read"]))
-    assert r.status_code in (200, 422)
-    if r.status_code == 422:  # two runs may hold no train/test pair the diagnosis can use
-        assert r.json()["detail"]
+    assert r.status_code == 200, r.text
+    doc = r.json()
+    assert len(doc["split"]["train"]) == 1 and len(doc["split"]["test"]) == 1, doc["split"]
 
 
 @pytest.mark.parametrize("key", [None, "mebm_not_a_key"])
