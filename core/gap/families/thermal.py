@@ -25,7 +25,8 @@ def thermal_stage(runs: Sequence[RoundTrip], axis: AxisSpec) -> Stage | None:
     constant shift, absorbed by the per-run offset), a temperature-independent lead
     error, and a backlash that changes linearly with temperature. Not covered: a
     gradient along the screw (non-uniform heating), hysteresis between warming and
-    cooling."""
+    cooling, a growth that changes during a run (one growth per run, set by the run's
+    temperature)."""
     temps = [r.temperature_c for r in runs]
     if max(temps) - min(temps) < 1.0:
         return None
