@@ -31,13 +31,10 @@ def profile_stage(runs: Sequence[RoundTrip], axis: AxisSpec) -> Stage:
     """Backlash width along the travel, piecewise linear on knots at most 40 mm apart
     (7 to 31 over the characterised travel) with a weak smoothness prior: one or several
     wear bumps down to about 50 mm wide (a nut's length: a screw wears where the nut
-    works), a ramp. Seven knots (travel / 6 apart) miss the narrow
-    bumps of the independent plant. Test gaps left by the candidate on the tuning data, seeds
-    (``default_rng([s, 0])``), 7 knots -> knots 40 mm apart: independent 3302, 3303,
-    3305: 8.5 -> 4.1, 9.2 -> 0.8, 4.0 -> 0.5 µm (of 13.3, 5.6, 9.6); twin 3101-3105: 0.96
-    -> 0.54, 0.69 -> 0.63, 1.62 -> 0.55, 0.65 -> 0.57, 0.58 -> 0.41 µm. (30 mm did better
-    on some independent seeds and worse on twin 3102 and 3104; the result depends on where
-    the knots fall, not monotonically on their number.) Not covered: features shorter than
+    works), a ramp. The knots are at most 40 mm apart, not a fixed seven over the travel:
+    seven knots (travel / 6 apart) miss a bump of a nut's length on a long travel. The
+    result depends on where the knots fall, not monotonically on their number (a choice
+    of the spacing by cross-validation is not built). Not covered: features shorter than
     the knot spacing, a width that differs between directions, the travel no train round
     trip crossed (the profile is flat beyond it)."""
     lo = min(float(np.min(r.u_mm)) for r in runs)

@@ -31,7 +31,7 @@ def loop_damping_floor(gain_per_s: float, omega: float, guide_per_s: float) -> f
     A machine that makes parts has a stable loop (it may still hunt through its backlash, a
     bounded cycle); the round trips, driven by the recorded motor, cannot tell, and a chain
     fitted below this floor makes the closed-loop contour simulation grow without bound
-    (independent 9401 case 27: 32.6 Hz at zeta 0.02, no guide damping, K 32/s)."""
+    (a 32.6 Hz chain at zeta 0.02 without guide damping does so at K 32/s)."""
     k, w, g = gain_per_s, omega, guide_per_s
     if k <= 0.0 or g >= k:
         return 0.0
@@ -62,22 +62,18 @@ def compliance_stage(gain_per_s: float | None = None) -> Stage:
     through this chain, is stable (a penalty, :func:`loop_damping_floor`).
 
     The fit: the train cost of a table that rattles across the backlash is rough at small
-    parameter steps (each rattle is an event), so scipy's default finite-difference step
-    (~1e-8) saw gradients of 1e8-1e10 and the trust region stopped after two evaluations,
-    on its start point: on the independent plant's two-mass chains every fit ended
-    exactly on one of its six starts (seeds 8647 case 47, 9401 case 33; on this form's
-    own output the default step does move, and the 1 % step is not better there). It
-    now steps by 1 % (``diff_step``), from 16 starts of frequency, damping and guide friction, each
-    with the nominal backlash, twice and four times it (a table that floats across the
-    gap makes the nominal fit take the clearance for smaller than it is: 22 µm where the
-    compliance fit finds 101 µm on 9401 case 33); the two cheapest are refined, at most
-    12 evaluations each (``max_nfev``; the Jacobian's not counted). Fitted on top of a
-    base (a second effect), every start begins with the base's fitted values (the
-    backlash not multiplied), only the cheapest start is refined, and at scipy's default
-    step (``core.gap.diagnose._Diagnosis.fit_candidate``: a 1 % step over a base's
-    parameters doubled the diagnosis' time). Test gaps of the candidate, before ->
-    after, on the independent plant (tuning: seeds 8647, 9401, 7919 of earlier
-    evaluations and 3202-3406, all ``default_rng([s, i])``): see docs/gap-diagnosis.md."""
+    parameter steps (each rattle is an event), so at scipy's default finite-difference
+    step (~1e-8) the gradients read 1e8-1e10 and the trust region stops on its start
+    point after two evaluations. It steps by 1 % (``diff_step``), from 16 starts of
+    frequency, damping and guide friction, each with the nominal backlash, twice and four
+    times it (a table that floats across the gap makes the nominal fit take the
+    clearance for smaller than it is: 22 µm for 101 µm on one such chain); the two
+    cheapest are refined, at most 12 evaluations each (``max_nfev``; the Jacobian's not
+    counted).
+    Fitted on top of a base (a second effect), every start begins with the base's fitted
+    values (the backlash not multiplied), only the cheapest start is refined, and at
+    scipy's default step (``core.gap.diagnose._Diagnosis.fit_candidate``: a 1 % step over
+    a base's parameters doubles the diagnosis' time)."""
     return Stage(
         NAME, ("natural_frequency_hz", "damping_ratio", "guide_damping_per_s", "guide_friction_mm_s2"),
         np.array([60.0, 0.3, 5.0, 300.0]), np.array([3.0, 0.02, 0.0, 0.0]),

@@ -79,12 +79,12 @@ def friction_chain_stage() -> Stage:
     by its envelope above 20 Hz, :func:`core.gap.roundtrip.residual_env_um`). The Coulomb part is at
     least ``FRICTION_CHAIN_MIN_MM_S2`` (0.05 g): a chain held by less is a compliant chain
     with its normal rolling-guide friction (the compliance family), which this form would
-    otherwise also fit, by its static part, better than compliance's own form (seen on
-    the independent plant's two-mass chains, seeds 3202 and 3204). Its damping is
-    not held above the position loop's linear stability floor (:func:`core.gap.families.compliance.loop_damping_floor`,
-    which the compliance form keeps): Coulomb and static friction bound a chain's
-    oscillation, so a linearly unstable loop with them is a bounded hunting cycle, and the
-    floor cost the plant-form test's Karnopp dataset its whole cut (14.97 -> 15.32 µm)."""
+    otherwise also fit, by its static part, better than compliance's own form (a hunting
+    two-mass chain). Its damping is not held above the position loop's linear stability
+    floor (:func:`core.gap.families.compliance.loop_damping_floor`, which the compliance
+    form keeps): Coulomb and static friction bound a chain's oscillation, so a linearly
+    unstable loop with them is a bounded hunting cycle, which this form is meant to
+    follow, and a floor would keep it from a Karnopp chain that hunts."""
     return Stage(
         NAME, ("chain_frequency_hz", "chain_damping_ratio", "coulomb_per_mass_mm_s2", "static_excess_per_mass_mm_s2",
                      "stick_band_mm_s"),
@@ -236,9 +236,9 @@ def stiff_on_contours(d, a: str, pieces: dict, bl: dict, b_rt_um: float):
       pre-sliding length lp = F_c / sigma_0 of elastic micro-motion before gross
       sliding, as Dahl's and LuGre's bristles do). After a reversal of a contour the
       table creeps back through lp while the force turns over, instead of sticking and
-      breaking away: on the twin's LuGre friction (lp 5-60 µm) the Karnopp form left
-      the contours' gap as it was (1.44 -> 1.36 µm on the twin's seed 3101) where the
-      pre-sliding form with the true values leaves 0.40 µm. On round trips lp shows as
+      breaking away: on the twin's LuGre friction (lp 5-60 µm) the Karnopp form leaves
+      the contours' gap about as it is (1.44 -> 1.36 µm on one) where the pre-sliding
+      form with the true values leaves 0.40 µm. On round trips lp shows as
       the table's spring-back at a reversal where the chain is stiff
       (:func:`friction_presliding_stage`, whose lp starts this form when it was taken).
 
