@@ -35,7 +35,7 @@ def models_for(axes: Mapping[str, AxisSpec], backlash_um: Mapping[str, float],
 SIM_STEP_S = 5e-4  # command grid of the diagnosis' simulations: chord error < 0.01 µm on R >= 10 mm at 3 m/min
 # Integration steps per radian of a chain's (or pre-sliding bristles') natural frequency in
 # the diagnosis' simulations; the twin's default is 20 (core.sim.engine.STEPS_PER_RADIAN).
-# Measured on bench_gap's twin friction dataset (seed 7, a train circle): against 20 steps,
+# Measured on bench_gap's twin friction dataset (a train circle): against 20 steps,
 # 10 moves the table by at most 0.0005 µm RMS (Karnopp, a 200 Hz chain, LuGre with a
 # 0.5-2 µm pre-sliding length at 2-4 µm Coulomb lost motion) and 0.012 µm RMS (0.10 µm
 # peak) for the stiffest bristles fitted (8 µm Coulomb over 0.5 µm), against noise floors

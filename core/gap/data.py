@@ -75,8 +75,8 @@ class RoundTrip:
         else the nut on the flank that drives the first motion. For a rigid play only the
         time of the first engagement depends on it (and it is not scored); a table with
         mass behind a compliant chain meets the nut at speed after crossing the gap, which
-        sets off ringing and can start stick-slip where a start on the flank slides (the
-        independent plant's Karnopp axes are bistable so: seed 4234, case 41)."""
+        sets off ringing and can start stick-slip where a start on the flank slides (a
+        Karnopp chain is bistable in its start place)."""
         lead = self.side0 * half_gap_mm if self.rest_lead_mm is None else self.rest_lead_mm
         return float(self.u_mm[0] - min(max(lead, -half_gap_mm), half_gap_mm))
 

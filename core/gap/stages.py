@@ -40,11 +40,10 @@ GUIDE_DAMPING_PER_S = 1.0  # friction on a chain: a light oil-film damping of th
 # kernels of a chain's dynamics: fitted and scored on round trips by envelope above 20 Hz
 # (roundtrip.residual_env_um), as a stick-slipping or hunting chain's phase is not reproducible
 ENVELOPE_KERNELS = ("friction_chain", "compliant_chain")
-# Savitzky-Golay windows (order 2) of the motor record driving a chain kernel. 16 ms keeps
-# 99 % of 25 Hz but cuts above ~60 Hz, where the chains ring: a rattle the motor record
-# carries is then not started in the model (seed 4172, JSON index 22, true parameters:
-# 18.4 µm test gap at 16/30 ms, 1.2 µm at 5/9 ms). Lighter windows did not name more of
-# the tuning cases (33 -> 33 of 50; docs/gap-diagnosis.md, "A hunting chain").
+# Savitzky-Golay windows (order 2) of the motor record driving a chain kernel, so the
+# motor encoder's noise, differentiated, does not drive the chain. 16 ms keeps 99 % of
+# 25 Hz but cuts above ~60 Hz, where the chains ring: a rattle the motor record carries
+# is then not started in the model (a known limit, docs/gap-diagnosis.md §8).
 SMOOTH_POSITION_S = 0.016
 SMOOTH_VELOCITY_S = 0.03
 
@@ -189,9 +188,9 @@ def _free_start(sim: Callable[[float], np.ndarray], run: RoundTrip, half_gap_mm:
     first sample: the measured rest place (:meth:`RoundTrip.start_table_mm`) and either
     flank. Chosen per run on the run's own envelope residual, as the run's offset is: the
     place is not observed to the micrometre (the medians put it several µm off on a
-    stroke that stick-slips one way), and a Karnopp chain is bistable in it (stick-slip
-    or sliding through a whole stroke, flipping with a micrometre of start: seed
-    4234, case 41)."""
+    stroke that stick-slips one way), and a Karnopp chain is bistable in it (a
+    micrometre of start decides between stick-slip and sliding through a whole
+    stroke)."""
     u0 = float(run.u_mm[0])
     starts = [run.start_table_mm(half_gap_mm)]
     for x0 in (u0 - half_gap_mm, u0 + half_gap_mm):

