@@ -77,3 +77,23 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config):
     line = _seed_line(config)
     if line:
         terminalreporter.write_line(line)
+
+
+@pytest.fixture(autouse=True)
+def _apps_end_with_their_test():
+    """A worker process starts hundreds of apps, one per test, where a server starts one.
+    FastAPI classifies endpoints and dependencies through process-wide LRU caches keyed by
+    the callables (``fastapi.dependencies.models``, 4096 entries); the apps' endpoints are
+    closures over their app and service, so those caches kept the last few dozen apps, and
+    every service they held, alive: ~22,000 objects a test, and a heap whose full
+    collections grew to seconds on a loaded host, inside transactions with a 2 s idle
+    limit. Emptied after each test, an app ends with its test."""
+    yield
+    import sys
+
+    models = sys.modules.get("fastapi.dependencies.models")
+    if models is not None:
+        for value in vars(models).values():
+            clear = getattr(value, "cache_clear", None)
+            if callable(clear):
+                clear()
