@@ -76,10 +76,10 @@ def test_jumping_encoder_fails(peer_factory):
 
 
 def test_busy_axis_is_not_started(peer_factory):
-    # someone else's program, at 10 mm/min: still running when the driver first asks
+    # someone else's program, at 10 mm/min: still running when the driver first asks,
     # however loaded the host (the Modbus controller's axis runs on the wall clock, ten
-    # times faster than real; at the test feed the program was over in 0.3 s, and a slow
-    # first read found the axis idle and started a cycle of its own)
+    # times faster than real: at the test feed the program is over in 0.3 s, and a slow
+    # first read would find the axis idle and start a cycle of its own)
     with peer_factory() as peer:
         peer.axis.start(replace(PROGRAM, feed_mm_min=10.0))
         r = run_cycle(peer.driver(), AXIS, PROGRAM)

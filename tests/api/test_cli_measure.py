@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import re
 import select
-import socket
 import subprocess
 import sys
 
@@ -18,15 +17,10 @@ from api.cli.main import main
 from core.dataset import AxisSpec, MachineSpec, Run, RunSpec
 from core.sim import AxisModel, Effects, parse_effect
 from storage.dataset import append_runs, read_dataset
+from tests.ports import free_port
 
 EFFECT = "cyclic_error:periods_mm=16/6.857,amplitudes_um=3/1.5"
 LEAD_KEYS = ("e_p_um", "v_u_um", "v_300_um", "v_2pi_um")
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _reference_dataset(folder, axis: AxisSpec) -> None:
@@ -94,7 +88,7 @@ def test_measure_a_simulated_controller_in_another_process(tmp_path, capsys):
 
 def test_nothing_listening_fails_fast_with_one_line(tmp_path, capsys):
     # how few attempts a refused connection gets is counted in tests/acquisition/modbus/test_driver.py
-    port = _free_port()
+    port = free_port()
     code = main(["measure", "--controller", f"modbus://127.0.0.1:{port}", "--travel-mm", "100",
                  "--feed-mm-min", "1000", "--out", str(tmp_path / "ds"), "--timeout-s", "1.5"])
     err = capsys.readouterr().err

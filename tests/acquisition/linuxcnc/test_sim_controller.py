@@ -8,7 +8,6 @@ import os
 import pwd
 import re
 import signal
-import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -16,6 +15,7 @@ from pathlib import Path
 from acquisition.linuxcnc.sim import linuxcnc_available
 from tests.acquisition.linuxcnc.rig import linuxcnc_user, one_linuxcnc_at_a_time, unavailable
 from tests.waiting import until
+from tests.ports import free_port
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -32,18 +32,12 @@ def _processes_naming(text: str) -> list[int]:
     return found
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_sigterm_stops_linuxcnc_and_removes_its_configuration():
     why = linuxcnc_available()
     if why:
         unavailable(why)
     user = linuxcnc_user()
-    port = _free_port()  # linuxcncrsh's, not the other LinuxCNC tests' default
+    port = free_port()  # linuxcncrsh's, not the other LinuxCNC tests' default
     cmd = [sys.executable, "-m", "api.cli", "sim-controller", "linuxcnc", "--port", str(port)]
     cmd += ["--user", user] if user else []
     with one_linuxcnc_at_a_time():

@@ -19,12 +19,7 @@ from acquisition.driver.retry import RetryPolicy
 from acquisition.types import AxisState, Command, RoundTripProgram
 from tests.acquisition.conftest import AXIS, PROGRAM, modbus_peer
 from tests.acquisition.modbus.fake_modbus import FakeController, busy
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from tests.ports import free_port
 
 
 def test_words_round_trip_signed_and_unsigned():
@@ -59,7 +54,7 @@ def test_counter_unwraps_across_u32_overflow():
 
 
 def test_refused_connection_fails_fast_with_one_clear_reason():
-    port = _free_port()  # nothing listens here
+    port = free_port()  # nothing listens here
     d = ModbusDriver("127.0.0.1", port, timeout_s=1.0)
     r = run_cycle(d, AXIS, PROGRAM)
     assert 1 <= d.connect_attempts <= d.retries + 1  # refused: retried within the timeout, boundedly

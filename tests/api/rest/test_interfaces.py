@@ -29,18 +29,13 @@ from api.service.config.settings import ConfigError, MqttSettings, WebhookSettin
 from api.service.events import Event, EventHub
 from storage.db import config_repo, session_scope, utcnow
 from tests.api.rest.conftest import FakeRunner, hdr, make_settings
+from tests.ports import free_port
 from tests.waiting import until
 
 MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
 needs_mosquitto = pytest.mark.skipif(not (shutil.which("mosquitto_sub") and shutil.which(MOSQUITTO)),
                                      reason="mosquitto and mosquitto-clients are not installed")  # fmt: skip
 SECRET = "whsec_" + base64.b64encode(b"0123456789abcdef0123456789abcdef").decode()
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class Broker:
@@ -86,7 +81,7 @@ def _measure(svc, axis_id):
 
 @needs_mosquitto
 def test_an_mqtt_subscriber_receives_the_retained_status_the_birth_and_each_alert(tmp_path, caplog):
-    port, prefix = _free_port(), f"t{uuid.uuid4().hex[:8]}"
+    port, prefix = free_port(), f"t{uuid.uuid4().hex[:8]}"
     broker = Broker(port, tmp_path)
     runner = FakeRunner(backlash_um=200.0)
     try:
@@ -150,7 +145,7 @@ def test_an_mqtt_subscriber_receives_the_retained_status_the_birth_and_each_aler
 
 @needs_mosquitto
 def test_a_broker_outage_loses_no_measurement_and_the_status_is_published_when_it_returns(tmp_path):
-    port, prefix = _free_port(), f"t{uuid.uuid4().hex[:8]}"
+    port, prefix = free_port(), f"t{uuid.uuid4().hex[:8]}"
     runner = FakeRunner(backlash_um=180.0)
     app = _app(tmp_path, runner, mqtt=MqttSettings(url=f"mqtt://127.0.0.1:{port}", topic_prefix=prefix))
     with TestClient(app) as client:
@@ -258,7 +253,7 @@ def _messages(client, admin, state=None) -> dict:
 
 
 def test_webhook_messages_pending_when_the_service_stops_are_sent_after_the_restart(tmp_path):
-    port = _free_port()  # nothing listens there yet: the receiver is down
+    port = free_port()  # nothing listens there yet: the receiver is down
     hooks = WebhookSettings(urls=(f"http://127.0.0.1:{port}/hook",), secret=SECRET, max_attempts=20)
     runner = FakeRunner(backlash_um=400.0)
     app = _app(tmp_path, runner, webhooks=hooks)
@@ -285,7 +280,7 @@ def test_webhook_messages_pending_when_the_service_stops_are_sent_after_the_rest
 
 
 def test_a_webhook_message_that_used_every_attempt_is_kept_and_sent_again_when_an_admin_asks(tmp_path):
-    port = _free_port()
+    port = free_port()
     hooks = WebhookSettings(urls=(f"http://127.0.0.1:{port}/hook",), secret=SECRET, max_attempts=2)
     runner = FakeRunner(backlash_um=400.0)
     app = _app(tmp_path, runner, webhooks=hooks)
@@ -316,10 +311,10 @@ def test_webhook_messages_wait_in_memory_while_the_database_is_unreachable_and_a
     from storage.db import make_engine, make_session_factory, upgrade, webhooks_repo
     from storage.db.records import AlertRecord
 
-    down = make_engine(f"postgresql+psycopg://nobody@127.0.0.1:{_free_port()}/none")  # a refused connection
+    down = make_engine(f"postgresql+psycopg://nobody@127.0.0.1:{free_port()}/none")  # a refused connection
     up = make_engine(f"sqlite:///{tmp_path}/db.sqlite3")
     upgrade(up)
-    port = _free_port()
+    port = free_port()
     server = _serve_later(port)
     svc = SimpleNamespace(events=EventHub(), factory=make_session_factory(down))
     sender = WebhookSender(svc, WebhookSettings(urls=(f"http://127.0.0.1:{port}/hook",), secret=SECRET))
