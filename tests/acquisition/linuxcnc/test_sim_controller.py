@@ -14,8 +14,8 @@ from pathlib import Path
 
 from acquisition.linuxcnc.sim import linuxcnc_available
 from tests.acquisition.linuxcnc.rig import linuxcnc_user, one_linuxcnc_at_a_time, unavailable
-from tests.waiting import until
 from tests.ports import free_port
+from tests.waiting import until
 
 ROOT = Path(__file__).resolve().parents[3]
 
