@@ -4,7 +4,8 @@ manual triggers, and SQLite's one worker per file.
 In-process workers (two ``Service`` objects on one database, an injected runner that
 records how many cycles of each axis run at once) for the rules; real ``mebm serve``
 processes where a worker must die by SIGKILL or a second process must be refused.
-Leases are short here (3 s, a tick of 0.5 s) so takeovers take seconds, not 30 s.
+Leases are short here (3 s, a tick of 0.5 s; 10 s where real simulated cycles of seconds
+run) so takeovers take seconds, not 30 s.
 """
 
 from __future__ import annotations
@@ -243,7 +244,7 @@ url = ""
 [mtconnect]
 enabled = false
 [worker]
-lease_s = 3
+lease_s = 10
 tick_s = 0.5
 [simulator]
 time_scale = 4
@@ -252,7 +253,10 @@ temperature_amplitude_c = 0
 name = "vmc"
 """
 # a 200 mm travel: a round trip of 8 s of machine time, 2 s at the simulator's time scale, so
-# the takeover's cycles before and after the kill are short; each still runs for seconds
+# the takeover's cycles before and after the kill are short; each still runs for seconds.
+# The lease (10 s) keeps the fleet's condition for "never two cycles of an axis at once"
+# (docs/fleet.md, Limits: the lease outlasts the longest cycle plus the longest pause of a
+# live worker) on a host busy enough to stretch a cycle and delay heartbeats by seconds.
 SIM_AXIS = demo_axis_toml("{name}", travel_mm=(0, 200), task=False, measure_feed_mm_min=3000, schedule_interval_s=1)
 
 
@@ -295,7 +299,10 @@ def test_sigkilled_worker_is_taken_over_and_its_cycle_interrupted(pg, tmp_path):
                              if c.worker == b_id and c.status == "ok" and c.started_at > killed_at} == {1, 2},
                     timeout_s=90), b.output()
         with session_scope(factory) as s:
-            assert leases.overlapping_cycles(s) == []
+            overlaps = leases.overlapping_cycles(s)
+        assert overlaps == [], "\n".join(
+            [f"{c.uuid} axis {c.axis_id} {c.status} by {c.worker} {c.started_at} .. {c.finished_at}: {c.failure_reason}"
+             for c in cycles(factory)] + [a.output(), b.output()])
         hdr = {"X-API-Key": "fleet-test-admin-key-0123456789abcdef"}
         workers = httpx.get(f"{b.url}/api/v1/workers", headers=hdr, timeout=10).json()
         live = [w for w in workers if w["live"]]
