@@ -6,7 +6,8 @@ fit, a tie with its second effect), diagnoses it and checks the report, as a tes
 two check that a known miss of docs/gap-diagnosis.md's limits is still one (the day the
 diagnosis names it, the scenario fails and says so).
 The decision and the search steps behind it are tested on their own in the suite
-(tests/core/gap/test_select.py on tables of fits, the observations on generated strokes);
+(tests/core/gap/test_select.py on tables of fits and, for an observation against the
+fits, on two generated datasets; the observations on generated strokes);
 these runs take minutes each, so they live here. Prints each scenario's
 result and time, then the median; exits 1 if any scenario fails.
 
@@ -29,9 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from core.dataset import Dataset, MachineSpec  # noqa: E402
 from core.gap import GapSettings, diagnose  # noqa: E402
 from core.gap.benchmark import CaseSize, benchmark_case, make_case  # noqa: E402
-from core.gap.data import prepare_runs  # noqa: E402
 from core.gap.plant import SMALL_PLANT, make_plant_case  # noqa: E402
-from core.gap.where import breakaways  # noqa: E402
 from core.sim import AxisModel, BacklashProfile, Effects, Encoders, Thermal, round_trip, simulate  # noqa: E402
 
 
@@ -85,25 +84,6 @@ def two_effects_no_single_explains():
     assert rep.decision.startswith("No single candidate cuts the test gap by 25 %, but ")
     assert rep.second_effect.startswith("A second effect remains: " + rep.effects[1])
     assert rep.gap_after_um < 0.25 * rep.gap_before_um
-    return rep
-
-
-def breakaway_at_rest_where_no_candidate_passes():
-    """An independent-plant Karnopp dataset whose x axis breaks away at rest (40 µm, on all
-    three round trips): with a decision no candidate can pass (a 99 % cut) the answer is
-    `none`, and the decision says that the break-away points at friction, with friction's
-    cut: an observation never names a family no fit supports."""
-    from dataclasses import replace
-
-    size = replace(SMALL_PLANT, rt_rate_hz=1000.0)
-    ds = make_plant_case(("friction",), np.random.default_rng([47, 6]), size).dataset
-    assert sum(f["events"] for f in breakaways(prepare_runs(ds)[0])) >= 2
-    rep = diagnose(ds, GapSettings(keep_curves=False, second_effect=False, min_reduction=0.99))
-    assert rep.effect == "none" and rep.where.details["breakaway"], rep.text()
-    assert any("breaks away at rest" in o for o in rep.observations)
-    assert "breakaway" in rep.decision and "point at friction" in rep.decision, rep.decision
-    sel = rep.to_dict()["selection"]
-    assert sel["kind"] == "no_cut" and any(o["kind"] == "breakaway" for o in sel["unsupported"])
     return rep
 
 
@@ -191,7 +171,7 @@ def two_mass_chain_near_the_floor_is_a_known_miss():
 
 
 SCENARIOS = {f.__name__: f for f in (
-    pair_beyond_the_two_best_singles, two_effects_no_single_explains, breakaway_at_rest_where_no_candidate_passes,
+    pair_beyond_the_two_best_singles, two_effects_no_single_explains,
     chain_breaks_away_and_stick_slips, rattle_without_a_fit_is_reported, hunting_two_mass_chain,
     skewed_latch_over_a_wear_profile, backlash_profile_on_short_train_strokes_is_a_known_miss,
     two_mass_chain_near_the_floor_is_a_known_miss,
