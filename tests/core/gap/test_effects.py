@@ -76,6 +76,17 @@ def test_round_trip_effect_is_named_and_its_gap_halved(effect):
     assert rep.where.kind == "round_trip" and rep.where.axis == "y"
 
 
+def test_a_static_lead_error_is_named_thermal_and_its_size_found():
+    """The thermal family's temperature-independent form: a screw whose lead is 60 µm/m
+    long at every temperature (the ISO 3408-3 mean travel deviation), no growth."""
+    rep = diagnose(_round_trips(Effects(thermal=Thermal(lead_error_um_per_m=60.0)), np.random.default_rng(7)))
+    assert rep.effect == "thermal", rep.text()
+    assert rep.gap_after_um <= 0.5 * rep.gap_before_um, rep.text()
+    fitted = rep.candidates[0].params
+    assert fitted["y.lead_error_um_per_m"] == pytest.approx(60.0, abs=3.0), rep.text()
+    assert abs(fitted["y.lead_growth_ppm_per_k"]) < 0.5, rep.text()
+
+
 def test_the_fits_in_threads_give_the_report_of_the_fits_in_turn():
     """The candidates, and the second effects on top of the answer, fitted in threads:
     the same report as fitted one after the other."""

@@ -37,6 +37,19 @@ def test_an_independent_plant_form_is_named_and_its_gap_halved(effect):
         assert rep.to_dict()["observations"] == list(rep.observations) and "Observed: The table rattles" in rep.text()
 
 
+def test_an_independent_plant_two_mass_chain_is_named_compliance():
+    """The plant's chain (a table mass behind a spring-damper, the loop closed on the table
+    scale) on the draw after the test seed's, whose gap is near its floor: compliance is
+    named and cuts the gap by the 25 % the decision needs, but not by half. Its form, a
+    mass behind the nut driven by the recorded motor, follows the chain's first mode and
+    not the cycle the closed loop keeps going (docs/gap-diagnosis.md, known limits)."""
+    case = make_plant_case(("compliance",), np.random.default_rng([SEED + 1, len("compliance")]), SMALL_PLANT)
+    rep = diagnose(case.dataset, GapSettings(keep_curves=False, second_effect=False))
+    assert rep.gap_before_um > 3.0 * rep.noise_floor_um, rep.text()  # the premise: the chain shows
+    assert rep.effect == "compliance", rep.text()
+    assert rep.gap_after_um <= 0.75 * rep.gap_before_um, rep.text()
+
+
 def test_an_independent_plant_without_effect_is_none_at_the_noise_floor():
     case = make_plant_case((), np.random.default_rng([SEED, 0]), SMALL_PLANT)
     rep = diagnose(case.dataset, GapSettings(keep_curves=False))
