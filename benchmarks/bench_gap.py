@@ -1,6 +1,6 @@
 """Benchmark: diagnosis time of a full-size dataset (8 round trips of ~30,000 samples + 6 circles).
 
-Generates one dataset per label with the benchmark generator (core.gap.benchmark,
+Generates one dataset per label with the benchmark generator (core.gap_benchmark,
 default CaseSize: 4 round trips per axis at 1 kHz over ~30 s, 6 circles at 500 Hz),
 diagnoses each and prints the wall time, samples and result; then the median.
 Goal: a median of at most 40 s and a maximum of at most 90 s per dataset on the quiet
@@ -22,8 +22,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from core.gap import LABELS, GapSettings, diagnose  # noqa: E402
-from core.gap.benchmark import CaseSize, make_plant_case  # noqa: E402
+from core.gap import GapSettings, diagnose  # noqa: E402
+from core.gap_benchmark import LABELS  # noqa: E402
+from core.gap_benchmark import CaseSize, make_plant_case  # noqa: E402
 
 
 def main() -> None:

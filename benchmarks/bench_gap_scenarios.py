@@ -29,8 +29,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from core.dataset import Dataset, MachineSpec  # noqa: E402
 from core.gap import GapSettings, diagnose  # noqa: E402
-from core.gap.benchmark import CaseSize, benchmark_case, make_case  # noqa: E402
-from core.gap.plant import SMALL_PLANT, make_plant_case  # noqa: E402
+from core.gap_benchmark import CaseSize, benchmark_case, make_case  # noqa: E402
+from core.plant_independent import SMALL_PLANT, make_plant_case  # noqa: E402
 from core.sim import AxisModel, BacklashProfile, Effects, Encoders, Thermal, round_trip, simulate  # noqa: E402
 
 

@@ -9,9 +9,9 @@ import sys
 from pathlib import Path
 
 from api.cli.output import json_safe
-from core.gap import LABELS, CaseSize, diagnose, run_benchmark
 from core.errors import InputError
-from core.gap.benchmark import SMALL
+from core.gap import diagnose
+from core.gap_benchmark import LABELS, SMALL, CaseSize, run_benchmark
 from storage.dataset import read_dataset, write_dataset
 
 

@@ -69,7 +69,7 @@ def test_benchmark_prints_the_confusion_matrix_and_scores(tmp_path, capsys, plan
 
 
 def test_benchmark_labels_are_balanced_and_a_quarter_mixed():
-    from core.gap.benchmark import LABELS, labels_for
+    from core.gap_benchmark import LABELS, labels_for
 
     labs = labels_for(48, np.random.default_rng(3))
     assert sum(1 for x in labs if not x) == 48 // len(LABELS)  # every label equally often
@@ -85,7 +85,7 @@ def test_benchmark_refuses_no_cases(cases, capsys):
 
 def test_benchmark_reports_effect_cases_the_data_did_not_show_beside_the_score():
     from api.cli.gap import format_summary
-    from core.gap.benchmark import BenchmarkResult, CaseResult
+    from core.gap_benchmark import BenchmarkResult, CaseResult
 
     def case(i, labels, diagnosed, before, noise=0.4):
         return CaseResult(i, "+".join(labels) or "none", diagnosed, before, before, noise, 1.0, "", labels)
@@ -103,7 +103,7 @@ def test_benchmark_reports_effect_cases_the_data_did_not_show_beside_the_score()
 
 def test_benchmark_counts_answers_that_came_with_a_close_alternative():
     from api.cli.gap import format_summary
-    from core.gap.benchmark import BenchmarkResult, CaseResult
+    from core.gap_benchmark import BenchmarkResult, CaseResult
 
     def case(i, labels, diagnosed, alternatives):
         return CaseResult(i, "+".join(labels), diagnosed, 20.0, 10.0, 0.4, 1.0, "", labels, (diagnosed,),
@@ -122,7 +122,7 @@ def test_benchmark_counts_answers_that_came_with_a_close_alternative():
 def test_a_case_whose_diagnosis_raises_is_scored_wrong_not_a_stopped_benchmark(monkeypatch):
     import importlib
 
-    from core.gap.benchmark import SMALL, diagnose_case
+    from core.gap_benchmark import SMALL, diagnose_case
 
     dg = importlib.import_module("core.gap.diagnose")  # the module (core.gap.diagnose is also the function)
 
@@ -139,7 +139,7 @@ def test_one_case_of_a_benchmark_again_and_its_dataset_written(tmp_path, capsys)
     three is a `none` case: a quick diagnosis); --write-datasets leaves it as a dataset
     folder that `mebm gap diagnose` reads, with truth.json beside it, written by the worker
     process that generated it (--jobs 2)."""
-    from core.gap.benchmark import SMALL, benchmark_case, run_benchmark
+    from core.gap_benchmark import SMALL, benchmark_case, run_benchmark
 
     out = tmp_path / "bench.json"
     assert main(["gap", "benchmark", "--cases", "3", "--seed", "4", "--small", "--plant", "twin", "--only", "3",
@@ -188,7 +188,7 @@ def test_a_kept_dataset_is_the_one_diagnosed_and_generated_once(monkeypatch):
     a benchmark case is tested by the other tests of this file and in tests/core/gap)."""
     import importlib
 
-    bm = importlib.import_module("core.gap.benchmark")
+    bm = importlib.import_module("core.gap_benchmark")
     dg = importlib.import_module("core.gap.diagnose")  # the module (core.gap.diagnose is also the function)
     made, kept, diagnosed = [], [], []
     real = bm._plant_case

@@ -7,8 +7,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from core.gap import diagnose, make_case
-from core.gap.benchmark import SMALL
+from core.gap import diagnose
+from core.gap_benchmark import SMALL, make_case
 from storage.dataset import write_dataset
 from storage.db import config_repo, session_scope
 from tests.api.rest.conftest import hdr

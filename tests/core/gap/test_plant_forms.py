@@ -1,4 +1,4 @@
-"""Each effect in the independent plant's forms (core.gap.plant: feed-forward and a
+"""Each effect in the independent plant's forms (core.plant_independent: feed-forward and a
 feedback delay, Karnopp or Dahl friction on a compliant chain, a two-mass chain, growth
 about a moving bearing, several wear bumps, a gear period, a drifting skew) is named and
 its gap at least halved, on small datasets.
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from core.gap import GapSettings, diagnose
-from core.gap.plant import SMALL_PLANT, make_plant_case
+from core.plant_independent import SMALL_PLANT, make_plant_case
 
 SEED = 31  # the decision's parameters were set on this seed too (docs/gap-diagnosis.md §5)
 

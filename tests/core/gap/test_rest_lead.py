@@ -15,8 +15,8 @@ from core.dataset import AxisSpec
 from core.gap.candidates import GUIDE_DAMPING_PER_S, compose, friction_chain_stage, sim_piece, smooth_u
 from core.gap.data import RoundTrip, rest_lead_mm
 from core.gap.play import play_inertia
-from core.gap.plant.drive import DriveParams, constant_lut, simulate_axis
-from core.gap.plant.program import round_trip_program
+from core.plant_independent.drive import DriveParams, constant_lut, simulate_axis
+from core.plant_independent.program import round_trip_program
 
 B_UM = 80.0
 

@@ -144,7 +144,7 @@ def test_a_size_without_a_positive_rate_is_refused():
 def test_the_benchmark_draws_its_cases_from_the_plant_without_diagnosing_them():
     # the plant is held out: the harness can generate its cases, and this test looks at
     # no diagnosis of them
-    from core.gap.benchmark import PLANTS, SMALL, benchmark_case
+    from core.gap_benchmark import PLANTS, SMALL, benchmark_case
 
     assert "forms" in PLANTS
     labs, ds, truth = benchmark_case("forms", 4, 7, 1, SMALL)

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from core.gap.plant.drive import DriveParams, internal_step_s
-from core.gap.plant.effects import EFFECTS, draw_effect, draw_nominal, drive_params
+from core.plant_independent.drive import DriveParams, internal_step_s
+from core.plant_independent.effects import EFFECTS, draw_effect, draw_nominal, drive_params
 
 from .helpers import B_UM, K_A_MM_PER_REV, K_PER_S, circle, nominal, round_trip
 from .test_nominal import _steady

@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from core.gap.plant.case import AXES, record_program
-from core.gap.plant.program import circle_program, round_trip_program
+from core.plant_independent.case import AXES, record_program
+from core.plant_independent.program import circle_program, round_trip_program
 
 K_PER_S = 15.0
 K_A_MM_PER_REV = 8.0

@@ -1,6 +1,6 @@
 """Benchmark datasets from the independent plant: round trips and circles of a 2-axis machine.
 
-The case structure mirrors ``core.gap.benchmark.make_case``: per axis ``rt_train`` + ``rt_test``
+The case structure mirrors ``core.gap_benchmark.make_case``: per axis ``rt_train`` + ``rt_test``
 round trips, then ``circles_train`` + ``circles_test`` circles; test runs lie outside the
 train conditions (8-12 or 28-32 degC against 17-24 degC, other feeds and/or accelerations,
 other radii, strokes anywhere on the travel). Beyond it, so that the diagnosis meets what a real machine records:

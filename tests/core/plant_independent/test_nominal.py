@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from core.gap.plant.program import circle_program
+from core.plant_independent.program import circle_program
 
 from .helpers import B_UM, K_PER_S, circle, nominal, round_trip
 

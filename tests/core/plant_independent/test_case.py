@@ -6,11 +6,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import core.gap.plant as plant
+import core.plant_independent as plant
 from core.dataset import validate_columns, validate_run_spec
 from core.errors import InputError
-from core.gap.plant import LABELS, SMALL_PLANT, PlantCase, PlantSize, make_plant_case
-from core.gap.plant.case import draw_layout
+from core.plant_independent import LABELS, SMALL_PLANT, PlantCase, PlantSize, make_plant_case
+from core.plant_independent.case import draw_layout
 
 
 @pytest.fixture(scope="module")

@@ -1,7 +1,7 @@
 """Generated datasets whose effect is withheld, and the benchmark that scores the diagnosis.
 
 Three plants generate the cases: ``twin`` (:func:`make_case`, the project's own twin,
-``core.sim``), ``independent`` (:mod:`core.gap.plant`, a feed-drive simulator
+``core.sim``), ``independent`` (:mod:`core.plant_independent`, a feed-drive simulator
 written separately, with its own integration scheme and its own forms of each
 effect) and ``forms`` (:mod:`core.plant_forms`, written from the dataset format and a
 list of forms alone, without reading the diagnosis or either plant: forms neither of
@@ -401,7 +401,7 @@ def _plant_case(plant: str, labels: tuple[str, ...], rng: np.random.Generator, s
         case = make_case(labels or "none", rng, size, split_fields=split_fields)
         return case.dataset, split_fields, case.truth
     if plant == "independent":
-        from core.gap.plant import PlantSize, make_plant_case as make_independent
+        from core.plant_independent import PlantSize, make_plant_case as make_independent
 
         psize = PlantSize(size.rt_train_per_axis, size.rt_test_per_axis, size.circles_train, size.circles_test,
                           size.rt_rate_hz, size.circle_rate_hz, size.rt_duration_s)  # fmt: skip
