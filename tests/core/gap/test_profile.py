@@ -31,7 +31,7 @@ def test_three_narrow_wear_bumps_are_named_and_located():
     m = AxisModel(name="x", transmission_mm_per_rev=8.0, screw_lead_mm=16.0, position_gain_per_s=20.0,
                   backlash_um=b_um, encoders=enc, effects=fx)  # fmt: skip
     rng = np.random.default_rng(5)
-    strokes = ((20, 780, 1000), (20, 780, 1500), (20, 780, 700), (100, 700, 1200))
+    strokes = ((20, 780, 3000), (20, 780, 4500), (20, 780, 2100), (100, 700, 3600))  # feeds in mm/min
     runs = []
     for i, (lo, hi, feed) in enumerate(strokes):
         tr = simulate({"x": m}, round_trip(lo, hi, feed, 600.0, 0.3, axis="x"), rate_hz=250.0, rng=rng)
