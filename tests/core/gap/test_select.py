@@ -94,13 +94,14 @@ def test_where_no_family_cuts_the_gap_a_breakaway_answers_none_and_is_reported()
 
 @pytest.mark.slow
 def test_on_generated_runs_a_breakaway_never_overrides_compliances_clearly_better_fit():
-    """The first independent plant's Karnopp friction on a compliant chain (the round trips
-    of its benchmark case 36, seed 7457): the table breaks away at rest, the held-out run
-    included, and stick-slips; compliance's fit leaves under half of friction's held-out
-    gap. The decision names compliance and says that the observations point at friction."""
+    """The first independent plant's Karnopp friction on a compliant chain (the x round
+    trips of its benchmark case 36, seed 7457): the table breaks away at rest, the held-out
+    run included, and stick-slips; compliance's fit leaves under half of friction's
+    held-out gap. The decision names compliance and says that the observations point at
+    friction."""
     labels, ds, _ = benchmark_case("independent", 48, 7457, 35)
     assert labels == ("friction",)
-    ds = Dataset(ds.machine, tuple(r for r in ds.runs if len(r.spec.axes) == 1))
+    ds = Dataset(ds.machine, tuple(r for r in ds.runs if r.spec.axes == ("x",)))
     assert any(f["split"] == "test" and f["events"] for f in breakaways(prepare_runs(ds)[0]))
     rep = diagnose(ds, GapSettings(keep_curves=False, second_effect=False))
     gaps = {c.effect: c.gap_after_um for c in rep.candidates}
@@ -113,19 +114,18 @@ def test_on_generated_runs_a_breakaway_never_overrides_compliances_clearly_bette
 
 @pytest.mark.slow
 def test_on_generated_runs_a_gap_no_family_cuts_is_none_and_the_breakaway_is_reported():
-    """The first independent plant's Karnopp friction (its table breaks away at rest by
-    40 µm) with a scale that loses counts once in each held-out round trip (its reading
-    jumps by 200 µm at 30 % of the run and stays): a gap no family models. No fit cuts it,
-    the answer is none, and the report says that the table breaks away at rest, pointing
-    at friction, with friction's cut."""
+    """The first independent plant's Karnopp friction (its x table breaks away at rest by
+    40 µm; the x round trips) with a scale that loses counts once in the held-out round
+    trip (its reading jumps by 200 µm at 30 % of the run and stays): a gap no family
+    models. No fit cuts it, the answer is none, and the report says that the table breaks
+    away at rest, pointing at friction, with friction's cut."""
     ds = make_plant_case(("friction",), np.random.default_rng([47, 6]), replace(SMALL_PLANT, rt_rate_hz=1000.0)).dataset
     runs = []
-    for r in ds.runs:
-        if r.spec.split == "test" and len(r.spec.axes) == 1:
-            col = f"{r.spec.axes[0]}_table_mm"
-            x = r.columns[col].copy()
+    for r in (r for r in ds.runs if r.spec.axes == ("x",)):
+        if r.spec.split == "test":
+            x = r.columns["x_table_mm"].copy()
             x[int(0.3 * x.size):] += 0.200
-            r = Run(r.spec, {**r.columns, col: x})
+            r = Run(r.spec, {**r.columns, "x_table_mm": x})
         runs.append(r)
     ds = Dataset(ds.machine, tuple(runs))
     rep = diagnose(ds, GapSettings(keep_curves=False, second_effect=False))
