@@ -12,6 +12,7 @@ says so.
 import numpy as np
 import pytest
 
+from core.dataset import Dataset
 from core.gap import GapSettings, diagnose
 from core.plant_independent import SMALL_PLANT, make_plant_case
 
@@ -39,12 +40,14 @@ def test_an_independent_plant_form_is_named_and_its_gap_halved(effect):
 
 def test_an_independent_plant_two_mass_chain_is_named_compliance():
     """The plant's chain (a table mass behind a spring-damper, the loop closed on the table
-    scale) on the draw after the test seed's, whose gap is near its floor: compliance is
-    named and cuts the gap by the 25 % the decision needs, but not by half. Its form, a
-    mass behind the nut driven by the recorded motor, follows the chain's first mode and
-    not the cycle the closed loop keeps going (docs/gap-diagnosis.md, known limits)."""
+    scale; the x round trips) on the draw after the test seed's, whose gap is near its
+    floor: compliance is named and cuts the gap by the 25 % the decision needs, but not by
+    half. Its form, a mass behind the nut driven by the recorded motor, follows the
+    chain's first mode and not the cycle the closed loop keeps going
+    (docs/gap-diagnosis.md, known limits)."""
     case = make_plant_case(("compliance",), np.random.default_rng([SEED + 1, len("compliance")]), SMALL_PLANT)
-    rep = diagnose(case.dataset, GapSettings(keep_curves=False, second_effect=False))
+    ds = Dataset(case.dataset.machine, tuple(r for r in case.dataset.runs if r.spec.axes == ("x",)))
+    rep = diagnose(ds, GapSettings(keep_curves=False, second_effect=False))
     assert rep.gap_before_um > 3.0 * rep.noise_floor_um, rep.text()  # the premise: the chain shows
     assert rep.effect == "compliance", rep.text()
     assert rep.gap_after_um <= 0.75 * rep.gap_before_um, rep.text()
