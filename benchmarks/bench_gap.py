@@ -23,8 +23,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from core.gap import GapSettings, diagnose  # noqa: E402
-from core.gap_benchmark import LABELS  # noqa: E402
-from core.gap_benchmark import CaseSize, make_plant_case  # noqa: E402
+from core.gap_benchmark import LABELS, CaseSize, make_plant_case  # noqa: E402
 
 
 def main() -> None:

@@ -23,8 +23,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from core.gap import prepare_runs  # noqa: E402
 from core.gap import roundtrip as rt  # noqa: E402
-from core.gap_benchmark import CaseSize, make_plant_case  # noqa: E402
 from core.gap.candidates import compliance_stage, compose, friction_chain_stage, friction_stage  # noqa: E402
+from core.gap_benchmark import CaseSize, make_plant_case  # noqa: E402
 from timing import median_s  # noqa: E402
 
 

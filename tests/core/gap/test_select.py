@@ -15,14 +15,14 @@ import pytest
 
 from core.dataset import Dataset, Run
 from core.gap import GapSettings, diagnose
-from core.gap_benchmark import benchmark_case
 from core.gap.candidates import EFFECTS, REGISTRY
 from core.gap.data import prepare_runs
 from core.gap.evidence import observe
 from core.gap.report import explain, selection_dict
-from core.plant_independent import SMALL_PLANT, make_plant_case
 from core.gap.select import Rule, select, told_apart
 from core.gap.where import breakaways
+from core.gap_benchmark import benchmark_case
+from core.plant_independent import SMALL_PLANT, make_plant_case
 
 dg = importlib.import_module("core.gap.diagnose")  # the module (core.gap.diagnose is also the function)
 
