@@ -33,9 +33,10 @@ RING_MAX = 10906
 
 
 def realtime_rig():
-    """The network-namespace rigs run their simulated master and drive at real-time priority
-    (they stand for hardware); two rigs at once on a 2-core host starve each other's replies
-    out of the synchronous window. Rigs take turns (each rig bounds its own run)."""
+    """The network-namespace rigs run what stands for hardware (the simulated drive, the
+    CNC master) at real-time priority, mebm as it would run; two rigs at once on a 2-core
+    host starve each other's replies out of the synchronous window. Rigs take turns (each
+    rig bounds its own run)."""
     return host_lock("realtime-rig")
 
 

@@ -31,6 +31,9 @@ def _drive(conn, delay_s: float, jitter_s: float) -> None:
     from acquisition.sim.canopen.drive import SimCanopenDrive
     from acquisition.sim.faults import parse_fault
     from acquisition.sim.twin import KinematicTwin
+    from tests.acquisition.canopen.netns_canopen_listen import hardware_priority
+
+    sched = hardware_priority()  # the drive stands for hardware; the driver runs as mebm would
 
     for name in ("can", "canopen"):
         logging.getLogger(name).setLevel(logging.CRITICAL)
@@ -51,7 +54,7 @@ def _drive(conn, delay_s: float, jitter_s: float) -> None:
         conn.send("ready")
         conn.recv()  # the driver is done
         conn.send({"answered": list(drive.answered), "late_discards": drive.late_discards,
-                   "tpdos_sent": drive.tpdos_sent, "syncs": drive.syncs})
+                   "tpdos_sent": drive.tpdos_sent, "syncs": drive.syncs, "scheduling": sched})
 
 
 def main() -> None:

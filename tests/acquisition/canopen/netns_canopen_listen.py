@@ -57,7 +57,7 @@ def _run(*cmd: str) -> None:
     subprocess.run(cmd, check=True, capture_output=True, text=True)
 
 
-def _hardware_priority() -> str:
+def hardware_priority() -> str:
     """The simulated drive and the CNC master stand for hardware with real-time behaviour: on a
     host shared by many they get round-robin real-time priority where allowed (both sleep
     between SYNCs; the kernel's RT throttling bounds them anyway). mebm runs as it would."""
@@ -89,7 +89,7 @@ def role_drive() -> None:
     from acquisition.sim.canopen.drive import SimCanopenDrive
     from acquisition.sim.twin import KinematicTwin
 
-    sched = _hardware_priority()
+    sched = hardware_priority()
     drive = SimCanopenDrive(KinematicTwin(**TWIN), node_id=NODE, channel=GROUP, interface="udp_multicast",
                             bus_kwargs={"port": PORT}, reply_delay_s=0.0002, reply_jitter_s=0.0003,
                             rng=np.random.default_rng(5))
@@ -104,7 +104,7 @@ def role_master() -> None:
     from acquisition.sim.canopen.cnc_master import CncMaster
     from acquisition.types import RoundTripProgram
 
-    sched = _hardware_priority()
+    sched = hardware_priority()
     master = CncMaster(NODE, interface="udp_multicast", channel=GROUP, bus_kwargs={"port": PORT},
                        sync_rate_hz=RATE_HZ, time_scale=TIME_SCALE, window_s=WINDOW_MS / 1000.0, sdo_timeout_s=2.0)
     _say("ready")
