@@ -31,7 +31,7 @@ def _drive(conn, delay_s: float, jitter_s: float) -> None:
     from acquisition.sim.canopen.drive import SimCanopenDrive
     from acquisition.sim.faults import parse_fault
     from acquisition.sim.twin import KinematicTwin
-    from tests.acquisition.canopen.netns_canopen_listen import hardware_priority
+    from tests.acquisition.canopen.priority import hardware_priority
 
     sched = hardware_priority()  # the drive stands for hardware; the driver runs as mebm would
 

@@ -30,6 +30,8 @@ import threading
 import time
 from pathlib import Path
 
+from tests.acquisition.canopen.priority import hardware_priority
+
 GROUP = "239.74.163.3"
 PORT = 43114
 NODE = 7
@@ -55,17 +57,6 @@ TWIN = dict(backlash_um=120.0, position_gain_per_s=30.0)
 
 def _run(*cmd: str) -> None:
     subprocess.run(cmd, check=True, capture_output=True, text=True)
-
-
-def hardware_priority() -> str:
-    """The simulated drive and the CNC master stand for hardware with real-time behaviour: on a
-    host shared by many they get round-robin real-time priority where allowed (both sleep
-    between SYNCs; the kernel's RT throttling bounds them anyway). mebm runs as it would."""
-    try:
-        os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(10))
-        return "SCHED_RR"
-    except (OSError, AttributeError):
-        return "normal"
 
 
 def _quiet() -> None:
