@@ -233,6 +233,8 @@ class _Diagnosis:
         self.workers = workers  # threads for the independent parts of one candidate's fit
         self.axes = dataset.machine.axes
         self.memo = ct.SimMemo()
+        # (family, axis) -> its round-trip fit on the nominal model and the notes on it
+        self.alone: dict[tuple[str, str], tuple[_AxisFit | None, tuple[str, ...]]] = {}
         self.split = choose_split(dataset)
         self.rts, self.cts = prepare_runs(dataset, self.split)
         self.rt_axes = sorted({r.axis for r in self.rts})
@@ -331,68 +333,89 @@ class _Diagnosis:
         return sum(float(np.sum(ct.tracking_envelope_residual_um(c, sims[c.file]) ** 2)) for c in self.train_ct)
 
     # ---- candidates ----------------------------------------------------------------
+    def _fit_round_trips(self, new: str, a: str, bfit: _AxisFit | None,
+                         base_effects: tuple[str, ...]) -> tuple[_AxisFit | None, tuple[str, ...]]:
+        """Family ``new`` fitted on axis ``a``'s train round trips, on top of ``bfit`` (the
+        nominal model when None): the axis' fit if the BIC accepts it (None if not), and the
+        notes on it."""
+        notes: list[str] = []
+        runs = self.train_rt[a]
+        spec = self.axes[a]
+        ref_model = bfit.model if bfit else self.nom_model[a]
+        ref_fit = bfit.fit if bfit else self.nom_fit[a]
+        fam = REGISTRY[new]
+        resid = train_residuals(ref_model, ref_fit.theta, runs)
+        made = fam.stage(runs, spec, resid)
+        if made is None:
+            return None, (f"{new} on axis {a}: {NOT_IDENTIFIABLE} ({fam.no_stage_reason})",)
+        n = sum(r.fit_idx.size for r in runs)
+        # each of the family's forms is fitted; the one with the best BIC is taken if it
+        # passes the BIC test against the reference
+        tried = []
+        fitted_vals: dict[str, float] = {}  # the forms fitted so far, for derived starts
+        for st in made if isinstance(made, tuple) else (made,):
+            if st.derive_starts is not None:
+                st = replace(st, starts=st.starts + tuple(st.derive_starts(fitted_vals)))
+            stages = (bfit.stages if bfit else ()) + (st,)
+            if sum(1 for x in stages if x.kernel) > 1:
+                note = (f"axis {a}: {' and '.join(x.effect for x in stages)} both model the chain's dynamics; "
+                        "not composed")  # fmt: skip
+                if note not in notes:
+                    notes.append(note)
+                continue
+            model = compose(stages, self.b_um[a], self.memo.misc)
+            if bfit:
+                model = replace(model, x0=np.concatenate([bfit.fit.theta, st.x0]))
+                starts = [np.concatenate([bfit.fit.theta, s0]) for s0 in st.starts]
+            else:
+                starts = stage_starts(stages, np.array([self.b_um[a]]))
+            # alone: the stage's own step and starts; on top of a base, whose parameters are
+            # fitted again too, the default step (a 1 % step over all of them costs
+            # twice the diagnosis' time)
+            fr = rt.fit_model(model, runs, starts, n_starts=2 if st.starts and not bfit else 1,
+                              max_nfev=st.max_nfev, diff_step=None if bfit else st.diff_step)
+            fitted_vals.update(zip(model.names[-len(st.names):], fr.theta[-len(st.names):]))
+            # the reference in the form's own metric (an envelope-scored chain against the
+            # reference's residuals scored the same way, over the form's train windows)
+            ref_rss = (rt.train_rss(ref_model, ref_fit.theta, runs, True, model.train_windows_s) if model.envelope
+                       else ref_fit.rss)  # fmt: skip
+            gain = n * math.log(max(fr.rss, 1e-12) / max(ref_rss, 1e-12)) + len(st.names) * math.log(max(n, 2))
+            tried.append((gain, st, stages, model, fr, ref_rss))
+        if not tried:
+            return None, tuple(notes)
+        _, st, stages, model, fr, ref_rss = min(tried, key=lambda x: x[0])
+        if not _bic_accepts(ref_rss, fr.rss, n, len(st.names)):
+            notes.append(f"{new} on axis {a}: no train improvement (kept {'+'.join(base_effects) if bfit else 'nominal'})")
+            return None, tuple(notes)
+        if fr.capped:
+            notes.append(f"{new} on axis {a}: the round-trip fit stopped at its evaluation cap, not at convergence")
+        return _AxisFit(model, fr, stages, tuple(s.effect for s in stages)), tuple(notes)
+
     def fit_candidate(self, effects: tuple[str, ...], base: Fitted | None = None) -> Fitted:
         f = Fitted(effects)
         new = effects[-1]
         # round trips, axis by axis
         for a in self.rt_axes:
-            runs = self.train_rt[a]
-            spec = self.axes[a]
             bfit = base.rt_fits.get(a) if base else None
-            ref_model = bfit.model if bfit else self.nom_model[a]
-            ref_fit = bfit.fit if bfit else self.nom_fit[a]
             if bfit:
                 f.rt_fits[a] = bfit  # kept unless the new stage is accepted below
-            fam = REGISTRY[new]
-            if fam.stage is None:
+            if REGISTRY[new].stage is None:
                 continue
-            resid = train_residuals(ref_model, ref_fit.theta, runs)
-            made = fam.stage(runs, spec, resid)
-            if made is None:
-                f.notes.append(f"{new} on axis {a}: {NOT_IDENTIFIABLE} ({fam.no_stage_reason})")
-                continue
-            n = sum(r.fit_idx.size for r in runs)
-            # each of the family's forms is fitted; the one with the best BIC is taken if it
-            # passes the BIC test against the reference
-            tried = []
-            fitted_vals: dict[str, float] = {}  # the forms fitted so far, for derived starts
-            for st in made if isinstance(made, tuple) else (made,):
-                if st.derive_starts is not None:
-                    st = replace(st, starts=st.starts + tuple(st.derive_starts(fitted_vals)))
-                stages = (bfit.stages if bfit else ()) + (st,)
-                if sum(1 for x in stages if x.kernel) > 1:
-                    note = (f"axis {a}: {' and '.join(x.effect for x in stages)} both model the chain's dynamics; "
-                            "not composed")  # fmt: skip
-                    if note not in f.notes:
-                        f.notes.append(note)
-                    continue
-                model = compose(stages, self.b_um[a], self.memo.misc)
-                if bfit:
-                    model = replace(model, x0=np.concatenate([bfit.fit.theta, st.x0]))
-                    starts = [np.concatenate([bfit.fit.theta, s0]) for s0 in st.starts]
-                else:
-                    starts = stage_starts(stages, np.array([self.b_um[a]]))
-                # alone: the stage's own step and starts; on top of a base, whose parameters are
-                # fitted again too, the default step (a 1 % step over all of them costs
-                # twice the diagnosis' time)
-                fr = rt.fit_model(model, runs, starts, n_starts=2 if st.starts and not bfit else 1,
-                                  max_nfev=st.max_nfev, diff_step=None if bfit else st.diff_step)
-                fitted_vals.update(zip(model.names[-len(st.names):], fr.theta[-len(st.names):]))
-                # the reference in the form's own metric (an envelope-scored chain against the
-                # reference's residuals scored the same way, over the form's train windows)
-                ref_rss = (rt.train_rss(ref_model, ref_fit.theta, runs, True, model.train_windows_s) if model.envelope
-                           else ref_fit.rss)  # fmt: skip
-                gain = n * math.log(max(fr.rss, 1e-12) / max(ref_rss, 1e-12)) + len(st.names) * math.log(max(n, 2))
-                tried.append((gain, st, stages, model, fr, ref_rss))
-            if not tried:
-                continue
-            _, st, stages, model, fr, ref_rss = min(tried, key=lambda x: x[0])
-            if not _bic_accepts(ref_rss, fr.rss, n, len(st.names)):
-                f.notes.append(f"{new} on axis {a}: no train improvement (kept {'+'.join(base.effects) if bfit else 'nominal'})")
-                continue
-            f.rt_fits[a] = _AxisFit(model, fr, stages, tuple(s.effect for s in stages))
-            if fr.capped:
-                f.notes.append(f"{new} on axis {a}: the round-trip fit stopped at its evaluation cap, not at convergence")
+            if bfit:
+                fitted, notes = self._fit_round_trips(new, a, bfit, base.effects)
+            else:
+                # without a base fit on this axis the new family's fit depends on (family,
+                # axis) alone: a pair whose base took nothing here (a contour-only family, a
+                # stage the BIC refused) gets the single's fit, computed once
+                key = (new, a)
+                if key not in self.alone:
+                    self.alone[key] = self._fit_round_trips(new, a, None, ())
+                fitted, notes = self.alone[key]
+            for note in notes:
+                if note not in f.notes:
+                    f.notes.append(note)
+            if fitted is not None:
+                f.rt_fits[a] = fitted
         # parameters of the round-trip fits
         for a, af in f.rt_fits.items():
             ivals = rt.intervals(af.fit, af.model.names, af.model.lower, af.model.upper)
