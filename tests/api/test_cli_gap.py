@@ -54,15 +54,20 @@ def test_a_single_run_is_one_error_line_and_a_failure_code(tmp_path, capsys):
     assert len(err) == 1 and err[0].startswith("mebm gap: error:") and "at least 2" in err[0]
 
 
-@pytest.mark.parametrize("plant", ["twin", "independent"])
-def test_benchmark_prints_the_confusion_matrix_and_scores(tmp_path, capsys, plant):
+def _assert_prints_the_confusion_matrix_and_scores(text: str, plant: str) -> None:
+    assert f"plant {plant}" in text
+    assert "confusion matrix" in text and "named correctly" in text and "median gap_after/gap_before" in text
+    assert "second effect recall" in text and "within 2x the noise floor" in text
+
+
+def test_benchmark_prints_the_confusion_matrix_and_scores(tmp_path, capsys):
+    """The independent plant's benchmark (the twin's: the test of ``--only`` below)."""
+    plant = "independent"
     out = tmp_path / "bench.json"
     assert main(["gap", "benchmark", "--cases", "1", "--seed", "4", "--small", "--plant", plant,
                  "--json", str(out)]) == 0
     text = capsys.readouterr().out
-    assert f"plant {plant}" in text
-    assert "confusion matrix" in text and "named correctly" in text and "median gap_after/gap_before" in text
-    assert "second effect recall" in text and "within 2x the noise floor" in text
+    _assert_prints_the_confusion_matrix_and_scores(text, plant)
     doc = json.loads(out.read_text())
     assert doc["n_cases"] == 1 and len(doc["cases"]) == 1 and doc["plant"] == plant
     assert doc["cases"][0]["label"] in doc["confusion"]
@@ -138,7 +143,8 @@ def test_one_case_of_a_benchmark_again_and_its_dataset_written(tmp_path, capsys)
     """--only re-runs a case of a draw with the data of the whole run (case 3 of seed 4's
     three is a `none` case: a quick diagnosis); --write-datasets leaves it as a dataset
     folder that `mebm gap diagnose` reads, with truth.json beside it, written by the worker
-    process that generated it (--jobs 2)."""
+    process that generated it (--jobs 2). The twin's summary is printed as the
+    independent plant's is (the confusion matrix and the scores)."""
     from core.gap_benchmark import SMALL, benchmark_case, run_benchmark
 
     out = tmp_path / "bench.json"
@@ -147,7 +153,11 @@ def test_one_case_of_a_benchmark_again_and_its_dataset_written(tmp_path, capsys)
     text = capsys.readouterr().out
     assert [line.split(":")[0] for line in text.splitlines() if line.startswith("twin case")] == ["twin case   3/3"]
     assert "only cases 3 of the 3 drawn from seed 4" in text
-    (case,) = json.loads(out.read_text())["cases"]
+    _assert_prints_the_confusion_matrix_and_scores(text, "twin")
+    doc = json.loads(out.read_text())
+    assert doc["plant"] == "twin" and doc["n_cases"] == 1
+    (case,) = doc["cases"]
+    assert case["label"] in doc["confusion"]
     assert case["index"] == 2 and case["labels"] == []
     # the same data as in the whole run: the written dataset is the benchmark's case
     folder = tmp_path / "cases" / "twin-seed4-case003"
