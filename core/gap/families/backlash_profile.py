@@ -27,6 +27,18 @@ def profile_knots(lo_mm: float, hi_mm: float) -> np.ndarray:
     return np.linspace(lo_mm, hi_mm, n)
 
 
+def knot_names(knots: np.ndarray) -> tuple[str, ...]:
+    """The parameter names of the knots after the first, ``backlash_change_at_<mm>mm_um``,
+    in whole millimetres where that tells them apart (knots 1 mm apart and more: a travel
+    of 6 mm and more), else with as many decimals as it takes: two knots of one name
+    would be one parameter of the report."""
+    for decimals in range(7):
+        names = tuple(f"backlash_change_at_{k:.{decimals}f}mm_um" for k in knots[1:])
+        if len(set(names)) == len(names):
+            return names
+    return tuple(f"backlash_change_at_{k:.6f}mm_{i}_um" for i, k in enumerate(knots[1:], 1))
+
+
 def profile_stage(runs: Sequence[RoundTrip], axis: AxisSpec) -> Stage:
     """Backlash width along the travel, piecewise linear on knots at most 40 mm apart
     (7 to 31 over the characterised travel) with a weak smoothness prior: one or several
@@ -48,7 +60,7 @@ def profile_stage(runs: Sequence[RoundTrip], axis: AxisSpec) -> Stage:
     def prior(th):
         return PROFILE_SMOOTHNESS_WEIGHT * np.diff(np.r_[0.0, th], 2)
 
-    names = tuple(f"backlash_change_at_{k:.0f}mm_um" for k in knots[1:])
+    names = knot_names(knots)
     return Stage(NAME, names, np.zeros(n - 1), np.full(n - 1, -500.0),
                  np.full(n - 1, 1000.0), info={"positions_mm": knots.tolist()}, width=width,
                  prior=prior)  # fmt: skip
