@@ -8,9 +8,6 @@ reproducible local rerun of the same examples, set ``HYPOTHESIS_PROFILE=derandom
 """
 
 import os
-import subprocess
-import sys
-import tempfile
 
 import pytest
 from hypothesis import settings
@@ -65,42 +62,6 @@ def pytest_xdist_auto_num_workers(config):
     return 2 * (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
 
 
-_COMPILE = "from tests.numba_kernels import compile_kernels; compile_kernels()"
-
-
-@pytest.hookimpl(tryfirst=True)
-def pytest_sessionstart(session):
-    """(the controller of a parallel run) compile the numba kernels in another process
-    while the workers start and collect (tests/numba_kernels.py): on a fresh clone each
-    worker would otherwise compile every kernel itself. A worker that needs a kernel
-    before it is written compiles it, as without this."""
-    config = session.config
-    if getattr(config, "workerinput", None) is not None or not config.getoption("numprocesses", None):
-        return
-    log = tempfile.TemporaryFile()
-    proc = subprocess.Popen([sys.executable, "-c", _COMPILE], cwd=config.rootpath, stdout=log,
-                            stderr=subprocess.STDOUT)  # fmt: skip
-    config.mebm_kernels = (proc, log)
-
-
-def _kernels_line(config) -> str | None:
-    """A line for the summary when compiling the kernels failed (the product code it runs raised)."""
-    started = getattr(config, "mebm_kernels", None)
-    if started is None:
-        return None
-    proc, log = started
-    try:
-        rc = proc.wait(timeout=60)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        return "compiling the numba kernels did not end in the run's time: killed"
-    if rc == 0:
-        return None
-    log.seek(0)
-    tail = log.read().decode(errors="replace").strip().splitlines()[-1:]
-    return f"compiling the numba kernels failed (exit {rc}): {' '.join(tail)} (run: python -c '{_COMPILE}')"
-
-
 def _seed_line(config) -> str | None:
     seed = getattr(config, "mebm_hypothesis_seed", None)
     if seed is None:
@@ -113,9 +74,9 @@ def pytest_report_header(config):
 
 
 def pytest_terminal_summary(terminalreporter, exitstatus, config):
-    for line in (_seed_line(config), _kernels_line(config)):
-        if line:
-            terminalreporter.write_line(line)
+    line = _seed_line(config)
+    if line:
+        terminalreporter.write_line(line)
 
 
 @pytest.fixture(autouse=True)
@@ -136,10 +97,3 @@ def _apps_end_with_their_test():
             clear = getattr(value, "cache_clear", None)
             if callable(clear):
                 clear()
-
-
-def pytest_unconfigure(config):
-    started = getattr(config, "mebm_kernels", None)
-    if started is not None and started[0].poll() is None:
-        started[0].kill()
-        started[0].wait()
