@@ -62,6 +62,39 @@ def pytest_xdist_auto_num_workers(config):
     return 2 * (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
 
 
+# Test files that take a host-wide turn (tests/host_lock.py) and the lock's name: under
+# ``--dist loadfile`` the files of one lock are one unit of work, run by one worker one
+# after the other, instead of files in several workers of which all but one wait for the
+# lock (at the end of a run, where pytest-xdist's order puts files of few tests, the
+# cores then stood idle).
+HOST_TURNS = {
+    "tests/acquisition/linuxcnc/": "linuxcnc",
+    "tests/acquisition/canopen/test_driver_netns.py": "realtime-rig",
+    "tests/acquisition/canopen/test_listen_netns.py": "realtime-rig",
+}
+
+
+def work_unit(nodeid: str) -> str:
+    """The unit of work of a test under ``--dist loadfile``: its file, or its host lock's
+    name (HOST_TURNS)."""
+    path = nodeid.split("::", 1)[0]
+    return next((lock for prefix, lock in HOST_TURNS.items() if path.startswith(prefix)), path)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """``--dist loadfile`` with the files of one host lock in one unit (HOST_TURNS)."""
+    if config.getoption("dist") != "loadfile":
+        return None
+    from xdist.scheduler import LoadFileScheduling
+
+    class HostTurnsScheduling(LoadFileScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return work_unit(nodeid)
+
+    return HostTurnsScheduling(config, log)
+
+
 def _seed_line(config) -> str | None:
     seed = getattr(config, "mebm_hypothesis_seed", None)
     if seed is None:
