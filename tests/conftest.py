@@ -81,45 +81,12 @@ def work_unit(nodeid: str) -> str:
     return next((lock for prefix, lock in HOST_TURNS.items() if path.startswith(prefix)), path)
 
 
-def area(unit: str) -> str:
-    """The part of the tree a unit of work tests: its first folder below tests/."""
-    parts = unit.split("/")
-    return parts[1] if len(parts) > 2 and parts[0] == "tests" else unit.split("/")[0]
-
-
-def pytest_collection_modifyitems(session, config, items):
-    """Under ``--dist loadfile``: the units of work (work_unit) taken from the areas of the
-    tree in turn, acquisition, api, core, storage, then again. The acquisition tests wait on
-    simulated hardware that keeps real time, the core tests compute, the api tests start
-    services: in turn, the workers wait and compute side by side, where pytest-xdist's order
-    (the units of most tests first) started four acquisition files at once and left a core
-    idle. Each unit's tests keep their order, and stay together."""
-    if config.getoption("dist", "no") != "loadfile":
-        return
-    units: dict[str, list] = {}
-    for item in items:
-        units.setdefault(work_unit(item.nodeid), []).append(item)
-    by_area: dict[str, list[list]] = {}
-    for unit, its in units.items():
-        by_area.setdefault(area(unit), []).append(its)
-    queues = list(by_area.values())
-    ordered = []
-    while any(queues):
-        for q in queues:
-            if q:
-                ordered.extend(q.pop(0))
-    items[:] = ordered
-
-
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config, log):
-    """``--dist loadfile`` with the files of one host lock in one unit (HOST_TURNS), handed
-    out in the order of the collection (pytest_collection_modifyitems)."""
+    """``--dist loadfile`` with the files of one host lock in one unit (HOST_TURNS)."""
     if config.getoption("dist") != "loadfile":
         return None
     from xdist.scheduler import LoadFileScheduling
-
-    config.option.loadscopereorder = False
 
     class HostTurnsScheduling(LoadFileScheduling):
         def _split_scope(self, nodeid: str) -> str:
