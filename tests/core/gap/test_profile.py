@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from core.dataset import Dataset, MachineSpec
-from core.gap import diagnose
-from core.gap import GapSettings
+from core.gap import GapSettings, diagnose
 from core.gap.candidates import PROFILE_KNOT_SPACING_MM, PROFILE_MAX_KNOTS, profile_knots
 from core.gap.families.backlash_profile import knot_names, sim_piece
 from core.sim import AxisModel, BacklashProfile, Effects, Encoders, circle, round_trip, simulate
