@@ -41,6 +41,36 @@ ABORT_DEVICE_STATE = 0x08000022  # data cannot be transferred because of the pre
 ABORT_VALUE_RANGE = 0x06090030
 
 
+class SyncLossTimer:
+    """CiA 402 0x6007-style reaction of the simulated drive: a running program stops when
+    SYNC stops coming for ``loss_s``.
+
+    Counted on the drive's own timer: each tick without a new SYNC adds the time since the
+    previous tick, but at most two ticks' worth. A tick that comes late means the host
+    stalled the simulated drive itself (a garbage collection, a starved process); a
+    hardware drive runs on through its host's stalls, and SYNCs the stalled host did not
+    send are not a loss that drive could have seen.
+    """
+
+    def __init__(self, loss_s: float, tick_s: float = 0.05):
+        self.loss_s, self.tick_s = float(loss_s), float(tick_s)
+        self._last_tick: float | None = None
+        self._last_syncs = 0
+        self.silent_s = 0.0
+
+    def tick(self, now: float, syncs: int, running: bool) -> bool:
+        """One tick at ``now`` (s), with ``syncs`` SYNCs received so far; True: SYNC is lost."""
+        if syncs != self._last_syncs or not running or not syncs or self._last_tick is None:
+            self.silent_s = 0.0
+        else:
+            self.silent_s += min(now - self._last_tick, 2 * self.tick_s)
+        self._last_tick, self._last_syncs = now, syncs
+        if self.silent_s > self.loss_s:
+            self.silent_s = 0.0
+            return True
+        return False
+
+
 class SimCanopenDrive:
     """A simulated CiA 402 drive on a CAN bus. Use as a context manager or start()/stop()."""
 
@@ -76,8 +106,9 @@ class SimCanopenDrive:
         self.network: canopen.Network | None = None
         self._period_s = 1e-3
         self._silent_until = 0.0
-        self._last_sync = 0.0
         self.sync_loss_s = 0.5  # a running program is aborted when SYNC stops for this long
+        self._watchdog: threading.Thread | None = None
+        self._watchdog_stop = threading.Event()
         self._lost_left = 0
         self._fault_cycle: dict[str, int] = {}
         self.reply_delay_s = float(reply_delay_s)
@@ -112,9 +143,16 @@ class SimCanopenDrive:
         self.network.subscribe(co.rpdo1_cob_id(self.node_id), self._on_rpdo)
         self.network.send_message(0x700 + self.node_id, [0])  # boot-up
         self.node.nmt.state = "PRE-OPERATIONAL"
+        self._watchdog_stop.clear()
+        self._watchdog = threading.Thread(target=self._watch_sync, name="sim-drive-sync-watchdog", daemon=True)
+        self._watchdog.start()
         return self
 
     def stop(self) -> None:
+        self._watchdog_stop.set()
+        if self._watchdog is not None:
+            self._watchdog.join(1.0)
+            self._watchdog = None
         if self.network is not None:
             try:
                 self.node.nmt.stop_heartbeat()
@@ -177,16 +215,18 @@ class SimCanopenDrive:
             self.node.emcy.send(code, register=0x01)
 
     # -- CAN callbacks (python-can notifier thread) ------------------------------------------------------
-    def _sync_watchdog(self) -> None:
-        # CiA 402 0x6007-style reaction: a running program stops when SYNC stops coming
-        if (self.axis.state == AxisState.RUNNING and self._last_sync
-                and time.monotonic() - self._last_sync > self.sync_loss_s):
-            self.axis.abort()
+    def _watch_sync(self) -> None:
+        """The drive's own SYNC-loss timer (:class:`SyncLossTimer`), ticking on its own thread."""
+        timer = SyncLossTimer(self.sync_loss_s)
+        while not self._watchdog_stop.wait(timer.tick_s):
+            running = self.axis.state == AxisState.RUNNING
+            timer.loss_s = self.sync_loss_s
+            if timer.tick(time.monotonic(), self.syncs, running) and running:
+                self.axis.abort()
 
     def _on_sdo_request(self, can_id, data, timestamp):
         if self._silent():
             return
-        self._sync_watchdog()
         slow = self.axis.fault("slow")
         if slow is not None and self.axis.state == AxisState.RUNNING and self.axis.progress() >= slow.at:
             t = threading.Timer(float(slow.value("s")), self.node.sdo.on_request, (can_id, data, timestamp))
@@ -200,7 +240,6 @@ class SimCanopenDrive:
         if self._silent() or self.node.nmt.state != "OPERATIONAL":
             return
         self.syncs += 1
-        self._last_sync = time.monotonic()
         self.machine_time_s += self._period_s
         self.axis.update()
         cia402_position = self._cia402_step()
