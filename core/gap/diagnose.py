@@ -32,6 +32,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.ndimage import uniform_filter1d
+from threadpoolctl import threadpool_limits
 
 from core.dataset import Dataset
 from core.gap import contour as ct
@@ -614,6 +615,14 @@ def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: 
     workers = min(os.cpu_count() or 1, 4) if workers is None else int(workers)
     s = settings or GapSettings()
     _check(dataset)
+    # one BLAS thread: the fits' linear algebra is small (Jacobians of a few dozen columns),
+    # and the parallel parts are the diagnosis' own threads. BLAS threads of their own only
+    # spin between calls: two or three times the CPU, and slower
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _diagnose(dataset, s, workers)
+
+
+def _diagnose(dataset: Dataset, s: GapSettings, workers: int) -> GapReport:
     d = _Diagnosis(dataset, s, workers)
     d.fit_nominal()
     rt_nom, ct_nom = d.rt_nom, d.ct_nom
