@@ -219,10 +219,9 @@ class SimCanopenDrive:
         """The drive's own SYNC-loss timer (:class:`SyncLossTimer`), ticking on its own thread."""
         timer = SyncLossTimer(self.sync_loss_s)
         while not self._watchdog_stop.wait(timer.tick_s):
-            running = self.axis.state == AxisState.RUNNING
             timer.loss_s = self.sync_loss_s
-            if timer.tick(time.monotonic(), self.syncs, running) and running:
-                self.axis.abort()
+            if timer.tick(time.monotonic(), self.syncs, self.axis.state == AxisState.RUNNING):
+                self.axis.abort()  # True only while running
 
     def _on_sdo_request(self, can_id, data, timestamp):
         if self._silent():
