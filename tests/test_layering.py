@@ -123,3 +123,53 @@ def test_no_private_name_is_imported_across_modules(tmp_path):
     (tmp_path / "tests").mkdir()
     (tmp_path / "tests" / "test_x.py").write_text("from core.gap.diagnose import _hidden\n")
     assert _private_imports(tmp_path) == ["tests/test_x.py:1 core.gap.diagnose._hidden"]
+
+
+def _import_circles(graph, package: str) -> list[list[str]]:
+    """Every import circle among the modules of ``package`` (strongly connected components
+    of two modules or more, Tarjan's), each sorted."""
+    modules = sorted(m for m in graph.modules if m == package or m.startswith(package + "."))
+    inside = set(modules)
+    edges = {m: sorted(graph.find_modules_directly_imported_by(m) & inside) for m in modules}
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    circles = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in edges[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                circles.append(sorted(component))
+
+    for m in modules:
+        if m not in index:
+            visit(m)
+    return circles
+
+
+def test_the_service_has_no_import_circle():
+    import grimp
+
+    graph = grimp.build_graph("api", cache_dir=None)
+    assert _import_circles(graph, "api.service") == []
+    # and the check sees one when there is one: the configuration importing the scheduler again
+    graph.add_import(importer="api.service.config.input", imported="api.service.cycles.scheduler")
+    circles = _import_circles(graph, "api.service")
+    assert len(circles) == 1 and {"api.service.config.input", "api.service.cycles.scheduler"} <= set(circles[0])

@@ -158,7 +158,7 @@ def schedule_of(body: ScheduleIn) -> Schedule:
     """The schedule; a cron expression the scheduler cannot read is refused here."""
     sch = Schedule(body.interval_s, body.cron, body.enabled)
     if sch.cron is not None:
-        from api.service.cycles.scheduler import make_trigger
+        from api.service.config.schedule import make_trigger
 
         make_trigger(sch)
     return sch

@@ -37,7 +37,8 @@ from datetime import datetime, timedelta, timezone
 
 from api.service.config.settings import SIM_CONTROLLER, WorkerSettings
 from api.service.cycles.executor import CycleExecutor, CycleRequest
-from api.service.cycles.scheduler import STOP, CycleScheduler, make_trigger
+from api.service.config.schedule import make_trigger
+from api.service.cycles.scheduler import STOP, CycleScheduler
 from storage.db import AxisRecord, CycleRecord, StorageError, config_repo, results_repo, session_scope, utcnow
 from storage.db import leases
 

@@ -21,11 +21,9 @@ import uuid as uuidlib
 from datetime import datetime, timedelta, timezone
 
 from apscheduler.schedulers.background import BackgroundScheduler
-from apscheduler.triggers.cron import CronTrigger
-from apscheduler.triggers.interval import IntervalTrigger
 
+from api.service.config.schedule import make_trigger
 from api.service.cycles.executor import CycleExecutor, CycleRequest
-from core.errors import InputError
 from storage.db import (
     AxisRecord,
     CycleRecord,
@@ -39,19 +37,6 @@ from storage.db import (
 
 log = logging.getLogger("mebm.scheduler")
 STOP = object()  # put on an axis' queue, ends its worker thread (the fleet scheduler's too)
-
-
-def make_trigger(schedule: Schedule):
-    """The APScheduler trigger of a stored schedule (cron fields in UTC)."""
-    if schedule.interval_s is not None:
-        return IntervalTrigger(seconds=schedule.interval_s, timezone=timezone.utc)
-    try:
-        trigger = CronTrigger.from_crontab(schedule.cron, timezone=timezone.utc)
-    except ValueError as exc:
-        raise InputError(f"schedule: cron (={schedule.cron!r}) is not a valid crontab expression: {exc}") from exc
-    if trigger.get_next_fire_time(None, datetime.now(timezone.utc)) is None:
-        raise InputError(f"schedule: cron (={schedule.cron!r}) never fires (a date that does not exist?)")
-    return trigger
 
 
 def missed_since(schedule: Schedule, last: datetime | None, now: datetime) -> bool:
