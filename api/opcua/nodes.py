@@ -32,6 +32,13 @@ MICROMETRE = ua.EUInformation(NamespaceUri=UNECE_URI, UnitId=unece_unit_id("4H")
                               DisplayName=ua.LocalizedText("µm"), Description=ua.LocalizedText("micrometre"))
 
 
+def segment(name: str) -> str:
+    """A machine's or a task's name as one segment of a string NodeId: ``/`` and ``%`` are
+    escaped, so a name that reads like a path (``x/Notification``) names a node of its own
+    and never one the address space uses for something else."""
+    return name.replace("%", "%25").replace("/", "%2F")
+
+
 def _dv(value, vtype: ua.VariantType, source: datetime | None = None) -> ua.DataValue:
     """A DataValue; a missing value is BadWaitingForInitialData (no measurement gives it yet)."""
     now = datetime.now(timezone.utc)
@@ -112,7 +119,7 @@ class AddressSpace:
     async def _machine(self, name: str) -> MachineNodes:
         m = self.machines.get(name)
         if m is None:
-            base = f"Machines/{name}"
+            base = f"Machines/{segment(name)}"
             obj = await self.machines_folder.add_object(self._id(base), self._qn(name))
             notification = await obj.add_folder(self._id(f"{base}/Notification"), self._qn("Notification"))
             prognoses = await notification.add_folder(self._id(f"{base}/Notification/Prognoses"), self._qn("Prognoses"))
@@ -154,7 +161,7 @@ class AddressSpace:
         for t in v.tasks:
             node = a.tbe.get(t.name)
             if node is None:
-                sid = f"Axes/{v.axis_id}/TBE/{t.name}"
+                sid = f"Axes/{v.axis_id}/TBE/{segment(t.name)}"
                 node = a.tbe[t.name] = await self._variable(
                     a.tbe_folder, sid, t.name, ua.VariantType.Double,
                     f"transient backlash error of task {t.name!r} at the measured b̄, µm", analog=True)
@@ -172,7 +179,7 @@ class AddressSpace:
         activity = ua.LocalizedText(
             f"axis {v.axis}: restore the backlash below {v.restore_below_um:.1f} µm ({v.restore_below_explanation})"
             if v.restore_below_um is not None else f"axis {v.axis}: restore the backlash")
-        sid = f"Machines/{v.machine}/Notification/Prognoses/{v.axis_id}"
+        sid = f"Machines/{segment(v.machine)}/Notification/Prognoses/{v.axis_id}"
         props = (("PredictedTime", v.predicted_time, ua.VariantType.DateTime),  # as 40501's PrognosisType
                  ("Activity", activity, ua.VariantType.LocalizedText),  # as its MaintenancePrognosisType
                  ("Source", v.prediction_source, ua.VariantType.String))  # fmt: skip

@@ -80,10 +80,14 @@ class OpcuaServer:
         try:
             with session_scope(self.service.factory) as s:
                 axis_ids = [a.id for a in config_repo.list_axes(s)]
-            for axis_id in axis_ids:
-                self.update(axis_id)
         except Exception:  # noqa: BLE001 - the next measurement fills in what seeding missed
             log.exception("OPC UA: seeding the address space from the database failed")
+            axis_ids = []
+        for axis_id in axis_ids:  # one axis that cannot be shown leaves the others shown
+            try:
+                self.update(axis_id)
+            except Exception:  # noqa: BLE001 - the next measurement of that axis tries again
+                log.exception("OPC UA: axis %d could not be added to the address space", axis_id)
         log.info("OPC UA server listening on %s", self.endpoint)
         return True
 
