@@ -25,7 +25,6 @@ import json
 import logging
 import os
 import queue
-import re
 import socket
 import threading
 from urllib.parse import unquote, urlsplit
@@ -34,13 +33,16 @@ import paho.mqtt.client as paho
 
 from api.service.config.settings import MqttSettings
 from api.service.events import Event, order_document
+from storage.db.names import interface_name
 
 log = logging.getLogger("mebm.mqtt")
 QOS = 1
 
 
 def topic_level(name: str) -> str:
-    return re.sub(r"[/+#\s]+", "_", name).strip("_") or "_"
+    """A machine's or an axis' name as one topic level (two names that map to one are refused
+    at creation: storage.db.names)."""
+    return interface_name(name)
 
 
 def alert_document(ev: Event) -> dict:

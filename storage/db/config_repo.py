@@ -19,6 +19,7 @@ from core.tbe import DECISION_RULES, MachiningTask
 from storage.db import ui_sessions_repo
 from storage.db.errors import ConflictError, NotFoundError
 from storage.db.models import ApiKey, Axis, Machine, MachiningTaskRow
+from storage.db.names import collision, collision_message
 from storage.db.records import ROLES, AxisRecord, AxisSettings, KeyRecord, MachineRecord, Schedule, as_utc, utcnow
 
 KEY_PREFIX = "mebm_"
@@ -36,6 +37,9 @@ def create_machine(s: Session, name: str, description: str = "") -> MachineRecor
         raise InputError("machine name must not be empty")
     if s.scalar(select(Machine.id).where(Machine.name == name)) is not None:
         raise ConflictError(f"a machine named {name!r} exists already")
+    other = collision(name, s.scalars(select(Machine.name)))
+    if other is not None:
+        raise ConflictError(collision_message("machine", name, other))
     m = Machine(name=name, uuid=str(uuid.uuid4()), description=description, created_at=utcnow())
     s.add(m)
     s.flush()
@@ -108,6 +112,9 @@ def create_axis(s: Session, machine_id: int, st: AxisSettings) -> AxisRecord:
     _check_settings(st)
     if s.scalar(select(Axis.id).where(Axis.machine_id == machine_id, Axis.name == st.spec.name)) is not None:
         raise ConflictError(f"machine {m.name!r} has an axis {st.spec.name!r} already")
+    other = collision(st.spec.name, s.scalars(select(Axis.name).where(Axis.machine_id == machine_id)))
+    if other is not None:
+        raise ConflictError(f"machine {m.name!r}: " + collision_message("axis", st.spec.name, other))
     now = utcnow()
     a = Axis(
         machine_id=machine_id, name=st.spec.name, uuid=str(uuid.uuid4()),

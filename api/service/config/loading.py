@@ -42,6 +42,7 @@ from core.dataset import AxisSpec
 from core.errors import InputError
 from core.tbe import MachiningTask
 from storage.db import AxisSettings, Schedule
+from storage.db.names import collision, collision_message
 
 # the top-level tables of the configuration file
 TABLES = {"server", "storage", "auth", "scheduler", "simulator", "machines", "logging", "limits", "retention", "mqtt",
@@ -233,9 +234,17 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
             name = _get(m, "name", str, where, "")
             if not name:
                 raise ConfigError(f"{where}.name must be given")
+            other = collision(name, (n for n, _ in machines))
+            if other is not None:
+                raise ConfigError(f"{where}.name: " + collision_message("machine", name, other))
             machines.append((name, _get(m, "description", str, where, "")))
             for j, a in enumerate(m.get("axes", [])):
-                axes.append(_axis(a, name, f"{where}.axes[{j}]", instruments))
+                axis = _axis(a, name, f"{where}.axes[{j}]", instruments)
+                other = collision(axis.settings.spec.name, (x.settings.spec.name for x in axes if x.machine == name))
+                if other is not None:
+                    raise ConfigError(f"{where}.axes[{j}].name: "
+                                      + collision_message("axis", axis.settings.spec.name, other))
+                axes.append(axis)
         machines, axes = tuple(machines), tuple(axes)
     data_dir = _get(storage, "data_dir", str, "storage")
     profiles_dir = _get(storage, "profiles_dir", str, "storage")

@@ -1,0 +1,56 @@
+"""Two machines (or two axes of one machine) whose names map to one MQTT topic level would
+publish under one topic with one client id: the second is refused where it is created
+(REST, dashboard, configuration file), naming the first."""
+
+from __future__ import annotations
+
+import pytest
+
+from api.service.config.loading import parse_settings
+from api.service.config.settings import ConfigError
+from tests.api.rest.conftest import hdr
+
+V1 = "/api/v1"
+AXIS = {"transmission_mm_per_rev": 10, "screw_lead_mm": 10, "position_gain_per_s": 20, "travel_mm": [0, 500],
+        "controller_url": "modbus://10.0.0.5:502"}
+
+
+def test_rest_refuses_a_machine_whose_name_maps_to_the_topic_of_another_naming_it(client, app_env):
+    h = hdr(app_env[2]["admin"])
+    assert client.post(f"{V1}/machines", json={"name": "m a"}, headers=h).status_code == 201
+    for twin in ("m_a", "m  a", "m a_", "m_a "):
+        r = client.post(f"{V1}/machines", json={"name": twin}, headers=h)
+        assert r.status_code == 409, (twin, r.text)
+        assert "'m a'" in r.json()["detail"] and "m_a" in r.json()["detail"], r.text
+    assert client.post(f"{V1}/machines", json={"name": "m-a"}, headers=h).status_code == 201  # another topic
+    names = [m["name"] for m in client.get(f"{V1}/machines", headers=h).json()]
+    assert names.count("m a") == 1 and "m-a" in names and "m_a" not in names
+
+
+def test_rest_refuses_an_axis_whose_name_maps_to_the_topic_of_another_of_its_machine(client, app_env):
+    h = hdr(app_env[2]["admin"])
+    first = client.post(f"{V1}/machines", json={"name": "lathe"}, headers=h).json()["id"]
+    second = client.post(f"{V1}/machines", json={"name": "mill"}, headers=h).json()["id"]
+    assert client.post(f"{V1}/machines/{first}/axes", json={**AXIS, "name": "x1"}, headers=h).status_code == 201
+    r = client.post(f"{V1}/machines/{first}/axes", json={**AXIS, "name": "x1_"}, headers=h)
+    assert r.status_code == 409 and "'x1'" in r.json()["detail"] and "lathe" in r.json()["detail"], r.text
+    # another machine's axis has topics of its own
+    assert client.post(f"{V1}/machines/{second}/axes", json={**AXIS, "name": "x1_"}, headers=h).status_code == 201
+
+
+@pytest.mark.parametrize("machines, where, other", [
+    ([{"name": "m a"}, {"name": "m_a"}], "machines[1].name", "'m a'"),
+    ([{"name": "m", "axes": [{"name": "y 2"}, {"name": "y/2"}]}], "machines[0].axes[1].name", "'y 2'"),
+])
+def test_the_configuration_file_refuses_names_that_share_a_topic_at_load(machines, where, other):
+    axis = {k: v for k, v in AXIS.items() if k != "controller_url"}
+    doc = {"machines": [{**m, "axes": [{**axis, **a} for a in m.get("axes", [])]} for m in machines]}
+    with pytest.raises(ConfigError) as err:
+        parse_settings(doc)
+    assert str(err.value).startswith(where) and other in str(err.value), err.value
+
+
+def test_the_configuration_file_keeps_names_that_map_to_distinct_topics():
+    axis = {k: v for k, v in AXIS.items() if k != "controller_url"}
+    doc = {"machines": [{"name": "m a", "axes": [{**axis, "name": "y"}]}, {"name": "m-a", "axes": [{**axis, "name": "y"}]}]}
+    assert [m for m, _ in parse_settings(doc).machines] == ["m a", "m-a"]
