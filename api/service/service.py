@@ -75,6 +75,8 @@ class StartReport:
     # the SQLite database could not be opened for lack of disk: why, and that the start
     # completes by itself once there is room (nothing else in this report happened yet)
     waiting_for_room: str | None = None
+    # the finished cycles start-up could not store (still in the spool): one line each, with the reason
+    not_stored: tuple[str, ...] = ()
 
 
 class Service:
@@ -253,7 +255,8 @@ class Service:
         self.executor = CycleExecutor(self.factory, Path(st.data_dir), self.runner, self.resolve_url,
                                       on_saved=self._on_saved, status=self.status,
                                       reserve_bytes=int(st.spool_reserve_mb * 1e6),
-                                      min_free_bytes=int(st.min_free_disk_mb * 1e6))
+                                      min_free_bytes=int(st.min_free_disk_mb * 1e6), slots=st.spool_slots,
+                                      slot_bytes=int(st.spool_slot_mb * 1e6))
         if isinstance(self.runner, DriverRunner) and self.runner.processes is not None and (
                 st.scheduler_enabled or not self.fleet):  # (an API-only fleet replica runs no cycle)
             self.runner.processes.start()  # spawned in the background; cycles run in the service until they are up
@@ -318,6 +321,8 @@ class Service:
             database=redact_secrets(st.db_url), replayed=replayed, interrupted=interrupted, created_axes=tuple(created),
             demo_keys=demo_keys, simulators={a: s.url for a, s in self.simulators.items()}, bootstrap_admin=admin,
             worker=self._worker_line(), folders_moved_aside=aside,
+            not_stored=tuple(f"cycle {u} ({status}) is kept in the spool, not stored yet: {reason or 'database down'}"
+                             for u, (status, reason) in sorted(self.executor.held().items())),
         )
         # Everything start-up made (modules, mappers, compiled statements, the app) lives as
         # long as the process: move it out of the collector's sight, so a full collection

@@ -183,7 +183,8 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
     server = doc.get("server", {})
     _unknown(server, {"host", "port", "status_max_age_s", "trusted_proxies"}, "server")
     storage = doc.get("storage", {})
-    _unknown(storage, {"data_dir", "database_url", "min_free_disk_mb", "spool_reserve_mb", "profiles_dir"}, "storage")
+    _unknown(storage, {"data_dir", "database_url", "min_free_disk_mb", "spool_reserve_mb", "spool_slots",
+                       "spool_slot_mb", "profiles_dir"}, "storage")
     auth = doc.get("auth", {})
     _unknown(auth, {"bootstrap_admin_key", "demo_keys"}, "auth")
     sched = doc.get("scheduler", {})
@@ -254,12 +255,21 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
     spool_reserve_mb = _get(storage, "spool_reserve_mb", float, "storage", base.spool_reserve_mb)
     if spool_reserve_mb < 0:
         raise ConfigError(f"storage.spool_reserve_mb (={spool_reserve_mb}) must be >= 0")
+    spool_slots = _get(storage, "spool_slots", int, "storage", base.spool_slots)
+    if not 0 <= spool_slots <= 64:
+        raise ConfigError(f"storage.spool_slots (={spool_slots}) must be 0..64 (0: none; each keeps one cycle "
+                          "finished on a full disk)")
+    spool_slot_mb = _get(storage, "spool_slot_mb", float, "storage", base.spool_slot_mb)
+    if not 0.01 <= spool_slot_mb <= 64:
+        raise ConfigError(f"storage.spool_slot_mb (={spool_slot_mb}) must be 0.01..64 (a cycle's spool file with "
+                          "its raw trace is a few hundred kB)")
     return replace(
         base,
         host=_get(server, "host", str, "server", base.host), port=port,
         data_dir=Path(data_dir) if data_dir else base.data_dir,
         database_url=_get(storage, "database_url", str, "storage", base.database_url) or None,
-        min_free_disk_mb=min_free_disk_mb, spool_reserve_mb=spool_reserve_mb,
+        min_free_disk_mb=min_free_disk_mb, spool_reserve_mb=spool_reserve_mb, spool_slots=spool_slots,
+        spool_slot_mb=spool_slot_mb,
         profiles_dir=Path(profiles_dir) if profiles_dir else base.profiles_dir,
         bootstrap_admin_key=_get(auth, "bootstrap_admin_key", str, "auth", base.bootstrap_admin_key) or None,
         demo_keys=_get(auth, "demo_keys", bool, "auth", base.demo_keys),

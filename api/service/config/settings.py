@@ -170,6 +170,11 @@ class Settings:
     # a file of this size kept under <data_dir>/spool, released when the disk is full so
     # that a finished cycle can still be spooled (0: none)
     spool_reserve_mb: float = 16.0
+    # spool slots: files of spool_slot_mb each kept under <data_dir>/spool, into which a
+    # finished cycle's spool file is written in place when the disk has no room left (even
+    # after the reserve was released): one slot per cycle, refilled once there is room
+    spool_slots: int = 4
+    spool_slot_mb: float = 1.0
     # the folder a register profile named in an axis' controller URL (``profile=NAME``) is
     # read from; None: ``<data_dir>/profiles``
     profiles_dir: Path | None = None

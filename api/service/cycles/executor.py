@@ -24,8 +24,17 @@ spool file written in its place; a cycle whose raw run found no room either carr
 trace in the spool file. Such a cycle is recorded with the reason code ``storage_full``
 (its ``failure_reason`` starts with ``storage_full:``), shown so while it waits
 (:meth:`CycleExecutor.held`) and stored when there is room again (re-analysed from its
-trace). The reserve is allocated again once the spool is empty. A cycle that could not be
-spooled even so is kept in memory, retried with the spool and written to the spool at stop.
+trace). The reserve is allocated again once the spool is empty.
+
+The second and later full disks in a row (the reserve already spent): spool slots,
+``<data_dir>/spool/.slot-<i>`` (``storage.spool_slots`` files of ``storage.spool_slot_mb``),
+written while there was room. A spool file that finds no room is written *into* a slot in
+place (its blocks are the slot's already: no allocation), truncated to its length, fsynced
+and renamed to ``<uuid>.json``: an ordinary spool file from then on, found by a restart,
+also after a kill. A trace too large for a slot is left out (the cycle is then recorded
+with ``raw_run_lost``, which says why). Slots are written again once there is room. Only
+with every slot taken is a cycle kept in memory, retried with the spool, written to the
+spool at stop and logged as lost at exit if even that fails.
 Temporary files are renamed into place only after a successful fsync and removed on failure.
 """
 
@@ -195,7 +204,7 @@ class CycleExecutor:
     """Runs cycles for the scheduler and stores them (see the module docstring)."""
 
     def __init__(self, factory, data_dir: Path, runner: CycleRunner, resolve_url, *, on_saved=None, status=None,
-                 reserve_bytes: int = 0, min_free_bytes: int = 0):
+                 reserve_bytes: int = 0, min_free_bytes: int = 0, slots: int = 0, slot_bytes: int = 1 << 20):
         self.factory = factory
         self.data_dir = Path(data_dir)
         self.spool_dir = self.data_dir / "spool"
@@ -203,6 +212,8 @@ class CycleExecutor:
         self.unfiled_dir = self.data_dir / "unfiled"
         self.reserve_path = self.spool_dir / ".reserve"
         self.reserve_bytes = max(int(reserve_bytes), 0)
+        self.slot_paths = [self.spool_dir / f".slot-{i}" for i in range(max(int(slots), 0))]
+        self.slot_bytes = max(int(slot_bytes), 1)
         self.min_free_bytes = max(int(min_free_bytes), 0)  # below it, no cycle is started
         self.runner = runner
         self.resolve_url = resolve_url
@@ -479,7 +490,7 @@ class CycleExecutor:
                 cycle, alerts = results_repo.save_finished_cycle(s, fc)
                 publish = self._prepare_status(s, fc.axis_id)
         except DatabaseUnavailableError as exc:
-            spool_full = spool is None and doc is not None and doc["uuid"] in self._spool_refused_full
+            spool_full = doc is not None and doc["uuid"] in self._spool_refused_full
             if doc is not None and (disk_full(exc) or spool_full) and not results_repo.is_storage_full(
                     fc.failure_reason):
                 # the database found no room either (SQLite under the data folder): the true reason
@@ -652,44 +663,113 @@ class CycleExecutor:
                     log.error("cycle %s: the disk is full; the spool reserve (%s) was released to keep it",
                               doc["uuid"], self.reserve_path)
                     continue
-                log.error("cycle %s: spool file not written (%s)", doc["uuid"], exc)
                 if disk_full(exc):
-                    self._spool_refused_full.add(doc["uuid"])
+                    self._spool_refused_full.add(doc["uuid"])  # its reason is storage_full, kept in a slot or not
+                    path = self._write_into_slot(doc)
+                    if path is not None:
+                        return path
+                log.error("cycle %s: spool file not written (%s)", doc["uuid"], exc)
                 return None
         return None
 
+    def _write_into_slot(self, doc: dict) -> Path | None:
+        """``doc`` written in place into a free spool slot and renamed to its spool file (see
+        the module docstring); without its trace if that does not fit. None if no slot is free."""
+        data = json.dumps(doc).encode("utf-8")
+        if len(data) > self.slot_bytes and doc.get("trace"):
+            why = (f"its raw trace ({len(data) / 1e6:.2f} MB with the record) did not fit a spool slot "
+                   f"(storage.spool_slot_mb = {self.slot_bytes / 1e6:g}) on the full disk")
+            doc = {**{k: v for k, v in doc.items() if k != "trace"},
+                   "raw_run_lost": f"{doc.get('raw_run_lost') or 'not kept'}; {why}"}
+            data = json.dumps(doc).encode("utf-8")
+        if len(data) > self.slot_bytes:
+            log.error("cycle %s: its spool file (%d bytes) is larger than a spool slot (%d bytes)", doc["uuid"],
+                      len(data), self.slot_bytes)
+            return None
+        path = self.spool_dir / f"{doc['uuid']}.json"
+        for slot in self.slot_paths:
+            try:
+                if slot.stat().st_size < self.slot_bytes:
+                    continue  # not (fully) written: its blocks are not all there
+                fd = os.open(slot, os.O_WRONLY)
+            except OSError:
+                continue
+            try:
+                try:
+                    os.pwrite(fd, data, 0)
+                    os.ftruncate(fd, len(data))
+                    os.fsync(fd)
+                finally:
+                    os.close(fd)
+                os.replace(slot, path)
+                fsync_dir(self.spool_dir)
+            except OSError as exc:
+                log.error("cycle %s: spool slot %s could not be written (%s)", doc["uuid"], slot.name, exc)
+                with contextlib.suppress(OSError):
+                    slot.unlink()  # a half-written slot is no slot: written again once there is room
+                continue
+            log.error("cycle %s: the disk is full; its spool file was written into the spool slot %s (%d of %d "
+                      "slots left); %s", doc["uuid"], slot.name, self.free_slots(), len(self.slot_paths),
+                      FREE_SPACE_HINT)
+            return path
+        log.critical("cycle %s: the disk is full and all %d spool slots are taken (storage.spool_slots)",
+                     doc["uuid"], len(self.slot_paths))
+        return None
+
+    def free_slots(self) -> int:
+        """How many spool slots are written and free."""
+        n = 0
+        for slot in self.slot_paths:
+            with contextlib.suppress(OSError):
+                n += slot.stat().st_size >= self.slot_bytes
+        return n
+
     # -- the reserve -----------------------------------------------------------------------------
     def ensure_reserve(self) -> bool:
-        """Allocate the spool reserve if it is missing (written, fsynced and renamed into
-        place; nothing is left on failure). True if it is in place (or none is configured)."""
-        if self.reserve_ok():
-            return True
-        free = self.free_bytes()
-        if free is not None and free < 2 * self.reserve_bytes:  # no room yet: taking it would fill the disk again
-            log.debug("spool reserve not allocated yet: %d bytes free", free)
+        """Write the spool slots and the spool reserve that are missing (each written, fsynced
+        and renamed into place; nothing is left on failure; each only while the disk has twice
+        its size free). True if all are in place (or none is configured)."""
+        ok = True
+        for slot in self.slot_paths:
+            if not self._slot_ok(slot):
+                ok = self._allocate(slot, self.slot_bytes) and ok
+        if self.reserve_bytes > 0 and not self._slot_ok(self.reserve_path, self.reserve_bytes):
+            ok = self._allocate(self.reserve_path, self.reserve_bytes) and ok
+        return ok
+
+    def _slot_ok(self, path: Path, size: int | None = None) -> bool:
+        try:
+            return path.stat().st_size >= (self.slot_bytes if size is None else size)
+        except OSError:
             return False
-        tmp = self.reserve_path.with_name(".reserve.tmp")
+
+    def _allocate(self, path: Path, nbytes: int) -> bool:
+        free = self.free_bytes()
+        if free is not None and free < 2 * nbytes:  # no room yet: taking it would fill the disk again
+            log.debug("%s not allocated yet: %d bytes free", path.name, free)
+            return False
+        tmp = path.with_name(path.name + ".tmp")
         try:
             self.spool_dir.mkdir(parents=True, exist_ok=True)
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
             try:
                 block = b"\0" * (1 << 20)
-                left = self.reserve_bytes
+                left = nbytes
                 while left > 0:  # written, not only fallocated: every block is the file's for sure
                     n = os.write(fd, block[:min(left, len(block))])
                     left -= n
                 os.fsync(fd)
             finally:
                 os.close(fd)
-            os.replace(tmp, self.reserve_path)
+            os.replace(tmp, path)
             fsync_dir(self.spool_dir)
             return True
         except OSError as exc:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
             log.warning("the spool reserve %s (%d bytes) could not be allocated (%s): a cycle that finishes on a "
-                        "full disk may be kept in memory only until the stop; %s", self.reserve_path,
-                        self.reserve_bytes, exc, FREE_SPACE_HINT)
+                        "full disk may be kept in memory only until the stop; %s", path, nbytes, exc,
+                        FREE_SPACE_HINT)
             return False
 
     def release_reserve(self) -> bool:
@@ -703,12 +783,9 @@ class CycleExecutor:
         return True
 
     def reserve_ok(self) -> bool:
-        if self.reserve_bytes <= 0:
-            return True
-        try:
-            return self.reserve_path.stat().st_size >= self.reserve_bytes
-        except OSError:
-            return False
+        """Whether the reserve and every spool slot are in place."""
+        return (self.reserve_bytes <= 0 or self._slot_ok(self.reserve_path, self.reserve_bytes)) and all(
+            self._slot_ok(p) for p in self.slot_paths)
 
     def held(self) -> dict[str, tuple[str, str | None]]:
         """uuid -> (status, reason) of the finished cycles not stored yet (spooled or in memory)."""

@@ -65,6 +65,11 @@ def _empty_files(root: Path) -> list[Path]:
     return [p for p in root.rglob("*") if p.is_file() and p.stat().st_size == 0 and not p.name.endswith(".lock")]
 
 
+def _reserved(p: Path) -> bool:
+    """The spool reserve or a spool slot (written while there is room, by design)."""
+    return p.name == ".reserve" or (p.name.startswith(".slot-") and p.name[6:].isdigit())
+
+
 def _keys(svc) -> tuple[dict, int]:
     keys = {}
     with session_scope(svc.factory) as s:
@@ -99,7 +104,7 @@ def _full_disk_cycle(small_disk, database_full=False, no_room_for_run=False, spo
         assert _wait(svc.executor.reserve_ok)  # allocated again
         report = svc.report
     assert _empty_files(data) == []
-    assert not [p for p in data.rglob(".*") if p.name != ".reserve" and not p.name.endswith(".lock")]  # no temp file
+    assert not [p for p in data.rglob(".*") if not _reserved(p) and not p.name.endswith(".lock")]  # no temp file
     return data, uuid, seen, items, alerts, report
 
 
@@ -109,7 +114,7 @@ def _finish_on_full_disk(small_disk, database_full=False, no_room_for_run=False,
     was full, the settings, the keys, the axis id, the filler file)."""
     data = small_disk / "data"
     settings = replace(make_settings("sqlite://", data), database_url=None, min_free_disk_mb=0.0,
-                       spool_reserve_mb=1.0)  # the default SQLite database under the data folder
+                       spool_reserve_mb=1.0, spool_slots=2, spool_slot_mb=0.4)  # SQLite under the data folder
     runner = FakeRunner()
     runner.gate = threading.Event()
     runner.gate_timeout_s = 60.0
@@ -233,6 +238,10 @@ def test_the_spool_reserve_is_configured_in_storage_and_refuses_a_negative_size(
     assert parse_settings({}).spool_reserve_mb == 16.0
     with pytest.raises(ConfigError, match="spool_reserve_mb"):
         parse_settings({"storage": {"spool_reserve_mb": -1}})
+    assert parse_settings({"storage": {"spool_slots": 0, "spool_slot_mb": 0.5}}).spool_slots == 0
+    for bad in ({"spool_slots": 65}, {"spool_slots": -1}, {"spool_slot_mb": 0.001}, {"spool_slot_mb": 100.0}):
+        with pytest.raises(ConfigError, match=next(iter(bad))):
+            parse_settings({"storage": bad})
 
 
 def test_a_cycle_kept_in_memory_on_a_full_disk_is_written_to_the_spool_at_a_normal_stop(small_disk):
@@ -394,3 +403,71 @@ def test_a_start_on_a_disk_too_full_to_open_sqlite_answers_healthz_and_completes
         assert client.get("/healthz").status_code == 200
         assert client.get(f"/api/v1/axes/{axis_id}/status", headers=hdr(keys["read"])).status_code == 200
     assert runner.calls == 0
+
+
+def _cycle_on_full_disk(client, svc, runner, keys, axis_id, filler) -> tuple[str, int]:
+    """A manual cycle that finishes after the disk was filled again to the last byte."""
+    runner.gate.clear()
+    r = client.post(f"/api/v1/axes/{axis_id}/measurements", headers=hdr(keys["operate"]))
+    assert r.status_code in (200, 201, 202), r.text
+    assert runner.running.wait(30)
+    _fill_again(filler)
+    runner.gate.set()
+    assert svc.scheduler.idle(60)
+    return r.json()["uuid"], r.json()["measurement"]["id"]
+
+
+def test_the_second_and_third_full_disk_in_a_row_keep_their_cycles_on_disk_across_kills(small_disk):
+    """The reserve is spent by the first full disk; the second and the third (after a
+    restart on the still full disk) are written into spool slots. No stop hook runs (as
+    after kill -9): what survives is what is on disk."""
+    data, first, seen, settings, keys, axis_id, filler = _finish_on_full_disk(small_disk, database_full=True)
+    assert seen["spooled_after_stop"]
+    real_save = results_repo.save_finished_cycle
+
+    def refuse(s, fc):  # SQLite under the data folder finds no page
+        raise DatabaseUnavailableError("database unavailable: database or disk is full")
+
+    kept = [first]
+    ids = [i["id"] for i in seen["items"]]
+    try:
+        for restart in (1, 2):
+            results_repo.save_finished_cycle = refuse
+            runner = FakeRunner()
+            runner.gate = threading.Event()
+            runner.gate_timeout_s = 60.0
+            app = create_app(replace(settings, spool_retry_s=3600.0), runner=runner)
+            with TestClient(app) as client:
+                svc = app.state.service
+                # every cycle not stored yet is reported at the start, with its reason
+                assert len(svc.report.not_stored) == len(kept) and svc.report.interrupted == 0
+                for uuid in kept:
+                    (line,) = [ln for ln in svc.report.not_stored if uuid in ln]
+                    assert "storage_full" in line
+                slots_before = svc.executor.free_slots()
+                assert slots_before == 3 - restart  # (2 slots; the reserve is spent)
+                uuid, mid = _cycle_on_full_disk(client, svc, runner, keys, axis_id, filler)
+                spooled = svc.executor.spool_dir / f"{uuid}.json"
+                assert spooled.is_file() and svc.executor.unsaved == []  # on disk, not only in memory
+                assert svc.executor.free_slots() == slots_before - 1  # written into a slot
+                (item,) = [i for i in client.get(f"/api/v1/axes/{axis_id}/measurements",
+                                                 headers=hdr(keys["read"])).json()["items"] if i["id"] == mid]
+                assert item["status"] != "running" and item["reason_code"] == "storage_full"
+                kept.append(uuid)
+                ids.append(mid)
+                svc.executor.flush_unsaved = lambda: 0  # killed: no stop hook writes anything
+            assert not _empty_files(data)
+    finally:
+        results_repo.save_finished_cycle = real_save
+    filler.unlink()  # room again: one restart stores all three, re-analysed from their traces
+    app = create_app(settings, runner=FakeRunner())
+    with TestClient(app) as client:
+        svc = app.state.service
+        assert svc.report.replayed == 3 and svc.report.not_stored == () and svc.report.interrupted == 0
+        items = client.get(f"/api/v1/axes/{axis_id}/measurements", headers=hdr(keys["read"])).json()["items"]
+        assert _wait(svc.executor.reserve_ok)  # the reserve and both slots written again
+    by_id = {i["id"]: i for i in items}
+    assert sorted(by_id) == sorted(ids)
+    for mid in ids:
+        assert by_id[mid]["status"] == "ok" and by_id[mid]["reason_code"] == "storage_full"
+        assert by_id[mid]["backlash_mean_um"] is not None
