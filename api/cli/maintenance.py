@@ -105,7 +105,8 @@ def _call(a, method: str, path: str, body: dict | None = None, *, raw: bool = Fa
             detail = exc.reason
         raise ServiceError(f"{method} {path}: HTTP {exc.code}: {detail}") from exc
     except (urllib.error.URLError, OSError) as exc:
-        raise ServiceError(f"no service at {a.url}: {getattr(exc, 'reason', exc)}") from exc
+        raise ServiceError(f"no service at {a.url}: {getattr(exc, 'reason', exc)}; start one (make run, mebm serve) "
+                           f"or name where it runs with --url URL or the MEBM_URL environment variable") from exc
     return text if raw else json.loads(text)
 
 

@@ -9,7 +9,7 @@ same service functions as the REST routers; this package never imports ``api.res
 from __future__ import annotations
 
 from fastapi import FastAPI, Request
-from fastapi.responses import RedirectResponse
+from fastapi.responses import FileResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
 
 from api.ui.config_routes import router as config_router
@@ -34,6 +34,12 @@ def install(app: FastAPI, state: UiState | None = None) -> UiState:
     @app.get("/", include_in_schema=False)
     def root():
         return RedirectResponse("/ui/", status_code=307)
+
+    @app.get("/favicon.ico", include_in_schema=False)
+    def favicon():
+        # what a browser asks for on a page without a <link rel="icon"> (the API's JSON, MTConnect's XML)
+        return FileResponse(HERE / "static" / "favicon.ico", media_type="image/x-icon",
+                            headers={"Cache-Control": "public, max-age=86400"})
 
     @app.exception_handler(SignInRequired)
     async def sign_in_required(request: Request, exc: SignInRequired):

@@ -51,6 +51,16 @@ def restore_below_explanation(order) -> str:
     return target.explanation if target is not None else ""
 
 
+def recommendation_without_restore(order) -> str:
+    """A work order's recommendation without its closing "Restore the backlash below ..."
+    sentence when the panel shows that target on its own line, so it reads once."""
+    rec = order.recommendation or ""
+    if order.restore_below_um is None:
+        return rec
+    cut = rec.find(" Restore the backlash below ")
+    return rec[:cut] if cut >= 0 else rec
+
+
 def state_class(state: str | None) -> str:
     return {"OK": "ok", "WARNING": "warn", "ALARM": "alarm"}.get(state or "", "unknown")
 

@@ -22,9 +22,10 @@ from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from pydantic import ValidationError
 
 from api.service.maintenance.input import NoteIn, RepairIn, summary_csv, summary_rows
+from api.ui import format as fmt
 from api.ui import panels
 from api.ui.config_forms import field_errors
-from api.ui.routes import Posted, Viewer, Who, axis_ctx, page
+from api.ui.routes import Posted, Viewer, Who, axis_ctx, page, templates
 from core.criteria import criterion_label
 from core.errors import InputError
 from core.maintenance import REPAIR_KINDS, TransitionError
@@ -42,6 +43,7 @@ LEAD_WORDS = {key: (criterion_label(key)[:1].upper() + criterion_label(key)[1:],
               for key, unit in (("e_p_um_per_1000mm", "µm/1000 mm"), ("v_u_um", "µm"), ("v_300_um", "µm"),
                                 ("v_2pi_um", "µm"))}
 RECENT_REPAIRS = 5
+templates.env.globals.update(recommendation_without_restore=fmt.recommendation_without_restore)
 
 
 # -- the axis page's panel ----------------------------------------------------------------------

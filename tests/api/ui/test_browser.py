@@ -119,6 +119,25 @@ def test_axis_page_renders_its_charts(page, ui_server, alarm):
     assert lines[0].startswith("measurement_id,measured_at_utc,backlash_mean_um,temperature_c") and len(lines) == 3
 
 
+def test_the_prognosis_is_drawn_at_the_scale_of_figs_10_and_15_and_the_icon_is_found(page, ui_server, alarm):
+    missing = []
+    page.on("response", lambda r: missing.append(r.url) if r.status >= 400 else None)
+    sign_in(page, ui_server, "read")
+    page.goto(f"{ui_server.url}/ui/axes/{ui_server.axis_id}")
+    shown = {}
+    for name in ("backlash_trend", "tbe_history", "prognosis"):
+        img = page.locator(f".chart img[src*='/plots/{name}.png']")
+        img.scroll_into_view_if_needed()
+        poll(lambda: img.evaluate("e => e.complete && e.naturalWidth > 0"), 30.0)
+        # pixels on screen per pixel of the PNG: the same for figures of one size and dpi
+        shown[name] = img.evaluate("e => e.getBoundingClientRect().width / e.naturalWidth")
+    assert shown["prognosis"] == pytest.approx(shown["tbe_history"], rel=0.02), shown
+    assert shown["tbe_history"] == pytest.approx(shown["backlash_trend"], rel=0.02), shown
+    icon = page.evaluate("document.querySelector('link[rel=icon]').href")
+    assert page.request.get(icon).status == 200
+    assert not missing, missing
+
+
 def test_acknowledge_needs_an_operate_key(page, ui_server, alarm):
     sign_in(page, ui_server, "read")
     button = page.locator(f"tr.alert-row[data-alert-id='{alarm.id}'] button.ack")
