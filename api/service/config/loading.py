@@ -20,6 +20,7 @@ from dataclasses import replace
 from pathlib import Path
 from urllib.parse import urlsplit
 
+from api.service.config.bounds import check_axis, check_axis_name, check_bounds, keys_of
 from api.service.config.input import checked_canopen_controller, resolve_profile, with_modbus_profile, with_trigger
 from api.service.config.settings import (
     DEMO_SIMULATOR,
@@ -116,6 +117,7 @@ def _axis(a: Mapping, machine: str, where: str, instruments: Instruments = Instr
         )
         if not spec.name:
             raise ConfigError(f"{where}.name must be given")
+        check_axis_name(spec.name, where)
         schedule = Schedule(_get(a, "schedule_interval_s", float, where), _get(a, "schedule_cron", str, where),
                             _get(a, "schedule_enabled", bool, where, True))
     except ConfigError:
@@ -154,7 +156,7 @@ def _axis(a: Mapping, machine: str, where: str, instruments: Instruments = Instr
         raise ConfigError(f"{where}: measure_feed_mm_min and measure_acceleration_mm_s2 must be > 0")
     if not 0 < st.warning_fraction <= 1:
         raise ConfigError(f"{where}.warning_fraction (={st.warning_fraction}) must be in (0, 1]")
-    return AxisConfig(machine, st)
+    return check_axis(AxisConfig(machine, st), where)
 
 
 def _passive_query(a: Mapping, where: str) -> dict[str, str]:
@@ -263,7 +265,7 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
     if not 0.01 <= spool_slot_mb <= 64:
         raise ConfigError(f"storage.spool_slot_mb (={spool_slot_mb}) must be 0.01..64 (a cycle's spool file with "
                           "its raw trace is a few hundred kB)")
-    return replace(
+    return check_bounds(replace(
         base,
         host=_get(server, "host", str, "server", base.host), port=port,
         data_dir=Path(data_dir) if data_dir else base.data_dir,
@@ -288,7 +290,7 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
         status_max_age_s=_positive(_get(server, "status_max_age_s", float, "server", base.status_max_age_s),
                                    "server.status_max_age_s"),
         trusted_proxies=_trusted_proxies(server, base.trusted_proxies),
-    )
+    ), keys_of(doc))
 
 
 def _trusted_proxies(server: Mapping, base: tuple[str, ...]) -> tuple[str, ...]:
@@ -566,4 +568,4 @@ def load_settings(path: str | os.PathLike | None = None, env: Mapping[str, str] 
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"config file {p}: {exc}") from exc
         settings = parse_settings(doc, base=settings)
-    return apply_env(settings, env)
+    return check_bounds(apply_env(settings, env))

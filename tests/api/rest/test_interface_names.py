@@ -40,7 +40,7 @@ def test_rest_refuses_an_axis_whose_name_maps_to_the_topic_of_another_of_its_mac
 
 @pytest.mark.parametrize("machines, where, other", [
     ([{"name": "m a"}, {"name": "m_a"}], "machines[1].name", "'m a'"),
-    ([{"name": "m", "axes": [{"name": "y 2"}, {"name": "y/2"}]}], "machines[0].axes[1].name", "'y 2'"),
+    ([{"name": "m", "axes": [{"name": "y2"}, {"name": "y2_"}]}], "machines[0].axes[1].name", "'y2'"),
 ])
 def test_the_configuration_file_refuses_names_that_share_a_topic_at_load(machines, where, other):
     axis = {k: v for k, v in AXIS.items() if k != "controller_url"}
