@@ -18,6 +18,10 @@ FORMAT = "mebm-dataset/1"
 RUN_KINDS = ("round_trip", "circle", "line")
 SPLITS = ("train", "test")
 AXIS_FIELDS = ("transmission_mm_per_rev", "screw_lead_mm", "position_gain_per_s", "travel_mm")
+OPTIONAL_AXIS_FIELDS = ("screw_lead_mm", "position_gain_per_s")  # absent or null: not known
+AXIS_FIELD_WORDS = {"transmission_mm_per_rev": ("transmission ratio k_a", "mm/rev"),
+                    "screw_lead_mm": ("screw lead", "mm"), "position_gain_per_s": ("position-loop gain K", "1/s"),
+                    "travel_mm": ("useful travel", "mm")}
 
 
 def _shown(v) -> str:
@@ -34,19 +38,21 @@ class AxisSpec:
 
     ``screw_lead_mm`` may be None (not known, as for a trace imported from a controller
     whose screw is not documented): it is the window of v_2π only, which is then not
-    computed; the simulator and the gap diagnosis need it."""
+    computed; the simulator and the gap diagnosis need it. ``position_gain_per_s`` may be
+    None too (the drive's K not known): b̄, b(x) and the lead criteria do not need it; the
+    TBE, the simulator and the gap diagnosis do, and say so."""
 
     name: str
     transmission_mm_per_rev: float
     screw_lead_mm: float | None
-    position_gain_per_s: float
+    position_gain_per_s: float | None
     travel_mm: tuple[float, float]
     extra: Mapping = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
         for key in ("transmission_mm_per_rev", "screw_lead_mm", "position_gain_per_s"):
             v = getattr(self, key)
-            if key == "screw_lead_mm" and v is None:
+            if key in OPTIONAL_AXIS_FIELDS and v is None:
                 continue
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise DatasetError(f"axis {self.name!r}: {key} (={_shown(v)}) must be a number > 0")
@@ -58,6 +64,28 @@ class AxisSpec:
     @property
     def travel_length_mm(self) -> float:
         return self.travel_mm[1] - self.travel_mm[0]
+
+
+def axis_differences(old: AxisSpec, new: AxisSpec) -> list[str]:
+    """How ``new`` differs from ``old``, one phrase per field in words and units
+    (``"transmission ratio k_a (transmission_mm_per_rev): 10 mm/rev stored, 5 mm/rev given"``);
+    empty when the two describe the same axis."""
+    out = []
+    for key in AXIS_FIELDS:
+        a, b = getattr(old, key), getattr(new, key)
+        if a == b:
+            continue
+        words, unit = AXIS_FIELD_WORDS[key]
+
+        def shown(v, unit=unit):
+            if v is None:
+                return "not known"
+            if isinstance(v, tuple):
+                return f"{_shown(v[0])}..{_shown(v[1])} {unit}"
+            return f"{_shown(v)} {unit}"
+
+        out.append(f"{words} ({key}): {shown(a)} stored, {shown(b)} given")
+    return out
 
 
 @dataclass(frozen=True)

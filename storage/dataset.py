@@ -22,11 +22,13 @@ import numpy as np
 from core.dataset import (
     AXIS_FIELDS,
     FORMAT,
+    OPTIONAL_AXIS_FIELDS,
     AxisSpec,
     Dataset,
     MachineSpec,
     Run,
     RunSpec,
+    axis_differences,
     validate_columns,
     validate_run_spec,
 )
@@ -96,7 +98,7 @@ def _parse_machine(doc: dict, src: str) -> MachineSpec:
     for name, a in m["axes"].items():
         if not isinstance(a, dict):
             raise DatasetError(f"machine.axes.{name} must be an object", source=src)
-        missing = [k for k in AXIS_FIELDS if k not in a and k != "screw_lead_mm"]  # the lead: v_2π only
+        missing = [k for k in AXIS_FIELDS if k not in a and k not in OPTIONAL_AXIS_FIELDS]  # lead, K: see AxisSpec
         if missing:
             raise DatasetError(f"machine.axes.{name} lacks {missing}", source=src)
         try:
@@ -104,7 +106,8 @@ def _parse_machine(doc: dict, src: str) -> MachineSpec:
                 name=name,
                 transmission_mm_per_rev=float(a["transmission_mm_per_rev"]),
                 screw_lead_mm=float(a["screw_lead_mm"]) if a.get("screw_lead_mm") is not None else None,
-                position_gain_per_s=float(a["position_gain_per_s"]),
+                position_gain_per_s=float(a["position_gain_per_s"]) if a.get("position_gain_per_s") is not None
+                else None,
                 travel_mm=tuple(float(x) for x in a["travel_mm"]),
                 extra={k: v for k, v in a.items() if k not in AXIS_FIELDS},
             )
@@ -244,7 +247,7 @@ def machine_to_json(machine: MachineSpec) -> dict:
         axes[name] = {
             "transmission_mm_per_rev": a.transmission_mm_per_rev,
             **({"screw_lead_mm": a.screw_lead_mm} if a.screw_lead_mm is not None else {}),
-            "position_gain_per_s": a.position_gain_per_s,
+            **({"position_gain_per_s": a.position_gain_per_s} if a.position_gain_per_s is not None else {}),
             "travel_mm": list(a.travel_mm),
             **dict(a.extra),
         }
@@ -366,8 +369,20 @@ def write_dataset(folder: str | os.PathLike, dataset: Dataset) -> Path:
     return root
 
 
+class AxisMismatchError(DatasetError):
+    """The folder's stored description of an axis differs from the one given: the
+    message says which fields differ, in words and units, and what to do."""
+
+    def __init__(self, name: str, stored: AxisSpec, given: AxisSpec, n_runs: int, source: str | None = None):
+        self.axis, self.stored, self.given = name, stored, given
+        self.differences = axis_differences(stored, given)
+        super().__init__(f"axis {name!r} differs from the one its {n_runs} stored run(s) were recorded with "
+                         f"({'; '.join(self.differences)}): write to a new folder, or replace the stored "
+                         "description if it was wrong", source=source)  # fmt: skip
+
+
 def append_runs(folder: str | os.PathLike, machine: MachineSpec, runs: Iterable[Run], *,
-                owner: Mapping[str, str] | None = None) -> Path:
+                owner: Mapping[str, str] | None = None, replace_axes: Iterable[str] = ()) -> Path:
     """Append runs to a dataset folder, creating it if absent.
 
     An existing folder must describe the same axes (same k_a, lead, gain, travel)
@@ -380,9 +395,13 @@ def append_runs(folder: str | os.PathLike, machine: MachineSpec, runs: Iterable[
     must record the same owner, or record none and hold no run, else
     :class:`FolderOwnerError` is raised and nothing is written. Without ``owner`` (the
     CLI) the folder's recorded owner, if any, is kept as it is.
+
+    ``replace_axes``: names of axes whose stored description ``machine``'s replaces (a
+    corrected k_a, say; the stored runs are then read with it) instead of the
+    :class:`AxisMismatchError`.
     """
     with dataset_lock(folder) as root:
-        return _append_runs_locked(root, machine, list(runs), owner)
+        return _append_runs_locked(root, machine, list(runs), owner, frozenset(replace_axes))
 
 
 def _check_owner(json_path: Path, recorded: dict | None, owner: Mapping[str, str], n_runs: int) -> None:
@@ -414,7 +433,8 @@ def _ordered(doc: dict) -> dict:
     return {**head, **{k: v for k, v in doc.items() if k not in head}}
 
 
-def _append_runs_locked(root: Path, machine: MachineSpec, runs: list[Run], owner: Mapping[str, str] | None) -> Path:
+def _append_runs_locked(root: Path, machine: MachineSpec, runs: list[Run], owner: Mapping[str, str] | None,
+                        replace_axes: frozenset[str] = frozenset()) -> Path:
     json_path = root / "dataset.json"
     if json_path.exists():
         existing = read_dataset(root, load_runs=False)
@@ -422,12 +442,8 @@ def _append_runs_locked(root: Path, machine: MachineSpec, runs: list[Run], owner
             _check_owner(json_path, folder_owner(existing.extra), owner, len(existing.runs))
         merged_axes = dict(existing.machine.axes)
         for name, axis in machine.axes.items():
-            if name in merged_axes and merged_axes[name] != axis:
-                raise DatasetError(
-                    f"axis {name!r} differs from the one already in the dataset "
-                    f"({merged_axes[name]} vs {axis})",
-                    source=str(json_path),
-                )
+            if name in merged_axes and merged_axes[name] != axis and name not in replace_axes:
+                raise AxisMismatchError(name, merged_axes[name], axis, len(existing.runs), source=str(json_path))
             merged_axes[name] = axis
         machine = replace(existing.machine, axes=merged_axes)
         listed = {r.spec.file for r in existing.runs}

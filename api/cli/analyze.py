@@ -9,6 +9,7 @@ from api.cli.instruments import add_options, instruments_of
 from api.cli.output import print_json, print_table
 from core.criteria import CRITERION_NAMES, CRITERION_SYMBOLS, RoundTripSettings, analyze_round_trip
 from core.criteria.lost_motion import clearance_from_feeds
+from core.criteria.roundtrip import TBE_NEEDS_POSITION_GAIN
 from core.criteria.uncertainty import inputs_of_spec
 from core.errors import MebmError, TraceError
 from storage.dataset import read_dataset
@@ -55,10 +56,15 @@ def run(a: argparse.Namespace) -> int:
             except MebmError as exc:
                 failures.append(f"{r.spec.file} (axis {axis_name}): {exc}")
                 continue
+            measured = r.spec.extra.get("temperature_measured", True) is not False
             results.append({
                 "file": r.spec.file,
                 "feed_mm_min": r.spec.feed_mm_min,
-                "temperature_c": r.spec.temperature_c,
+                "temperature_c": r.spec.temperature_c if measured else None,
+                **({} if measured else {"temperature_measured": False}),
+                **({} if axis.position_gain_per_s is not None else {"needs_position_gain": {"tbe": (
+                    f"{TBE_NEEDS_POSITION_GAIN}: give the axis' position_gain_per_s (machine.axes.{axis_name} "
+                    "in dataset.json)")}}),
                 **({"utility_day": r.spec.utility_day} if r.spec.utility_day is not None else {}),
                 **res.to_dict(curves=a.curves),
             })
@@ -81,6 +87,12 @@ def run(a: argparse.Namespace) -> int:
                       f"{c.slope_um_per_m_min:+.2f} µm per m/min: the clearance plus the Coulomb wind-up")
             else:
                 print(f"axis {axis_name}: clearance not separated: {c.reason}")
+        for axis_name in dict.fromkeys(x["axis"] for x in results if "needs_position_gain" in x):
+            print(f"axis {axis_name}: {_tbe_reason(results, axis_name)}")
+        unrecorded = [x["file"] for x in results if x.get("temperature_measured") is False]
+        if unrecorded:
+            print(f"temperature not recorded for {', '.join(dict.fromkeys(unrecorded))}: b̄ is not normalised to "
+                  "20 °C, and the uncertainty budget takes the thermometer's tolerance at 20 °C")
         print("B̄, B: ISO 230-2 reversal values (lost motion); the TBE uses the total lost motion b̄")
         print("; ".join(f"{CRITERION_SYMBOLS[k]}: {name}" for k, name in CRITERION_NAMES.items()) + " (ISO 3408-3)")
         print("lead criteria of the positive stroke; --json gives both directions, the GUM budgets and "
@@ -94,6 +106,11 @@ def run(a: argparse.Namespace) -> int:
     if not results:
         raise AnalysisFailed(f"dataset {a.dataset} has no round-trip run to analyse")
     return 0
+
+
+def _tbe_reason(results: list[dict], axis_name: str) -> str:
+    """The reason an axis' TBE is not computed, as its first result states it."""
+    return next(x["needs_position_gain"]["tbe"] for x in results if x["axis"] == axis_name and "needs_position_gain" in x)
 
 
 def _dataset_clearance(results: list[dict]) -> dict:

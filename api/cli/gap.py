@@ -55,6 +55,13 @@ def _write_json(obj, target: str) -> None:
 
 def run_diagnose(a: argparse.Namespace) -> int:
     ds = read_dataset(a.dataset)
+    for r in ds.runs:
+        for axis in r.spec.axes:
+            if axis in ds.machine.axes and ds.machine.axes[axis].position_gain_per_s is None:
+                raise InputError(f"{a.dataset}: axis {axis!r} has no position_gain_per_s: the nominal model's "
+                                 "position loop is proportional with the gain K, so the gap diagnosis needs it; "
+                                 f"add the drive's K (1/s) to machine.axes.{axis} in dataset.json, or import "
+                                 "into a new folder with --position-gain-per-s")  # fmt: skip
     report = diagnose(ds)
     if a.json != "-":
         print(report.text())

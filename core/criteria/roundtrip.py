@@ -40,6 +40,7 @@ CRITERIA = ("e_p", "v_u", "v_300", "v_2pi")
 REDUCTION_BOUND_UM = 0.01  # see _budgets
 NEEDS_SCREW_LEAD = ("v_2π (travel variation within one revolution) is not computed: its window is one screw "
                     "lead; give the axis' screw_lead_mm")
+TBE_NEEDS_POSITION_GAIN = "TBE not computed: the position-loop gain K is not known"
 COVERED = "covered"  # useful_travel_mm: what both strokes cover outside their reversal transients
 TBE_BASIS = ("the TBE uses the total lost motion b̄ (= B̄, clearance and friction wind-up together), "
              "as the seed paper's table does")

@@ -142,6 +142,33 @@ def test_appending_a_listed_file_or_a_different_axis_is_refused(folder):
         append_runs(folder, other, [small_run("rt_y_01.csv")])
 
 
+def test_a_different_axis_is_named_field_by_field_and_replace_axes_replaces_it(folder):
+    other = MachineSpec("m1", {"y": AxisSpec("y", 5.0, None, 10.0, (0.0, 100.0))})
+    with pytest.raises(DatasetError) as err:
+        append_runs(folder, other, [small_run("rt_y_01.csv")])
+    text = str(err.value)
+    assert ("transmission ratio k_a (transmission_mm_per_rev): 6.857 mm/rev stored, 5 mm/rev given; "
+            "screw lead (screw_lead_mm): 16 mm stored, not known given") in text
+    assert "AxisSpec" not in text and "position_gain" not in text  # the fields that agree are not listed
+    append_runs(folder, other, [small_run("rt_y_01.csv")], replace_axes=("y",))
+    ds = read_dataset(folder)
+    assert ds.machine.axes["y"] == other.axes["y"] and [r.spec.file for r in ds.runs] == ["rt_y_00.csv", "rt_y_01.csv"]
+
+
+def test_an_axis_without_position_gain_is_written_without_it_and_read_as_not_known(tmp_path):
+    machine = MachineSpec("m1", {"y": AxisSpec("y", 6.857, None, None, (0.0, 100.0))})
+    write_dataset(tmp_path / "ds", Dataset(machine, (small_run(),)))
+    axis = json.loads((tmp_path / "ds" / "dataset.json").read_text())["machine"]["axes"]["y"]
+    assert axis == {"transmission_mm_per_rev": 6.857, "travel_mm": [0.0, 100.0]}
+    assert read_dataset(tmp_path / "ds").machine.axes["y"].position_gain_per_s is None
+    doc = json.loads((tmp_path / "ds" / "dataset.json").read_text())
+    doc["machine"]["axes"]["y"]["position_gain_per_s"] = None  # null reads as not known too
+    (tmp_path / "ds" / "dataset.json").write_text(json.dumps(doc))
+    assert read_dataset(tmp_path / "ds").machine.axes["y"].position_gain_per_s is None
+    with pytest.raises(DatasetError, match=r"position_gain_per_s \(=0\) must be a number > 0"):
+        AxisSpec("y", 6.857, None, 0.0, (0.0, 100.0))
+
+
 def test_concurrent_writers_under_the_folder_lock_lose_no_run_and_reuse_no_name(tmp_path):
     import threading
 
