@@ -2,20 +2,25 @@
 
 Plain functions from arrays to PNG bytes (matplotlib's object API with the Agg
 canvas: no pyplot state, so no global lock: each render has its own Figure and canvas,
-and matplotlib keeps its font objects per thread; no mathtext is used. Concurrent
-renders are tested to give the same bytes as serial ones).
+and matplotlib keeps its font objects per thread; no text is parsed as mathtext, so a
+name with ``$`` is drawn as written. Concurrent renders are tested to give the same bytes
+as serial ones).
 Every axis is labelled with its unit; limits are drawn as dash-dot lines as in the paper.
 """
 
 from __future__ import annotations
 
 import io
+import textwrap
 from collections.abc import Sequence
 from datetime import datetime
 
 import matplotlib
 
 matplotlib.use("Agg")
+# every text is drawn as written: a task or machine name with "$" is a name, not a formula
+# (mathtext would refuse "$\\frac{$" and the figure would not be drawn)
+matplotlib.rcParams.update({"text.parse_math": False, "text.usetex": False})
 import numpy as np  # noqa: E402
 from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
@@ -50,7 +55,8 @@ def _empty(title: str, message: str) -> bytes:
     fig, (ax,) = new_figure(7, 3)
     ax.set_axis_off()
     ax.set_title(title)
-    ax.text(0.5, 0.5, message, ha="center", va="center", fontsize=12, wrap=True)
+    # wrapped here, not by matplotlib: its wrapping measures a text with "$" as mathtext
+    ax.text(0.5, 0.5, textwrap.fill(message, 70), ha="center", va="center", fontsize=12)
     return png_bytes(fig)
 
 

@@ -40,3 +40,15 @@ def test_concurrent_renders_equal_serial_renders():
         parallel = list(pool.map(lambda i: renders[i](), jobs))
     for i, png in zip(jobs, parallel):
         assert png == serial[i], f"render {i} differs when made beside others"
+
+
+def test_a_name_with_dollars_is_drawn_as_written_not_as_mathtext():
+    name = r"$\frac{$"  # mathtext refuses it: the figure would not be drawn
+    task = MachiningTask(name=name, profile="circle", radius_mm=200.0, feed_mm_min=200.0, tolerance_um=45.0,
+                         gain_per_s=10.0)
+    t0 = datetime(2026, 1, 1, tzinfo=timezone.utc)
+    days = [t0 + timedelta(hours=i) for i in range(5)]
+    for png in (plots.tbe_vs_backlash([task], [236.0], backlash_um=230.0, title=f"{name} / y"),
+                plots.tbe_history({name: (days, [40.0, 41.0, 42.0, 41.0, 40.0], [45.0] * 5)}, title=f"{name} / y"),
+                plots.empty(name, f"no good measurement of {name} yet")):
+        assert png.startswith(b"\x89PNG\r\n\x1a\n")
