@@ -9,6 +9,9 @@ is and in which unit; :func:`read_trace` turns a file into the columns of a mebm
 increase, a column that is not there, each is a :class:`TraceImportError` naming the file,
 the line (as an editor counts it) and the column. No sample is dropped or interpolated.
 
+:func:`steady_feed_mm_min` reads the feed a round trip ran at from its positions (the
+strokes' steady speed), for a trace whose programmed feed the user does not have.
+
 Vendors' binary formats are not read: export CSV from the tool.
 """
 
@@ -221,3 +224,52 @@ def _data_line(path: Path, profile: TraceProfile, index: int) -> int:
                 if k == index:
                     return reader.line_num + profile.header_line - 1
     return -1
+
+
+@dataclass(frozen=True)
+class SteadyFeed:
+    """The feed a round trip ran at, read from its positions: each stroke's steady speed
+    (mm/min, the slope of a straight line through the middle of its constant-speed part)
+    and their mean."""
+
+    feed_mm_min: float
+    stroke_speeds_mm_min: tuple[float, float]  # the positive stroke's, then the negative's
+
+
+def steady_feed_mm_min(time_s: np.ndarray, position_mm: np.ndarray, src: str = "trace") -> SteadyFeed:
+    """The feed of a round trip from its table positions (see :class:`SteadyFeed`).
+
+    A stroke's constant-speed part is where its speed, averaged over 20 ms, is within 5 %
+    of the stroke's top speed; the middle 80 % of the longest such stretch is fitted. A
+    trace without two opposite strokes of constant speed is refused: the feed is then
+    to be given."""
+    from scipy.ndimage import uniform_filter1d
+
+    t, x = np.asarray(time_s, dtype=float), np.asarray(position_mm, dtype=float)
+    advice = "give the programmed feed with --feed-mm-min or the profile's run.feed_mm_min"
+    if t.size < 20:
+        raise TraceImportError(f"{src}: {t.size} samples are too few to read the feed from; {advice}")
+    dt = float(np.median(np.diff(t)))
+    v = uniform_filter1d(np.gradient(x, t), size=max(1, round(0.02 / dt)), mode="nearest")
+    tops = {sign: float(np.percentile(sign * v, 99.5)) for sign in (1.0, -1.0)}
+    speeds = []
+    for sign, name in ((1.0, "positive"), (-1.0, "negative")):
+        sv, top = sign * v, tops[sign]
+        if not top > 0.5 * max(tops.values()):  # noise on a still axis is not a stroke
+            raise TraceImportError(f"{src}: no {name} stroke to read the feed from (the trace is not a round "
+                                   f"trip: its {name} speed stays below {max(top, 0.0) * 60.0:.0f} mm/min); "
+                                   f"{advice}")  # fmt: skip
+        steady = np.concatenate(([False], sv >= 0.95 * top, [False]))
+        edges = np.flatnonzero(np.diff(steady.astype(np.int8)))
+        starts, ends = edges[::2], edges[1::2]
+        k = int(np.argmax(ends - starts))
+        i0, i1 = int(starts[k]), int(ends[k])
+        cut = (i1 - i0) // 10
+        i0, i1 = i0 + cut, i1 - cut
+        if i1 - i0 < 10 or t[i1 - 1] - t[i0] < 0.1:
+            raise TraceImportError(f"{src}: the {name} stroke has no stretch of constant speed of 0.1 s or more "
+                                   f"to read the feed from (its top speed is {top * 60.0:.0f} mm/min); "
+                                   f"{advice}")  # fmt: skip
+        slope = np.polyfit(t[i0:i1] - t[i0], x[i0:i1], 1)[0]
+        speeds.append(abs(float(slope)) * 60.0)
+    return SteadyFeed(float(np.mean(speeds)), (speeds[0], speeds[1]))

@@ -110,7 +110,8 @@ def run(a: argparse.Namespace) -> int:
 
 def _tbe_reason(results: list[dict], axis_name: str) -> str:
     """The reason an axis' TBE is not computed, as its first result states it."""
-    return next(x["needs_position_gain"]["tbe"] for x in results if x["axis"] == axis_name and "needs_position_gain" in x)
+    return next(x["needs_position_gain"]["tbe"] for x in results
+                if x["axis"] == axis_name and "needs_position_gain" in x)  # fmt: skip
 
 
 def _dataset_clearance(results: list[dict]) -> dict:

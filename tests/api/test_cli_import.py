@@ -117,7 +117,8 @@ def test_a_vendor_trace_imports_and_analyses_as_the_original_run(tmp_path, capsy
     ("bad_cell", "line 15, column 'Maßstab [µm]': 'n/a' is not a finite number"),
     ("time_back", "line 26: time does not increase"),
     ("unit", "columns.y_table_mm.unit (='furlong') must be one of"),
-    ("no_feed", "run.feed_mm_min is needed (or --feed-mm-min on the command line)"),
+    ("no_feed", "stroke has no stretch of constant speed of 0.1 s or more to read the feed from (its top speed "
+                "is 2778 mm/min); give the programmed feed with --feed-mm-min or the profile's run.feed_mm_min"),
     ("column", "no column 'Maßstab [µm]' (for y_table_mm); the header has"),
 ])
 def test_a_bad_trace_or_profile_is_refused_naming_line_column_or_field(tmp_path, capsys, twin_run, case, expected):
@@ -153,7 +154,8 @@ def test_the_shipped_counts_profile_reads_raw_encoder_counts(tmp_path, capsys, t
                         "--out", tmp_path / "ds")  # fmt: skip
     assert code == 0, err
     (run,) = read_dataset(tmp_path / "ds").runs
-    assert run.spec.axes == ("x",) and run.spec.temperature_c == 21.0
+    assert run.spec.axes == ("x",) and run.spec.extra["temperature_measured"] is False  # no column, none given
+    assert run.spec.extra["feed_from_data"] is True and run.spec.feed_mm_min == pytest.approx(3000.0, rel=2e-3)
     assert np.allclose(run.table_mm("x"), twin_run.table_mm("y"), atol=0.05e-3)  # one count
     assert np.allclose(run.motor_rev("x"), twin_run.motor_rev("y"), atol=1.0 / 2**20)
     # the other shipped profile parses too
@@ -180,8 +182,8 @@ def test_a_trace_without_overtravel_or_screw_lead_imports_and_analyses_in_one_co
     assert abs(b - 180.0) < 2.0
     assert "v_300 (travel variation within 300 mm, positive stroke): " in text
     assert "v_2π (travel variation within one revolution (2π rad), positive stroke): not computed" in text
-    assert ("needs the screw lead: v_2π (its window is one lead; add screw_lead_mm to the profile's axis and "
-            "import again)") in text
+    assert ("needs the screw lead: v_2π (its window is one lead; give --screw-lead-mm or the profile's "
+            "machine.axes.y.screw_lead_mm)") in text
     axis = json.loads((out / "dataset.json").read_text())["machine"]["axes"]["y"]
     assert "screw_lead_mm" not in axis and axis["travel_mm"] == [float(m[1]), float(m[2])]
     code, text, err = _cli(capsys, "analyze", out, "--json")
