@@ -15,13 +15,22 @@ next job): the service's threads stay free for the API and the cycles.
 Every job has an id: a caller (the dashboard's gap page, an MES following the 202's
 ``Location``) follows *its* job by id, whatever is stored meanwhile.
 
+Which runs (:func:`plan_runs`, a :class:`RunPlan`): the newest ``runs`` stored runs of the
+axis *since its last recorded repair* (of any kind, a loaded compensation table among them):
+runs on both sides of a repair are two machines, and one model fitted across them reads
+the repair as an effect. The plan is fixed when the job is created: the count the page
+shows while the job waits is the count it uses, and the report begins with the period
+it covers (first and last run, utility days, the repair it starts after, the runs left
+out before it).
+
 Bounds (a read key must not be able to keep the server busy for minutes):
 
 - one pending job per run set (the caller's key: folder, runs); asking again while it
-  waits or runs returns the same job, even when a new run was stored meanwhile (the job
-  reads the newest runs when it starts, and its answer names the runs it used);
+  waits or runs returns the same job, even when a new run was stored meanwhile (its
+  answer names the runs it used, and ``runs_stored_since`` how many came after);
 - a finished answer is kept per run set and data version (``version``: dataset.json's
-  mtime and size), at most ``cache_size`` of them (small dicts; no runs);
+  mtime and size, and the axis' last repair), at most ``cache_size`` of them (small
+  dicts; no runs);
 - at most ``max_pending`` jobs wait or run; more raise :class:`TooManyJobs`;
 - a job nobody has asked for within ``abandon_s`` is dropped before it starts
   (:class:`JobAbandoned`);
@@ -44,16 +53,17 @@ import logging
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import CancelledError, Future, ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from pathlib import Path
 
 from api.service.worker_process import IDLE_END_S, end_pool, spawn_pool
 from core.dataset import Dataset, Run
-from core.errors import MebmError
+from core.errors import InputError, MebmError
 from core.gap import diagnose
 from storage.dataset import read_dataset, read_run_csv
 from storage.db import NotFoundError
@@ -87,9 +97,174 @@ class DiagnosisCrashed(MebmError):
 def newest_runs(folder: Path, n: int) -> Dataset:
     """The newest ``n`` runs of a dataset folder (runs are appended in measurement order)."""
     meta = read_dataset(folder, load_runs=False)
-    specs = [r.spec for r in meta.runs][-n:]
-    runs = tuple(Run(spec, read_run_csv(folder / spec.file, spec)) for spec in specs)
+    return dataset_of(folder, tuple(r.spec.file for r in meta.runs)[-n:])
+
+
+def dataset_of(folder: Path, files: Sequence[str]) -> Dataset:
+    """The dataset of the stored runs ``files`` of a folder, in that order, each run with
+    its ``utility_day`` and ``temperature_c`` as stored (the diagnosis lets the backlash
+    grow with the utility day). DatasetError when one of them is no longer stored."""
+    from core.errors import DatasetError
+
+    meta = read_dataset(folder, load_runs=False)
+    specs = {r.spec.file: r.spec for r in meta.runs}
+    gone = [f for f in files if f not in specs]
+    if gone:
+        raise DatasetError(f"run(s) {gone} of the diagnosis are no longer stored in {folder.name} (retention "
+                           f"removed them): start the diagnosis again")
+    runs = tuple(Run(specs[f], read_run_csv(folder / f, specs[f])) for f in files)
     return Dataset(meta.machine, runs, meta.extra)
+
+
+class TooFewRuns(InputError):
+    """Fewer than two stored runs since the axis' last repair: nothing to diagnose yet."""
+
+
+MIN_RUNS = 2  # one to fit, one to test (core.gap refuses fewer)
+
+
+@dataclass(frozen=True)
+class StoredRun:
+    """What the plan needs of one stored run: its file, when it was measured (None: not
+    recorded), its utility day and whether its temperature was measured."""
+
+    file: str
+    measured_at: datetime | None
+    utility_day: float | None
+    temperature_measured: bool = True
+
+
+@dataclass(frozen=True)
+class Repair:
+    """A recorded repair of the axis: its kind and when it was performed (UTC)."""
+
+    kind: str
+    performed_at: datetime
+    id: int | None = None
+
+
+@dataclass(frozen=True)
+class RunPlan:
+    """The runs a diagnosis uses, fixed before it starts, and the period they cover.
+
+    ``files``: in measurement order. ``after_repair``: the last repair before them (None:
+    none recorded); ``left_out``: stored runs measured before that repair (another state
+    of the machine), ``untimed``: runs without a recorded measurement time, left out when
+    a repair is recorded (they cannot be placed on either side of it);
+    ``older``: runs of the period beyond the newest ``requested``. ``repairs_within``:
+    repairs between the first and the last run used (none, by construction; kept in the
+    answer so that a reader sees it said)."""
+
+    files: tuple[str, ...]
+    requested: int
+    first_at: datetime | None = None
+    last_at: datetime | None = None
+    first_utility_day: float | None = None
+    last_utility_day: float | None = None
+    after_repair: Repair | None = None
+    left_out: int = 0
+    untimed: int = 0
+    older: int = 0
+    no_temperature: int = 0
+    repairs_within: tuple[Repair, ...] = field(default=())
+
+    @property
+    def runs(self) -> int:
+        return len(self.files)
+
+    def to_dict(self) -> dict:
+        """The period as the API's ``period`` (times ISO 8601 UTC, utility days in days)."""
+        def at(t: datetime | None) -> str | None:
+            return None if t is None else t.isoformat(timespec="seconds")
+
+        def repair(r: Repair) -> dict:
+            return {"kind": r.kind, "performed_at": at(r.performed_at)}
+
+        return {"runs": self.runs, "requested": self.requested, "first_run_at": at(self.first_at),
+                "last_run_at": at(self.last_at), "first_utility_day": self.first_utility_day,
+                "last_utility_day": self.last_utility_day,
+                "after_repair": repair(self.after_repair) if self.after_repair else None,
+                "runs_before_repair_left_out": self.left_out, "runs_without_time_left_out": self.untimed,
+                "older_runs_of_the_period": self.older, "runs_without_measured_temperature": self.no_temperature,
+                "repairs_within": [repair(r) for r in self.repairs_within]}
+
+    def payload(self) -> dict:
+        """What the worker process gets (plain data: unpickling it imports nothing):
+        ``files``, ``requested``, ``text`` and ``period``."""
+        return {"files": list(self.files), "requested": self.requested, "text": self.text(), "period": self.to_dict()}
+
+    def text(self) -> str:
+        """The period in words: the report's first lines."""
+        def at(t: datetime | None) -> str:
+            return "an unrecorded time" if t is None else t.strftime("%Y-%m-%d %H:%M UTC")
+
+        def day(d: float | None) -> str:
+            return "?" if d is None else f"{d:.2f}"
+
+        lines = [f"Runs used: {self.runs} stored run(s), measured {at(self.first_at)} to {at(self.last_at)} "
+                 f"(utility days {day(self.first_utility_day)} to {day(self.last_utility_day)})."]
+        if self.after_repair is not None:
+            r = self.after_repair
+            lines.append(f"All after the last recorded repair ({r.kind}, {at(r.performed_at)}): runs before a repair "
+                         f"are another state of the axis and are not pooled with these; {self.left_out} run(s) before "
+                         f"it left out" + (f", and {self.untimed} without a recorded time" if self.untimed else "")
+                         + ".")
+        else:
+            lines.append("No repair is recorded for the axis: the runs are one period.")
+        lines.append("Repairs within the period: none.")
+        if self.older:
+            lines.append(f"{self.older} older run(s) of the period not used (the newest {self.requested} are).")
+        if self.no_temperature:
+            lines.append(f"{self.no_temperature} run(s) without a measured temperature (stored as 20 °C): a thermal "
+                         f"effect is judged on the others' temperatures.")
+        return "\n".join(lines)
+
+
+def _parse_time(v) -> datetime | None:
+    if not isinstance(v, str):
+        return None
+    try:
+        t = datetime.fromisoformat(v)
+    except ValueError:
+        return None
+    return t if t.tzinfo is not None else t.replace(tzinfo=timezone.utc)
+
+
+def plan_runs(stored: Sequence[StoredRun], requested: int, repairs: Sequence[Repair] = ()) -> RunPlan:
+    """The newest ``requested`` of the ``stored`` runs (measurement order) measured after
+    the last of ``repairs`` (each run's ``measured_at`` against the repair's
+    ``performed_at``). TooFewRuns when fewer than two remain."""
+    last = max(repairs, key=lambda r: r.performed_at, default=None)
+    if last is None:
+        period, left_out, untimed = list(stored), 0, 0
+    else:
+        period = [r for r in stored if r.measured_at is not None and r.measured_at > last.performed_at]
+        untimed = sum(1 for r in stored if r.measured_at is None)
+        left_out = len(stored) - len(period) - untimed
+    used = period[-requested:]
+    if len(used) < MIN_RUNS:
+        since = (f" since the last recorded repair of the axis ({last.kind}, "
+                 f"{last.performed_at:%Y-%m-%d %H:%M} UTC)" if last is not None else "")
+        raise TooFewRuns(f"{len(used)} stored run(s){since}; a gap diagnosis needs at least {MIN_RUNS} (one to fit, "
+                         f"one to test)" + (": runs before a repair are another state of the axis and are not pooled "
+                                            "with the runs after it. Measure the axis again" if last is not None else
+                                            ": measure the axis again"))
+    times = [r.measured_at for r in used]
+    return RunPlan(
+        files=tuple(r.file for r in used), requested=requested, first_at=times[0], last_at=times[-1],
+        first_utility_day=used[0].utility_day, last_utility_day=used[-1].utility_day, after_repair=last,
+        left_out=left_out, untimed=untimed, older=len(period) - len(used),
+        no_temperature=sum(1 for r in used if not r.temperature_measured),
+        repairs_within=tuple(r for r in repairs if times[0] is not None and times[-1] is not None
+                             and times[0] < r.performed_at < times[-1]))
+
+
+def repairs_of(factory, axis_id: int) -> tuple[Repair, ...]:
+    """The axis' recorded repairs, oldest first (read in a session of its own)."""
+    from storage.db import maintenance_repo, session_scope
+
+    with session_scope(factory) as s:
+        return tuple(Repair(r.kind, r.performed_at, r.id) for r in maintenance_repo.list_repairs(s, axis_id))
 
 
 RESIDUALS = "residuals"  # the test runs' residual curves, thinned: for the dashboard's plots, not the API's body
@@ -110,24 +285,22 @@ def age_s(result: dict) -> float | None:
     at = result.get("computed_at")
     if not isinstance(at, str):
         return None
-    from datetime import datetime, timezone
-
     return max((datetime.now(timezone.utc) - datetime.fromisoformat(at)).total_seconds(), 0.0)
 
 
-def diagnose_folder(folder: str, n: int) -> dict:
-    """The job itself, in the worker process: read the runs there, diagnose, and return
-    the JSON body (the spec's gap contract, the text report and the runs used) and the
-    test runs' residual curves (``RESIDUALS``, thinned to a screen's worth of points). A
-    GapError (an InputError) for data it cannot use travels back as itself."""
+def diagnose_folder(folder: str, plan: dict) -> dict:
+    """The job itself, in the worker process: read the planned runs there, diagnose, and
+    return the JSON body (the spec's gap contract, the text report beginning with the
+    period, the runs used, ``period``) and the test runs' residual curves (``RESIDUALS``,
+    thinned to a screen's worth of points). A GapError (an InputError) for data it cannot
+    use travels back as itself."""
     from api.service.figures.plots import thin_residuals
 
-    dataset = newest_runs(Path(folder), n)
+    dataset = dataset_of(Path(folder), plan["files"])
     report = diagnose(dataset)
     residuals = [thin_residuals(c) for c in [*report.curves.get("round_trip", []), *report.curves.get("contour", [])]]
-    from datetime import datetime, timezone
-
-    return {**report.to_dict(), "report": report.text(), "runs_used": [r.spec.file for r in dataset.runs],
+    return {**report.to_dict(), "report": plan["text"] + "\n\n" + report.text(),
+            "runs_used": [r.spec.file for r in dataset.runs], "period": plan["period"],
             "computed_at": datetime.now(timezone.utc).isoformat(timespec="seconds"), RESIDUALS: residuals}
 
 
@@ -147,46 +320,68 @@ def run_set(folder: Path, runs: int) -> tuple[str, int]:
     return str(folder.resolve()), runs
 
 
+def axis_plan(folder: Path | None, axis_id: int, runs: int, repairs: Sequence[Repair] = ()) -> RunPlan:
+    """The runs a diagnosis of the axis' newest ``runs`` would use now (:func:`plan_runs`).
+    NotFoundError when there are no stored runs, TooFewRuns when fewer than two since the
+    last repair."""
+    stored = stored_runs(folder) if folder is not None else None
+    if stored is None:
+        raise NotFoundError("stored runs for axis", axis_id)
+    return plan_runs(stored, runs, repairs)
+
+
 def axis_job(jobs: "GapJobs", axis_id: int, folder: Path | None, runs: int, *, start: bool = True,
-             fresh: bool = False) -> "Job | None":
+             fresh: bool = False, repairs: Sequence[Repair] = ()) -> "Job | None":
     """The job diagnosing the newest ``runs`` stored runs of the dataset ``folder`` of an
-    axis: the pending one, else the answer for the current data version, else a new job
+    axis since its last repair (``repairs``: the axis' recorded ones): the pending one,
+    else the answer for the current data version, else a new job with its :class:`RunPlan`
     (``start=False``: the pending job, else the newest finished one of the run set, any
     version, else None). ``fresh``: a failure kept for this version (a time-out) is
     computed again. A cached answer costs a stat, not a read of every run.
-    NotFoundError when there are no stored runs."""
+    NotFoundError when there are no stored runs; TooFewRuns (an InputError) when fewer
+    than two were stored since the last repair."""
     if folder is None or not (folder / "dataset.json").is_file():
         raise NotFoundError("stored runs for axis", axis_id)
-    key, version = run_set(folder, runs), data_version(folder)
+    last = max(repairs, key=lambda r: r.performed_at, default=None)
+    key = run_set(folder, runs)
+    version = (*data_version(folder), None if last is None else (last.id, last.performed_at.isoformat()))
     if not start:
         return jobs.latest(key)
-    # asking again keeps a pending job from being abandoned; the runs' size is looked at for a new job only
-    return jobs.start(key, folder, runs, version, fresh=fresh, size_bytes=lambda: run_bytes(folder, runs))
+    # asking again keeps a pending job from being abandoned; the plan and the runs' size are made for a new job only
+    return jobs.start(key, folder, runs, version, fresh=fresh, plan=lambda: axis_plan(folder, axis_id, runs, repairs))
 
 
-_stored_files: OrderedDict[tuple, tuple[str, ...]] = OrderedDict()
+_stored: OrderedDict[tuple, tuple[StoredRun, ...]] = OrderedDict()
 _stored_lock = threading.Lock()
 
 
-def stored_files(folder: Path) -> tuple[str, ...] | None:
-    """The run files of a dataset folder in measurement order (None: unreadable). Read
-    once per data version."""
+def stored_runs(folder: Path) -> tuple[StoredRun, ...] | None:
+    """The runs of a dataset folder in measurement order, as the plan needs them (None:
+    unreadable). Read once per data version."""
     try:
         key = (str(folder), data_version(folder))
     except NotFoundError:
         return None
     with _stored_lock:
-        files = _stored_files.get(key)
-    if files is None:
+        runs = _stored.get(key)
+    if runs is None:
         try:
-            files = tuple(r.spec.file for r in read_dataset(folder, load_runs=False).runs)
+            runs = tuple(StoredRun(r.spec.file, _parse_time(r.spec.extra.get("measured_at")), r.spec.utility_day,
+                                   r.spec.extra.get("temperature_measured", True) is not False)
+                         for r in read_dataset(folder, load_runs=False).runs)
         except (MebmError, OSError, ValueError):
             return None
         with _stored_lock:
-            _stored_files[key] = files
-            while len(_stored_files) > 8:
-                _stored_files.popitem(last=False)
-    return files
+            _stored[key] = runs
+            while len(_stored) > 8:
+                _stored.popitem(last=False)
+    return runs
+
+
+def stored_files(folder: Path) -> tuple[str, ...] | None:
+    """The run files of a dataset folder in measurement order (None: unreadable)."""
+    runs = stored_runs(folder)
+    return None if runs is None else tuple(r.file for r in runs)
 
 
 def runs_stored_since(folder: Path, result: dict) -> int | None:
@@ -199,14 +394,16 @@ def runs_stored_since(folder: Path, result: dict) -> int | None:
     return len(files) - 1 - files.index(used[-1])
 
 
-def run_bytes(folder: Path, runs: int) -> int | None:
-    """The size on disk of the newest ``runs`` run files (None: not known): what a
-    diagnosis' time grows with (runs, and samples per run)."""
-    files = stored_files(folder)
-    if not files:
-        return None
+def run_bytes(folder: Path, runs: int | Sequence[str]) -> int | None:
+    """The size on disk of the newest ``runs`` run files, or of the files ``runs`` (None:
+    not known): what a diagnosis' time grows with (runs, and samples per run)."""
+    if isinstance(runs, int):
+        files = stored_files(folder)
+        if not files:
+            return None
+        runs = files[-runs:]
     total = 0
-    for f in files[-runs:]:
+    for f in runs:
         try:
             total += (folder / f).stat().st_size
         except OSError:
@@ -238,7 +435,7 @@ class Job:
     key: tuple
     version: tuple | None
     folder: str
-    runs: int
+    plan: RunPlan
     future: Future
     queued_at: float
     last_asked: float
@@ -247,6 +444,11 @@ class Job:
     started_at: float | None = None
     finished_at: float | None = None
     waiting: int = 0  # REST requests waiting for it now (each on the event loop, holding no thread)
+
+    @property
+    def runs(self) -> int:
+        """How many runs it uses (its plan's, fixed when it was created)."""
+        return self.plan.runs
 
     @property
     def state(self) -> str:
@@ -271,7 +473,7 @@ class GapJobs:
     """The service's gap-diagnosis jobs: a queue of one thread feeding a process pool of one."""
 
     def __init__(self, *, max_pending: int = 2, abandon_s: float = 60.0, cache_size: int = 16,
-                 timeout_s: float = 900.0, compute: Callable[[str, int], dict] = diagnose_folder,
+                 timeout_s: float = 900.0, compute: Callable[[str, dict], dict] = diagnose_folder,
                  use_process: bool = True, clock: Callable[[], float] = time.monotonic, nice: int = WORKER_NICE):
         self.max_pending = max_pending
         self.abandon_s = abandon_s
@@ -294,11 +496,14 @@ class GapJobs:
         self._closing = False
 
     # -- the queue ------------------------------------------------------------------------------
-    def start(self, key: tuple, folder: Path | str, runs: int, version: tuple | None = None, *,
-              fresh: bool = False, size_bytes: int | Callable[[], int | None] | None = None) -> Job:
+    def start(self, key: tuple, folder: Path | str, runs: int | RunPlan | Callable[[], RunPlan],
+              version: tuple | None = None, *, fresh: bool = False,
+              size_bytes: int | Callable[[], int | None] | None = None, plan=None) -> Job:
         """The job for the run set ``key``: the pending one, else the answer kept for
-        ``version``, else a new one (TooManyJobs beyond ``max_pending``). ``size_bytes``:
-        of its run files (or what tells it), for the expected time."""
+        ``version``, else a new one (TooManyJobs beyond ``max_pending``) with the runs
+        ``plan`` (a RunPlan, or what makes it; else the newest ``runs`` of the folder).
+        ``size_bytes``: of its run files (or what tells it; else measured), for the
+        expected time."""
         now = self.clock()
         with self._lock:
             pending = [j for j in self._jobs.values() if not j.future.done()]
@@ -314,9 +519,16 @@ class GapJobs:
                     return job
             if len(pending) >= self.max_pending:
                 raise TooManyJobs(len(pending), min(self._remaining_s(j, now) for j in pending))
+            if callable(plan):
+                plan = plan()
+            if plan is None:
+                stored = stored_files(Path(folder)) or ()
+                plan = RunPlan(tuple(stored[-runs:]), runs)
             size = size_bytes() if callable(size_bytes) else size_bytes
-            job = Job(next(self._ids), key, version, str(folder), runs, Future(), now, now,
-                      self.expected_s(runs, size), size)
+            if size is None:
+                size = run_bytes(Path(folder), plan.files)
+            job = Job(next(self._ids), key, version, str(folder), plan, Future(), now, now,
+                      self.expected_s(plan.runs, size), size)
             job.future = self._queue.submit(self._run, job)
             self._jobs[job.id] = job
             done = [i for i, j in self._jobs.items() if j.future.done()]
@@ -396,8 +608,8 @@ class GapJobs:
         seconds until it ends, the ones before it included), ``timeout_s``; the error
         of a failed one as ``detail``."""
         now = self.clock()
-        out = {"id": job.id, "state": job.state, "runs": job.runs, "expected_s": round(job.expected_s, 1),
-               "timeout_s": self.timeout_s}
+        out = {"id": job.id, "state": job.state, "runs": job.runs, "period": job.plan.to_dict(),
+               "expected_s": round(job.expected_s, 1), "timeout_s": self.timeout_s}
         started, finished = job.started_at, job.finished_at
         out["waited_s"] = round((started if started is not None else (finished or now)) - job.queued_at, 1)
         if started is not None:
@@ -429,7 +641,7 @@ class GapJobs:
             raise JobAbandoned(f"the gap diagnosis of {Path(folder).name} (runs={runs}) was dropped before it "
                                f"started: nobody asked for it within {self.abandon_s:g} s. Start it again")
         try:
-            result = self._compute(folder, runs)
+            result = self._compute(folder, job.plan)
         finally:
             job.finished_at = self.clock()
         # the next jobs' expected time follows this one's
@@ -440,11 +652,12 @@ class GapJobs:
         self._warm = True
         return result
 
-    def _compute(self, folder: str, runs: int) -> dict:
+    def _compute(self, folder: str, plan: RunPlan) -> dict:
+        runs = plan.runs
         if not self.use_process:
-            return self.compute(folder, runs)
+            return self.compute(folder, plan.payload())
         try:
-            return self._process().submit(self.compute, folder, runs).result(timeout=self.timeout_s)
+            return self._process().submit(self.compute, folder, plan.payload()).result(timeout=self.timeout_s)
         except FutureTimeout:
             self.timeouts += 1
             pool, self._pool = self._pool, None  # a fresh process for the next job

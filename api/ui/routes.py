@@ -13,7 +13,8 @@ from fastapi.templating import Jinja2Templates
 
 from api.service.figures import axis as axis_figures
 from api.service.figures import plots
-from api.service.gap_jobs import RESIDUALS, TooManyJobs, age_s, axis_job, run_bytes, runs_stored_since
+from api.service.gap_jobs import (RESIDUALS, TooFewRuns, TooManyJobs, age_s, axis_job, axis_plan, repairs_of,
+                                  run_bytes, runs_stored_since)
 from api.service.throttle import failed_authentication
 from api.ui import format as fmt
 from api.ui import panels as axis_panels
@@ -305,6 +306,12 @@ def _gap_ctx(request: Request, axis_id: int, job_id: int | None = None) -> dict:
     if folder is None or not (folder / "dataset.json").is_file():
         return {**base, "gap": "no_runs", "detail": "no stored runs to diagnose yet: the first good measurement of "
                                                     "the axis stores one"}
+    # the runs a diagnosis started now would use (since the last repair), shown before it starts
+    try:
+        plan = axis_plan(folder, axis_id, GAP_RUNS, repairs_of(request.app.state.service.factory, axis_id))
+        base.update(plan=plan.to_dict(), plan_files=plan.files, plan_text=plan.text(), runs=plan.runs)
+    except TooFewRuns as exc:
+        base.update(plan=None, plan_error=str(exc))
     if job_id is not None:
         job = jobs.job(job_id)
         if job is None or job.key[0] != str(folder.resolve()):
@@ -339,8 +346,9 @@ def gap_page(request: Request, axis_id: int, who: Who, msg: str | None = None, j
              refused: int = 0):
     ctx = _gap_ctx(request, axis_id, job)
     jobs = request.app.state.service.gap_jobs
-    _axis, folder, _refusal = _gap_folder(request, axis_id)  # the promise: the expected time of the axis' newest runs
-    ctx.update(expected_s=jobs.expected_s(GAP_RUNS, run_bytes(folder, GAP_RUNS)
+    _axis, folder, _refusal = _gap_folder(request, axis_id)  # the promise: the expected time of the runs it would use
+    files = ctx.get("plan_files")
+    ctx.update(expected_s=jobs.expected_s(ctx["runs"], run_bytes(folder, files or GAP_RUNS)
                                           if folder is not None and ctx["gap"] != "no_runs" else None),
                timed=jobs.s_per_run is not None)
     if refused and ctx["gap"] not in ("queued", "running"):
@@ -377,9 +385,12 @@ def gap_start(request: Request, axis_id: int, who: Posted):
     if refusal is not None:
         return back(f"/ui/axes/{axis_id}/gap", refusal)
     try:
-        job = axis_job(jobs, axis_id, folder, GAP_RUNS, fresh=True)
+        job = axis_job(jobs, axis_id, folder, GAP_RUNS, fresh=True,
+                       repairs=repairs_of(request.app.state.service.factory, axis_id))
     except TooManyJobs:  # the page says why, as the queue is when it is shown
         return RedirectResponse(_gap_url(axis_id, refused=1), status_code=303)
+    except TooFewRuns as exc:
+        return back(f"/ui/axes/{axis_id}/gap", str(exc))
     except NotFoundError as exc:
         if exc.kind == "axis":
             raise

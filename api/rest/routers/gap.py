@@ -1,9 +1,12 @@
 """/axes/{id}/gap: the sim-to-real gap diagnosis (core.gap) on an axis' stored runs.
 
 The service writes every good cycle's raw round trip to the axis' dataset folder;
-this endpoint diagnoses the newest ``runs`` of them. With no ``split`` in stored
-runs the diagnosis holds out whole runs by condition (temperature, feed) and says
-which.
+this endpoint diagnoses the newest ``runs`` of them *since the axis' last recorded
+repair* (runs on both sides of a repair are never pooled; fewer than two since it: 422
+saying so). The job's ``runs`` and ``period`` are fixed when it is created, and the
+report's ``period`` says which runs it covers (first and last run, utility days, the
+repair it starts after, the runs left out). With no ``split`` in stored runs the
+diagnosis holds out whole runs by condition (temperature, feed) and says which.
 
 A diagnosis takes from seconds to minutes (more on the first call of a process, which
 compiles the model kernels), longer than an MES should hold a request open. So it is a
@@ -39,7 +42,7 @@ from api.rest.auth import ReadKey
 from api.rest.deps import AxisId, ServiceDep
 from api.rest.errors import TooManyRequestsError
 from api.service.gap_jobs import (DiagnosisCrashed, DiagnosisTimedOut, GapJobs, Job, JobAbandoned, TooManyJobs,
-                                  axis_job, public_body, runs_stored_since)
+                                  axis_job, public_body, repairs_of, runs_stored_since)
 from storage.dataset import FolderOwnerError
 from storage.db import ConflictError, NotFoundError, config_repo, session_scope
 
@@ -105,8 +108,9 @@ async def gap(
     runs: Annotated[int, Query(ge=2, le=60, description="how many of the newest stored runs to use")] = 16,
 ):
     folder = await run_in_threadpool(_folder, svc, axis_id)
+    repairs = await run_in_threadpool(repairs_of, svc.factory, axis_id)
     try:
-        job = await run_in_threadpool(axis_job, svc.gap_jobs, axis_id, folder, runs)
+        job = await run_in_threadpool(lambda: axis_job(svc.gap_jobs, axis_id, folder, runs, repairs=repairs))
     except TooManyJobs as exc:
         raise TooManyRequestsError(str(exc), exc.retry_after_s) from None
     await _settle(job)

@@ -14,7 +14,7 @@ from fastapi.testclient import TestClient
 
 from api.rest import create_app
 from api.service.cycles.runner import CycleOutcome
-from api.service.gap_jobs import newest_runs
+from api.service.gap_jobs import dataset_of
 from core.dataset import Dataset, MachineSpec, Run, RunSpec
 from storage.dataset import LOCK_FILE, read_dataset, write_dataset, write_run_csv
 from storage.db import config_repo, results_repo, session_scope
@@ -27,11 +27,11 @@ OLD_UM, NEW_UM = 180.0, 260.0  # the backlash of the old machine and of the new 
 NEW_STEP_MM = 0.5  # the new machine's round trips are sampled every 0.5 mm: a tenth of the default's samples
 
 
-def runs_it_read(folder: str, runs: int) -> dict:
+def runs_it_read(folder: str, plan: dict) -> dict:
     """The gap job's work in place of the diagnosis (module level: the spawned worker
     imports it): the runs the job reads, named as the diagnosis names its ``runs_used``.
     What the diagnosis makes of runs is tested in tests/core/gap and test_gap.py."""
-    return {"runs_used": [r.spec.file for r in newest_runs(Path(folder), runs).runs]}
+    return {"runs_used": [r.spec.file for r in dataset_of(Path(folder), plan["files"]).runs]}
 
 
 def _axis(svc):

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from api.rest.routers import gap
-from api.service.gap_jobs import newest_runs
+from api.service.gap_jobs import dataset_of
 from storage.dataset import append_runs, read_dataset
 from tests.api.rest.conftest import hdr
 from tests.api.rest.test_gap import store_case
@@ -26,9 +26,9 @@ def held(app_env, monkeypatch):
     monkeypatch.setattr(gap, "WAIT_S", 0.05)
     release = threading.Event()
 
-    def stand_in(folder: str, runs: int) -> dict:
+    def stand_in(folder: str, plan: dict) -> dict:
         assert release.wait(60)
-        used = [r.spec.file for r in newest_runs(Path(folder), runs).runs]
+        used = [r.spec.file for r in dataset_of(Path(folder), plan["files"]).runs]
         return {"format": "mebm-gap/1", "effect": "cyclic_error", "runs_used": used,
                 "computed_at": "2026-12-03T12:00:00+00:00"}
 
@@ -53,7 +53,7 @@ def test_the_job_is_followed_by_its_location_whatever_is_stored_meanwhile(app_en
     body, location = first.json(), first.headers["Location"]
     job = body["job"]
     assert location == f"/api/v1/axes/{axis_id}/gap/jobs/{job['id']}"
-    assert job["state"] in ("queued", "running") and job["runs"] == 16 and job["expected_s"] > 0
+    assert job["state"] in ("queued", "running") and job["runs"] == len(files) and job["expected_s"] > 0
     assert f"job {job['id']}" in body["detail"] and "call " + location in body["detail"]
     folder = svc.executor.dataset_folder(next(iter(svc.executor._axes.values())))
     _store_one_more(svc, folder, "rt_late.csv")  # the next scheduled measurement, while it computes
@@ -66,11 +66,8 @@ def test_the_job_is_followed_by_its_location_whatever_is_stored_meanwhile(app_en
     assert done.status_code == 200
     d = done.json()
     assert d["job_id"] == job["id"] and d["effect"] == "cyclic_error"
-    # it used the runs stored when it started: the late run, or not yet
-    if d["runs_used"][-1] == "rt_late.csv":
-        assert d["runs_stored_since"] == 0
-    else:
-        assert d["runs_used"] == files[-16:] and d["runs_stored_since"] == 1
+    # it used the runs it was created with (the count shown while it waited), and says one came after
+    assert d["runs_used"] == files[-16:] and len(d["runs_used"]) == job["runs"] and d["runs_stored_since"] == 1
 
 
 def test_a_job_the_service_does_not_know_is_a_404_that_says_what_to_do(app_env, held):

@@ -9,9 +9,10 @@ import os
 import time
 
 
-def where_am_i(folder: str, runs: int) -> dict:
-    """runs=99 dies the way an out-of-memory kill does: the process ends without an answer;
+def where_am_i(folder: str, plan: dict) -> dict:
+    """The runs asked for (``plan["requested"]``) say what to do: runs=99 dies the way an out-of-memory kill does: the process ends without an answer;
     runs=98 never ends by itself: it marks that it runs, then takes an hour."""
+    runs = plan["requested"]
     if runs == 99:
         os._exit(137)
     if runs == 98:

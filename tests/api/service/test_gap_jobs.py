@@ -126,7 +126,7 @@ def test_one_pending_job_per_run_set_whatever_is_stored_meanwhile(tmp_path):
     instead of orphaning it: the page and the API follow the same job id, and the bound
     counts only jobs someone can still get an answer from."""
     release = threading.Event()
-    j = GapJobs(compute=lambda folder, runs: (release.wait(60), {"runs": runs})[1], use_process=False, max_pending=1)
+    j = GapJobs(compute=lambda folder, plan: (release.wait(60), {"runs": plan["requested"]})[1], use_process=False, max_pending=1)
     try:
         first = j.start(("f", 16), tmp_path, 16, version=(1, 100))
         again = j.start(("f", 16), tmp_path, 16, version=(2, 200))  # a run stored since
@@ -151,7 +151,8 @@ def test_progress_says_the_place_in_the_queue_and_the_expected_time(tmp_path):
     go = {n: threading.Event() for n in (4, 8)}
     started = {n: threading.Event() for n in (4, 8)}
 
-    def compute(folder, runs):
+    def compute(folder, plan):
+        runs = plan["requested"]
         started[runs].set()
         go[runs].wait(60)
         clock.t += 30.0 * runs / 4  # the diagnosis' duration, on the injected clock

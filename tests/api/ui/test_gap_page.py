@@ -14,7 +14,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from api.rest import create_app
-from api.service.gap_jobs import DiagnosisTimedOut, newest_runs
+from api.service.gap_jobs import DiagnosisTimedOut, dataset_of, stored_files
 from storage.db import config_repo, session_scope
 from tests.api.rest.conftest import FakeRunner, make_settings
 from tests.api.rest.test_gap import store_case
@@ -31,11 +31,11 @@ def env(tmp_path, monkeypatch):
             axis_id = config_repo.list_axes(s)[0].id
         release, outcome = threading.Event(), {}
 
-        def stand_in(folder: str, runs: int) -> dict:
+        def stand_in(folder: str, plan: dict) -> dict:
             assert release.wait(60)
             if "error" in outcome:
                 raise outcome["error"]
-            used = [r.spec.file for r in newest_runs(Path(folder), runs).runs]
+            used = [r.spec.file for r in dataset_of(Path(folder), plan["files"]).runs]
             return {"format": "mebm-gap/1", "effect": "cyclic_error", "gap_before_um": 3.0, "gap_after_um": 1.0,
                     "noise_floor_um": 0.2, "candidates": [], "runs_used": used, "report": "the report",
                     "computed_at": "2026-12-03T12:00:00+00:00", "residuals": []}
@@ -61,13 +61,16 @@ def state(html: str) -> str:
 def test_the_page_follows_its_job_to_the_report(env):
     c, svc, axis_id, csrf, release, _ = env
     page = c.get(f"/ui/axes/{axis_id}/gap").text
-    assert state(page) == "idle" and re.search(r"about \d+ (s|min) for 16 runs", unescape(page))
+    folder = svc.executor.dataset_folder(next(iter(svc.executor._axes.values())))
+    stored = len(stored_files(folder))  # fewer than the 16 asked for: the page promises those it will use
+    assert stored < 16
+    assert state(page) == "idle" and re.search(rf"about \d+ (s|min) for {stored} runs", unescape(page))
     where = start(c, axis_id, csrf)
     job_id = int(re.fullmatch(rf"/ui/axes/{axis_id}/gap\?job=(\d+)", where)[1])
     page = c.get(where).text
     assert state(page) in ("queued", "running")
+    assert re.search(rf"(Waiting in the queue|Diagnosing) .*{stored} runs", unescape(page))
     assert f'data-poll="/ui/axes/{axis_id}/gap.frag?job={job_id}"' in page
-    folder = svc.executor.dataset_folder(next(iter(svc.executor._axes.values())))
     (folder / "dataset.json").touch()  # a new data version while it computes: still the same job
     frag = c.get(f"/ui/axes/{axis_id}/gap.frag?job={job_id}").text
     assert state(frag) in ("queued", "running") and f"(job {job_id}" in frag
