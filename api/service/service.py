@@ -24,6 +24,7 @@ from sqlalchemy import text
 from api.service.config.settings import SIM_CONTROLLER, Settings
 from api.service.cycles.executor import CycleExecutor
 from api.service.figures.cache import FigureCache
+from api.service.figures.gate import RenderGate
 from api.service.cycles.folders import axis_folders
 from api.service.gap_jobs import GapJobs
 from api.service.figures.process import PlotProcess
@@ -101,7 +102,10 @@ class Service:
                                 timeout_s=settings.limits.gap_diagnosis_timeout_s,  # computed in a worker process
                                 nice=settings.limits.gap_diagnosis_nice)
         self.plots = PlotProcess.shared()  # figure renders, in a worker process (not on the API's interpreter)
-        self.figures = FigureCache()  # rendered figures, for the REST plot endpoints and the dashboard alike
+        # rendered figures, for the REST plot endpoints and the dashboard alike
+        self.figures = FigureCache(resolution_s=settings.limits.plot_window_step_s)
+        # figures drawn and waiting at once (the rest: 429), so that plots never hold every thread
+        self.render_gate = RenderGate(settings.limits.plot_renders, settings.limits.plot_queue)
         self.maintenance = MaintenanceLoop(self, settings.maintenance)  # work orders, repairs, verification
         self.fleet = False  # PostgreSQL: this process is one worker (or API replica) of a fleet
         self._sqlite_lock: leases.SqliteWorkerLock | None = None

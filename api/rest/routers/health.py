@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import asyncio
 import time
 
+import anyio
+import anyio.to_thread
 from fastapi import APIRouter, Request, Response
 from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST
@@ -19,7 +22,27 @@ VERSION = "0.1.0"
 @router.get("/healthz", response_model=sc.Health, responses={503: {"model": sc.Health}},
             summary="Can the service store what it measures: database writable, data folder writable, "
                     "free disk above the floor (no key needed); 503 when degraded, with the reasons")
-def healthz(request: Request, svc: ServiceDep):
+async def healthz(request: Request, svc: ServiceDep):
+    # on threads of its own: however many requests hold the shared worker threads (figures,
+    # slow clients), a load balancer's health check does not queue behind them
+    return await anyio.to_thread.run_sync(_healthz, request, svc, limiter=_health_limiter())
+
+
+_LIMITERS: dict = {}
+
+
+def _health_limiter() -> anyio.CapacityLimiter:
+    """Two threads for /healthz, per event loop (a test client runs a loop of its own)."""
+    loop = asyncio.get_running_loop()
+    lim = _LIMITERS.get(id(loop))
+    if lim is None or lim[0] is not loop:
+        lim = _LIMITERS[id(loop)] = (loop, anyio.CapacityLimiter(2))
+        for k in [k for k, (lp, _) in _LIMITERS.items() if lp.is_closed()]:
+            del _LIMITERS[k]
+    return lim[1]
+
+
+def _healthz(request: Request, svc) -> JSONResponse:
     rep = svc.health.report()
     ua = request.app.state.opcua
     opcua = None if ua is None else (f"listening on {ua.endpoint}" if ua.running else f"off: {ua.error or 'stopped'}")

@@ -2,7 +2,12 @@
 
 A figure is drawn once per set of inputs (the stored results it shows and its parameters)
 and then served from the service's figure cache, which the dashboard shares: repeated or
-concurrent requests for one figure do not hold the worker threads with renders."""
+concurrent requests for one figure do not hold the worker threads with renders.
+
+Renders go through the service's :class:`~api.service.figures.gate.RenderGate`: at most
+``limits.plot_renders`` drawn at once and ``limits.plot_queue`` waiting (on the event loop,
+without a thread or a database connection); beyond that 429 with ``Retry-After``. ``since``
+is rounded down to ``limits.plot_window_step_s``, the figure cache's resolution."""
 
 from __future__ import annotations
 
@@ -12,12 +17,17 @@ from typing import Annotated
 from fastapi import APIRouter, Query, Response
 
 from api.rest.auth import ReadKey
-from api.rest.deps import AxisId, ServiceDep, SessionDep
+from api.rest.deps import AxisId, ServiceDep
+from api.rest.errors import TooManyRequestsError
 from api.rest.routers.axes import Since, utc
 from api.service.figures import axis as axis_figures
+from api.service.figures.gate import RenderBusy
+from storage.db import session_scope
 
 router = APIRouter(tags=["plots"])
-PNG = {200: {"content": {"image/png": {}}, "description": "a PNG image"}}
+PNG = {200: {"content": {"image/png": {}}, "description": "a PNG image"},
+       429: {"description": "limits.plot_renders figures are being drawn and limits.plot_queue wait: ask again "
+                            "after Retry-After seconds"}}
 
 
 class PlotName(str, Enum):
@@ -31,16 +41,25 @@ class PlotName(str, Enum):
 
 @router.get("/axes/{axis_id}/plots/{name}.png", response_class=Response, responses=PNG,
             summary="A figure: backlash_profile (Fig. 9), lead_deviation (Fig. 5), tbe_vs_backlash (Fig. 14), "
-                    "tbe_history (Fig. 15), backlash_trend (Fig. 10), prognosis (Fig. 10 with the forecast and its band)")
-def plot(
-    axis_id: AxisId, name: PlotName, s: SessionDep, svc: ServiceDep, _k: ReadKey,
+                    "tbe_history (Fig. 15), backlash_trend (Fig. 10), prognosis (Fig. 10 with the forecast and its band); "
+                    "since is rounded down to limits.plot_window_step_s (default the hour)")
+async def plot(
+    axis_id: AxisId, name: PlotName, svc: ServiceDep, _k: ReadKey,
     measurement_id: Annotated[int | None, Query(ge=1, le=2**31 - 1,
                                                 description="for profile/lead plots; default the newest")] = None,
     direction: Annotated[str, Query(pattern="^(positive|negative)$", description="lead_deviation stroke")] = "positive",
     since: Since = None,
 ):
-    png = axis_figures.render(s, axis_id, name.value, measurement_id=measurement_id, direction=direction,
-                              since=utc(since), status=svc.status.get(axis_id) if name is PlotName.prognosis else None,
-                              draw=svc.plots.draw, cache=svc.figures)
+    def render() -> bytes:  # on a thread of the render gate, with a database session of its own
+        with session_scope(svc.factory) as s:
+            return axis_figures.render(
+                s, axis_id, name.value, measurement_id=measurement_id, direction=direction, since=utc(since),
+                status=svc.status.get(axis_id) if name is PlotName.prognosis else None,
+                draw=svc.plots.draw, cache=svc.figures)
+
+    try:
+        png = await svc.render_gate.run(render)
+    except RenderBusy as exc:
+        raise TooManyRequestsError(str(exc), exc.retry_after_s) from None
     return Response(content=png, media_type="image/png", headers={"Cache-Control": "no-cache"})
 

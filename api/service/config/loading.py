@@ -501,16 +501,24 @@ def _limits(table: Mapping, base: LimitSettings) -> LimitSettings:
              "auth_failures_per_minute": float, "auth_failure_burst": int,
              "auth_address_failures_per_minute": float, "auth_address_failure_burst": int,
              "allow_link_local_controllers": bool, "gap_diagnoses_pending": int, "gap_diagnosis_timeout_s": float,
-             "gap_diagnosis_nice": int}
+             "gap_diagnosis_nice": int, "plot_renders": int, "plot_queue": int, "plot_window_step_s": float}
     _unknown(table, set(kinds), "limits")
     out = replace(base, **{k: _get(table, k, kinds[k], "limits") for k in table})
     for k in kinds:
-        if kinds[k] is bool or k == "gap_diagnosis_nice":
+        if kinds[k] is bool or k in ("gap_diagnosis_nice", "plot_renders", "plot_queue", "plot_window_step_s"):
             continue
         if not getattr(out, k) > 0:
             raise ConfigError(f"limits.{k} (={getattr(out, k)}) must be > 0")
     if not 0 <= out.gap_diagnosis_nice <= 19:
         raise ConfigError(f"limits.gap_diagnosis_nice (={out.gap_diagnosis_nice}) must be 0..19 (0: the service's own priority)")
+    if not 1 <= out.plot_renders <= 16:
+        raise ConfigError(f"limits.plot_renders (={out.plot_renders}) must be 1..16 (figures drawn at once)")
+    if not 0 <= out.plot_queue <= 1000:
+        raise ConfigError(f"limits.plot_queue (={out.plot_queue}) must be 0..1000 (figures waiting to be drawn; "
+                          "more are answered 429)")
+    if not 1 <= out.plot_window_step_s <= 86400:
+        raise ConfigError(f"limits.plot_window_step_s (={out.plot_window_step_s}) must be 1..86400 (the step a "
+                          "figure's since is rounded down to)")
     return out
 
 

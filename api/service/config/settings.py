@@ -73,6 +73,9 @@ class LimitSettings:
     gap_diagnoses_pending: int = 2  # gap diagnoses waiting or running at once; more are refused (429)
     gap_diagnosis_timeout_s: float = 900.0  # a gap diagnosis running longer is stopped, and says so
     gap_diagnosis_nice: int = 10  # the diagnosis' worker process runs this much below the service (0-19)
+    plot_renders: int = 2  # figures drawn at once (1-16), each on a worker thread of its own...
+    plot_queue: int = 16  # ...and this many waiting (0-1000, holding no thread); more are answered 429
+    plot_window_step_s: float = 3600.0  # a figure's since is rounded down to this step (1-86400): one cache entry
 
 
 @dataclass(frozen=True)

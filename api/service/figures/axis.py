@@ -47,12 +47,15 @@ def render(s, axis_id: int, name: str, *, measurement_id: int | None = None, dir
     here; the drawing goes through ``draw(fn, *args, **kwargs)`` (the service's
     :class:`~api.service.figures.process.PlotProcess`; default: on this thread). With
     ``cache`` (the service's :class:`~api.service.figures.cache.FigureCache`) a figure
-    whose inputs (:func:`figure_key`) were drawn before is not drawn again."""
+    whose inputs (:func:`figure_key`) were drawn before is not drawn again, and ``since`` is
+    rounded down to the cache's resolution first (:meth:`FigureCache.snap`)."""
     draw = draw or _here
     if name not in NAMES:
         raise ValueError(f"name (={name!r}) must be one of {', '.join(NAMES)}")
     if name == "prognosis" and status is None:
         raise ValueError("the prognosis figure needs the axis' status")
+    if cache is not None:
+        since = cache.snap(since)
     axis = config_repo.get_axis(s, axis_id)
     title = f"{axis.machine_name} axis {axis.name}"
     limit = backlash_limit_um(axis.tasks)

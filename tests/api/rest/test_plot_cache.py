@@ -11,6 +11,7 @@ import pytest
 
 from api.service.figures.cache import FigureCache
 from tests.api.rest.conftest import hdr
+from tests.waiting import poll
 
 V1 = "/api/v1"
 
@@ -146,3 +147,77 @@ def test_a_cleared_figure_cache_draws_again():
     cache.clear()
     assert len(cache) == 0 and cache.get("a") is None
     assert cache.get_or_render("a", lambda: drawn.append(2) or b"a2") == b"a2" and drawn == [1, 2]
+
+
+def test_since_values_within_one_step_share_a_cache_entry_and_the_next_step_draws_its_own(app_env, drawn):
+    client, svc, keys, axis_id = app_env
+    _measure(client, svc, keys, axis_id)
+    assert svc.figures.resolution_s == 3600.0  # limits.plot_window_step_s
+    plot = f"{V1}/axes/{axis_id}/plots/tbe_history.png?since="
+    a = _png(client, keys, plot + "2026-01-05T10:00:00Z")
+    for since in ("2026-01-05T10:00:01Z", "2026-01-05T10:59:59.999Z", "2026-01-05T12:30:00%2B02:00"):
+        assert _png(client, keys, plot + since) == a
+    assert drawn == ["tbe_history"]  # one render for all four
+    _png(client, keys, plot + "2026-01-05T11:00:00Z")  # the next step: a figure of its own
+    assert drawn == ["tbe_history"] * 2
+
+
+def test_a_since_is_rounded_down_to_the_cache_resolution():
+    from datetime import datetime, timedelta, timezone
+
+    cache = FigureCache(resolution_s=900.0)
+    t = datetime(2026, 3, 1, 8, 29, 59, 999000, tzinfo=timezone(timedelta(hours=1)))
+    assert cache.snap(t) == datetime(2026, 3, 1, 7, 15, tzinfo=timezone.utc)
+    assert cache.snap(datetime(2026, 3, 1, 7, 15)) == datetime(2026, 3, 1, 7, 15, tzinfo=timezone.utc)  # naive: UTC
+    assert cache.snap(None) is None
+    with pytest.raises(ValueError, match="resolution_s"):
+        FigureCache(resolution_s=0)
+
+
+def test_beyond_the_render_queue_a_plot_is_answered_429_with_retry_after(app_env, monkeypatch):
+    from api.service.figures.gate import RenderGate
+
+    client, svc, keys, axis_id = app_env
+    monkeypatch.setattr(svc, "render_gate", RenderGate(workers=1, queue=1))
+    started, release = threading.Event(), threading.Event()
+    real = svc.plots.draw
+
+    def held(fn, *args, **kwargs):
+        started.set()
+        assert release.wait(30)
+        return real(fn, *args, **kwargs)
+
+    monkeypatch.setattr(svc.plots, "draw", held)
+    plot = f"{V1}/axes/{axis_id}/plots/tbe_history.png?since="
+    answers = []
+
+    def ask(since):
+        answers.append(client.get(plot + since, headers=hdr(keys["read"])).status_code)
+
+    first = threading.Thread(target=ask, args=("2026-01-01T00:00:00Z",))
+    first.start()
+    assert started.wait(30)  # drawing: the one worker is taken
+    queued = threading.Thread(target=ask, args=("2026-01-02T00:00:00Z",))
+    queued.start()
+    assert poll(lambda: svc.render_gate.admitted == 2, 30)  # waiting: the one queue place is taken
+    r = client.get(plot + "2026-01-03T00:00:00Z", headers=hdr(keys["read"]))
+    assert r.status_code == 429, r.text
+    assert int(r.headers["Retry-After"]) >= 1
+    assert "limits.plot_queue" in r.json()["detail"]
+    assert client.get("/healthz").status_code == 200  # answered while every render place is taken
+    release.set()
+    first.join(30)
+    queued.join(30)
+    assert sorted(answers) == [200, 200] and svc.render_gate.admitted == 0 and svc.render_gate.refused == 1
+
+
+def test_the_render_bounds_are_limits_settings_with_bounds():
+    from api.service.config.loading import parse_settings
+    from api.service.config.settings import ConfigError
+
+    lim = parse_settings({"limits": {"plot_renders": 3, "plot_queue": 0, "plot_window_step_s": 60}}).limits
+    assert (lim.plot_renders, lim.plot_queue, lim.plot_window_step_s) == (3, 0, 60.0)
+    for key, bad in (("plot_renders", 0), ("plot_renders", 17), ("plot_queue", -1), ("plot_queue", 1001),
+                     ("plot_window_step_s", 0.5), ("plot_window_step_s", 86401)):
+        with pytest.raises(ConfigError, match=key):
+            parse_settings({"limits": {key: bad}})
