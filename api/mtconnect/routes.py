@@ -6,7 +6,9 @@ asks for ``application/json``. Errors are MTConnectError documents (OUT_OF_RANGE
 INVALID_REQUEST, NO_DEVICE, INVALID_URI, UNSUPPORTED, UNAUTHORIZED), as an agent sends them.
 
 Read-only: only GET. With ``require_key`` any valid API key (``X-API-Key`` or
-``Authorization: Bearer``) may read; without it, everyone on the network can. Failed keys
+``Authorization: Bearer``) may read; without it, everyone on the network can. Keys are
+checked through the process' one key cache (:mod:`api.service.keys`): revoked is refused
+here as on the REST API. Failed keys
 are logged and throttled per client address as the REST API's are (an UNAUTHORIZED
 document with status 429 and ``Retry-After`` past the burst).
 """
@@ -15,8 +17,6 @@ from __future__ import annotations
 
 import logging
 import re
-import threading
-import time
 from importlib import resources
 
 from fastapi import APIRouter, Request
@@ -25,8 +25,9 @@ from fastapi.responses import Response
 from api.mtconnect import documents as doc
 from api.mtconnect.agent import MTConnectAgent
 from api.mtconnect.buffer import OutOfRangeError
+from api.service.keys import KeyCache
 from api.service.throttle import failed_authentication
-from storage.db import StorageError, config_repo, session_scope
+from storage.db import StorageError
 
 log = logging.getLogger(__name__)
 
@@ -50,31 +51,6 @@ def _wants_json(request: Request) -> bool:
     return JSON in accept and "xml" not in accept.split(JSON)[0]
 
 
-class _Keys:
-    """Valid keys seen in the last few seconds (a busy client costs no database round trip each time)."""
-
-    def __init__(self, ttl_s: float = 5.0):
-        self.ttl_s = ttl_s
-        self._ok: dict[str, float] = {}
-        self._lock = threading.Lock()
-
-    def check(self, factory, secret: str | None) -> bool:
-        if not secret:
-            return False
-        now = time.monotonic()
-        t = self._ok.get(secret)
-        if t is not None and now - t < self.ttl_s:
-            return True
-        with session_scope(factory) as s:
-            ok = config_repo.authenticate(s, secret) is not None
-        with self._lock:
-            if len(self._ok) > 10000:
-                self._ok.clear()
-            if ok:
-                self._ok[secret] = now
-        return ok
-
-
 def _secret(request: Request) -> str | None:
     key = request.headers.get("x-api-key")
     if key:
@@ -94,7 +70,7 @@ def _int(request: Request, name: str, default: int | None) -> int | None:
 
 def make_router(agent: MTConnectAgent) -> APIRouter:
     router = APIRouter(prefix=PREFIX, include_in_schema=False)
-    keys = _Keys()
+    own_keys = KeyCache()  # (an agent mounted without the REST API's app state)
 
     def respond(request: Request, build) -> Response:
         as_json = _wants_json(request)
@@ -105,7 +81,10 @@ def make_router(agent: MTConnectAgent) -> APIRouter:
                 # throttled with the REST API's budget (app.state.auth_throttle, [limits]
                 # auth_*failure*): the same address guessing keys on either path is one budget
                 secret = _secret(request)
-                if not keys.check(agent.service.factory, secret):
+                # the process' one key cache (app.state.key_cache): a key revoked through the API
+                # or the dashboard is refused here too as soon as the revocation answered
+                keys = getattr(request.app.state, "key_cache", None) or own_keys
+                if not secret or keys.lookup(agent.service.factory, secret) is None:
                     wait_s = failed_authentication(request, secret, "MTConnect", log)
                     if wait_s > 0:
                         client = request.client.host if request.client else "unknown"

@@ -1,12 +1,11 @@
 """API keys: ``X-API-Key: <key>`` (or ``Authorization: Bearer <key>``), roles
-read < operate < admin. Keys are looked up by their SHA-256; a verified key is cached
-for a few seconds so a busy MES does not cost a database round trip per request."""
+read < operate < admin. Keys are looked up by their SHA-256; a verified key is kept for
+1 s (:class:`api.service.keys.KeyCache`, shared with the dashboard and the MTConnect
+agent) so a busy MES does not cost a database round trip per request."""
 
 from __future__ import annotations
 
 import logging
-import threading
-import time
 from typing import Annotated
 
 from fastapi import Depends, Request, Security
@@ -14,48 +13,14 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.security import APIKeyHeader
 
 from api.rest.errors import AuthError, ForbiddenError, TooManyRequestsError
+from api.service.keys import KeyCache  # noqa: F401 - the API's key cache, one per app
 from api.service.throttle import failed_authentication
-from storage.db import KeyRecord, config_repo, session_scope
+from storage.db import KeyRecord
 
 log = logging.getLogger("mebm.api")
 ROLE_RANK = {"read": 0, "operate": 1, "admin": 2}
 api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False,
                               description="An access key (`mebm keys create --role read|operate|admin`).")
-
-
-class KeyCache:
-    """Keys as looked up in the database, each kept ``ttl_s``: a key revoked by another
-    process (another worker of a fleet, the CLI) stops working within that time; one
-    revoked through this process's API at once (the cache is cleared)."""
-
-    def __init__(self, ttl_s: float = 1.0, clock=time.monotonic):
-        self.ttl_s = ttl_s
-        self.clock = clock
-        self._d: dict[str, tuple[float, KeyRecord | None]] = {}
-        self._lock = threading.Lock()
-
-    def cached(self, secret: str) -> tuple[bool, KeyRecord | None]:
-        hit = self._d.get(secret)
-        if hit is not None and self.clock() - hit[0] < self.ttl_s:
-            return True, hit[1]
-        return False, None
-
-    def lookup(self, factory, secret: str) -> KeyRecord | None:
-        now = self.clock()
-        found, rec = self.cached(secret)
-        if found:
-            return rec
-        with session_scope(factory) as s:
-            rec = config_repo.authenticate(s, secret)
-        with self._lock:
-            if len(self._d) > 10000:
-                self._d.clear()
-            self._d[secret] = (now, rec)
-        return rec
-
-    def clear(self) -> None:
-        with self._lock:
-            self._d.clear()
 
 
 async def current_key(request: Request, header_key: Annotated[str | None, Security(api_key_header)]) -> KeyRecord:

@@ -28,5 +28,7 @@ def revoke_key(key_id: KeyId, s: SessionDep, request: Request, key: AdminKey):
     if key_id == key.id:
         raise ConflictError("a key cannot revoke itself: use another admin key")
     rec = config_repo.revoke_key(s, key_id)
-    request.app.state.key_cache.clear()
-    return convert.key(rec)
+    out = convert.key(rec)
+    s.commit()  # committed before the cache is cleared: no request can find the key valid again
+    request.app.state.key_cache.clear()  # every interface of this process refuses it from now on
+    return out
