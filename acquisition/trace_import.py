@@ -166,7 +166,8 @@ def read_trace(path: str | Path, profile: TraceProfile) -> dict[str, np.ndarray]
             for spec in profile.columns:
                 if spec.name not in header:
                     raise TraceImportError(f"{src}, line {profile.header_line}: no column {spec.name!r} "
-                                           f"(for {spec.target}); the header has {header}")  # fmt: skip
+                                           f"(for {spec.target}); the header has {header}"
+                                           + _layout_hint(path, profile))  # fmt: skip
                 idx[spec.target] = header.index(spec.name)
             cols: dict[str, list[float]] = {t: [] for t in idx}
             width = max(idx.values()) + 1
@@ -186,12 +187,17 @@ def read_trace(path: str | Path, profile: TraceProfile) -> dict[str, np.ndarray]
                     except ValueError:
                         x = math.nan
                     if not math.isfinite(x):
+                        hint = ""
+                        if profile.decimal == "." and _is_number(cell.replace(",", ".")):
+                            hint = "; the file writes decimal commas: set csv.decimal = ','"
                         raise TraceImportError(f"{src}, line {line}, column {header[i]!r}: {row[i]!r} is not a "
                                                "finite number (no sample is dropped or filled in: fix or cut the "
-                                               "file)")  # fmt: skip
+                                               f"file){hint}")  # fmt: skip
                     cols[t].append(x)
         except UnicodeDecodeError as exc:
-            raise TraceImportError(f"{src}: not {profile.encoding} text ({exc.reason}); set csv.encoding") from exc
+            raise TraceImportError(f"{src}: not {profile.encoding} text ({exc.reason}); set csv.encoding"
+                                   + (" = 'latin-1' (or 'cp1252')" if profile.encoding.lower().replace("-", "")
+                                      == "utf8" else "")) from exc  # fmt: skip
         except csv.Error as exc:
             raise TraceImportError(f"{src}, line {reader.line_num + profile.header_line - 1}: {exc}") from exc
     n = len(cols["time_s"])
@@ -207,6 +213,45 @@ def read_trace(path: str | Path, profile: TraceProfile) -> dict[str, np.ndarray]
                                f"{out['time_s'][i]!r} s)")  # fmt: skip
     out["time_s"] = out["time_s"] - out["time_s"][0]
     return out
+
+
+def _is_number(text: str) -> bool:
+    try:
+        return math.isfinite(float(text))
+    except ValueError:
+        return False
+
+
+LAYOUT_SCAN_LINES = 50  # how far into a file a header line is looked for
+
+
+def _layout_hint(path: Path, profile: TraceProfile) -> str:
+    """Where the file has all the profile's column names, as the ``[csv]`` settings that
+    would read them (``"; line 4 has all the profile's columns: csv.header_line = 4,
+    csv.delimiter = '\\t' read(s) it"``);
+    empty when no line within the first :data:`LAYOUT_SCAN_LINES` has them."""
+    names = [c.name for c in profile.columns]
+    encodings = list(dict.fromkeys([profile.encoding, "utf-8", "cp1252"]))
+    delimiters = list(dict.fromkeys([profile.delimiter, "\t", ";", ","]))
+    for enc in encodings:
+        try:
+            with path.open("rb") as f:
+                head = f.read(1 << 16)
+            lines = head[: head.rfind(b"\n") + 1 or None].decode(enc).splitlines()[:LAYOUT_SCAN_LINES]
+        except (OSError, UnicodeDecodeError, LookupError):
+            continue
+        for delim in delimiters:
+            for n, text in enumerate(lines, start=1):
+                cells = [c.strip().strip('"').lstrip("\ufeff") for c in text.split(delim)]
+                if all(name in cells for name in names):
+                    settings = [(key, value, now) for key, value, now in (
+                        ("header_line", n, profile.header_line), ("delimiter", delim, profile.delimiter),
+                        ("encoding", enc, profile.encoding)) if value != now]  # fmt: skip
+                    if not settings:
+                        return ""
+                    shown = ", ".join(f"csv.{k} = {v!r}" for k, v, _ in settings)
+                    return f"; line {n} has all the profile's columns: {shown} read(s) it"
+    return ""
 
 
 def _data_line(path: Path, profile: TraceProfile, index: int) -> int:

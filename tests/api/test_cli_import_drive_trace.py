@@ -211,6 +211,29 @@ def test_a_missing_transmission_ratio_or_an_unreadable_feed_is_refused_naming_th
     assert not (tmp_path / "ds" / "dataset.json").exists()
 
 
+@pytest.mark.parametrize("edit, expected", [
+    (("header_line = 4", "header_line = 1"),
+     "line 4 has all the profile's columns: csv.header_line = 4 read(s) it"),
+    (('delimiter = "\\t"\ndecimal = ","\nheader_line = 4', 'delimiter = ";"\ndecimal = ","\nheader_line = 2'),
+     "line 4 has all the profile's columns: csv.header_line = 4, csv.delimiter = '\\t' read(s) it"),
+    (('encoding = "latin-1"', 'encoding = "utf-8"'),
+     "not utf-8 text (invalid continuation byte); set csv.encoding = 'latin-1' (or 'cp1252')"),
+    (('decimal = ","', 'decimal = "."'), "is not a finite number (no sample is dropped or filled in: fix or cut the "
+                                         "file); the file writes decimal commas: set csv.decimal = ','"),
+])
+def test_a_profile_that_misreads_the_export_names_the_setting_that_reads_it(tmp_path, capsys, chain_run, edit,
+                                                                            expected):
+    short = chain_run.__class__(chain_run.spec, {k: v[:300] for k, v in chain_run.columns.items()})
+    text = DRIVE_PROFILE.read_text(encoding="utf-8")
+    assert edit[0] in text
+    prof = tmp_path / "p.toml"
+    prof.write_text(text.replace(edit[0], edit[1]), encoding="utf-8")
+    code, _, err = _cli(capsys, "import", write_drive_trace(tmp_path / "t.txt", short), "--profile", prof,
+                        "--out", tmp_path / "ds")  # fmt: skip
+    assert code != 0 and err.count("\n") == 1
+    assert expected in err, err
+
+
 def test_reimporting_with_another_axis_description_says_what_differs_and_what_to_do(tmp_path, capsys, chain_run):
     trace = write_drive_trace(tmp_path / "t.txt", chain_run)
     out = tmp_path / "ds"
