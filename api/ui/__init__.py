@@ -8,7 +8,12 @@ same service functions as the REST routers; this package never imports ``api.res
 
 from __future__ import annotations
 
+import inspect
+import json
+from http import HTTPStatus
+
 from fastapi import FastAPI, Request
+from fastapi.exceptions import WebSocketRequestValidationError
 from fastapi.responses import FileResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
 
@@ -19,6 +24,31 @@ from api.ui.sessions import UiState
 from storage.db import NotFoundError
 
 __all__ = ["install", "UiState"]
+
+
+def _as_page(handler):
+    """``handler`` (the API's answer to an error, JSON) answering an HTML page under /ui/."""
+
+    async def answer(request: Request, exc: Exception):
+        resp = handler(request, exc)
+        if inspect.isawaitable(resp):
+            resp = await resp
+        if not request.url.path.startswith("/ui/") or resp.media_type != "application/json":
+            return resp
+        try:
+            detail = json.loads(resp.body).get("detail")
+        except (ValueError, AttributeError):
+            detail = None
+        if not isinstance(detail, str):
+            detail = "; ".join(f"{'.'.join(map(str, e.get('loc', ())))}: {e.get('msg', '')}" for e in detail) \
+                if isinstance(detail, list) else HTTPStatus(resp.status_code).phrase
+        out = page(request, "error.html", resp.status_code, who=None, title=HTTPStatus(resp.status_code).phrase,
+                   message=detail)
+        if "retry-after" in resp.headers:
+            out.headers["Retry-After"] = resp.headers["retry-after"]
+        return out
+
+    return answer
 
 
 def install(app: FastAPI, state: UiState | None = None) -> UiState:
@@ -51,6 +81,13 @@ def install(app: FastAPI, state: UiState | None = None) -> UiState:
     @app.exception_handler(UiForbidden)
     async def forbidden(request: Request, exc: UiForbidden):
         return page(request, "error.html", 403, who=None, title="Refused", message=exc.message)
+
+    # every other error answer of the API (a 422 for an id out of range, a 429 for a measurement
+    # already waiting, a 503): an HTML page under /ui, with the same status and Retry-After
+    for kind, handler in list(app.exception_handlers.items()):
+        if isinstance(kind, type) and kind not in (NotFoundError, SignInRequired, UiForbidden,
+                                                   WebSocketRequestValidationError):
+            app.add_exception_handler(kind, _as_page(handler))
 
     # an unknown axis, alert or key: an HTML page under /ui, the API's own answer elsewhere
     api_not_found = app.exception_handlers.get(NotFoundError)

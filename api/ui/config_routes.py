@@ -9,7 +9,7 @@ from fastapi.responses import HTMLResponse
 
 from api.service.config.input import axis_settings, machining_tasks, schedule_of
 from api.ui import config_forms as cf
-from api.ui.routes import Posted, Viewer, Who, back, page
+from api.ui.routes import Id, Posted, Viewer, Who, back, page
 from core.errors import MebmError
 from storage.db import ConflictError, config_repo, session_scope
 
@@ -72,13 +72,13 @@ def _axis_form(request: Request, who: Viewer, machine_id: int, checked: cf.Check
 
 
 @router.get("/machines/{machine_id}/axes/new", response_class=HTMLResponse)
-def new_axis_page(request: Request, machine_id: int, who: Who):
+def new_axis_page(request: Request, machine_id: Id, who: Who):
     who.require("admin")
     return _axis_form(request, who, machine_id)
 
 
 @router.post("/machines/{machine_id}/axes", response_class=HTMLResponse)
-async def add_axis(request: Request, machine_id: int, who: Posted):
+async def add_axis(request: Request, machine_id: Id, who: Posted):
     who.require("admin")
     checked = cf.axis(await request.form())
     svc = _svc(request)
@@ -133,13 +133,13 @@ def _axis_page(request: Request, who: Viewer, axis_id: int, *, msg: str | None =
 
 
 @router.get("/axes/{axis_id}", response_class=HTMLResponse)
-def axis_config_page(request: Request, axis_id: int, who: Who, msg: str | None = None):
+def axis_config_page(request: Request, axis_id: Id, who: Who, msg: str | None = None):
     who.require("admin")
     return _axis_page(request, who, axis_id, msg=msg)
 
 
 @router.post("/axes/{axis_id}/tasks", response_class=HTMLResponse)
-async def put_tasks(request: Request, axis_id: int, who: Posted):
+async def put_tasks(request: Request, axis_id: Id, who: Posted):
     who.require("admin")
     checked, where = cf.tasks(await request.form())
     svc = _svc(request)
@@ -161,7 +161,7 @@ async def put_tasks(request: Request, axis_id: int, who: Posted):
 
 
 @router.post("/axes/{axis_id}/schedule", response_class=HTMLResponse)
-async def put_schedule(request: Request, axis_id: int, who: Posted):
+async def put_schedule(request: Request, axis_id: Id, who: Posted):
     who.require("admin")
     checked = cf.schedule(await request.form())
     svc = _svc(request)

@@ -32,6 +32,10 @@ templates.env.globals.update(state_class=fmt.state_class, restore_below_explanat
 router = APIRouter(prefix="/ui", include_in_schema=False)
 GAP_RUNS = 16
 POLL_S = 5
+# a database id, as the REST API bounds it (positive 31-bit, PostgreSQL integer): anything
+# else is a 422 page naming it, never an overflow in the database driver (a 500)
+Id = Annotated[int, Path(ge=1, le=2**31 - 1)]
+JobId = Annotated[int | None, Query(ge=1, le=2**31 - 1)]
 
 
 class SignInRequired(Exception):
@@ -204,7 +208,7 @@ def fleet_fragment(request: Request, who: Who):
 
 
 @router.post("/alerts/{alert_id}/ack")
-def acknowledge(request: Request, alert_id: int, who: Posted):
+def acknowledge(request: Request, alert_id: Id, who: Posted):
     who.require("operate")
     svc = request.app.state.service
     with session_scope(svc.factory) as s:
@@ -226,17 +230,17 @@ def axis_ctx(request: Request, axis_id: int, range_: str, *, panels: bool = Fals
 
 
 @router.get("/axes/{axis_id}", response_class=HTMLResponse)
-def axis_page(request: Request, axis_id: int, who: Who, range: str = "90d", msg: str | None = None):  # noqa: A002
+def axis_page(request: Request, axis_id: Id, who: Who, range: str = "90d", msg: str | None = None):  # noqa: A002
     return page(request, "axis.html", who=who, msg=msg, **axis_ctx(request, axis_id, range, panels=True))
 
 
 @router.get("/axes/{axis_id}/part/{part}.frag", response_class=HTMLResponse)
-def axis_fragment(request: Request, axis_id: int, part: Literal["verdict", "cycles"], who: Who):
+def axis_fragment(request: Request, axis_id: Id, part: Literal["verdict", "cycles"], who: Who):
     return page(request, f"_axis_{part}.html", who=who, **axis_ctx(request, axis_id, "90d"))
 
 
 @router.get("/axes/{axis_id}/plots/{name}.png")
-def axis_plot(request: Request, axis_id: int, name: str, who: Who, range: str = "90d",  # noqa: A002
+def axis_plot(request: Request, axis_id: Id, name: str, who: Who, range: str = "90d",  # noqa: A002
               direction: Annotated[str, Query(pattern="^(positive|negative)$")] = "positive"):
     if name not in axis_figures.NAMES:
         raise NotFoundError("figure", name)
@@ -253,7 +257,7 @@ def axis_plot(request: Request, axis_id: int, name: str, who: Who, range: str = 
 
 
 @router.get("/axes/{axis_id}/history.csv")
-def history_csv(request: Request, axis_id: int, who: Who, range: str = "all"):  # noqa: A002
+def history_csv(request: Request, axis_id: Id, who: Who, range: str = "all"):  # noqa: A002
     svc = request.app.state.service
     with session_scope(svc.factory) as s:
         axis = config_repo.get_axis(s, axis_id)
@@ -264,7 +268,7 @@ def history_csv(request: Request, axis_id: int, who: Who, range: str = "all"):  
 
 
 @router.post("/axes/{axis_id}/measure")
-def measure_now(request: Request, axis_id: int, who: Posted):
+def measure_now(request: Request, axis_id: Id, who: Posted):
     who.require("operate")
     state = request.app.state
     wait_s = state.trigger_limit.take(who.key.name)
@@ -342,7 +346,7 @@ def _gap_url(axis_id: int, job_id: int | None = None, *, frag: bool = False, **q
 
 
 @router.get("/axes/{axis_id}/gap", response_class=HTMLResponse)
-def gap_page(request: Request, axis_id: int, who: Who, msg: str | None = None, job: int | None = None,
+def gap_page(request: Request, axis_id: Id, who: Who, msg: str | None = None, job: JobId = None,
              refused: int = 0):
     ctx = _gap_ctx(request, axis_id, job)
     jobs = request.app.state.service.gap_jobs
@@ -358,12 +362,13 @@ def gap_page(request: Request, axis_id: int, who: Who, msg: str | None = None, j
 
 
 @router.get("/axes/{axis_id}/gap.frag", response_class=HTMLResponse)
-def gap_fragment(request: Request, axis_id: int, who: Who, job: int | None = None):
+def gap_fragment(request: Request, axis_id: Id, who: Who, job: JobId = None):
     return page(request, "_gap.html", who=who, **_gap_ctx(request, axis_id, job))
 
 
 @router.get("/axes/{axis_id}/gap/residuals/{index}.png")
-def gap_residual_plot(request: Request, axis_id: int, index: int, who: Who, job: int | None = None):
+def gap_residual_plot(request: Request, axis_id: Id, index: Annotated[int, Path(ge=0, le=10_000)], who: Who,
+                      job: JobId = None):
     """Measured vs model on one test run of the axis' finished diagnosis, before and
     after the diagnosed effect (the figure of ``mebm gap diagnose --plots``)."""
     ctx = _gap_ctx(request, axis_id, job)
@@ -378,7 +383,7 @@ def gap_residual_plot(request: Request, axis_id: int, index: int, who: Who, job:
 
 
 @router.post("/axes/{axis_id}/gap")
-def gap_start(request: Request, axis_id: int, who: Posted):
+def gap_start(request: Request, axis_id: Id, who: Posted):
     """Start (or join) the diagnosis of the axis' newest runs; the page then follows that job."""
     jobs = request.app.state.service.gap_jobs
     _axis, folder, refusal = _gap_folder(request, axis_id)
@@ -439,7 +444,7 @@ async def create_key(request: Request, who: Posted):
 
 
 @router.post("/keys/{key_id}/revoke")
-def revoke_key(request: Request, key_id: int, who: Posted):
+def revoke_key(request: Request, key_id: Id, who: Posted):
     who.require("admin")
     if key_id == who.key.id:
         return back("/ui/keys", "a key cannot revoke itself: sign in with another admin key")

@@ -94,7 +94,12 @@ class UiSessions:
 
 
 def same_token(sent: str | None, expected: str | None) -> bool:
-    return bool(sent) and bool(expected) and hmac.compare_digest(sent, expected)
+    """Whether a form's CSRF token is the expected one, in constant time. Compared as
+    UTF-8 bytes: ``hmac.compare_digest`` refuses str with non-ASCII characters (a
+    TypeError, a 500), and a token sent by anyone may hold any."""
+    if not sent or not expected:
+        return False
+    return hmac.compare_digest(sent.encode("utf-8", "surrogatepass"), expected.encode("utf-8", "surrogatepass"))
 
 
 @dataclass

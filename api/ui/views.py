@@ -4,6 +4,8 @@ templates format. No query of its own."""
 
 from __future__ import annotations
 
+import csv
+import io
 import math
 from dataclasses import dataclass
 from datetime import datetime, timedelta
@@ -135,23 +137,36 @@ def since_of(range_: str, now: datetime | None = None) -> datetime | None:
     return None if days is None else (now or utcnow()) - timedelta(days=days)
 
 
+FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")  # a cell a spreadsheet would run as a formula
+
+
+def spreadsheet_text(cell: str) -> str:
+    """A text cell a spreadsheet shows as text: one that would start a formula gets a
+    leading ``'`` (OWASP's CSV injection advice); numbers are written by us and left as they are."""
+    return "'" + cell if cell.startswith(FORMULA_STARTS) else cell
+
+
 def history_csv(s, axis_id: int, since: datetime | None) -> str:
-    """Every good measurement of the range (not downsampled), one row each, units in the header."""
+    """Every good measurement of the range (not downsampled), one row each, units in the
+    header; written by the csv module (a quote in a task name is doubled), every text
+    cell neutralised for spreadsheets (:func:`spreadsheet_text`)."""
     tr = results_repo.trend(s, axis_id, since=since, max_points=None).series
     tbe: dict[datetime, list[str]] = {}
     for t, task, v, tol in results_repo.tbe_history(s, axis_id, since=since, max_points=None):
         tbe.setdefault(t, []).append(f"{task}={v:.3f}/{tol:g}")
-    out = ["measurement_id,measured_at_utc,backlash_mean_um,temperature_c,utility_day,e_p_um_per_1000mm,"
-           "v_u_um,v_300_um,v_2pi_um,tbe_um_per_task_over_tolerance_um"]
+    buf = io.StringIO()
+    out = csv.writer(buf, lineterminator="\n")
+    out.writerow(["measurement_id", "measured_at_utc", "backlash_mean_um", "temperature_c", "utility_day",
+                  "e_p_um_per_1000mm", "v_u_um", "v_300_um", "v_2pi_um", "tbe_um_per_task_over_tolerance_um"])
 
     def f(v, nd=3):
         return "" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{v:.{nd}f}"
 
     for i in range(len(tr.measured_at)):
         t = tr.measured_at[i]
-        out.append(",".join([
+        out.writerow([
             str(tr.measurement_id[i]), t.strftime("%Y-%m-%dT%H:%M:%SZ"), f(tr.backlash_mean_um[i]),
             f(tr.temperature_c[i], 2), f(tr.utility_day[i], 3), f(tr.e_p_um_per_1000mm[i]), f(tr.v_u_um[i]),
-            f(tr.v_300_um[i]), f(tr.v_2pi_um[i]), '"' + " ".join(tbe.get(t, [])) + '"',
-        ]))
-    return "\n".join(out) + "\n"
+            f(tr.v_300_um[i]), f(tr.v_2pi_um[i]), spreadsheet_text(" ".join(tbe.get(t, []))),
+        ])
+    return buf.getvalue()
