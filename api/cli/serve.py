@@ -13,6 +13,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from api.service.config.loading import load_settings
+from api.service.installation import installation_name
 from api.service.secret_files import ADMIN_KEY_FILE, DEMO_KEYS_FILE, SIGN_IN_LINK_FILE, write_secret_file
 
 
@@ -112,7 +113,8 @@ def banner(settings, report, url: str, opcua=None, sign_in_url: str | None = Non
     for axis_id, sim_url in report.simulators.items():
         lines.append(f"axis {axis_id}: built-in simulated controller on {sim_url}")
     m = settings.mqtt
-    lines.append(f"MQTT: {_redact_url(m.url)}, topics {m.topic_prefix}/<machine>/<axis>/status|alerts" if m.url
+    lines.append(f"MQTT: {_redact_url(m.url)}, topics {m.topic_prefix}/{installation_name(settings)}/<machine>/<axis>/"
+                 "status|alerts" if m.url
                  else "MQTT: off ([mqtt] url or MEBM_MQTT_URL)")  # fmt: skip
     lines.append(opcua_line(settings, opcua))
     w = settings.webhooks

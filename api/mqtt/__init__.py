@@ -1,16 +1,22 @@
 """MQTT: the status and the alerts, published to a broker (paho-mqtt 2.x).
 
-Topics, per machine ``M`` and axis ``A`` (names with ``/ + #`` or blanks get ``_``):
+Topics, per installation ``I`` (``[service] instance``: api.service.installation), machine
+``M`` and axis ``A`` (names with ``/ + #`` or blanks get ``_``; two names that map to one
+are refused at creation, storage.db.names):
 
-- ``<prefix>/M/A/status``: the status body exactly as ``GET /axes/{id}/status`` serves
-  it, **retained**, QoS 1, on each stored measurement and each failed cycle;
-- ``<prefix>/M/A/alerts``: each alert change (raised, cleared) as JSON, QoS 1;
-- ``<prefix>/M/A/maintenance``: each work-order step (opened, acknowledged, repaired,
+- ``<prefix>/I/M/A/status``: the status body as ``GET /axes/{id}/status`` serves it, with
+  ``instance`` added, **retained**, QoS 1, on each stored measurement and each failed cycle;
+- ``<prefix>/I/M/A/alerts``: each alert change (raised, cleared) as JSON, QoS 1;
+- ``<prefix>/I/M/A/maintenance``: each work-order step (opened, acknowledged, repaired,
   verified, back to open, cancelled) as JSON, QoS 1, through the same outbox as alerts;
-- ``<prefix>/M/online``: ``online`` (retained) when the machine's connection is up,
+- ``<prefix>/I/M/online``: ``online`` (retained) when the machine's connection is up,
   ``offline`` by the broker's will when it drops.
 
-One connection per machine (each with its own will). paho reconnects with back-off
+Every JSON payload names its ``instance``. Two installations on one broker publish under
+topics of their own even for machines of one name, and their clients never share an id.
+
+One connection per machine (each with its own will), with a client id unique per
+installation, machine and process (:func:`client_id`). paho reconnects with back-off
 (1-60 s). While the broker is away, the newest status per axis and up to ``outbox_max``
 alert messages wait (the oldest alerts dropped and counted); on every (re)connect the
 waiting statuses are published again and the alerts not yet acknowledged are resent
@@ -21,6 +27,7 @@ the broker never delays or fails a cycle.
 from __future__ import annotations
 
 import collections
+import hashlib
 import json
 import logging
 import os
@@ -45,6 +52,20 @@ def topic_level(name: str) -> str:
     return interface_name(name)
 
 
+def client_id(instance: str, machine: str) -> str:
+    """The MQTT client id of one machine's connection: readable (instance and machine),
+    at most 64 characters, and unique per installation, machine (its exact name) and
+    process by its digest: a broker drops the older of two connections of one id."""
+    digest = hashlib.sha256(f"{instance}\0{machine}\0{socket.gethostname()}\0{os.getpid()}".encode()).hexdigest()
+    return f"mebm-{instance[:24]}-{topic_level(machine)[:20]}-{digest[:12]}"
+
+
+def with_instance(body: bytes, instance: str) -> bytes:
+    """The status body (JSON) with the installation's name added."""
+    doc = json.loads(body)
+    return json.dumps({"instance": instance, **doc}, separators=(",", ":")).encode() if isinstance(doc, dict) else body
+
+
 def alert_document(ev: Event) -> dict:
     a = ev.alert
     return {
@@ -62,7 +83,7 @@ class _MachineLink:
     def __init__(self, pub: MqttPublisher, machine: str):
         self.pub = pub
         self.machine = machine
-        self.online_topic = f"{pub.prefix}/{topic_level(machine)}/online"
+        self.online_topic = f"{pub.base}/{topic_level(machine)}/online"
         self.connected = False
         self.closing = False  # close() asked for the disconnect: not a lost connection
         self.status: dict[str, bytes] = {}  # topic -> the newest status body
@@ -71,8 +92,8 @@ class _MachineLink:
         self._acks: queue.SimpleQueue[int] = queue.SimpleQueue()
         self._key = 0
         self._lock = threading.Lock()
-        cid = f"mebm-{socket.gethostname()}-{os.getpid()}-{topic_level(machine)}"[:64]
-        c = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id=cid, clean_session=True)
+        self.client_id = client_id(pub.instance, machine)
+        c = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id=self.client_id, clean_session=True)
         if pub.username is not None:
             c.username_pw_set(pub.username, pub.password)
         if pub.tls:
@@ -166,6 +187,8 @@ class MqttPublisher:
         self.username = unquote(u.username) if u.username else None
         self.password = unquote(u.password) if u.password else None
         self.prefix = settings.topic_prefix
+        self.instance: str = service.instance
+        self.base = f"{self.prefix}/{self.instance}"  # every topic of this installation begins so
         self.outbox_max = settings.outbox_max
         self.published = self.dropped = 0
         self._links: dict[str, _MachineLink] = {}
@@ -179,20 +202,20 @@ class MqttPublisher:
             return self._links[machine]
 
     def handle(self, ev: Event) -> None:
-        base = f"{self.prefix}/{topic_level(ev.machine)}/{topic_level(ev.axis)}"
+        base = f"{self.base}/{topic_level(ev.machine)}/{topic_level(ev.axis)}"
         if ev.kind in ("measurement_stored", "cycle_failed"):
             body = self.service.status_document(ev.axis_id)
             if body is not None:
-                self.link(ev.machine).publish_status(f"{base}/status", body)
+                self.link(ev.machine).publish_status(f"{base}/status", with_instance(body, self.instance))
         elif ev.kind == "alert_changed":
-            body = json.dumps(alert_document(ev), separators=(",", ":")).encode()
+            body = json.dumps({"instance": self.instance, **alert_document(ev)}, separators=(",", ":")).encode()
             self.link(ev.machine).publish_alert(f"{base}/alerts", body)
         elif ev.kind == "work_order_changed":
-            body = json.dumps(order_document(ev), separators=(",", ":")).encode()
+            body = json.dumps({"instance": self.instance, **order_document(ev)}, separators=(",", ":")).encode()
             self.link(ev.machine).publish_alert(f"{base}/maintenance", body)
             status = self.service.status_document(ev.axis_id)  # its work_order changed: the retained one too
             if status is not None:
-                self.link(ev.machine).publish_status(f"{base}/status", status)
+                self.link(ev.machine).publish_status(f"{base}/status", with_instance(status, self.instance))
 
     def connected(self, machine: str) -> bool:
         link = self._links.get(machine)

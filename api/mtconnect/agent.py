@@ -132,7 +132,7 @@ class MTConnectAgent:
     # -- reading -------------------------------------------------------------------------------------
     def _device(self, machine_id: int) -> Device:
         name, comps = self._machines[machine_id]
-        return device_for(machine_id, name, tuple(comps[k] for k in sorted(comps)))
+        return device_for(machine_id, name, tuple(comps[k] for k in sorted(comps)), self.service.instance)
 
     def devices(self, name: str | None = None) -> list[Device] | None:
         """All devices, or the one named ``name`` (by name or uuid); None if there is none such."""

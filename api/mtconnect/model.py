@@ -87,14 +87,16 @@ def _slug(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_") or "_"
 
 
-def device_uuid(machine: str) -> str:
-    """Stable across restarts: derived from the machine's name."""
-    return str(uuid.uuid5(uuid.NAMESPACE_URL, f"urn:mebm:machine:{machine}"))
+def device_uuid(machine: str, instance: str) -> str:
+    """Stable across restarts and unique across installations: derived from the
+    installation's name (api.service.installation) and the machine's, so two plants'
+    ``vmc-1`` are two devices to one MES."""
+    return str(uuid.uuid5(uuid.NAMESPACE_URL, f"urn:mebm:{instance}:machine:{machine}"))
 
 
-def device_for(machine_id: int, machine: str, components: tuple[Component, ...]) -> Device:
+def device_for(machine_id: int, machine: str, components: tuple[Component, ...], instance: str) -> Device:
     avail = DataItem(f"m{machine_id}_avail", "EVENT", "AVAILABILITY", "Availability", name="avail")
-    return Device(f"m{machine_id}", machine, device_uuid(machine), (avail,), components)
+    return Device(f"m{machine_id}", machine, device_uuid(machine, instance), (avail,), components)
 
 
 def component_for(st: AxisStatus) -> Component:

@@ -14,7 +14,7 @@ from asyncua import Server, ua
 
 from api.opcua.values import AxisValues
 
-NAMESPACE_URI = "urn:mebm"
+NAMESPACE_URI = "urn:mebm"  # the namespace of an installation is this, a colon and its name (namespace_uri)
 UNECE_URI = "http://www.opcfoundation.org/UA/units/un/cefact"
 EU_RANGE_UM = (0.0, 1000.0)  # the EURange AnalogItemType requires: the range of normal operation
 READ = ua.AccessLevel.CurrentRead.mask
@@ -30,6 +30,12 @@ def unece_unit_id(code: str) -> int:
 
 MICROMETRE = ua.EUInformation(NamespaceUri=UNECE_URI, UnitId=unece_unit_id("4H"),
                               DisplayName=ua.LocalizedText("µm"), Description=ua.LocalizedText("micrometre"))
+
+
+def namespace_uri(instance: str) -> str:
+    """The namespace of the installation ``instance`` (api.service.installation): two
+    installations' servers never offer one node id for two machines to one client."""
+    return f"{NAMESPACE_URI}:{instance}"
 
 
 def segment(name: str) -> str:

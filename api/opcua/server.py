@@ -20,7 +20,7 @@ from asyncua.crypto.truststore import TrustStore
 from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
 
 from api.opcua.access import ReadOnlyRuleset, Users
-from api.opcua.nodes import NAMESPACE_URI, AddressSpace
+from api.opcua.nodes import AddressSpace, namespace_uri
 from api.opcua.values import axis_values
 from api.service.config.settings import OpcuaSettings
 from api.service.events import Event
@@ -130,7 +130,7 @@ class OpcuaServer:
                 CertificateValidatorOptions.TRUSTED_VALIDATION | CertificateValidatorOptions.PEER_CLIENT, trust))
         srv.set_identity_tokens(users.identity_tokens())
         srv.allow_remote_admin(False)
-        idx = await srv.register_namespace(NAMESPACE_URI)
+        idx = await srv.register_namespace(namespace_uri(self.service.instance))
         self._server = srv
         self._space = AddressSpace(srv, idx)
         await self._space.build()

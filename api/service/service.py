@@ -27,6 +27,7 @@ from api.service.figures.cache import FigureCache
 from api.service.figures.gate import RenderGate
 from api.service.cycles.folders import axis_folders
 from api.service.gap_jobs import GapJobs
+from api.service.installation import installation_name
 from api.service.figures.process import PlotProcess
 from api.service.demo import DemoController
 from api.service.health import HealthProbe
@@ -83,6 +84,7 @@ class StartReport:
 class Service:
     def __init__(self, settings: Settings, *, runner: CycleRunner | None = None, db_wait_s: float = 30.0):
         self.settings = settings
+        self.instance = installation_name(settings)  # this installation's name on MQTT, MTConnect, OPC UA
         # the production runner measures in worker processes (the acquisition and analysis off the API's interpreter)
         self.runner = runner or DriverRunner(processes=CycleProcesses(settings.cycle_processes),
                                              profiles_dir=settings.profiles_path)

@@ -17,6 +17,7 @@ from lxml import etree
 from api.rest import create_app
 from api.service.config.settings import OpcuaSettings, demo_axis
 from storage.db import config_repo, session_scope
+from tests.api.opcua.test_opcua import mebm_namespace
 from tests.api.rest.conftest import FakeRunner, make_settings
 from tests.api.ui.test_maintenance_forms import sign_in
 from tests.waiting import until
@@ -47,7 +48,7 @@ def alarm(tmp_path):
 
 async def _opcua_restore_below(endpoint: str, machine: str) -> tuple[float, float]:
     async with Client(endpoint, timeout=10) as c:
-        idx = await c.get_namespace_index("urn:mebm")
+        idx = await mebm_namespace(c)
         axis = await c.nodes.objects.get_child([f"{idx}:Machines", f"{idx}:{machine}", f"{idx}:y"])
         target = await (await axis.get_child(f"{idx}:RestoreBelow")).read_value()
         limit = await (await axis.get_child(f"{idx}:BacklashLimit")).read_value()

@@ -21,6 +21,7 @@ from pathlib import Path
 from urllib.parse import urlsplit
 
 from api.service.config.bounds import check_axis, check_axis_name, check_bounds, keys_of
+from api.service.installation import check_instance
 from api.service.config.input import checked_canopen_controller, resolve_profile, with_modbus_profile, with_trigger
 from api.service.config.settings import (
     DEMO_SIMULATOR,
@@ -47,7 +48,7 @@ from storage.db.names import collision, collision_message
 
 # the top-level tables of the configuration file
 TABLES = {"server", "storage", "auth", "scheduler", "simulator", "machines", "logging", "limits", "retention", "mqtt",
-        "webhooks", "opcua", "mtconnect", "maintenance", "worker", "uncertainty"}
+        "webhooks", "opcua", "mtconnect", "maintenance", "worker", "uncertainty", "service"}
 # the instruments of the uncertainty budget: [uncertainty] for every axis, the same keys in an
 # axis' table for that axis (core.criteria.uncertainty.Instruments)
 INSTRUMENT_KEYS = {"scale_accuracy_um": float, "scale_accuracy_um_per_m": float, "thermometer_class": str,
@@ -182,6 +183,11 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
     """Settings from a parsed TOML document; options absent keep the defaults."""
     base = base or Settings()
     _unknown(doc, TABLES, "config")
+    service = doc.get("service", {})
+    _unknown(service, {"instance"}, "service")
+    instance = _get(service, "instance", str, "service", base.instance)
+    if instance is not None:
+        check_instance(instance, "service.instance")
     server = doc.get("server", {})
     _unknown(server, {"host", "port", "status_max_age_s", "trusted_proxies"}, "server")
     storage = doc.get("storage", {})
@@ -266,7 +272,7 @@ def parse_settings(doc: Mapping, *, base: Settings | None = None) -> Settings:
         raise ConfigError(f"storage.spool_slot_mb (={spool_slot_mb}) must be 0.01..64 (a cycle's spool file with "
                           "its raw trace is a few hundred kB)")
     return check_bounds(replace(
-        base,
+        base, instance=instance,
         host=_get(server, "host", str, "server", base.host), port=port,
         data_dir=Path(data_dir) if data_dir else base.data_dir,
         database_url=_get(storage, "database_url", str, "storage", base.database_url) or None,
@@ -554,6 +560,8 @@ def apply_env(settings: Settings, env: Mapping[str, str] | None = None) -> Setti
         except ValueError as exc:
             raise ConfigError(f"MEBM_WORKER_LEASE_S (={env['MEBM_WORKER_LEASE_S']!r}) must be a number") from exc
         out = replace(out, worker=replace(out.worker, lease_s=_positive(lease, "MEBM_WORKER_LEASE_S")))
+    if env.get("MEBM_INSTANCE"):
+        out = replace(out, instance=check_instance(env["MEBM_INSTANCE"], "MEBM_INSTANCE"))
     if env.get("MEBM_HOST"):
         out = replace(out, host=env["MEBM_HOST"])
     if env.get("MEBM_PORT"):

@@ -165,6 +165,9 @@ class WorkerSettings:
 
 @dataclass(frozen=True)
 class Settings:
+    # this installation's name on MQTT, MTConnect and OPC UA ([service] instance, MEBM_INSTANCE);
+    # None: drawn once and kept in the data folder (api.service.installation)
+    instance: str | None = None
     host: str = "127.0.0.1"
     port: int = 8000
     data_dir: Path = Path("data")

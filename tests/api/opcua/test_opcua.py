@@ -58,9 +58,16 @@ def _measure(env):
     until(lambda: env["ua"].updates > before, "the OPC UA update")
 
 
+async def mebm_namespace(c: Client) -> int:
+    """The index of the installation's namespace (``urn:mebm:<instance>``)."""
+    uris = await c.get_namespace_array()
+    (idx,) = [i for i, u in enumerate(uris) if u.startswith("urn:mebm:") and u != "urn:mebm:server"]
+    return idx
+
+
 async def _browse_to_axis(c: Client):
     """From Objects, by browsing (not by node id), to the axis object."""
-    idx = await c.get_namespace_index("urn:mebm")
+    idx = await mebm_namespace(c)
     node = c.nodes.objects
     for name in ("Machines", "vmc-850", "y"):
         children = {(await ch.read_browse_name()).Name: ch for ch in await node.get_children()}
@@ -196,7 +203,7 @@ async def _connect(endpoint: str, user=None, password=None, cert=None, key=None)
     except ua.UaError as exc:  # no endpoint of the requested security
         return f"UaError: {exc}"
     try:
-        idx = await c.get_namespace_index("urn:mebm")
+        idx = await mebm_namespace(c)
         _, axis = await _browse_to_axis(c)
         return await (await axis.get_child(f"{idx}:State")).read_value()
     finally:

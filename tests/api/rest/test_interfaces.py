@@ -85,23 +85,24 @@ def test_an_mqtt_subscriber_receives_the_retained_status_the_birth_and_each_aler
     broker = Broker(port, tmp_path)
     runner = FakeRunner(backlash_um=200.0)
     try:
-        app = _app(tmp_path, runner, mqtt=MqttSettings(url=f"mqtt://127.0.0.1:{port}", topic_prefix=prefix))
+        app = _app(tmp_path, runner, mqtt=MqttSettings(url=f"mqtt://127.0.0.1:{port}", topic_prefix=prefix),
+                   instance="plant-a")
         with TestClient(app) as client:
             svc = app.state.service
             read, admin, axis_id = _keys_and_axis(svc)
-            assert _sub(port, f"{prefix}/vmc-850/online", 1) == [(f"{prefix}/vmc-850/online", b"online")]
+            assert _sub(port, f"{prefix}/plant-a/vmc-850/online", 1) == [(f"{prefix}/plant-a/vmc-850/online", b"online")]
             _measure(svc, axis_id)
             rest = client.get(f"/api/v1/axes/{axis_id}/status", headers=hdr(read)).json()
-            (topic, payload), = until(lambda: _sub(port, f"{prefix}/+/+/status", 1), "the retained status")
-            assert topic == f"{prefix}/vmc-850/y/status"
+            (topic, payload), = until(lambda: _sub(port, f"{prefix}/plant-a/+/+/status", 1), "the retained status")
+            assert topic == f"{prefix}/plant-a/vmc-850/y/status"
             body = json.loads(payload)
-            assert body["axis_id"] == axis_id and body["state"] == rest["state"]
+            assert body["instance"] == "plant-a" and body["axis_id"] == axis_id and body["state"] == rest["state"]
             assert body["backlash_mean_um"] == pytest.approx(rest["backlash_mean_um"])
             # an alert raised: a subscriber listening before it gets it (QoS 1, not retained);
             # paho here, because it says when the broker has acknowledged the subscription
             got, subscribed = [], threading.Event()
             sub = paho.Client(paho.CallbackAPIVersion.VERSION2)
-            sub.on_connect = lambda c, *a: c.subscribe(f"{prefix}/+/+/alerts", qos=1)
+            sub.on_connect = lambda c, *a: c.subscribe(f"{prefix}/plant-a/+/+/alerts", qos=1)
             sub.on_subscribe = lambda *a: subscribed.set()
             sub.on_message = lambda c, u, msg: got.append((msg.topic, msg.payload))
             sub.connect("127.0.0.1", port)
@@ -116,12 +117,13 @@ def test_an_mqtt_subscriber_receives_the_retained_status_the_birth_and_each_aler
                 sub.disconnect()
             ((topic, payload),) = got
             alert = json.loads(payload)
-            assert topic == f"{prefix}/vmc-850/y/alerts" and alert["active"] is True and alert["tbe_um"] > alert["tolerance_um"]
+            assert alert["instance"] == "plant-a"
+            assert topic == f"{prefix}/plant-a/vmc-850/y/alerts" and alert["active"] is True and alert["tbe_um"] > alert["tolerance_um"]
             # the ALARM opened a work order; acknowledging it (no measurement) republishes the
             # retained status with the order's new state, as REST shows it
 
             def retained_order_state():
-                (_, p), = _sub(port, f"{prefix}/vmc-850/y/status", 1)
+                (_, p), = _sub(port, f"{prefix}/plant-a/vmc-850/y/status", 1)
                 return (json.loads(p).get("work_order") or {}).get("state")
 
             until(lambda: retained_order_state() == "open", "the order in the retained status")
@@ -138,7 +140,7 @@ def test_an_mqtt_subscriber_receives_the_retained_status_the_birth_and_each_aler
         mine = [r for r in caplog.records if r.name == "mebm.mqtt"]
         assert not [r for r in mine if r.levelno >= logging.WARNING], [r.getMessage() for r in mine]
         assert any("service stopping" in r.getMessage() for r in mine)
-        assert _sub(port, f"{prefix}/vmc-850/online", 1) == [(f"{prefix}/vmc-850/online", b"offline")]
+        assert _sub(port, f"{prefix}/plant-a/vmc-850/online", 1) == [(f"{prefix}/plant-a/vmc-850/online", b"offline")]
     finally:
         broker.stop()
 
@@ -147,7 +149,8 @@ def test_an_mqtt_subscriber_receives_the_retained_status_the_birth_and_each_aler
 def test_a_broker_outage_loses_no_measurement_and_the_status_is_published_when_it_returns(tmp_path):
     port, prefix = free_port(), f"t{uuid.uuid4().hex[:8]}"
     runner = FakeRunner(backlash_um=180.0)
-    app = _app(tmp_path, runner, mqtt=MqttSettings(url=f"mqtt://127.0.0.1:{port}", topic_prefix=prefix))
+    app = _app(tmp_path, runner, mqtt=MqttSettings(url=f"mqtt://127.0.0.1:{port}", topic_prefix=prefix),
+               instance="plant-a")
     with TestClient(app) as client:
         svc = app.state.service
         read, _, axis_id = _keys_and_axis(svc)
@@ -158,8 +161,8 @@ def test_a_broker_outage_loses_no_measurement_and_the_status_is_published_when_i
         broker = Broker(port, tmp_path)
         try:
             until(lambda: app.state.mqtt.connections() == {"vmc-850": True}, "the reconnection", 90)
-            (topic, payload), = _sub(port, f"{prefix}/+/+/status", 1)
-            assert topic == f"{prefix}/vmc-850/y/status"
+            (topic, payload), = _sub(port, f"{prefix}/plant-a/+/+/status", 1)
+            assert topic == f"{prefix}/plant-a/vmc-850/y/status"
             assert json.loads(payload)["backlash_mean_um"] == pytest.approx(180.0, abs=2.0)
         finally:
             broker.stop()
@@ -402,10 +405,10 @@ def test_the_start_banner_says_whether_mqtt_and_webhooks_are_on_without_the_brok
 
     report = StartReport(database="sqlite:///x", replayed=0, interrupted=0, created_axes=(), demo_keys={},
                          simulators={}, bootstrap_admin=None)  # fmt: skip
-    on = make_settings("sqlite:///x", tmp_path, mqtt=MqttSettings(url="mqtt://mes:s3cret@broker:1884"),
+    on = make_settings("sqlite:///x", tmp_path, mqtt=MqttSettings(url="mqtt://mes:s3cret@broker:1884"), instance="plant-a",
                        webhooks=WebhookSettings(urls=("http://mes/hook",), secret=SECRET))  # fmt: skip
     text = banner(on, report, "http://127.0.0.1:1")
-    assert "MQTT: mqtt://mes:***@broker:1884, topics mebm/<machine>/<axis>/status|alerts" in text
+    assert "MQTT: mqtt://mes:***@broker:1884, topics mebm/plant-a/<machine>/<axis>/status|alerts" in text
     assert "s3cret" not in text and "webhooks: 1 receiver(s)" in text
     off = banner(make_settings("sqlite:///x", tmp_path), report, "http://127.0.0.1:1")
     assert "MQTT: off" in off and "webhooks: off" in off
