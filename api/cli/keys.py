@@ -7,7 +7,7 @@ from pathlib import Path
 
 from api.cli.output import print_json, print_table
 from api.service.config.loading import load_settings
-from api.service.secret_files import write_secret_file
+from api.service.secret_files import secret_path, write_secret_file
 from core.errors import InputError
 from storage.db import config_repo, make_engine, make_session_factory, session_scope, upgrade
 
@@ -46,9 +46,11 @@ def _factory(a, settings=None):
     return make_session_factory(engine)
 
 
-def key_file(data_dir: Path, key_id: int) -> Path:
-    """Where ``mebm keys create`` writes the secret of key ``key_id``."""
-    return Path(data_dir) / "keys" / f"{key_id}.key"
+def key_file(data_dir: Path, key_id: int, database_url: str | None = None) -> Path:
+    """Where ``mebm keys create`` writes the secret of key ``key_id``: ``keys/<id>.key`` for
+    the default database, ``keys/<id>.<tag>.key`` for any other (ids repeat across
+    databases; :func:`api.service.secret_files.secret_path`)."""
+    return Path(data_dir) / "keys" / secret_path(data_dir, database_url, f"{key_id}.key", claim=True).name
 
 
 def _create(a) -> int:
@@ -64,7 +66,7 @@ def _create(a) -> int:
         rec, secret = config_repo.create_key(s, name, a.role)
         path = None
         if not a.show_keys:  # written before the commit: a key whose secret is nowhere is never created
-            path = key_file(settings.data_dir, rec.id)
+            path = key_file(settings.data_dir, rec.id, settings.database_url)
             try:
                 path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
                 write_secret_file(path, secret + "\n")

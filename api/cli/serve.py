@@ -14,7 +14,7 @@ from pathlib import Path
 
 from api.service.config.loading import load_settings
 from api.service.installation import installation_name
-from api.service.secret_files import ADMIN_KEY_FILE, DEMO_KEYS_FILE, SIGN_IN_LINK_FILE, write_secret_file
+from api.service.secret_files import ADMIN_KEY_FILE, DEMO_KEYS_FILE, SIGN_IN_LINK_FILE, secret_path, write_secret_file
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -56,7 +56,7 @@ def demo_read_key(settings, report) -> str | None:
     """The demo read key: created by this start, else the one kept in demo-keys.json."""
     if report.demo_keys.get("read"):
         return report.demo_keys["read"]
-    path = Path(settings.data_dir) / DEMO_KEYS_FILE
+    path = secret_path(settings.data_dir, settings.database_url, DEMO_KEYS_FILE)
     try:
         kept = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {}
     except (OSError, ValueError):
@@ -125,7 +125,8 @@ def banner(settings, report, url: str, opcua=None, sign_in_url: str | None = Non
                  else "MTConnect: off ([mtconnect] enabled)")  # fmt: skip
     if mc.enabled and mc.shdr_port is not None:
         lines.append(f"MTConnect SHDR adapter: {mc.shdr_host}:{mc.shdr_port} (device file: {url}/mtconnect/probe)")
-    kept_at, admin_at = data / DEMO_KEYS_FILE, data / ADMIN_KEY_FILE
+    kept_at = secret_path(data, settings.database_url, DEMO_KEYS_FILE)  # this database's files
+    admin_at = secret_path(data, settings.database_url, ADMIN_KEY_FILE)
     if report.demo_keys:  # only the keys created by this start
         k = report.demo_keys
         files = [f"read and operate in {kept_at}"] if ("read" in k or "operate" in k) else []
@@ -155,7 +156,7 @@ def banner(settings, report, url: str, opcua=None, sign_in_url: str | None = Non
 
 def sign_in_link(settings, report, url: str, sessions) -> tuple[str | None, Path | None, str | None]:
     """The one-time sign-in link for the demo read key, written to ``<data_dir>/sign-in-link``
-    (mode 600). Returns (link, its file, why it could not be written). The link carries a
+    (mode 600; ``sign-in-link.<tag>`` for a database other than the default one). Returns (link, its file, why it could not be written). The link carries a
     one-time token, never the key; the dashboard keeps the token hashed."""
     read_key = demo_read_key(settings, report) if settings.demo_keys else None
     if not read_key:
@@ -166,7 +167,7 @@ def sign_in_link(settings, report, url: str, sessions) -> tuple[str | None, Path
         link = f"{url}/ui/sign-in/{sessions.issue_link(read_key)}"
     except StorageError as exc:  # the database is not open yet (a full disk): sign in with a key later
         return None, None, f"no database yet ({exc})"
-    path = Path(settings.data_dir) / SIGN_IN_LINK_FILE
+    path = secret_path(settings.data_dir, settings.database_url, SIGN_IN_LINK_FILE, claim=True)
     try:
         write_secret_file(path, link + "\n")
     except OSError as exc:

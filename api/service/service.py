@@ -34,7 +34,14 @@ from api.service.health import HealthProbe
 from api.service.cycles.leases import FleetScheduler
 from api.service.cycles.runner import CycleProcesses, CycleRunner, DriverRunner
 from api.service.cycles.scheduler import CycleScheduler
-from api.service.secret_files import ADMIN_KEY_FILE, DEMO_KEYS_FILE, write_secret_file
+from api.service.secret_files import (
+    ADMIN_KEY_FILE,
+    DEMO_KEYS_FILE,
+    database_identity,
+    move_aside,
+    secret_path,
+    write_secret_file,
+)
 from api.service.events import Event, EventHub, events_of_saved_cycle
 from api.service.maintenance.loop import MaintenanceLoop
 from api.service.status import StatusCache
@@ -479,9 +486,14 @@ class Service:
         ``<data_dir>/admin-key`` for the operator to take away (both mode 600,
         :mod:`api.service.secret_files`); none of them is printed unless ``mebm serve
         --show-keys`` asks. A key is created only if its file could be written: on a full
-        disk none is, and the next start tries again."""
+        disk none is, and the next start tries again. The files are this database's
+        (:func:`api.service.secret_files.secret_path`); one found under this database's
+        name that holds no key of it (another database's, from before the names carried the
+        database) is moved aside, never overwritten."""
         data_dir = Path(self.settings.data_dir)
-        path = data_dir / DEMO_KEYS_FILE
+        database = database_identity(data_dir, self.settings.database_url)
+        path = secret_path(data_dir, self.settings.database_url, DEMO_KEYS_FILE, claim=True)
+        admin_path = secret_path(data_dir, self.settings.database_url, ADMIN_KEY_FILE)
         kept = {}
         if path.is_file():
             try:
@@ -497,6 +509,10 @@ class Service:
                 live = [k for k in config_repo.list_keys(s) if k.revoked_at is None]
                 valid = {r: kept[r] for r in ("read", "operate")
                          if isinstance(kept.get(r), str) and config_repo.authenticate(s, kept[r]) is not None}
+                if path.is_file() and not valid and kept.get("database") != database and (
+                        kept.get("read") or kept.get("operate")):
+                    self._aside(path, kept.get("database"))  # another database's keys: kept, not overwritten
+                    kept = {}
                 for role in ("read", "operate", "admin"):
                     if role in valid or (role == "admin" and any(k.role == "admin" and k.name.startswith("demo-admin")
                                                                  for k in live)):
@@ -506,16 +522,25 @@ class Service:
                         name = f"demo-{role}-{int(time.time())}"
                     _, created[role] = config_repo.create_key(s, name, role)
                 # written before the keys are committed: a key nobody can read is never created
-                keep = {**valid, **{r: k for r, k in created.items() if r != "admin"}}
+                keep = {"database": database, **valid, **{r: k for r, k in created.items() if r != "admin"}}
                 if keep != kept:
                     write_secret_file(path, json.dumps(keep, indent=2))
                 if "admin" in created:
-                    write_secret_file(data_dir / ADMIN_KEY_FILE, created["admin"] + "\n")
+                    if admin_path.is_file():  # an admin key this database does not have (its own demo admin is live)
+                        self._aside(admin_path, None)
+                    write_secret_file(admin_path, created["admin"] + "\n")
         except OSError as exc:
             log.warning("demo keys not created: cannot write them under %s (%s); the next start tries again",
                         data_dir, exc.strerror or exc)
             return {}
         return created
+
+    @staticmethod
+    def _aside(path: Path, database: str | None) -> None:
+        moved = move_aside(path)
+        log.warning("%s holds no key of this database%s: moved aside to %s (nothing deleted; its keys belong to "
+                    "the database it was written for)", path, f" (it names {database})" if database else "",
+                    moved.name)
 
     # -- operations for the API ------------------------------------------------------------------
     def trigger(self, axis_id: int, requested_by: str | None):
