@@ -21,7 +21,7 @@ from api.ui import panels as axis_panels
 from api.ui import views
 from api.ui.sessions import PRE_CSRF_COOKIE, ROLE_RANK, SESSION_COOKIE, Session, UiState, same_token
 from storage.dataset import FolderOwnerError
-from storage.db import ConflictError, NotFoundError, config_repo, results_repo, session_scope
+from storage.db import ConflictError, NotFoundError, config_repo, maintenance_repo, results_repo, session_scope
 
 log = logging.getLogger("mebm.ui")
 HERE = FsPath(__file__).parent
@@ -213,7 +213,12 @@ def acknowledge(request: Request, alert_id: Id, who: Posted):
     svc = request.app.state.service
     with session_scope(svc.factory) as s:
         a = results_repo.acknowledge_alert(s, alert_id, who.key.name)
-    return back("/ui/", f"alert {a.id} acknowledged by {who.key.name}")
+        order = maintenance_repo.active_order(s, a.axis_id)
+    msg = f"alert {a.id} acknowledged by {who.key.name}"
+    if order is not None and order.alert_id == a.id:  # the alert was seen; the repair is the order's
+        msg += (f"; the repair is followed by work order {order.id} ({order.state}), "
+                f"in the Maintenance section of the axis page")
+    return back("/ui/", msg)
 
 
 # -- axis -------------------------------------------------------------------------------------

@@ -80,7 +80,11 @@ def test_acknowledging_the_alert_and_the_work_order_are_told_apart_where_each_is
     assert "leaves this order as it is" in panel
     # and so it is: the alert acknowledged, the order is still open, its button still there
     csrf = re.search(r'name="csrf" value="([^"]+)"', c.get("/ui/").text).group(1)
-    assert c.post(f"/ui/alerts/{order.alert_id}/ack", data={"csrf": csrf}, follow_redirects=False).status_code == 303
+    r = c.post(f"/ui/alerts/{order.alert_id}/ack", data={"csrf": csrf})
+    assert r.status_code == 200
+    flash = text(re.search(r'<p class="flash"[^>]*>(.*?)</p>', r.text, flags=re.S).group(1))
+    assert f"alert {order.alert_id} acknowledged by ui-operate" in flash
+    assert f"work order {order.id} (open)" in flash  # what follows the repair, and where
     with session_scope(c.app.state.service.factory) as s:
         assert maintenance_repo.get_order(s, order.id).state == "open"
     assert 'id="ack-form"' in c.get(f"/ui/axes/{axis_id}").text
