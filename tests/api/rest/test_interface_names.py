@@ -5,10 +5,13 @@ publish under one topic with one client id: the second is refused where it is cr
 from __future__ import annotations
 
 import pytest
+from fastapi.testclient import TestClient
 
+from api.rest import create_app
 from api.service.config.loading import parse_settings
 from api.service.config.settings import ConfigError
-from tests.api.rest.conftest import hdr
+from storage.db import ConflictError, config_repo, session_scope
+from tests.api.rest.conftest import FakeRunner, hdr, make_settings
 
 V1 = "/api/v1"
 AXIS = {"transmission_mm_per_rev": 10, "screw_lead_mm": 10, "position_gain_per_s": 20, "travel_mm": [0, 500],
@@ -54,3 +57,14 @@ def test_the_configuration_file_keeps_names_that_map_to_distinct_topics():
     axis = {k: v for k, v in AXIS.items() if k != "controller_url"}
     doc = {"machines": [{"name": "m a", "axes": [{**axis, "name": "y"}]}, {"name": "m-a", "axes": [{**axis, "name": "y"}]}]}
     assert [m for m, _ in parse_settings(doc).machines] == ["m a", "m-a"]
+
+
+def test_a_configured_machine_whose_name_meets_a_stored_one_stops_the_start_naming_it(tmp_path):
+    url = f"sqlite:///{tmp_path}/db.sqlite3"
+    with TestClient(create_app(make_settings(url, tmp_path), runner=FakeRunner())) as c:
+        with session_scope(c.app.state.service.factory) as s:
+            config_repo.create_machine(s, "m a")
+    clashing = make_settings(url, tmp_path, machines=(("m_a", ""),), axes=())
+    with pytest.raises(ConflictError, match="'m a'"):
+        with TestClient(create_app(clashing, runner=FakeRunner())):
+            pass
