@@ -25,9 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
+from acquisition.files import MIB, FileRefused, open_regular
 from core.errors import InputError
 
 FORMAT = "mebm-trace-profile/1"
+MAX_TRACE_BYTES = 512 * MIB  # a trace file larger than this is refused before it is read
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
 LINEAR_UNITS = {"mm": 1.0, "um": 1e-3, "nm": 1e-6, "m": 1e3, "in": 25.4}
 ROTARY_UNITS = {"rev": 1.0, "deg": 1.0 / 360.0, "rad": 1.0 / (2.0 * math.pi)}
@@ -145,10 +147,10 @@ def read_trace(path: str | Path, profile: TraceProfile) -> dict[str, np.ndarray]
     """The run columns of the trace file ``path`` (see the module docstring)."""
     path = Path(path)
     src = str(path)
-    try:
-        f = path.open(encoding=profile.encoding, newline="")
-    except OSError as exc:
-        raise TraceImportError(f"{src}: cannot be read ({exc.strerror or exc})") from exc
+    try:  # a regular file of bounded size only: a FIFO or /dev/zero is refused, not read forever
+        f = open_regular(path, MAX_TRACE_BYTES, "trace file", encoding=profile.encoding, newline="")
+    except FileRefused as exc:
+        raise TraceImportError(str(exc)) from exc
     except LookupError as exc:
         raise TraceImportError(f"csv.encoding (={profile.encoding!r}) is not a known encoding") from exc
     with f:

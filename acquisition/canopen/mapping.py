@@ -12,13 +12,17 @@ them, else from the configuration. Errors name the configuration field.
 
 from __future__ import annotations
 
+import io
 import math
 import struct
 from dataclasses import dataclass
 from pathlib import Path
 
 from acquisition.canopen import objects as co
+from acquisition.files import MIB, FileRefused, read_regular
 from core.errors import InputError
+
+MAX_EDS_BYTES = 4 * MIB  # a drive's EDS or DCF is tens of kB; larger is not one
 
 _INT_TYPES = {  # CiA 301 data type -> (struct code, bytes)
     0x2: ("b", 1), 0x3: ("h", 2), 0x4: ("l", 4), 0x5: ("B", 1), 0x6: ("H", 2), 0x7: ("L", 4),
@@ -117,10 +121,18 @@ def mapping_from_eds(path: str | Path, node_id: int, *, counts_per_rev: float | 
     import canopen
 
     where = f"eds (={str(path)!r})"
-    if not Path(path).is_file():
-        raise InputError(f"{where}: no such file")
+    try:  # a regular file of bounded size only: a FIFO or /dev/zero is refused, not read forever
+        data = read_regular(path, MAX_EDS_BYTES, "EDS/DCF file")
+    except FileRefused as exc:
+        raise InputError(f"{where}: {exc}") from exc
     try:
-        od = canopen.import_od(str(path), node_id)
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        text = data.decode("latin-1")  # EDS files are ASCII by CiA 306; a vendor's comments may be Latin-1
+    source = io.StringIO(text)
+    source.name = str(path)  # canopen tells an EDS from a DCF by the name's suffix
+    try:
+        od = canopen.import_od(source, node_id)
     except Exception as exc:  # noqa: BLE001 - the library raises many kinds on a bad file
         raise InputError(f"{where}: not a readable EDS/DCF ({type(exc).__name__}: {exc})") from exc
 

@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from acquisition.files import KIB, FileRefused, read_regular
 from acquisition.trace_import import TraceImportError, parse_profile, read_trace, steady_feed_mm_min
 from core.criteria import CRITERION_NAMES, CRITERION_SYMBOLS, analyze_round_trip
 from core.criteria.roundtrip import COVERED, TBE_NEEDS_POSITION_GAIN
@@ -44,6 +45,8 @@ from storage.dataset import (AxisMismatchError, append_runs, dataset_lock, next_
 
 AXIS_OPTIONS = (("transmission_mm_per_rev", "--transmission-mm-per-rev"),
                 ("position_gain_per_s", "--position-gain-per-s"), ("screw_lead_mm", "--screw-lead-mm"))
+
+MAX_TRACE_PROFILE_BYTES = 256 * KIB  # a trace-import profile larger than this is not one
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -80,9 +83,11 @@ def load_trace_profile(path: Path) -> dict:
     """The trace profile's TOML as a table; a :class:`TraceImportError` naming the file when
     it cannot be read or is not TOML."""
     try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise TraceImportError(f"{path}: cannot be read ({exc.strerror or exc})") from exc
+        return tomllib.loads(read_regular(path, MAX_TRACE_PROFILE_BYTES, "trace profile").decode("utf-8"))
+    except FileRefused as exc:
+        raise TraceImportError(str(exc)) from exc
+    except UnicodeDecodeError as exc:
+        raise TraceImportError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from exc
     except tomllib.TOMLDecodeError as exc:
         raise TraceImportError(f"{path}: not valid TOML ({exc})") from exc
 

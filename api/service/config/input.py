@@ -164,39 +164,45 @@ def schedule_of(body: ScheduleIn) -> Schedule:
     return sch
 
 
-def _profile_names(url: str) -> list[str]:
+# controller URL options that name a file, read from the profiles folder ([storage] profiles_dir)
+# when the URL comes from the API or the dashboard: a Modbus register profile, a CANopen EDS/DCF
+FILE_OPTIONS = ("profile", "eds")
+
+
+def _named_files(url: str) -> list[tuple[str, str]]:
+    """The (option, value) of every file named in the URL's query (the built-in profile is none)."""
     from urllib.parse import parse_qs
 
     from acquisition.modbus.profile import BUILTIN
 
-    return [n for n in parse_qs(urlsplit(url).query).get("profile", []) if n != BUILTIN]
+    query = parse_qs(urlsplit(url).query, keep_blank_values=True)
+    return [(key, v) for key in FILE_OPTIONS for v in query.get(key, []) if not (key == "profile" and v == BUILTIN)]
 
 
 def check_profile_name(url: str) -> None:
-    """A register profile named in a controller URL sent to the API (``profile=``) is a
-    plain file name inside the profiles folder (``[storage] profiles_dir``): no folder, no
-    absolute path, no ``..``; the file is then read as
-    :func:`acquisition.modbus.profile.load_profile` reads it (a regular file, 64 kB at
-    most). Absolute paths are for the configuration file (``modbus_profile``), which the
-    operator writes."""
-    for name in _profile_names(url):
+    """A file named in a controller URL sent to the API (a register profile ``profile=``, a
+    CANopen EDS/DCF ``eds=``) is a plain file name inside the profiles folder (``[storage]
+    profiles_dir``): no folder, no absolute path, no ``..``; the file is then read as a
+    regular file of bounded size (:mod:`acquisition.files`). Absolute paths are for the
+    configuration file (``modbus_profile``, an axis' ``canopen`` table), which the operator writes."""
+    for key, name in _named_files(url):
         if not name or "/" in name or "\\" in name or name.startswith(".") or "\0" in name:
-            raise InputError(f"controller_url: profile (={name[:100]!r}) must be a file name, without a folder, "
+            raise InputError(f"controller_url: {key} (={name[:100]!r}) must be a file name, without a folder, "
                              "an absolute path or '..': a file in the profiles folder ([storage] profiles_dir)")
 
 
 def resolve_profile(url: str, profiles_dir: Path) -> str:
-    """``url`` with a bare ``profile=NAME`` replaced by ``profiles_dir/NAME`` (what the
-    drivers open); a URL without one, or whose profile is a path (written in the
+    """``url`` with a bare ``profile=NAME`` or ``eds=NAME`` replaced by ``profiles_dir/NAME``
+    (what the drivers open); a URL without one, or whose file is a path (written in the
     configuration file by the operator), is returned as it is."""
-    names = [n for n in _profile_names(url) if n and "/" not in n and "\\" not in n]
-    if not names:
+    bare = {(k, n) for k, n in _named_files(url) if n and "/" not in n and "\\" not in n}
+    if not bare:
         return url
     from urllib.parse import parse_qsl, urlencode
 
     head, _, rest = url.partition("?")  # not urlunsplit: it drops the empty authority of modbus+rtu:///dev/…
     query, hash_, fragment = rest.partition("#")
-    pairs = [(k, str(Path(profiles_dir) / v) if k == "profile" and v in names else v)
+    pairs = [(k, str(Path(profiles_dir) / v) if (k, v) in bare else v)
              for k, v in parse_qsl(query, keep_blank_values=True)]
     return f"{head}?{urlencode(pairs, safe='/:')}{hash_}{fragment}"
 

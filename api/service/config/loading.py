@@ -20,6 +20,7 @@ from dataclasses import replace
 from pathlib import Path
 from urllib.parse import urlsplit
 
+from acquisition.files import MIB, FileRefused, read_regular
 from api.service.config.bounds import check_axis, check_axis_name, check_bounds, keys_of
 from api.service.installation import check_instance
 from api.service.config.input import checked_canopen_controller, resolve_profile, with_modbus_profile, with_trigger
@@ -46,6 +47,7 @@ from core.tbe import MachiningTask
 from storage.db import AxisSettings, Schedule
 from storage.db.names import collision, collision_message
 
+MAX_CONFIG_BYTES = MIB  # a configuration file larger than this is not one (a device, a log named by mistake)
 # the top-level tables of the configuration file
 TABLES = {"server", "storage", "auth", "scheduler", "simulator", "machines", "logging", "limits", "retention", "mqtt",
         "webhooks", "opcua", "mtconnect", "maintenance", "worker", "uncertainty", "service"}
@@ -135,6 +137,7 @@ def _axis(a: Mapping, machine: str, where: str, instruments: Instruments = Instr
     # starts (as modbus_profile): stored absolute, so the profiles folder is not looked in
     controller = resolve_profile(controller, Path.cwd())
     controller = checked_canopen_controller(controller, a.get("canopen"), a.get("controller"), where)
+    controller = resolve_profile(controller, Path.cwd())  # and an EDS named in the axis' canopen table
     trigger = _get(a, "trigger", str, where)
     if trigger is not None and trigger not in ("active", "passive"):
         raise ConfigError(f"{where}.trigger (={trigger!r}) must be 'active' (mebm starts the round trip) or "
@@ -578,9 +581,13 @@ def load_settings(path: str | os.PathLike | None = None, env: Mapping[str, str] 
     if path is not None:
         p = Path(path)
         try:
-            doc = tomllib.loads(p.read_text(encoding="utf-8"))
-        except FileNotFoundError as exc:
-            raise ConfigError(f"config file {p} not found") from exc
+            doc = tomllib.loads(read_regular(p, MAX_CONFIG_BYTES, "config file").decode("utf-8"))
+        except FileRefused as exc:
+            if not p.exists():
+                raise ConfigError(f"config file {p} not found") from exc
+            raise ConfigError(str(exc)) from exc
+        except UnicodeDecodeError as exc:
+            raise ConfigError(f"config file {p}: not UTF-8 text ({exc.reason} at byte {exc.start})") from exc
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"config file {p}: {exc}") from exc
         settings = parse_settings(doc, base=settings)

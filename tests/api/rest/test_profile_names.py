@@ -58,3 +58,35 @@ def test_a_profile_name_is_read_from_the_profiles_folder_not_the_working_directo
     r = client.post(f"{V1}/machines/{machine_id}/axes", headers=h, json={**BODY, "controller_url": url})
     assert r.status_code == 201, r.text
     assert r.json()["controller_url"] == url  # stored as given: the folder is the service's setting
+
+
+CANOPEN = "canopen://socketcan/can0?node=7&mode=listen-only&trigger=passive"
+EDS_EXAMPLE = Path(__file__).resolve().parents[3] / "examples" / "canopen" / "mebm-sim-drive.eds"
+
+
+@pytest.mark.parametrize("eds", ["/dev/zero", "/etc/passwd", "../x.eds", "sub/x.eds", "%2Fetc%2Fpasswd"])
+def test_an_eds_path_is_refused_as_a_profile_path_is(app_env, eds):
+    client, _, keys, _ = app_env
+    h = hdr(keys["admin"])
+    machine_id = client.get(f"{V1}/machines", headers=h).json()[0]["id"]
+    r = client.post(f"{V1}/machines/{machine_id}/axes", headers=h,
+                    json={**BODY, "tasks": [], "controller_url": f"{CANOPEN}&eds={eds}"})
+    assert r.status_code == 422 and "eds (=" in r.json()["detail"] and "must be a file name" in r.text, r.text
+    assert "root:" not in r.text
+
+
+def test_an_eds_name_is_read_from_the_profiles_folder(app_env, tmp_path, monkeypatch):
+    client, svc, keys, _ = app_env
+    h = hdr(keys["admin"])
+    machine_id = client.get(f"{V1}/machines", headers=h).json()[0]["id"]
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "drive.eds").write_bytes(EDS_EXAMPLE.read_bytes())  # beside the service: not looked at
+    url = f"{CANOPEN}&eds=drive.eds"
+    r = client.post(f"{V1}/machines/{machine_id}/axes", headers=h, json={**BODY, "tasks": [], "controller_url": url})
+    assert r.status_code == 422 and "drive.eds" in r.json()["detail"], r.text
+    folder = svc.settings.profiles_path
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "drive.eds").write_bytes(EDS_EXAMPLE.read_bytes())
+    r = client.post(f"{V1}/machines/{machine_id}/axes", headers=h, json={**BODY, "tasks": [], "controller_url": url})
+    assert r.status_code == 201, r.text
+    assert r.json()["controller_url"] == url
