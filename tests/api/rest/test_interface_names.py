@@ -4,6 +4,8 @@ publish under one topic with one client id: the second is refused where it is cr
 
 from __future__ import annotations
 
+from html import unescape
+
 import pytest
 from fastapi.testclient import TestClient
 
@@ -68,3 +70,20 @@ def test_a_configured_machine_whose_name_meets_a_stored_one_stops_the_start_nami
     with pytest.raises(ConflictError, match="'m a'"):
         with TestClient(create_app(clashing, runner=FakeRunner())):
             pass
+
+
+def test_the_dashboard_refuses_a_machine_whose_name_maps_to_the_topic_of_another_naming_it(tmp_path):
+    from tests.api.ui.test_maintenance_forms import sign_in
+
+    with TestClient(create_app(make_settings(f"sqlite:///{tmp_path}/db.sqlite3", tmp_path),
+                               runner=FakeRunner())) as c:
+        with session_scope(c.app.state.service.factory) as s:
+            admin = config_repo.create_key(s, "ui-admin", "admin")[1]
+        csrf = sign_in(c, admin)
+        first = c.post("/ui/config/machines", data={"name": "m a", "description": "", "csrf": csrf})
+        assert first.status_code == 200 and "machine 'm a' added" in unescape(first.text)
+        twin = c.post("/ui/config/machines", data={"name": "m_a", "description": "", "csrf": csrf})
+        assert twin.status_code == 409
+        assert "as the machine 'm a' does already" in unescape(twin.text)
+        with session_scope(c.app.state.service.factory) as s:
+            assert [m.name for m in config_repo.list_machines(s)].count("m_a") == 0
