@@ -21,8 +21,9 @@ def interfaces(request: Request, _k: ReadKey) -> dict:
     subs = {s.name: {"pending": s.pending, "delivered": s.delivered, "dropped": s.dropped, "failed": s.failed}
             for s in st.service.events.subscriptions}  # fmt: skip
     return {
+        "instance": st.service.instance,  # this installation's name in the topics, uuids and namespace
         "mqtt": None if mqtt is None else {
-            "broker": f"{mqtt.host}:{mqtt.port}", "topic_prefix": mqtt.prefix,
+            "broker": f"{mqtt.host}:{mqtt.port}", "topic_prefix": mqtt.prefix, "topics": f"{mqtt.base}/<machine>/<axis>/status|alerts|maintenance",
             "connected": mqtt.connections(),
             "alerts_acknowledged": mqtt.published, "alerts_dropped": mqtt.dropped},
         "webhooks": None if hooks is None else {

@@ -132,7 +132,8 @@ def test_an_mqtt_subscriber_receives_the_retained_status_the_birth_and_each_aler
             assert r.status_code == 200, r.text
             until(lambda: retained_order_state() == "acknowledged", "the acknowledged order in the retained status")
             info = client.get("/api/v1/interfaces", headers=hdr(read)).json()
-            assert info["mqtt"]["connected"] == {"vmc-850": True}
+            assert info["mqtt"]["connected"] == {"vmc-850": True} and info["instance"] == "plant-a"
+            assert info["mqtt"]["topics"] == f"{prefix}/plant-a/<machine>/<axis>/status|alerts|maintenance"
             assert info["event_consumers"]["mqtt"]["failed"] == 0
             caplog.set_level(logging.INFO, logger="mebm.mqtt")
         # the service's own stop is a clean disconnect, not a lost connection (no WARNING
