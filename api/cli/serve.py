@@ -184,8 +184,8 @@ def uvicorn_config(app, settings):
     ``proxy_headers=False``: the app itself trusts ``X-Forwarded-For`` from
     ``[server] trusted_proxies`` only (api.rest.proxies); uvicorn's own handling would
     trust 127.0.0.1 and the ``FORWARDED_ALLOW_IPS`` environment, and hide the TCP peer.
-    The HTTP protocol bounds the request head: ``[limits] max_header_bytes`` and
-    ``max_headers`` (api.rest.header_limits)."""
+    The HTTP protocol bounds the request head: ``[limits] max_header_bytes``,
+    ``max_headers`` and ``header_timeout_s`` (api.rest.header_limits)."""
     import uvicorn
 
     from api.rest.header_limits import bounded_head_protocol
@@ -193,7 +193,7 @@ def uvicorn_config(app, settings):
     lim = settings.limits
     return uvicorn.Config(app, log_level=settings.log_level, access_log=False, timeout_graceful_shutdown=10,
                           proxy_headers=False, forwarded_allow_ips=[],
-                          http=bounded_head_protocol(lim.max_header_bytes, lim.max_headers))
+                          http=bounded_head_protocol(lim.max_header_bytes, lim.max_headers, lim.header_timeout_s))
 
 
 def _serve(a: argparse.Namespace) -> int:

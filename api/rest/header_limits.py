@@ -14,6 +14,12 @@ so at most one read, 256 kB, more is buffered) and, in the parser's callbacks, t
 size and number of fields. After a 431 it stops parsing and discards what the client goes
 on sending for a short while (a lingering close, so the client can read the 431 before the
 connection ends), then closes.
+
+A head must also arrive within ``header_timeout_s`` of its first byte (or of the
+connection's opening): a client that sends its head a byte at a time, or opens a
+connection and sends nothing (a slowloris), is answered 408 Request Timeout and the
+connection closed, so it holds no connection for longer. uvicorn has no such bound: its
+``timeout_keep_alive`` runs only between requests of a kept-alive connection.
 """
 
 from __future__ import annotations
@@ -38,8 +44,10 @@ class BoundedHeadProtocol(HttpToolsProtocol):
 
     max_header_bytes = 65536
     max_headers = 100
+    header_timeout_s = 10.0
 
     def connection_made(self, transport) -> None:
+        self._head_timer = None
         self._head_open = True  # between a request's first byte and its end of head
         self._head_bytes = 0  # received while the head is open
         self._field_bytes = 0  # the request line and fields, as parsed
@@ -49,6 +57,7 @@ class BoundedHeadProtocol(HttpToolsProtocol):
         self._discarded = 0
         self._linger = None
         super().connection_made(transport)
+        self._arm_head_timer()  # a connection that sends nothing holds it no longer than a slow head
 
     def data_received(self, data: bytes) -> None:
         if self._refusal is not None:  # lingering after a 431
@@ -57,6 +66,8 @@ class BoundedHeadProtocol(HttpToolsProtocol):
                 self.transport.close()
             return
         self._head_restarted = False
+        if self._head_open and self._head_timer is None:
+            self._arm_head_timer()
         super().data_received(data)
         if self._refusal is None and self._head_open and not self._head_restarted:
             self._head_bytes += len(data)
@@ -66,6 +77,7 @@ class BoundedHeadProtocol(HttpToolsProtocol):
     def connection_lost(self, exc) -> None:
         if self._linger is not None:
             self._linger.cancel()
+        self._cancel_head_timer()
         super().connection_lost(exc)
 
     # parser callbacks
@@ -83,6 +95,7 @@ class BoundedHeadProtocol(HttpToolsProtocol):
 
     def on_headers_complete(self) -> None:
         self._head_open = False
+        self._cancel_head_timer()
         super().on_headers_complete()
 
     def on_message_complete(self) -> None:
@@ -107,8 +120,34 @@ class BoundedHeadProtocol(HttpToolsProtocol):
         reason, self._refusal = self._refusal, None
         self._refuse(reason)
 
+    def _arm_head_timer(self) -> None:
+        self._head_timer = self.loop.call_later(self.header_timeout_s, self._head_timed_out)
+
+    def _cancel_head_timer(self) -> None:
+        if self._head_timer is not None:
+            self._head_timer.cancel()
+            self._head_timer = None
+
+    def _head_timed_out(self) -> None:
+        self._head_timer = None
+        if not self._head_open or self._refusal is not None or self.transport.is_closing():
+            return
+        if self.cycle is not None and not self.cycle.response_complete:
+            self._arm_head_timer()  # a response still on its way: the next head waits for it
+            return
+        client = "%s:%d" % self.client if self.client else "unknown"
+        log.info("request head from %s not complete within %g s: 408, connection closed ([limits] "
+                 "header_timeout_s)", client, self.header_timeout_s)
+        body = f'{{"detail": "request head not complete within {self.header_timeout_s:g} s"}}'.encode()
+        self.transport.write(b"HTTP/1.1 408 Request Timeout\r\n"
+                             b"content-type: application/json\r\n"
+                             b"content-length: " + str(len(body)).encode() + b"\r\n"
+                             b"connection: close\r\n\r\n" + body)
+        self.transport.close()
+
     def _refuse(self, reason: str) -> None:
         self._refusal = reason
+        self._cancel_head_timer()
         client = "%s:%d" % self.client if self.client else "unknown"
         log.warning("request head from %s refused with 431: %s ([limits] max_header_bytes, max_headers)",
                     client, reason)
@@ -125,7 +164,9 @@ class BoundedHeadProtocol(HttpToolsProtocol):
         self._linger = self.loop.call_later(LINGER_S, self.transport.close)
 
 
-def bounded_head_protocol(max_header_bytes: int, max_headers: int) -> type[BoundedHeadProtocol]:
+def bounded_head_protocol(max_header_bytes: int, max_headers: int,
+                          header_timeout_s: float = BoundedHeadProtocol.header_timeout_s) -> type[BoundedHeadProtocol]:
     """A protocol class for ``uvicorn.Config(http=...)`` with these bounds."""
     return type("BoundedHeadProtocol", (BoundedHeadProtocol,),
-                {"max_header_bytes": max_header_bytes, "max_headers": max_headers})
+                {"max_header_bytes": max_header_bytes, "max_headers": max_headers,
+                 "header_timeout_s": header_timeout_s})

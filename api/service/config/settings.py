@@ -63,6 +63,7 @@ class LimitSettings:
     max_body_bytes: int = 1_000_000  # larger request bodies: 413 before they are read, key or no key
     max_header_bytes: int = 65536  # a request line and header fields larger in all: 431, the rest unread
     max_headers: int = 100  # more header fields: 431
+    header_timeout_s: float = 10.0  # a request head not complete this long after its first byte: 408, closed
     triggers_per_minute: float = 6.0  # manual measurements per key (a token bucket)...
     trigger_burst: int = 3  # ...of which this many at once
     auth_failures_per_minute: float = 10.0  # failed authentications per client address and key prefix...

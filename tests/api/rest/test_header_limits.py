@@ -86,3 +86,43 @@ def test_the_bound_holds_for_each_request_of_a_kept_alive_connection(served):
         while chunk := sock.recv(65536):
             second += chunk
     assert b"HTTP/1.1 431 " in second and second.count(b"HTTP/1.1 ") == 1  # (after any rest of the first)
+
+
+@pytest.fixture(scope="module")
+def impatient(tmp_path_factory):
+    from api.service.config.settings import LimitSettings
+
+    s = ServedApp(tmp_path_factory.mktemp("slow-heads"), limits=LimitSettings(header_timeout_s=0.5))
+    yield s
+    s.close()
+
+
+def _answer_to_a_stalled_head(url: str, head: bytes) -> bytes:
+    """Sends ``head`` (not a whole head, or nothing) and stops; what the server answered
+    before it closed the connection (the socket's own timeout, generous, ends a wait for a
+    server that never answers)."""
+    host, port = url.removeprefix("http://").split(":")
+    with socket.create_connection((host, int(port)), timeout=30) as sock:
+        sock.sendall(head)
+        got = b""
+        try:
+            while chunk := sock.recv(65536):
+                got += chunk
+        except OSError:
+            pass
+    return got
+
+
+@pytest.mark.parametrize("head", [b"GET /healthz HTTP/1.1\r\nHost: x\r\nX-Slow: a", b""])
+def test_a_head_not_complete_in_time_is_answered_408_and_closed(impatient, head):
+    got = _answer_to_a_stalled_head(impatient.url, head)
+    assert got.startswith(b"HTTP/1.1 408 ") and b"not complete within 0.5 s" in got, got[:200]
+    assert httpx.get(f"{impatient.url}/healthz", timeout=30).status_code in (200, 503)  # the server goes on
+
+
+def test_a_whole_head_is_served_not_timed_out(impatient):
+    host, port = impatient.url.removeprefix("http://").split(":")
+    with socket.create_connection((host, int(port)), timeout=30) as sock:
+        sock.sendall(b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n")
+        first = sock.recv(65536)
+        assert first.startswith(b"HTTP/1.1 ") and not first.startswith(b"HTTP/1.1 408 "), first[:200]
