@@ -130,3 +130,48 @@ def test_a_history_of_pure_wear_is_answered_none(app_env, monkeypatch):
     r = get_report(client, f"/api/v1/axes/{axis_id}/gap", hdr(keys["read"]))
     assert r.status_code == 200, r.text
     assert r.json()["effect"] == "none", r.json()["report"]
+
+
+def test_the_gap_page_shows_the_runs_after_the_repair_before_and_while_the_job_waits(tmp_path, monkeypatch):
+    import re
+    from html import unescape
+
+    from fastapi.testclient import TestClient
+
+    from api.rest import create_app
+    from tests.api.rest.conftest import FakeRunner, make_settings
+    from tests.api.ui.test_maintenance_forms import sign_in
+
+    app = create_app(make_settings(f"sqlite:///{tmp_path}/g.sqlite3", tmp_path), runner=FakeRunner())
+    with TestClient(app) as c:
+        svc = app.state.service
+        with session_scope(svc.factory) as s:
+            key = config_repo.create_key(s, "ui-read", "read")[1]
+            axis_id = config_repo.list_axes(s)[0].id
+        used = []
+        monkeypatch.setattr(svc.gap_jobs, "use_process", False)
+        monkeypatch.setattr(svc.gap_jobs, "compute", lambda folder, plan: used.append(plan["files"]) or {
+            "effect": "none", "gap_before_um": 1.0, "gap_after_um": 1.0, "noise_floor_um": 0.5, "candidates": [],
+            "runs_used": plan["files"], "period": plan["period"], "report": plan["text"],
+            "computed_at": "2026-12-03T12:00:00+00:00", "residuals": []})
+        files = history(svc, axis_id, [247.0, 249.0, 251.0, 196.0, 196.5], [21.0, 20.0, 22.0, 20.5, 21.5])
+        repair(svc, axis_id, T0 + timedelta(days=2, hours=12))
+        csrf = sign_in(c, key)
+        page = unescape(c.get(f"/ui/axes/{axis_id}/gap").text)
+        assert re.search(r"about \d+ (s|min) for 2 runs", page)
+        assert ("Next diagnosis: Runs used: 2 stored run(s), measured 2026-11-05 06:00 UTC to 2026-11-06 06:00 UTC"
+                in page)
+        assert "after the last recorded repair (nut_replaced, 2026-11-04 18:00 UTC)" in page
+        assert "3 run(s) before it left out" in page
+        go = threading.Event()
+        svc.gap_jobs.hold(lambda: go.wait(60))
+        try:
+            started = c.post(f"/ui/axes/{axis_id}/gap", data={"csrf": csrf})
+            waiting = unescape(started.text)
+            assert "Waiting in the queue (job" in waiting and "2 runs):" in waiting
+            assert "2 runs, measured 2026-11-05 06:00 UTC" in waiting and "3 runs before it left out" in waiting
+        finally:
+            go.set()
+        job_id = int(re.search(r"gap\?job=(\d+)", str(started.url))[1])
+        svc.gap_jobs.job(job_id).future.result(timeout=60)
+        assert used == [files[3:]]  # the runs shown, and no others
