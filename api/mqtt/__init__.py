@@ -198,6 +198,11 @@ class MqttPublisher:
     def link(self, machine: str) -> _MachineLink:
         with self._lock:
             if machine not in self._links:
+                # machines stored before such names were refused may still meet in one topic: say so, once
+                other = next((m for m in self._links if topic_level(m) == topic_level(machine)), None)
+                if other is not None:
+                    log.error("MQTT: machines %r and %r publish under one topic level %r: rename one of them",
+                              other, machine, topic_level(machine))
                 self._links[machine] = _MachineLink(self, machine)
             return self._links[machine]
 

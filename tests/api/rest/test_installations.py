@@ -106,3 +106,26 @@ def _app(data_dir, prefix):
     settings = make_settings(f"sqlite:///{data_dir}/db.sqlite3", data_dir,
                              mqtt=MqttSettings(url=f"mqtt://{BROKER[0]}:{BROKER[1]}", topic_prefix=prefix))
     return create_app(settings, runner=FakeRunner(backlash_um=190.0))
+
+
+@needs_broker
+def test_two_stored_machines_that_meet_in_one_topic_are_named_in_the_log(tmp_path, caplog):
+    """Machines stored before such names were refused keep their client ids apart and are
+    named, so an operator can rename one."""
+    import logging
+
+    from types import SimpleNamespace
+
+    from api.mqtt import MqttPublisher
+    from api.service.events import EventHub
+
+    service = SimpleNamespace(instance="plant-a", events=EventHub())  # what the publisher uses of the service
+    pub = MqttPublisher(service, MqttSettings(url=f"mqtt://{BROKER[0]}:{BROKER[1]}", topic_prefix="t"))
+    try:
+        caplog.set_level(logging.ERROR, logger="mebm.mqtt")
+        a, b = pub.link("m a"), pub.link("m_a")
+        assert a.client_id != b.client_id
+        until(lambda: pub.connections() == {"m a": True, "m_a": True}, "both connections")
+        assert any("'m a' and 'm_a' publish under one topic level 'm_a'" in r.getMessage() for r in caplog.records)
+    finally:
+        pub.close()
