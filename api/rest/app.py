@@ -27,6 +27,7 @@ from api.rest.status_body import StatusFastPath, status_json
 from api.service.config.settings import Settings
 from api.service.cycles.runner import CycleRunner
 from api.service.service import Service
+from api.service.throttle import log_refusals
 from api.ui import install as install_ui
 
 API_PREFIX = "/api/v1"
@@ -107,6 +108,7 @@ def create_app(settings: Settings, *, service: Service | None = None, runner: Cy
                     app.state.mqtt.link(machine)  # the birth message, before any measurement
             yield
         finally:
+            log_refusals(app.state.auth_throttle.flush(), log)  # the refusals counted since the last line
             for x in started:
                 x.close()
             if owned:

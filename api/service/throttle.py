@@ -5,7 +5,10 @@ shared by every path that takes a key (REST API, dashboard sign-in, MTConnect ag
   Bounded memory: at most ``max_keys`` buckets (the least recently used go first).
 - :class:`AuthThrottle`: failed authentications per client address and presented key
   prefix, and per client address. Only failures are counted and refused: a key is
-  looked up first, and a valid key is never refused by it.
+  looked up first, and a valid key is never refused by it. A run of refused failures is
+  logged in one line when it starts and then one line per :data:`REPORT_WINDOW_S` with
+  the count refused since the last line (and the rest when the run ends or the service
+  stops): a flood of failures is a few lines, and none is left uncounted.
 """
 
 from __future__ import annotations
@@ -57,6 +60,17 @@ class TokenBucket:
 
 
 KEY_PREFIX_CHARS = 9  # as many as a key listing shows (storage: ApiKey.key_prefix)
+REPORT_WINDOW_S = 60.0  # a run of refusals is reported, with its count, at most once per this long
+SWEEP_S = 1.0  # runs whose window ended are looked for at most this often
+
+
+class _Run:
+    """A run of refused failures of one (address, key prefix): refusals since the last line."""
+
+    __slots__ = ("client", "since", "refused")
+
+    def __init__(self, client: str, since: float):
+        self.client, self.since, self.refused = client, since, 0
 
 
 class AuthThrottle:
@@ -73,14 +87,21 @@ class AuthThrottle:
     ``failed(client, secret)`` is called after a failed lookup only (a valid key is never
     throttled) and returns ``(wait_s, first)``: ``wait_s`` 0 to answer 401, else the
     seconds to put in a 429's Retry-After; ``first`` is True on the first refusal of a
-    run of refusals (to log one line per run, not one per attempt)."""
+    run of refusals (to log one line per run, not one per attempt). The later refusals of
+    a run are counted: :meth:`reports` gives ``(client, refused, span_s)`` for each run
+    whose window of ``report_window_s`` ended, or that ended, since it was last asked;
+    :meth:`flush` every count not yet reported (when the service stops)."""
 
     def __init__(self, per_minute: float, burst: int, address_per_minute: float, address_burst: int, *,
-                 max_keys: int = 10000, clock=time.monotonic):
+                 max_keys: int = 10000, clock=time.monotonic, report_window_s: float = REPORT_WINDOW_S):
         self.per_key = TokenBucket(per_minute, burst, max_keys=max_keys, clock=clock)
         self.per_address = TokenBucket(address_per_minute, address_burst, max_keys=max_keys, clock=clock)
         self.max_keys = max_keys
-        self._refusing: OrderedDict[str, None] = OrderedDict()  # buckets in a run of refusals
+        self.clock = clock
+        self.report_window_s = report_window_s
+        self._refusing: OrderedDict[str, _Run] = OrderedDict()  # buckets in a run of refusals
+        self._reports: list[tuple[str, int, float]] = []  # (client, refused, span_s) not yet logged
+        self._swept = clock()
         self._lock = threading.Lock()
 
     @staticmethod
@@ -93,15 +114,47 @@ class AuthThrottle:
         if wait_s == 0.0:
             wait_s = self.per_address.take(client)
         with self._lock:
+            now = self.clock()
             if wait_s == 0.0:
-                self._refusing.pop(pair, None)
+                self._end(self._refusing.pop(pair, None), now)
                 return 0.0, False
-            first = pair not in self._refusing
-            self._refusing[pair] = None
+            run = self._refusing.get(pair)
+            first = run is None
+            if first:  # the caller logs this one
+                self._refusing[pair] = _Run(client, now)
+            else:
+                run.refused += 1
             self._refusing.move_to_end(pair)
             while len(self._refusing) > self.max_keys:
-                self._refusing.popitem(last=False)
+                self._end(self._refusing.popitem(last=False)[1], now)
             return wait_s, first
+
+    def _end(self, run: _Run | None, now: float) -> None:
+        if run is not None and run.refused:
+            self._reports.append((run.client, run.refused, now - run.since))
+            run.since, run.refused = now, 0
+
+    def reports(self) -> list[tuple[str, int, float]]:
+        """``(client, refused, span_s)``: the refusals counted in each run whose report window
+        ended, or that ended, since the last call (each count is given once)."""
+        with self._lock:
+            now = self.clock()
+            if now - self._swept >= SWEEP_S:
+                self._swept = now
+                for run in self._refusing.values():
+                    if now - run.since >= self.report_window_s:
+                        self._end(run, now)
+            out, self._reports = self._reports, []
+            return out
+
+    def flush(self) -> list[tuple[str, int, float]]:
+        """Every count not yet reported (the service stops)."""
+        with self._lock:
+            now = self.clock()
+            for run in self._refusing.values():
+                self._end(run, now)
+            out, self._reports = self._reports, []
+            return out
 
 
 def who(request) -> str:
@@ -131,4 +184,13 @@ def failed_authentication(request, secret: str | None, what: str, log) -> float:
     elif first:  # logged once when the address (and key prefix) gets throttled, not once per attempt
         log.warning("failed authentication from %s: %s %s (%s); throttled for %.0f s",
                     who(request), request.method, request.url.path, what, wait_s)
+    if throttle is not None:
+        log_refusals(throttle.reports(), log)
     return wait_s
+
+
+def log_refusals(reports: list[tuple[str, int, float]], log) -> None:
+    """One line per run of refused failed authentications, with their count."""
+    for client, refused, span_s in reports:
+        log.warning("%d more failed authentications from %s refused (throttled) in the last %.0f s",
+                    refused, client, span_s)

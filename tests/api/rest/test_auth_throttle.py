@@ -97,3 +97,45 @@ def test_forwarded_for_from_a_trusted_proxy_names_the_client(served, caplog):
     # the proxy's own address has used none of its budget
     with httpx.Client(base_url=served.url, timeout=30) as c:
         assert c.get(f"{V1}/machines", headers={"X-API-Key": "wrong-key-0000000000"}).status_code == 401
+
+
+def test_a_run_of_refusals_is_reported_once_per_window_with_its_count():
+    now = [0.0]
+    t = AuthThrottle(0.1, 1, 60.0, 100, clock=lambda: now[0], report_window_s=60.0)  # refills in 600 s
+    assert t.failed("10.0.0.1", "abcdefghijXYZ") == (0.0, False)  # admitted: logged by the caller
+    assert t.failed("10.0.0.1", "abcdefghijXYZ")[1] is True  # the run starts: one line
+    for i in range(500):  # a flood within the window: counted, no line each
+        now[0] = 0.1 * i
+        assert t.failed("10.0.0.1", "abcdefghijXYZ")[1] is False
+        assert t.reports() == []
+    now[0] = 60.0
+    t.failed("10.0.0.1", "abcdefghijXYZ")
+    assert t.reports() == [("10.0.0.1", 501, pytest.approx(60.0))]  # once, with the count
+    now[0] = 70.0
+    t.failed("10.0.0.1", "abcdefghijXYZ")
+    t.failed("10.0.0.1", "abcdefghijXYZ")
+    assert t.reports() == []
+    assert t.flush() == [("10.0.0.1", 2, pytest.approx(10.0))]  # the rest, when the service stops
+    assert t.flush() == []
+
+
+def test_a_flood_of_refused_failures_is_a_few_log_lines_and_every_refusal_is_counted(tmp_path, caplog):
+    from fastapi.testclient import TestClient
+
+    from api.rest import create_app
+    from tests.api.rest.conftest import FakeRunner, make_settings
+
+    app = create_app(make_settings(f"sqlite:///{tmp_path}/m.sqlite3", tmp_path, scheduler_enabled=False),
+                     runner=FakeRunner())
+    app.state.auth_throttle = AuthThrottle(1.0, 2, 60.0, 1000)  # one report window: the whole test
+    wrong = "flood-" + "k" * 40
+    with caplog.at_level("WARNING", logger="mebm.api"):
+        with TestClient(app) as client:
+            codes = [client.get(f"{V1}/machines", headers=hdr(wrong)).status_code for _ in range(40)]
+            during = [r.getMessage() for r in caplog.records if "failed authentication" in r.getMessage()]
+        after = [r.getMessage() for r in caplog.records if "failed authentication" in r.getMessage()]
+    assert codes == [401] * 2 + [429] * 38
+    assert len(during) == 3 and "throttled for" in during[2]  # two admitted, the run's start: not one per failure
+    assert after[3:] == ["37 more failed authentications from testclient refused (throttled) in the last "
+                         + after[3].rsplit("last ", 1)[1]]  # the rest, counted, when the service stops
+    assert not any(wrong in r.getMessage() for r in caplog.records)
