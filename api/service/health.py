@@ -12,7 +12,14 @@ files; the disk may be nearly full. :class:`HealthProbe` tries each for real:
   spool reserve released.
 
 The result is cached for ``ttl_s`` so a polling load balancer does not cost a write
-per request. ``/healthz`` and ``/metrics`` both read it.
+per request. ``/healthz`` and ``/metrics`` both read it. Once a report is older than
+``ttl_s`` (up to ``ttl_s + stale_s``) the checks run again on a thread of their own
+while the last report is answered: the write and fsync behind a check take tens to
+hundreds of milliseconds on a busy disk, a health check must not. Checks that have not
+answered for ``stale_s`` hang (a database or disk that does not answer): the answer is
+degraded and says so. A report older than ``ttl_s + stale_s`` (nobody asked for a while)
+and the first after :meth:`HealthProbe.invalidate` (a change the report must show) are
+computed before they are answered.
 """
 
 from __future__ import annotations
@@ -23,7 +30,7 @@ import shutil
 import threading
 import time
 import uuid
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from sqlalchemy import exc as sa_exc
@@ -55,26 +62,66 @@ def _first_line(exc: BaseException) -> str:
 
 
 class HealthProbe:
-    def __init__(self, service, ttl_s: float = 2.0):
+    def __init__(self, service, ttl_s: float = 2.0, stale_s: float = 10.0, *, clock=time.monotonic):
         self.service = service
+        self.clock = clock
         self.ttl_s = ttl_s
+        self.stale_s = stale_s
         self._last: tuple[float, HealthReport] | None = None
         self._lock = threading.Lock()
+        self._generation = 0  # bumped by invalidate(): a refresh begun before it is not kept
+        self._refresh_lock = threading.Lock()
+        self._refresh_started: float | None = None  # when the refresh in flight began (None: none)
 
     def invalidate(self) -> None:
+        self._generation += 1
         self._last = None
 
-    def report(self) -> HealthReport:
+    def report(self, *, block: bool = True) -> HealthReport | None:
+        """The health report; with ``block=False`` None instead of running the checks on
+        this thread (the caller is the event loop: it runs them on a thread instead)."""
         last = self._last
-        if last is not None and time.monotonic() - last[0] < self.ttl_s:
+        now = self.clock()
+        if last is not None and now - last[0] < self.ttl_s:
             return last[1]
+        if last is not None:
+            started = self._refresh_started
+            if started is not None:  # the checks run again now
+                if now - started < self.stale_s:
+                    return last[1]
+                return replace(last[1], problems=(*last[1].problems, f"the health checks have not answered for "
+                                                  f"{now - started:.0f} s: the database or the data folder hangs"))
+            if now - last[0] < self.ttl_s + self.stale_s:
+                self._refresh_in_background()
+                return last[1]
+        if not block:
+            return None
         with self._lock:
             last = self._last
-            if last is not None and time.monotonic() - last[0] < self.ttl_s:
+            if last is not None and self.clock() - last[0] < self.ttl_s:
                 return last[1]
             rep = self._check()
-            self._last = (time.monotonic(), rep)
+            self._last = (self.clock(), rep)
             return rep
+
+    def _refresh_in_background(self) -> None:
+        with self._refresh_lock:
+            if self._refresh_started is not None:
+                return
+            self._refresh_started = self.clock()
+        generation = self._generation
+
+        def run() -> None:
+            try:
+                rep = self._check()
+                if generation == self._generation:
+                    self._last = (self.clock(), rep)
+            except Exception:  # noqa: BLE001 - the next report tries again; a hang shows as its age
+                pass
+            finally:
+                self._refresh_started = None
+
+        threading.Thread(target=run, name="mebm-health-check", daemon=True).start()
 
     # -- the checks ----------------------------------------------------------------------------
     def _check(self) -> HealthReport:

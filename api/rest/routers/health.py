@@ -23,8 +23,13 @@ VERSION = "0.1.0"
             summary="Can the service store what it measures: database writable, data folder writable, "
                     "free disk above the floor (no key needed); 503 when degraded, with the reasons")
 async def healthz(request: Request, svc: ServiceDep):
-    # on threads of its own: however many requests hold the shared worker threads (figures,
-    # slow clients), a load balancer's health check does not queue behind them
+    # the last report, answered on the event loop (its checks run again on a thread of
+    # their own, api.service.health); when it must be computed first, on threads of its
+    # own: however many requests hold the shared worker threads (figures, slow clients), a
+    # load balancer's health check does not queue behind them
+    rep = svc.health.report(block=False)
+    if rep is not None:
+        return _healthz(request, svc, rep)
     return await anyio.to_thread.run_sync(_healthz, request, svc, limiter=_health_limiter())
 
 
@@ -42,8 +47,8 @@ def _health_limiter() -> anyio.CapacityLimiter:
     return lim[1]
 
 
-def _healthz(request: Request, svc) -> JSONResponse:
-    rep = svc.health.report()
+def _healthz(request: Request, svc, rep=None) -> JSONResponse:
+    rep = rep or svc.health.report()
     ua = request.app.state.opcua
     opcua = None if ua is None else (f"listening on {ua.endpoint}" if ua.running else f"off: {ua.error or 'stopped'}")
     body = sc.Health(status=rep.status, database=rep.database,
