@@ -13,6 +13,7 @@ from fastapi.templating import Jinja2Templates
 
 from api.service.figures import axis as axis_figures
 from api.service.figures import plots
+from api.service.figures.gate import RenderBusy
 from api.service.gap_jobs import (RESIDUALS, TooFewRuns, TooManyJobs, age_s, axis_job, axis_plan, repairs_of,
                                   run_bytes, runs_stored_since)
 from api.service.throttle import failed_authentication
@@ -245,19 +246,27 @@ def axis_fragment(request: Request, axis_id: Id, part: Literal["verdict", "cycle
 
 
 @router.get("/axes/{axis_id}/plots/{name}.png")
-def axis_plot(request: Request, axis_id: Id, name: str, who: Who, range: str = "90d",  # noqa: A002
-              direction: Annotated[str, Query(pattern="^(positive|negative)$")] = "positive"):
+async def axis_plot(request: Request, axis_id: Id, name: str, who: Who, range: str = "90d",  # noqa: A002
+                    direction: Annotated[str, Query(pattern="^(positive|negative)$")] = "positive"):
     if name not in axis_figures.NAMES:
         raise NotFoundError("figure", name)
     svc = request.app.state.service
     # the service's figure cache (shared with the REST plots) knows what each figure is drawn
     # from; the range starts on the hour, so that a figure is drawn once an hour at most
     # while no measurement comes
-    st = svc.status.get(axis_id)
     since = views.since_of(range, views.utcnow().replace(minute=0, second=0, microsecond=0))
-    with session_scope(svc.factory) as s:
-        png = axis_figures.render(s, axis_id, name, direction=direction, since=since, status=st,
-                                  draw=svc.plots.draw, cache=svc.figures)
+
+    def render() -> bytes:  # through the service's render gate, as the REST plots (limits.plot_*)
+        st = svc.status.get(axis_id)
+        with session_scope(svc.factory) as s:
+            return axis_figures.render(s, axis_id, name, direction=direction, since=since, status=st,
+                                       draw=svc.plots.draw, cache=svc.figures)
+
+    try:
+        png = await svc.render_gate.run(render)
+    except RenderBusy as exc:
+        wait_s = max(1, round(exc.retry_after_s))
+        return Response(str(exc), status_code=429, media_type="text/plain", headers={"Retry-After": str(wait_s)})
     return Response(png, media_type="image/png", headers={"Cache-Control": "no-cache"})
 
 

@@ -205,10 +205,15 @@ def test_beyond_the_render_queue_a_plot_is_answered_429_with_retry_after(app_env
     assert int(r.headers["Retry-After"]) >= 1
     assert "limits.plot_queue" in r.json()["detail"]
     assert client.get("/healthz").status_code == 200  # answered while every render place is taken
+    form = client.get("/ui/sign-in")
+    csrf = re.search(r'name="csrf" value="([^"]+)"', form.text).group(1)
+    assert client.post("/ui/sign-in", data={"key": keys["read"], "csrf": csrf}).status_code == 200
+    ui = client.get(f"/ui/axes/{axis_id}/plots/backlash_trend.png")  # the dashboard's figures: the same gate
+    assert ui.status_code == 429 and int(ui.headers["Retry-After"]) >= 1, ui.text
     release.set()
     first.join(30)
     queued.join(30)
-    assert sorted(answers) == [200, 200] and svc.render_gate.admitted == 0 and svc.render_gate.refused == 1
+    assert sorted(answers) == [200, 200] and svc.render_gate.admitted == 0 and svc.render_gate.refused == 2
 
 
 def test_the_render_bounds_are_limits_settings_with_bounds():
