@@ -41,7 +41,17 @@ class Bound:
             unit = f" {self.unit}" if self.unit else ""
             why = f" ({self.why})" if self.why else ""
             ends = ", ends excluded" if self.open_ends else ""
-            raise ConfigError(f"{self.key} (={value!r}) must be {self.low:g}..{self.high:g}{unit}{ends}{why}")
+            raise ConfigError(f"{self.key} (={value!r}) must be {self.range}{unit}{ends}{why}")
+
+    @property
+    def range(self) -> str:
+        """``low..high`` as written in the docs (whole numbers in full)."""
+        return f"{number(self.low)}..{number(self.high)}"
+
+
+def number(x: float) -> str:
+    """``x`` written out: a whole number in full (16777216, not 1.67772e+07), else ``%g``."""
+    return str(int(x)) if float(x).is_integer() and abs(x) < 1e15 else f"{x:g}"
 
 
 DAY_S = 86400.0
