@@ -198,11 +198,14 @@ class RunPlan:
         def at(t: datetime | None) -> str:
             return "an unrecorded time" if t is None else t.strftime("%Y-%m-%d %H:%M UTC")
 
-        def day(d: float | None) -> str:
-            return "?" if d is None else f"{d:.2f}"
+        def day(d: float) -> str:
+            return f"{d:.2f}"
 
-        lines = [f"Runs used: {self.runs} stored run(s), measured {at(self.first_at)} to {at(self.last_at)} "
-                 f"(utility days {day(self.first_utility_day)} to {day(self.last_utility_day)})."]
+        when = (f"measured {at(self.first_at)} to {at(self.last_at)}" if self.first_at and self.last_at
+                else "measurement times not recorded")
+        days = (f" (utility days {day(self.first_utility_day)} to {day(self.last_utility_day)})"
+                if self.first_utility_day is not None and self.last_utility_day is not None else "")
+        lines = [f"Runs used: {self.runs} stored run(s), {when}{days}."]
         if self.after_repair is not None:
             r = self.after_repair
             lines.append(f"All after the last recorded repair ({r.kind}, {at(r.performed_at)}): runs before a repair "

@@ -76,7 +76,10 @@ def test_diagnoses_stored_runs_with_the_spec_contract(app_env):
     # CSVs round-trip losslessly), plus the human report and the runs used
     expected = _direct_diagnosis("cyclic_error", 11)
     assert {k: d[k] for k in expected.to_dict()} == expected.to_dict()
-    assert d["report"] == expected.text()
+    n = len(case.dataset.runs)  # the report begins with the period: runs written without times or repairs
+    assert d["report"] == (f"Runs used: {n} stored run(s), measurement times not recorded.\n"
+                           "No repair is recorded for the axis: the runs are one period.\n"
+                           "Repairs within the period: none.\n\n" + expected.text())
     assert d["runs_used"] == [run.spec.file for run in case.dataset.runs]
     assert d["effect"] == case.label
     assert d["gap_after_um"] < d["gap_before_um"]
