@@ -105,7 +105,7 @@ def banner(settings, report, url: str, opcua=None, sign_in_url: str | None = Non
         lines.append(f"stored {report.replayed} cycle(s) kept on disk during a database outage")
     if report.interrupted:
         lines.append(f"{report.interrupted} cycle(s) interrupted by the last stop were closed")
-    for line in getattr(report, "not_stored", ()):
+    for line in (*getattr(report, "not_stored", ()), *getattr(report, "lost", ())):
         lines.append(line)
     for line in getattr(report, "folders_moved_aside", ()):
         lines.append(f"{line} (nothing deleted; what to do with it: docs/operations.md, "

@@ -154,8 +154,12 @@ class HealthProbe:
                                 "under the data folder and they are stored within scheduler.spool_retry_s (or at "
                                 "the next start)")
             if not ex.reserve_ok() and (full or (free is not None and free < ex.reserve_bytes)):
-                problems.append(f"the spool reserve {ex.reserve_path} is released (the disk was full): the next "
-                                "cycle on a full disk may be kept in memory only; free space under the data folder")
+                slots = len(ex.slot_paths)
+                left = ex.free_slots()
+                then = (f"{left} of {slots} spool slot(s) keep the next cycles on a full disk (storage.spool_slots)"
+                        if left else "the next cycle on a full disk may be kept in memory only")
+                problems.append(f"the spool reserve {ex.reserve_path} is released (the disk was full): {then}; free "
+                                "space under the data folder")
         return HealthReport(database=database, data_dir_writable=writable, free_disk_bytes=free,
                             min_free_disk_bytes=floor, problems=tuple(problems))
 

@@ -86,6 +86,8 @@ class StartReport:
     waiting_for_room: str | None = None
     # the finished cycles start-up could not store (still in the spool): one line each, with the reason
     not_stored: tuple[str, ...] = ()
+    # the cycles lost on a full disk with every spool slot taken, recorded from the loss ledger
+    lost: tuple[str, ...] = ()
 
 
 class Service:
@@ -336,6 +338,7 @@ class Service:
             worker=self._worker_line(), folders_moved_aside=aside,
             not_stored=tuple(f"cycle {u} ({status}) is kept in the spool, not stored yet: {reason or 'database down'}"
                              for u, (status, reason) in sorted(self.executor.held().items())),
+            lost=tuple(self.executor.lost),
         )
         # Everything start-up made (modules, mappers, compiled statements, the app) lives as
         # long as the process: move it out of the collector's sight, so a full collection

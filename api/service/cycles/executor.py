@@ -33,8 +33,12 @@ place (its blocks are the slot's already: no allocation), truncated to its lengt
 and renamed to ``<uuid>.json``: an ordinary spool file from then on, found by a restart,
 also after a kill. A trace too large for a slot is left out (the cycle is then recorded
 with ``raw_run_lost``, which says why). Slots are written again once there is room. Only
-with every slot taken is a cycle kept in memory, retried with the spool, written to the
-spool at stop and logged as lost at exit if even that fails.
+with every slot taken is a cycle kept in memory, retried with the spool and written to the
+spool at stop; its record (uuid, axis, times, status, reason; no measurement) is then
+written in place into the loss ledger ``<data_dir>/spool/.ledger`` (preallocated records of
+512 bytes, written with the slots), so that a kill does not lose it without a trace: the
+next start stores each ledger record the spool does not hold as a failed cycle with the
+reason ``storage_full: lost: ...`` and a lost raw run, and lists it in its report.
 Temporary files are renamed into place only after a successful fsync and removed on failure.
 """
 
@@ -98,6 +102,8 @@ from storage.db import (
 log = logging.getLogger("mebm.cycles")
 
 STORAGE_FULL = results_repo.STORAGE_FULL  # reason code: the cycle found no room under the data folder
+LEDGER_RECORDS = 128  # the loss ledger: records of cycles that found no spool slot...
+LEDGER_RECORD_BYTES = 512  # ...each this long (JSON, zero-padded; a zero first byte is a free record)
 _FULL_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
 _FULL_WORDS = ("no space left", "disk is full", "database or disk is full", "disk quota exceeded")
 FREE_SPACE_HINT = ("free space under the data folder (old raw runs, other files on that disk) or raise its "
@@ -214,6 +220,10 @@ class CycleExecutor:
         self.reserve_bytes = max(int(reserve_bytes), 0)
         self.slot_paths = [self.spool_dir / f".slot-{i}" for i in range(max(int(slots), 0))]
         self.slot_bytes = max(int(slot_bytes), 1)
+        self.ledger_path = self.spool_dir / ".ledger"
+        self._ledger_lock = threading.Lock()
+        self.lost: list[str] = []  # one line per ledger record stored as a lost cycle (for the start report)
+        self._ledgered: dict[str, int] = {}  # uuid -> its loss-ledger record, written by this process
         self.min_free_bytes = max(int(min_free_bytes), 0)  # below it, no cycle is started
         self.runner = runner
         self.resolve_url = resolve_url
@@ -517,6 +527,7 @@ class CycleExecutor:
             return None
         self._held.pop(fc.uuid, None)
         self._spool_refused_full.discard(fc.uuid)
+        self._forget_loss(fc.uuid)
         if spool is not None:
             spool.unlink(missing_ok=True)
         self._notify(fc.axis_id, cycle, alerts, publish)
@@ -712,9 +723,107 @@ class CycleExecutor:
                       "slots left); %s", doc["uuid"], slot.name, self.free_slots(), len(self.slot_paths),
                       FREE_SPACE_HINT)
             return path
-        log.critical("cycle %s: the disk is full and all %d spool slots are taken (storage.spool_slots)",
-                     doc["uuid"], len(self.slot_paths))
+        log.critical("cycle %s: the disk is full and all %d spool slots are taken (storage.spool_slots)%s",
+                     doc["uuid"], len(self.slot_paths), "; its record is in the loss ledger " + str(self.ledger_path)
+                     if self._record_loss(doc) else "")
         return None
+
+    def _record_loss(self, doc: dict) -> bool:
+        """The record of ``doc`` (no measurement) written in place into a free record of the
+        loss ledger and fsynced; False if there is no ledger or no free record in it."""
+        rec = {k: doc.get(k) for k in ("uuid", "axis_id", "trigger", "requested_by", "status", "requested_at",
+                                       "started_at", "finished_at")}
+        reason = doc.get("failure_reason") or ""
+        data = json.dumps({**rec, "failure_reason": reason}).encode("utf-8")
+        while len(data) >= LEDGER_RECORD_BYTES and reason:
+            reason = reason[:max(len(reason) - (len(data) - LEDGER_RECORD_BYTES) - 8, 0)] + "..."
+            data = json.dumps({**rec, "failure_reason": reason}).encode("utf-8")
+        if len(data) >= LEDGER_RECORD_BYTES:
+            return False
+        with self._ledger_lock:
+            try:
+                with open(self.ledger_path, "r+b") as fh:
+                    records = fh.read()
+                    for i in range(len(records) // LEDGER_RECORD_BYTES):
+                        if records[i * LEDGER_RECORD_BYTES] == 0:
+                            os.pwrite(fh.fileno(), data.ljust(LEDGER_RECORD_BYTES, b"\0"), i * LEDGER_RECORD_BYTES)
+                            os.fsync(fh.fileno())
+                            self._ledgered[doc["uuid"]] = i
+                            return True
+            except OSError as exc:
+                log.error("cycle %s: not recorded in the loss ledger either (%s)", doc["uuid"], exc)
+        return False
+
+    def _ledger_records(self) -> list[tuple[int, dict]]:
+        """(index, record) of the loss ledger's records in use; unreadable ones are freed."""
+        try:
+            records = self.ledger_path.read_bytes()
+        except OSError:
+            return []
+        out = []
+        for i in range(len(records) // LEDGER_RECORD_BYTES):
+            raw = records[i * LEDGER_RECORD_BYTES:(i + 1) * LEDGER_RECORD_BYTES]
+            if raw[0] == 0:
+                continue
+            try:
+                out.append((i, json.loads(raw.rstrip(b"\0").decode("utf-8"))))
+            except ValueError:
+                log.error("loss ledger record %d unreadable: freed", i)
+                self._free_record(i)
+        return out
+
+    def _forget_loss(self, uuid: str) -> None:
+        """The cycle of ``uuid`` was stored or spooled after all: its ledger record is freed."""
+        i = self._ledgered.pop(uuid, None)
+        if i is not None:
+            self._free_record(i)
+
+    def _free_record(self, i: int) -> None:
+        with self._ledger_lock, contextlib.suppress(OSError), open(self.ledger_path, "r+b") as fh:
+            os.pwrite(fh.fileno(), b"\0" * LEDGER_RECORD_BYTES, i * LEDGER_RECORD_BYTES)
+            os.fsync(fh.fileno())
+
+    def _replay_ledger(self) -> int:
+        """Store each loss-ledger record whose cycle is neither in memory nor in the spool as
+        a failed ``storage_full`` cycle that lost its measurement, then free the record."""
+        stored = 0
+        kept = {fc.uuid for fc in self.unsaved} | {p.stem for p in self.pending()}
+        for i, d in self._ledger_records():
+            if d.get("uuid") in kept:
+                continue  # the cycle itself is still kept: stored from there
+            try:
+                ts = {k: as_utc(datetime.fromisoformat(d[k])) if d.get(k) else None
+                      for k in ("requested_at", "started_at", "finished_at")}
+                why = ("the disk under the data folder was full when the cycle finished and every spool slot was "
+                       f"taken (storage.spool_slots); its measurement (status {d.get('status')}) was lost, this "
+                       "record of it was kept")
+                fc = FinishedCycle(
+                    uuid=d["uuid"], axis_id=int(d["axis_id"]), trigger=d.get("trigger") or "schedule",
+                    requested_by=d.get("requested_by"), status="failed", requested_at=ts["requested_at"],
+                    started_at=ts["started_at"], finished_at=ts["finished_at"] or utcnow(),
+                    failure_reason=storage_full_reason(f"lost: {why}" + (
+                        f"; reason then: {d['failure_reason']}" if d.get("failure_reason") else "")),
+                    raw_run_lost=why)
+                with session_scope(self.factory) as s:
+                    cycle, alerts = results_repo.save_finished_cycle(s, fc)
+                    publish = self._prepare_status(s, fc.axis_id)
+            except DatabaseUnavailableError:
+                break  # kept for the next attempt
+            except (StorageError, MebmError, KeyError, ValueError, TypeError) as exc:
+                log.error("loss ledger record %d (%s) could not be stored: %s", i, d.get("uuid"), exc)
+                continue
+            self._free_record(i)
+            self._ledgered.pop(fc.uuid, None)
+            if cycle.failure_reason != fc.failure_reason:
+                continue  # stored otherwise already (its spool file came first): nothing was lost
+            self._held.pop(fc.uuid, None)
+            self._notify(fc.axis_id, cycle, alerts, publish)
+            line = (f"cycle {fc.uuid} (axis {fc.axis_id}, finished {d.get('finished_at')}) was lost on a full disk "
+                    "with every spool slot taken: recorded failed, storage_full")
+            log.error("%s", line)
+            self.lost.append(line)
+            stored += 1
+        return stored
 
     def free_slots(self) -> int:
         """How many spool slots are written and free."""
@@ -730,6 +839,9 @@ class CycleExecutor:
         and renamed into place; nothing is left on failure; each only while the disk has twice
         its size free). True if all are in place (or none is configured)."""
         ok = True
+        ledger_bytes = LEDGER_RECORDS * LEDGER_RECORD_BYTES
+        if self.slot_paths and not self._slot_ok(self.ledger_path, ledger_bytes):  # (one with records is kept)
+            ok = self._allocate(self.ledger_path, ledger_bytes) and ok
         for slot in self.slot_paths:
             if not self._slot_ok(slot):
                 ok = self._allocate(slot, self.slot_bytes) and ok
@@ -785,7 +897,8 @@ class CycleExecutor:
     def reserve_ok(self) -> bool:
         """Whether the reserve and every spool slot are in place."""
         return (self.reserve_bytes <= 0 or self._slot_ok(self.reserve_path, self.reserve_bytes)) and all(
-            self._slot_ok(p) for p in self.slot_paths)
+            self._slot_ok(p) for p in self.slot_paths) and (not self.slot_paths or self._slot_ok(
+                self.ledger_path, LEDGER_RECORDS * LEDGER_RECORD_BYTES))
 
     def held(self) -> dict[str, tuple[str, str | None]]:
         """uuid -> (status, reason) of the finished cycles not stored yet (spooled or in memory)."""
@@ -802,6 +915,7 @@ class CycleExecutor:
                 if self._write_spool(doc) is not None:
                     self.unsaved.remove(fc)
                     self._unspooled.pop(fc.uuid, None)
+                    self._forget_loss(fc.uuid)
             left = list(self.unsaved)
         for fc in left:
             log.critical("cycle %s could not be written to the spool at stop and is lost when the service exits: "
@@ -812,14 +926,15 @@ class CycleExecutor:
         return sorted(self.spool_dir.glob("*.json")) if self.spool_dir.is_dir() else []
 
     def has_pending(self) -> bool:
-        return bool(self.unsaved) or bool(self.pending())
+        return bool(self.unsaved) or bool(self.pending()) or bool(self._ledger_records())
 
     def replay_spool(self) -> int:
-        """Store every spooled (or memory-kept) cycle the database does not have yet; returns
-        how many were stored. Stops at the first database outage (retried later). The
-        reserve is allocated again once nothing waits."""
+        """Store every spooled (or memory-kept) cycle the database does not have yet, then
+        the loss ledger's records; returns how many were stored. Stops at the first database
+        outage (retried later). The reserve is allocated again once nothing waits."""
         with self._replay_lock:  # start-up and the retry job never replay at once
             stored = self._replay()
+            stored += self._replay_ledger()
         if not self.has_pending():
             self.ensure_reserve()
         return stored
@@ -847,6 +962,7 @@ class CycleExecutor:
                 self._unspooled.pop(fc.uuid, None)
                 self._held.pop(fc.uuid, None)
                 self._spool_refused_full.discard(fc.uuid)
+                self._forget_loss(fc.uuid)
                 stored += 1
         pending = self.pending()
         for i, path in enumerate(pending):

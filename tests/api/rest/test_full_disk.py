@@ -66,8 +66,8 @@ def _empty_files(root: Path) -> list[Path]:
 
 
 def _reserved(p: Path) -> bool:
-    """The spool reserve or a spool slot (written while there is room, by design)."""
-    return p.name == ".reserve" or (p.name.startswith(".slot-") and p.name[6:].isdigit())
+    """The spool reserve, a spool slot or the loss ledger (written while there is room, by design)."""
+    return p.name in (".reserve", ".ledger") or (p.name.startswith(".slot-") and p.name[6:].isdigit())
 
 
 def _keys(svc) -> tuple[dict, int]:
@@ -417,10 +417,13 @@ def _cycle_on_full_disk(client, svc, runner, keys, axis_id, filler) -> tuple[str
     return r.json()["uuid"], r.json()["measurement"]["id"]
 
 
-def test_the_second_and_third_full_disk_in_a_row_keep_their_cycles_on_disk_across_kills(small_disk):
+def test_the_second_third_and_fourth_full_disk_in_a_row_keep_their_cycles_or_their_record_across_kills(
+        small_disk):
     """The reserve is spent by the first full disk; the second and the third (after a
-    restart on the still full disk) are written into spool slots. No stop hook runs (as
-    after kill -9): what survives is what is on disk."""
+    restart on the still full disk) are written into the two spool slots; the fourth finds
+    no slot: its record goes to the loss ledger. No stop hook runs (as after kill -9): what
+    survives is what is on disk. The restart with room stores the three measurements and
+    records the fourth as lost, and says so."""
     data, first, seen, settings, keys, axis_id, filler = _finish_on_full_disk(small_disk, database_full=True)
     assert seen["spooled_after_stop"]
     real_save = results_repo.save_finished_cycle
@@ -431,7 +434,7 @@ def test_the_second_and_third_full_disk_in_a_row_keep_their_cycles_on_disk_acros
     kept = [first]
     ids = [i["id"] for i in seen["items"]]
     try:
-        for restart in (1, 2):
+        for restart in (1, 2, 3):
             results_repo.save_finished_cycle = refuse
             runner = FakeRunner()
             runner.gate = threading.Event()
@@ -445,29 +448,45 @@ def test_the_second_and_third_full_disk_in_a_row_keep_their_cycles_on_disk_acros
                     (line,) = [ln for ln in svc.report.not_stored if uuid in ln]
                     assert "storage_full" in line
                 slots_before = svc.executor.free_slots()
-                assert slots_before == 3 - restart  # (2 slots; the reserve is spent)
+                assert slots_before == max(3 - restart, 0)  # (2 slots; the reserve is spent)
                 uuid, mid = _cycle_on_full_disk(client, svc, runner, keys, axis_id, filler)
                 spooled = svc.executor.spool_dir / f"{uuid}.json"
-                assert spooled.is_file() and svc.executor.unsaved == []  # on disk, not only in memory
-                assert svc.executor.free_slots() == slots_before - 1  # written into a slot
+                if restart < 3:
+                    assert spooled.is_file() and svc.executor.unsaved == []  # on disk, not only in memory
+                    assert svc.executor.free_slots() == slots_before - 1  # written into a slot
+                    kept.append(uuid)
+                else:  # no slot left: kept in memory, and its record in the loss ledger
+                    assert not spooled.exists() and [fc.uuid for fc in svc.executor.unsaved] == [uuid]
+                    assert uuid.encode() in (svc.executor.spool_dir / ".ledger").read_bytes()
+                    lost = (uuid, mid)
+                svc.health.invalidate()
+                problems = client.get("/healthz").json()["problems"]
+                left = "1 of 2 spool slot(s) keep the next cycles" if restart == 1 else "kept in memory only"
+                assert any(left in p for p in problems), problems  # what the next full disk does, said
                 (item,) = [i for i in client.get(f"/api/v1/axes/{axis_id}/measurements",
                                                  headers=hdr(keys["read"])).json()["items"] if i["id"] == mid]
                 assert item["status"] != "running" and item["reason_code"] == "storage_full"
-                kept.append(uuid)
                 ids.append(mid)
                 svc.executor.flush_unsaved = lambda: 0  # killed: no stop hook writes anything
             assert not _empty_files(data)
     finally:
         results_repo.save_finished_cycle = real_save
-    filler.unlink()  # room again: one restart stores all three, re-analysed from their traces
+    filler.unlink()  # room again: one restart stores all, re-analysed from their traces
     app = create_app(settings, runner=FakeRunner())
     with TestClient(app) as client:
         svc = app.state.service
-        assert svc.report.replayed == 3 and svc.report.not_stored == () and svc.report.interrupted == 0
+        assert svc.report.replayed == 4 and svc.report.not_stored == () and svc.report.interrupted == 0
+        (line,) = svc.report.lost
+        assert lost[0] in line and "lost on a full disk" in line
         items = client.get(f"/api/v1/axes/{axis_id}/measurements", headers=hdr(keys["read"])).json()["items"]
-        assert _wait(svc.executor.reserve_ok)  # the reserve and both slots written again
+        assert _wait(svc.executor.reserve_ok)  # the reserve, both slots and the ledger written again
+        assert not svc.executor._ledger_records()  # the record was stored, its place freed
     by_id = {i["id"]: i for i in items}
     assert sorted(by_id) == sorted(ids)
     for mid in ids:
-        assert by_id[mid]["status"] == "ok" and by_id[mid]["reason_code"] == "storage_full"
-        assert by_id[mid]["backlash_mean_um"] is not None
+        if mid == lost[1]:  # recorded, counted as a lost raw run, never silently gone
+            assert by_id[mid]["status"] == "failed" and by_id[mid]["reason_code"] == "storage_full"
+            assert "lost" in by_id[mid]["failure_reason"] and by_id[mid]["raw_run_lost"]
+        else:
+            assert by_id[mid]["status"] == "ok" and by_id[mid]["reason_code"] == "storage_full"
+            assert by_id[mid]["backlash_mean_um"] is not None
