@@ -94,12 +94,6 @@ class DiagnosisCrashed(MebmError):
     """The worker process died during the diagnosis (killed, or out of memory)."""
 
 
-def newest_runs(folder: Path, n: int) -> Dataset:
-    """The newest ``n`` runs of a dataset folder (runs are appended in measurement order)."""
-    meta = read_dataset(folder, load_runs=False)
-    return dataset_of(folder, tuple(r.spec.file for r in meta.runs)[-n:])
-
-
 def dataset_of(folder: Path, files: Sequence[str]) -> Dataset:
     """The dataset of the stored runs ``files`` of a folder, in that order, each run with
     its ``utility_day`` and ``temperature_c`` as stored (the diagnosis lets the backlash
