@@ -105,7 +105,7 @@ def _answer(jobs: GapJobs, axis_id: int, folder: Path, job: Job, wait_s: float):
 )
 async def gap(
     axis_id: AxisId, svc: ServiceDep, _k: ReadKey,
-    runs: Annotated[int, Query(ge=2, le=60, description="how many of the newest stored runs to use")] = 16,
+    runs: Annotated[int, Query(ge=2, le=60, description="how many of the newest stored runs since the axis' last repair to use")] = 16,
 ):
     folder = await run_in_threadpool(_folder, svc, axis_id)
     repairs = await run_in_threadpool(repairs_of, svc.factory, axis_id)
