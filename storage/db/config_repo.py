@@ -16,13 +16,14 @@ from core.dataset import AxisSpec
 from core.criteria.uncertainty import Instruments
 from core.errors import InputError
 from core.tbe import DECISION_RULES, MachiningTask
-from storage.db import ui_sessions_repo
+from storage.db import leases, ui_sessions_repo
 from storage.db.errors import ConflictError, NotFoundError
 from storage.db.models import ApiKey, Axis, Machine, MachiningTaskRow
 from storage.db.names import collision, collision_message
 from storage.db.records import ROLES, AxisRecord, AxisSettings, KeyRecord, MachineRecord, Schedule, as_utc, utcnow
 
 KEY_PREFIX = "mebm_"
+NAMES_LOCK = 0x6D65626D0003  # advisory lock key (PostgreSQL): the interface-name check of a new machine or axis
 
 
 # -- machines ------------------------------------------------------------------------------
@@ -35,6 +36,7 @@ def create_machine(s: Session, name: str, description: str = "") -> MachineRecor
     name = name.strip()
     if not name:
         raise InputError("machine name must not be empty")
+    leases.serialize(s, NAMES_LOCK)  # two admins adding "m a" and "m_a" at once: one after the other
     if s.scalar(select(Machine.id).where(Machine.name == name)) is not None:
         raise ConflictError(f"a machine named {name!r} exists already")
     other = collision(name, s.scalars(select(Machine.name)))
@@ -110,6 +112,7 @@ def create_axis(s: Session, machine_id: int, st: AxisSettings) -> AxisRecord:
     if m is None:
         raise NotFoundError("machine", machine_id)
     _check_settings(st)
+    leases.serialize(s, NAMES_LOCK)
     if s.scalar(select(Axis.id).where(Axis.machine_id == machine_id, Axis.name == st.spec.name)) is not None:
         raise ConflictError(f"machine {m.name!r} has an axis {st.spec.name!r} already")
     other = collision(st.spec.name, s.scalars(select(Axis.name).where(Axis.machine_id == machine_id)))
