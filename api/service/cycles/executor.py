@@ -744,8 +744,9 @@ class CycleExecutor:
             try:
                 with open(self.ledger_path, "r+b") as fh:
                     records = fh.read()
+                    mine = self._ledgered.get(doc["uuid"])  # recorded already: its record is rewritten
                     for i in range(len(records) // LEDGER_RECORD_BYTES):
-                        if records[i * LEDGER_RECORD_BYTES] == 0:
+                        if i == mine or (mine is None and records[i * LEDGER_RECORD_BYTES] == 0):
                             os.pwrite(fh.fileno(), data.ljust(LEDGER_RECORD_BYTES, b"\0"), i * LEDGER_RECORD_BYTES)
                             os.fsync(fh.fileno())
                             self._ledgered[doc["uuid"]] = i
