@@ -92,3 +92,17 @@ def test_the_dashboard_the_rest_api_and_mtconnect_share_one_key_cache(tmp_path):
         assert client.get("/mtconnect/probe", headers=hdr(secret)).status_code == 200
         found, rec = app.state.key_cache.cached(secret)  # the agent's look-up is the API's cache entry
         assert found and rec is not None and rec.name == "mes"
+
+
+def test_opc_ua_takes_no_api_key_so_no_key_revocation_concerns_it(tmp_path):
+    from api.opcua.access import Users
+    from api.service.config.settings import OpcuaSettings
+
+    app = _app(tmp_path)
+    with TestClient(app):
+        _, _, secret = _keys(app)
+    users = Users(OpcuaSettings(anonymous=False, username="plant", password="configured-in-opcua"))
+    # a valid API key is no OPC UA credential, under any user name: OPC UA users are [opcua]'s
+    assert users.get_user(None, username="mes", password=secret) is None
+    assert users.get_user(None, username="plant", password=secret) is None
+    assert users.get_user(None, username="plant", password="configured-in-opcua") is not None
