@@ -47,6 +47,7 @@ from __future__ import annotations
 import base64
 import contextlib
 import errno
+import fcntl
 import io
 import json
 import logging
@@ -221,6 +222,7 @@ class CycleExecutor:
         self.slot_paths = [self.spool_dir / f".slot-{i}" for i in range(max(int(slots), 0))]
         self.slot_bytes = max(int(slot_bytes), 1)
         self.ledger_path = self.spool_dir / ".ledger"
+        self._slot_lock = threading.Lock()  # a slot is written, or written again, by one thread at a time
         self._ledger_lock = threading.Lock()
         self.lost: list[str] = []  # one line per ledger record stored as a lost cycle (for the start report)
         self._ledgered: dict[str, int] = {}  # uuid -> its loss-ledger record, written by this process
@@ -697,6 +699,10 @@ class CycleExecutor:
             log.error("cycle %s: its spool file (%d bytes) is larger than a spool slot (%d bytes)", doc["uuid"],
                       len(data), self.slot_bytes)
             return None
+        with self._slot_lock:
+            return self._into_slot(doc, data)
+
+    def _into_slot(self, doc: dict, data: bytes) -> Path | None:
         path = self.spool_dir / f"{doc['uuid']}.json"
         for slot in self.slot_paths:
             try:
@@ -706,12 +712,17 @@ class CycleExecutor:
             except OSError:
                 continue
             try:
+                # one writer per slot (cycles of other axes, another process on the folder): taken
+                # while it is still the slot, held until it is renamed
                 try:
-                    os.pwrite(fd, data, 0)
-                    os.ftruncate(fd, len(data))
-                    os.fsync(fd)
-                finally:
-                    os.close(fd)
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                    if os.fstat(fd).st_ino != slot.stat().st_ino:
+                        continue  # renamed by the writer before: no longer a slot
+                except OSError:
+                    continue
+                os.pwrite(fd, data, 0)
+                os.ftruncate(fd, len(data))
+                os.fsync(fd)
                 os.replace(slot, path)
                 fsync_dir(self.spool_dir)
             except OSError as exc:
@@ -719,6 +730,8 @@ class CycleExecutor:
                 with contextlib.suppress(OSError):
                     slot.unlink()  # a half-written slot is no slot: written again once there is room
                 continue
+            finally:
+                os.close(fd)
             log.error("cycle %s: the disk is full; its spool file was written into the spool slot %s (%d of %d "
                       "slots left); %s", doc["uuid"], slot.name, self.free_slots(), len(self.slot_paths),
                       FREE_SPACE_HINT)
@@ -843,9 +856,10 @@ class CycleExecutor:
         ledger_bytes = LEDGER_RECORDS * LEDGER_RECORD_BYTES
         if self.slot_paths and not self._slot_ok(self.ledger_path, ledger_bytes):  # (one with records is kept)
             ok = self._allocate(self.ledger_path, ledger_bytes) and ok
-        for slot in self.slot_paths:
-            if not self._slot_ok(slot):
-                ok = self._allocate(slot, self.slot_bytes) and ok
+        with self._slot_lock:
+            for slot in self.slot_paths:
+                if not self._slot_ok(slot):
+                    ok = self._allocate(slot, self.slot_bytes) and ok
         if self.reserve_bytes > 0 and not self._slot_ok(self.reserve_path, self.reserve_bytes):
             ok = self._allocate(self.reserve_path, self.reserve_bytes) and ok
         return ok
