@@ -55,6 +55,11 @@ class RoundTrip:
     # the nut's lead on the table, +: the nut against the flank that drives a + move (see
     # :func:`rest_lead_mm`); None: not measurable, the nut assumed on the driving flank
     rest_lead_mm: float | None = None
+    # the run's utility day (days in service), and the backlash its axis' wear adds to the
+    # nominal backlash at this run against the reference day (µm; set by the nominal fit
+    # of a history whose train runs span several utility days, else 0)
+    utility_day: float | None = None
+    wear_um: float = 0.0
     # what depends on the record alone, computed once per run (the measured envelope split,
     # :func:`core.gap.roundtrip.residual_env_um`; the sample step, :attr:`dt_s`); a fresh one
     # for every copy
@@ -204,6 +209,7 @@ def prepare_round_trip(run: Run, axis_spec, split: str) -> RoundTrip:
         acceleration_mm_s2=run.spec.acceleration_mm_s2, side0=_first_direction(u), fit_idx=idx,
         command_mm=None if cmd is None else np.asarray(cmd, float), start=start,
         rest_lead_mm=rest_lead_mm(t, u, x),
+        utility_day=None if run.spec.utility_day is None else float(run.spec.utility_day),
     )
 
 

@@ -42,8 +42,8 @@ from core.gap.evidence import observe
 from core.gap.families import EFFECTS, REGISTRY
 from core.gap.families.base import NOT_IDENTIFIABLE
 from core.gap.report import Candidate, GapReport, explain, selection_dict
-from core.gap.select import Rule, eligible_singles, ranked, select, ties_of
-from core.gap.stages import compose, stage_starts, train_residuals
+from core.gap.select import Rule, cuts, eligible_singles, ranked, select, ties_of
+from core.gap.stages import Stage, compose, stage_starts, train_residuals
 from core.gap.where import breakaways, locate, rattles
 from core.sim import AxisModel, Effects
 
@@ -72,6 +72,7 @@ class GapSettings:
         return Rule(self.penalty_per_param, self.min_reduction, self.noise_factor, self.min_first_reduction)
 
 
+WEAR_MIN_SPAN_DAYS = 1.0  # train round trips this many utility days apart or more show a wear rate
 NOISE_DIFF_ORDER = 3  # the differences the white-noise level is read from (see noise_floor_um)
 
 
@@ -182,6 +183,7 @@ class _AxisFit:
     fit: rt.FitResult
     stages: tuple
     effects: tuple[str, ...]
+    gain: float = 0.0  # its BIC gain over the reference on the train runs (lower: better)
 
 
 @dataclass
@@ -203,9 +205,20 @@ class Fitted:
     # a family refitted on the contours (Family.contour_refit), per axis:
     # {family: {axis: (effects by name, backlash share µm, params)}}
     ct_refit: dict = field(default_factory=dict)
+    # the decision's reading of it (core.gap.select.Hypothesis): its families whose
+    # parameters the train runs do not pin down, the families its forms contain, every fit
+    # ended at convergence, and its fit did not fail
+    unidentified: frozenset = frozenset()
+    contains: frozenset = frozenset()
+    converged: bool = True
+    fitted: bool = True
 
     def score(self, penalty: float) -> float:
         return self.gap_after_um * (1 + penalty * self.n_params)
+
+    @property
+    def identified(self) -> bool:
+        return not self.unidentified
 
 
 CONTOUR_SIGNAL_FACTOR = 1.5  # train contours whose residual RMS is within this of their noise show nothing
@@ -258,7 +271,34 @@ class _Diagnosis:
         return _in_threads(calls, self.workers)
 
     # ---- nominal -------------------------------------------------------------------
+    def fit_wear(self) -> None:
+        """The wear of a stored history, part of the nominal model: where every round trip
+        of an axis carries its utility day and the train runs span at least
+        ``WEAR_MIN_SPAN_DAYS``, the axis' backlash grows linearly with the utility day (at
+        a rate >= 0 fitted on the train runs with the backlash, referred to the newest
+        train run's day), so that wear alone is not read as another effect. Each run then
+        carries the backlash its day adds (``RoundTrip.wear_um``), in every model alike."""
+        self.wear_um_per_day: dict[str, float] = {}
+        self.wear_ref_day: dict[str, float] = {}
+        for a in self.rt_axes:
+            mine = [r for r in self.rts if r.axis == a]
+            days = [r.utility_day for r in self.train_rt[a]]
+            if any(r.utility_day is None for r in mine) or max(days) - min(days) < WEAR_MIN_SPAN_DAYS:
+                continue
+            ref = float(max(days))
+            stage = Stage("wear", ("wear_um_per_day",), np.array([0.0]), np.array([0.0]), np.array([1e3]),
+                          width=lambda th, run, u, hb, ref=ref: hb + 0.5e-3 * th[0] * (run.utility_day - ref))
+            model = compose((stage,), rt.estimate_backlash_um(self.train_rt[a]), self.memo.misc)
+            fr = rt.fit_model(model, self.train_rt[a], [np.array([model.x0[0], 1.0])], n_starts=2)
+            rate = float(fr.theta[1])
+            self.wear_um_per_day[a], self.wear_ref_day[a] = rate, ref
+            self.rts = [replace(r, wear_um=rate * (r.utility_day - ref)) if r.axis == a else r for r in self.rts]
+        if self.wear_um_per_day:
+            self.train_rt = {a: [r for r in self.rts if r.axis == a and r.split == "train"] for a in self.rt_axes}
+            self.test_rt = [r for r in self.rts if r.split == "test"]
+
     def fit_nominal(self) -> None:
+        self.fit_wear()
         self.b_um: dict[str, float] = {}
         self.nom_fit: dict[str, rt.FitResult] = {}
         self.nom_model: dict[str, rt.RTModel] = {}
@@ -334,11 +374,12 @@ class _Diagnosis:
         return sum(float(np.sum(ct.tracking_envelope_residual_um(c, sims[c.file]) ** 2)) for c in self.train_ct)
 
     # ---- candidates ----------------------------------------------------------------
-    def _fit_round_trips(self, new: str, a: str, bfit: _AxisFit | None,
-                         base_effects: tuple[str, ...]) -> tuple[_AxisFit | None, tuple[str, ...]]:
+    def _fit_round_trips(self, new: str, a: str, bfit: _AxisFit | None, base_effects: tuple[str, ...],
+                         retry: bool = False) -> tuple[_AxisFit | None, tuple[str, ...]]:
         """Family ``new`` fitted on axis ``a``'s train round trips, on top of ``bfit`` (the
         nominal model when None): the axis' fit if the BIC accepts it (None if not), and the
-        notes on it."""
+        notes on it. ``retry``: from the starts the first fit passed over (the next
+        cheapest); a form without other starts is not fitted again."""
         notes: list[str] = []
         runs = self.train_rt[a]
         spec = self.axes[a]
@@ -373,8 +414,11 @@ class _Diagnosis:
             # alone: the stage's own step and starts; on top of a base, whose parameters are
             # fitted again too, the default step (a 1 % step over all of them costs
             # twice the diagnosis' time)
-            fr = rt.fit_model(model, runs, starts, n_starts=2 if st.starts and not bfit else 1,
-                              max_nfev=st.max_nfev, diff_step=None if bfit else st.diff_step)
+            n_starts = 2 if st.starts and not bfit else 1
+            if retry and len(starts) + 1 <= n_starts:
+                continue
+            fr = rt.fit_model(model, runs, starts, n_starts=n_starts, max_nfev=st.max_nfev,
+                              diff_step=None if bfit else st.diff_step, skip=n_starts if retry else 0)
             fitted_vals.update(zip(model.names[-len(st.names):], fr.theta[-len(st.names):]))
             # the reference in the form's own metric (an envelope-scored chain against the
             # reference's residuals scored the same way, over the form's train windows)
@@ -384,15 +428,54 @@ class _Diagnosis:
             tried.append((gain, st, stages, model, fr, ref_rss))
         if not tried:
             return None, tuple(notes)
-        _, st, stages, model, fr, ref_rss = min(tried, key=lambda x: x[0])
+        gain, st, stages, model, fr, ref_rss = min(tried, key=lambda x: x[0])
         if not _bic_accepts(ref_rss, fr.rss, n, len(st.names)):
             notes.append(f"{new} on axis {a}: no train improvement (kept {'+'.join(base_effects) if bfit else 'nominal'})")
             return None, tuple(notes)
         if fr.capped:
+            # pursued from where it stopped, once more with the same budget: a fit stopped at
+            # its cap has not answered, and where it stopped moves with the numerics
+            more = rt.fit_model(replace(model, x0=fr.theta), runs, (), n_starts=1, max_nfev=st.max_nfev,
+                                diff_step=None if bfit else st.diff_step)  # fmt: skip
+            if more.rss <= fr.rss:
+                fr = more
+                gain = n * math.log(max(fr.rss, 1e-12) / max(ref_rss, 1e-12)) + len(st.names) * math.log(max(n, 2))
+        if fr.capped:
             notes.append(f"{new} on axis {a}: the round-trip fit stopped at its evaluation cap, not at convergence")
-        return _AxisFit(model, fr, stages, tuple(s.effect for s in stages)), tuple(notes)
+        return _AxisFit(model, fr, stages, tuple(s.effect for s in stages), gain), tuple(notes)
 
-    def fit_candidate(self, effects: tuple[str, ...], base: Fitted | None = None) -> Fitted:
+    def fit_single(self, effect: str) -> Fitted:
+        """Family ``effect`` alone on the nominal model. A fit that fails (it makes the
+        held-out gap worse than the nominal model's, or its parameters are not
+        identifiable) is fitted again from other starts before it is ranked; of the two,
+        the one the train runs prefer is kept (identifiable first, then the lower BIC on
+        the train runs: the held-out runs never choose a fit). One that still makes the
+        held-out gap worse is "not fitted": a fit that diverged, not a hypothesis that
+        does not explain the gap."""
+        f = self.fit_candidate((effect,))
+        if not (self._worse(f) or (f.rt_fits and not f.identified)) or REGISTRY[effect].stage is None:
+            return f
+        again = self.fit_candidate((effect,), retry=True)
+        if again.rt_fits and (again.identified, -self._train_gain(again)) > (f.identified, -self._train_gain(f)):
+            why = "made the held-out gap worse" if self._worse(f) else "left its parameters unidentifiable"
+            again.notes.insert(0, f"{effect}: fitted again from other starts (the first fit {why})")
+            f = again
+        if self._worse(f):
+            f.fitted = False
+            f.notes.insert(0, "not fitted: the fit makes the held-out gap worse than the nominal model's, "
+                              "from other starts too")  # fmt: skip
+        return f
+
+    def _worse(self, f: Fitted) -> bool:
+        """The nominal model cuts the candidate's held-out gap by ``min_reduction``: told
+        apart as worse than no effect at all."""
+        return cuts(self.gap_before, f.gap_after_um, self.s.min_reduction)
+
+    @staticmethod
+    def _train_gain(f: Fitted) -> float:
+        return sum(af.gain for af in f.rt_fits.values())
+
+    def fit_candidate(self, effects: tuple[str, ...], base: Fitted | None = None, retry: bool = False) -> Fitted:
         f = Fitted(effects)
         new = effects[-1]
         # round trips, axis by axis
@@ -408,9 +491,9 @@ class _Diagnosis:
                 # without a base fit on this axis the new family's fit depends on (family,
                 # axis) alone: a pair whose base took nothing here (a contour-only family, a
                 # stage the BIC refused) gets the single's fit, computed once
-                key = (new, a)
+                key = (new, a, retry)
                 if key not in self.alone:
-                    self.alone[key] = self._fit_round_trips(new, a, None, ())
+                    self.alone[key] = self._fit_round_trips(new, a, None, (), retry)
                 fitted, notes = self.alone[key]
             for note in notes:
                 if note not in f.notes:
@@ -451,7 +534,36 @@ class _Diagnosis:
                 f.rt_res.append(bounded_residual(rt.model_residual_um(af.model, af.fit.theta, r, envelope=True),
                                          f"test round trip {r.file}", f.notes))
         f.gap_after_um = _rms_all(f.rt_res + f.ct_res)
+        self._read(f)
         return f
+
+    def _read(self, f: Fitted) -> None:
+        """The decision's reading of a fitted candidate: its unidentified families (on no
+        axis it took does the family have one identifiable parameter, or the family's own
+        check fails), the families its forms contain, and whether every fit ended at
+        convergence."""
+        known: dict[str, bool] = {}  # family -> some axis pins one of its parameters down
+        for a, af in f.rt_fits.items():
+            for st in af.stages:
+                if st.effect in f.effects and st.names:
+                    pinned = any(f.intervals.get(f"{a}.{n}") is not None for n in st.names)
+                    known[st.effect] = known.get(st.effect, False) or pinned
+                if st.effect in f.effects:
+                    f.contains |= frozenset(st.contains)
+        for name, fits in f.ct_fits.items():
+            cf = REGISTRY[name].contour_fit
+            for a in fits:
+                if name in f.effects:
+                    known[name] = known.get(name, False) or any(f.intervals.get(f"{a}.{n}") is not None
+                                                                for n in cf.names)  # fmt: skip
+        lost = {e for e, ok in known.items() if not ok}
+        if lost:
+            f.notes.append(f"parameters not identifiable: {', '.join(sorted(lost))} (on every axis it took)")
+        if not f.identifiable:
+            lost.add(f.effects[-1])
+        f.unidentified = frozenset(lost)
+        f.converged = not any(af.fit.capped for af in f.rt_fits.values()) and not any(
+            fr.capped for fits in f.ct_fits.values() for fr in fits.values())
 
     def _contours(self, f: Fitted, base: Fitted | None) -> None:
         pieces: dict[str, Effects] = {}
@@ -569,8 +681,8 @@ def pair_jobs(singles: Sequence[Fitted], gap_before: float, gate_um: float, rule
     from the better of the two (two effects that each alone extrapolate badly rank last by
     test gap). A family that took nothing (:func:`_took_something`) is in no pair, and a
     pair of the same two families is fitted once."""
-    took = [f for f in ranked(singles, rule.penalty_per_param) if _took_something(f, gap_before)]
-    ok = eligible_singles(singles, gap_before, rule)
+    took = [f for f in ranked(singles, rule.penalty_per_param) if f.fitted and _took_something(f, gap_before)]
+    ok = eligible_singles([f for f in singles if f.fitted], gap_before, rule)
     if ok:
         bases = [b for b in [ok[0]] + ties_of(ok[0], ok, rule) if b.gap_after_um > gate_um]
         jobs = [((b.effects[0], t.effects[0]), b) for b in bases for t in took if t.effects[0] != b.effects[0]]
@@ -592,7 +704,8 @@ def _candidate(f: Fitted, s: GapSettings) -> Candidate:
     ivals = {k: (list(v) if v is not None else NOT_IDENTIFIABLE) for k, v in f.intervals.items()}
     axes_used = tuple(sorted(set(f.rt_fits) | {a for fits in f.ct_fits.values() for a in fits}))
     return Candidate("+".join(f.effects), f.gap_after_um, params, f.n_params, f.score(s.penalty_per_param),
-                     f.identifiable, "; ".join(f.notes), axes_used, ivals, dict(f.params))  # fmt: skip
+                     f.identified, "; ".join(f.notes), axes_used, ivals, dict(f.params), f.fitted,
+                     f.converged)  # fmt: skip
 
 
 def _fit_all(d: _Diagnosis, jobs: list[tuple[tuple[str, ...], Fitted | None]], workers: int) -> list[Fitted]:
@@ -643,7 +756,8 @@ def _diagnose(dataset: Dataset, s: GapSettings, workers: int) -> GapReport:
 
     rule = s.rule()
     gate = s.noise_factor * noise
-    fits = dict(zip(EFFECTS, _fit_all(d, [((e,), None) for e in EFFECTS], workers)))
+    d.gap_before = gap_before
+    fits = dict(zip(EFFECTS, _in_threads([lambda e=e: d.fit_single(e) for e in EFFECTS], workers)))
     singles = list(fits.values())
     pairs: list[Fitted] = []
     if s.second_effect and gap_before > gate:
@@ -707,6 +821,7 @@ def _diagnose(dataset: Dataset, s: GapSettings, workers: int) -> GapReport:
         split_how=d.split.how,
         candidates=tuple(ordered),
         nominal_backlash_um=dict(d.b_um),
+        nominal_wear={a: (r, d.wear_ref_day[a]) for a, r in d.wear_um_per_day.items()},
         quantity=quantity,
         gap_before_by_kind_um=by_kind,
         n_test_samples=int(sum(r.size for r in rt_nom + ct_nom)),

@@ -56,6 +56,8 @@ class Candidate:
     axes: tuple[str, ...] = ()
     intervals: Mapping = field(default_factory=dict)  # param -> [lo, hi] (95 %) or "not identifiable"
     values: Mapping = field(default_factory=dict, compare=False, repr=False)  # every fitted number, identifiable or not
+    fitted: bool = True  # False: its fit failed (worse than the nominal model from other starts too)
+    converged: bool = True  # every fit of it ended at convergence, not at an evaluation cap
 
     def to_dict(self) -> dict:
         return {
@@ -65,6 +67,8 @@ class Candidate:
             "n_params": self.n_params,
             "score_um": _num(self.score, 3),
             "identifiable": self.identifiable,
+            "fitted": self.fitted,
+            "converged": self.converged,
             "axes": list(self.axes),
             "notes": self.notes,
             "intervals": {k: (_num(v, 5) if not isinstance(v, str) else v) for k, v in self.intervals.items()},
@@ -101,6 +105,9 @@ class GapReport:
     # gap_after_um), best first (core.gap.select)
     close_alternatives: tuple[tuple[str, float], ...] = ()
     selection: Mapping = field(default_factory=dict)  # the decision's reasons as data (selection_dict)
+    # the wear of a stored history in the nominal model: per axis (rate µm per utility day,
+    # the reference utility day its backlash is given at)
+    nominal_wear: Mapping[str, tuple[float, float]] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {
@@ -118,6 +125,8 @@ class GapReport:
             "quantity": dict(self.quantity),
             "gap_before_by_kind_um": {k: _num(v, 3) for k, v in self.gap_before_by_kind_um.items()},
             "nominal_backlash_um": {k: _num(v, 2) for k, v in self.nominal_backlash_um.items()},
+            "nominal_wear": {k: {"wear_um_per_day": _num(r, 4), "reference_utility_day": _num(d, 2)}
+                             for k, (r, d) in self.nominal_wear.items()},
             "n_test_samples": self.n_test_samples,
             "decision": self.decision,
             "thresholds": dict(self.thresholds),
@@ -132,10 +141,14 @@ class GapReport:
         """The human report: a few sentences, then the candidate table."""
         gb, ga = self.gap_before_um, self.gap_after_um
         n_tr, n_te = len(self.train), len(self.test)
-        b = ", ".join(f"{a} {v:.1f} µm" for a, v in self.nominal_backlash_um.items())
+        b = ", ".join(f"{a} {v:.1f} µm" + (f" at utility day {self.nominal_wear[a][1]:g}, growing "
+                                           f"{self.nominal_wear[a][0]:.3g} µm per utility day"
+                                           if a in self.nominal_wear else "")
+                      for a, v in self.nominal_backlash_um.items())  # fmt: skip
+        kind = "a backlash per axis, with its wear," if self.nominal_wear else "a constant backlash per axis"
         lines = [f"Gap diagnosis of machine {self.machine_id or '(unnamed)'}: {n_tr} train run(s), {n_te} test run(s)."]
         lines.append(
-            f"The nominal model (K from the axis, a constant backlash per axis fitted on the train runs: {b}) "
+            f"The nominal model (K from the axis, {kind} fitted on the train runs: {b}) "
             f"misses the test runs by {gb:.2f} µm RMS; the measurement noise floor is {self.noise_floor_um:.2f} µm."
         )
         if self.effect == "none":
@@ -238,7 +251,32 @@ def explain(dec, single_gap_um: Mapping[str, float], second_effect: bool, on_top
         kinds = ", ".join(o.kind.replace("_", "-") for o in dec.supporting)
         text += (f" The held-out runs do not tell it apart from {'+'.join(b.effects)} ({b.gap_after_um:.2f} µm, the "
                  f"better score); the observations ({kinds}) support {name}.")  # fmt: skip
+    elif dec.best is not None and c is not dec.best:
+        b = dec.best
+        text += (f" The held-out runs do not tell it apart from {'+'.join(b.effects)} ({b.gap_after_um:.2f} µm, the "
+                 "better score), whose fit stopped at its evaluation cap, not at convergence.")  # fmt: skip
+    text += _passed_over(dec)
+    if not c.converged:
+        text += (" Its fit stopped at its evaluation cap, not at convergence: its figures may move in their last "
+                 "digits with the computer's numerics.")  # fmt: skip
     return text + unsupported, second_text
+
+
+def _passed_over(dec) -> str:
+    """The sentences on eligible hypotheses the decision passed over: those whose parameters
+    are not identifiable, and the larger forms that contain the answer's."""
+    out = ""
+    name = "+".join(dec.chosen.effects)
+    if dec.not_identified:
+        hs = ", ".join(f"{'+'.join(h.effects)} ({h.gap_after_um:.2f} µm)" for h in dec.not_identified)
+        out += (f" {hs} cut the test gap further, but the train runs do not pin their parameters down (not "
+                f"identifiable): a fit, not a physics, so {name}, whose parameters are identifiable, is named.")
+    if dec.contained:
+        hs = ", ".join(f"{'+'.join(h.effects)} ({h.gap_after_um:.2f} µm)" for h in dec.contained)
+        out += (f" {hs} contain{'s' if len(dec.contained) == 1 else ''} {name}'s form; the held-out runs do not tell "
+                f"them apart or the larger form's own parameters are not identifiable, so the simpler {name} is "
+                "named.")  # fmt: skip
+    return out
 
 
 def selection_dict(dec) -> dict:
@@ -253,6 +291,9 @@ def selection_dict(dec) -> dict:
         "best_by_score": hyp(dec.best),
         "ties": [hyp(h) for h in dec.ties],
         "by_evidence": dec.by_evidence,
+        "not_identified": [hyp(h) for h in dec.not_identified],
+        "contained": [hyp(h) for h in dec.contained],
+        "converged": None if dec.chosen is None else dec.chosen.converged,
         "supporting": [{"kind": o.kind, "supports": sorted(o.supports)} for o in dec.supporting],
         "unsupported": [{"kind": o.kind, "supports": sorted(o.supports)} for o in dec.unsupported],
         "rule": {"penalty_per_param": dec.rule.penalty_per_param, "min_reduction": dec.rule.min_reduction,

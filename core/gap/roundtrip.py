@@ -60,7 +60,7 @@ class RTModel:
 
 
 def predict_nominal(theta, run: RoundTrip) -> np.ndarray:
-    hb = 0.5e-3 * theta[0]
+    hb = 0.5e-3 * (theta[0] + run.wear_um)
     return play(run.u_mm, np.full(run.u_mm.size, hb), run.start_table_mm(hb))
 
 
@@ -179,9 +179,10 @@ NONFINITE_RESIDUAL = 1e6  # µm: what a diverged simulation counts as, per sampl
 
 def fit_ls(residuals: Callable[[np.ndarray], np.ndarray], x0s: Sequence[np.ndarray], lower: np.ndarray,
            upper: np.ndarray, n_starts: int = 1, n_prior: int = 0, max_nfev: int | None = None,
-           diff_step=None) -> FitResult:
+           diff_step=None, skip: int = 0) -> FitResult:
     """Multi-start trust-region least squares: the ``n_starts`` cheapest of ``x0s`` (one
-    evaluation each) start a fit; the best wins."""
+    evaluation each) start a fit; the best wins. ``skip``: the cheapest ``skip`` starts are
+    passed over (a fit again from other starts); the costliest are taken where fewer remain."""
     def safe(th):
         # a simulation that diverged for these parameters (NaN or inf) is a bad fit, not a
         # crash: a large finite residual steers the optimiser away from it
@@ -191,7 +192,8 @@ def fit_ls(residuals: Callable[[np.ndarray], np.ndarray], x0s: Sequence[np.ndarr
     cands = [np.clip(x0, lower + 1e-9, upper - 1e-9) for x0 in x0s]
     if len(cands) > 1:
         costs = [float(np.sum(safe(th) ** 2)) for th in cands]
-        cands = [cands[i] for i in np.argsort(costs)[:n_starts]]
+        first = min(skip, max(len(cands) - n_starts, 0))
+        cands = [cands[i] for i in np.argsort(costs, kind="stable")[first : first + n_starts]]
     best = None
     for x0 in cands:
         kw = {} if diff_step is None else {"diff_step": diff_step}
@@ -217,9 +219,10 @@ def fit(model: RTModel, runs: Sequence[RoundTrip], starts: Sequence[np.ndarray] 
 
 
 def fit_model(model: RTModel, runs: Sequence[RoundTrip], starts: Sequence[np.ndarray] = (),
-              n_starts: int = 1, max_nfev: int | None = None, diff_step: float | None = None) -> FitResult:
+              n_starts: int = 1, max_nfev: int | None = None, diff_step: float | None = None,
+              skip: int = 0) -> FitResult:
     """Least-squares fit of a round-trip model on ``runs``: ``starts`` are extra start
-    points beside ``model.x0``; the RSS excludes the priors."""
+    points beside ``model.x0``; the RSS excludes the priors; ``skip`` as :func:`fit_ls`."""
     n_prior = 0 if model.prior is None else int(np.size(model.prior(model.x0)))
 
     def res(theta):
@@ -229,7 +232,7 @@ def fit_model(model: RTModel, runs: Sequence[RoundTrip], starts: Sequence[np.nda
         return np.concatenate(parts)
 
     r = fit_ls(res, [model.x0, *starts], model.lower, model.upper, n_starts, n_prior, max_nfev=max_nfev,
-               diff_step=diff_step)
+               diff_step=diff_step, skip=skip)
     rss = train_rss(model, r.theta, runs, model.envelope)
     # the residuals per sample: each window's stacked (d, e) repeats the same samples
     n_res = r.n_res // len(model.train_windows_s) if model.envelope else r.n_res

@@ -73,6 +73,10 @@ class Stage:
     # start values of the backlash, as factors of the nominal one (a stage that changes
     # what the nominal fit takes for backlash)
     backlash_factors: tuple[float, ...] = (1.0,)
+    # the families whose forms this form contains (it reduces to them at some parameter
+    # values): the decision names it over them only where the held-out runs tell the two
+    # apart and its own parameters are identifiable (core.gap.select, parsimony)
+    contains: tuple[str, ...] = ()
 
 
 # ---- composition ------------------------------------------------------------------
@@ -120,7 +124,7 @@ def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
         for st, th in zip(stages, ths):
             if st.u_map is not None:
                 u = st.u_map(th, run, u)
-        hb = np.full(u.size, 0.5e-3 * theta[0])
+        hb = np.full(u.size, 0.5e-3 * (theta[0] + run.wear_um))  # the run's wear: part of the nominal model
         for st, th in zip(stages, ths):
             if st.width is not None:
                 hb = st.width(th, run, u, hb)

@@ -84,7 +84,11 @@ def friction_chain_stage() -> Stage:
     floor (:func:`core.gap.families.compliance.loop_damping_floor`, which the compliance
     form keeps): Coulomb and static friction bound a chain's oscillation, so a linearly
     unstable loop with them is a bounded hunting cycle, which this form is meant to
-    follow, and a floor would keep it from a Karnopp chain that hunts."""
+    follow, and a floor would keep it from a Karnopp chain that hunts. It contains
+    compliance's form: with no static excess and its Coulomb part at the boundary it is
+    a compliant chain with guide friction, so it is named over compliance only where the
+    held-out runs tell the two apart and its own parameters are identifiable
+    (``Stage.contains``)."""
     return Stage(
         NAME, ("chain_frequency_hz", "chain_damping_ratio", "coulomb_per_mass_mm_s2", "static_excess_per_mass_mm_s2",
                      "stick_band_mm_s"),
@@ -92,7 +96,7 @@ def friction_chain_stage() -> Stage:
         np.array([200.0, 1.0, 20000.0, 40000.0, 5.0]), kernel="friction_chain",
         starts=tuple(np.array([fn, 0.1, mu, ex * mu, 0.5]) for fn in (25.0, 80.0) for mu in (600.0, 2000.0)
                      for ex in (0.5, 2.0)),
-        info={"form": "chain"}, derive_starts=_chain_starts_from_lost_motion, max_nfev=40,
+        info={"form": "chain"}, derive_starts=_chain_starts_from_lost_motion, max_nfev=40, contains=("compliance",),
     )  # fmt: skip
 
 

@@ -257,6 +257,77 @@ def test_the_second_effect_sentence_says_why_none_was_found():
     assert _sentences(at_floor, singles)[1] == "No second effect found: the remaining gap is at the noise floor."
 
 
+def _chain(gap, identified=True, converged=True):
+    """Friction on a compliant chain: its form contains compliance's (Stage.contains)."""
+    return dg.Fitted(("friction",), gap_after_um=gap, contains=frozenset({"compliance"}), converged=converged,
+                     unidentified=frozenset() if identified else frozenset({"friction"}))  # fmt: skip
+
+
+def test_a_larger_form_not_told_apart_from_the_simpler_one_it_contains_is_not_named():
+    # friction's chain form 7.59 against compliance 8.11: not told apart, compliance is the simpler physics
+    singles = {"friction": _chain(7.59), **_singles(compliance=8.11)}
+    dec = _decide(singles, gap_before=13.9)
+    assert dec.effect == "compliance" and [h.effects for h in dec.contained] == [("friction",)]
+    assert dec.best.effects == ("compliance",) and not dec.by_evidence
+    text, _ = _sentences(dec, singles)
+    assert "friction (7.59 µm) contains compliance's form" in text and "the simpler compliance is named" in text
+    # the same friction without the containing form (its stiff forms) stays the best score
+    assert _decide(_singles(friction=7.59, compliance=8.11), gap_before=13.9).effect == "friction"
+    # evidence does not name the larger form over the simpler one it is not told apart from
+    assert _decide(singles, gap_before=13.9, observations=BREAKAWAY + STICK_SLIP).effect == "compliance"
+
+
+def test_a_larger_form_told_apart_is_named_only_with_identifiable_parameters():
+    # friction's chain cuts compliance's gap by 35 %: told apart
+    assert _decide({"friction": _chain(15.4), **_singles(compliance=23.7)}, gap_before=35.1).effect == "friction"
+    # ... but none of its parameters is identifiable: compliance, whose are, is named
+    singles = {"friction": _chain(15.4, identified=False), **_singles(compliance=23.7)}
+    dec = _decide(singles, gap_before=35.1)
+    assert dec.effect == "compliance" and [h.effects for h in dec.not_identified] == [("friction",)]
+    text, _ = _sentences(dec, singles)
+    assert "friction (15.40 µm) cut the test gap further, but the train runs do not pin their parameters down" in text
+
+
+def test_an_unidentified_hypothesis_is_named_only_where_nothing_identified_is_eligible():
+    lone = dg.Fitted(("thermal",), gap_after_um=5.0, unidentified=frozenset({"thermal"}))
+    singles = {"thermal": lone, **_singles(cyclic_error=9.0)}
+    assert _decide(singles).effect == "cyclic_error"
+    assert _decide({"thermal": lone, **_singles(cyclic_error=18.0)}).effect == "thermal"  # cyclic cuts 10 % only
+
+
+def test_a_pair_whose_base_is_partly_unidentified_keeps_its_identified_second_effect():
+    # servo dynamics unidentified, cyclic error on top identified and cutting its base's gap by 90 %
+    servo = dg.Fitted(("servo_dynamics",), gap_after_um=3.2, unidentified=frozenset({"servo_dynamics"}))
+    pair = dg.Fitted(("servo_dynamics", "cyclic_error"), gap_after_um=0.33, unidentified=frozenset({"servo_dynamics"}))
+    dec = _decide({"servo_dynamics": servo, **_singles(cyclic_error=19.8)}, [pair])
+    assert dec.chosen.effects == ("servo_dynamics", "cyclic_error") and dec.contained == ()
+    # a second effect whose own parameters are not identifiable is not named on top
+    pair = dg.Fitted(("servo_dynamics", "cyclic_error"), gap_after_um=0.33, unidentified=frozenset({"cyclic_error"}))
+    dec = _decide({"servo_dynamics": dg.Fitted(("servo_dynamics",), gap_after_um=3.2), **_singles(cyclic_error=19.8)},
+                  [pair])  # fmt: skip
+    assert dec.chosen.effects == ("servo_dynamics",) and [h.effects for h in dec.not_identified] == [
+        ("servo_dynamics", "cyclic_error")]
+
+
+def test_a_failed_fit_is_never_eligible():
+    failed = dg.Fitted(("sampling_skew",), gap_after_um=5.0, fitted=False)
+    dec = _decide({"sampling_skew": failed, **_singles(thermal=18.0)})
+    assert dec.effect == "none" and dec.kind == "no_cut" and dec.best.effects == ("thermal",)
+
+
+def test_between_ties_a_converged_fit_goes_before_one_stopped_at_its_cap():
+    capped = dg.Fitted(("compliance",), gap_after_um=7.59, converged=False)
+    singles = {"compliance": capped, **_singles(backlash_profile=8.11)}
+    dec = _decide(singles, gap_before=13.9)
+    assert dec.effect == "backlash_profile" and dec.best.effects == ("compliance",) and not dec.by_evidence
+    text, _ = _sentences(dec, singles)
+    assert "whose fit stopped at its evaluation cap" in text
+    # told apart, the capped fit is named, and the report says it did not converge
+    alone = _decide({"compliance": capped, **_singles(backlash_profile=12.0)}, gap_before=13.9)
+    assert alone.effect == "compliance" and selection_dict(alone)["converged"] is False
+    assert "stopped at its evaluation cap, not at convergence" in _sentences(alone, singles)[0]
+
+
 def test_the_decision_as_json_carries_its_reasons():
     singles = _singles(friction=7.59, compliance=8.11)
     d = selection_dict(_decide(singles, gap_before=13.9, observations=HUNTING))
