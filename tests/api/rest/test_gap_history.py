@@ -118,10 +118,9 @@ def test_fewer_than_two_runs_since_the_last_repair_are_not_pooled_with_older_one
     assert svc.gap_jobs.pending_keys() == []
 
 
-# NEEDS THE CORE CHANGE: the nominal model that lets the backlash grow linearly with the
-# runs' utility day (fitted on the train runs; core/gap). Without it this history, 50 µm of
-# wear while the shop warms by 3.5 K, is answered "thermal" (14.9 -> 0.8 µm), as the demo
-# axis' was; with it the wear is the nominal model's and the answer is "none".
+# The wear is the nominal model's: its backlash grows linearly with the runs' utility day
+# (fitted on the train runs, core.gap). Without it this history, 50 µm of wear while the
+# shop warms by 3.5 K, is answered "thermal" (14.9 -> 0.8 µm); with it the answer is "none".
 def test_a_history_of_pure_wear_is_answered_none(app_env, monkeypatch):
     client, svc, keys, axis_id = app_env
     monkeypatch.setattr(svc.gap_jobs, "use_process", False)
