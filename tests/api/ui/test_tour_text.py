@@ -8,12 +8,9 @@ import re
 from html import unescape
 
 import pytest
-from fastapi.testclient import TestClient
 
-from api.rest import create_app
 from storage.db import config_repo, maintenance_repo, session_scope
-from tests.api.rest.conftest import FakeRunner, make_settings
-from tests.api.ui.test_maintenance_forms import sign_in
+from tests.api.ui.test_maintenance_forms import env, sign_in  # noqa: F401 (env: the fixture alarm uses)
 
 TAGS = re.compile(r"<[^>]+>")
 
@@ -24,23 +21,11 @@ def text(html: str) -> str:
 
 
 @pytest.fixture
-def alarm(tmp_path):
+def alarm(env):
     """A service with one axis in ALARM: an active alert and the corrective order it opened."""
-    runner = FakeRunner()
-    app = create_app(make_settings(f"sqlite:///{tmp_path}/m.sqlite3", tmp_path), runner=runner)
-    with TestClient(app) as c:
-        svc = app.state.service
-        with session_scope(svc.factory) as s:
-            keys = {r: config_repo.create_key(s, f"ui-{r}", r)[1] for r in ("read", "operate")}
-            axis_id = config_repo.list_axes(s)[0].id
-        for b in (200.0, 250.0):
-            runner.backlash_um = b
-            svc.trigger(axis_id, "test")
-            assert svc.scheduler.idle(60)
-        with session_scope(svc.factory) as s:
-            order = maintenance_repo.active_order(s, axis_id)
-        assert order is not None and order.alert_id is not None
-        yield c, keys, axis_id, order
+    c, _svc, keys, axis_id, order, _runner = env
+    assert order.alert_id is not None
+    return c, keys, axis_id, order
 
 
 def maintenance_section(html: str) -> str:
