@@ -20,6 +20,17 @@ def served(tmp_path_factory):
     s.close()
 
 
+def _read_until_closed(sock: socket.socket) -> bytes:
+    """What the server sent until it closed the connection (or the socket's timeout ended the wait)."""
+    got = b""
+    try:
+        while chunk := sock.recv(65536):
+            got += chunk
+    except OSError:
+        pass
+    return got
+
+
 def _exchange(url: str, head: bytes, body: bytes = b"") -> bytes:
     """Sends ``head`` and ``body`` (from a thread: the server may stop reading) and
     returns what the server answered before it closed the connection."""
@@ -33,12 +44,7 @@ def _exchange(url: str, head: bytes, body: bytes = b"") -> bytes:
 
         sender = threading.Thread(target=send, daemon=True)
         sender.start()
-        got = b""
-        try:
-            while chunk := sock.recv(65536):
-                got += chunk
-        except OSError:
-            pass
+        got = _read_until_closed(sock)
         sender.join(30)
     return got
 
@@ -104,12 +110,7 @@ def _answer_to_a_stalled_head(url: str, head: bytes) -> bytes:
     host, port = url.removeprefix("http://").split(":")
     with socket.create_connection((host, int(port)), timeout=30) as sock:
         sock.sendall(head)
-        got = b""
-        try:
-            while chunk := sock.recv(65536):
-                got += chunk
-        except OSError:
-            pass
+        got = _read_until_closed(sock)
     return got
 
 
