@@ -7,6 +7,8 @@ the axis' backlash (:mod:`core.circle.agreement`), and a test at a task's own ra
 and feed is judged against the task's tolerance (:mod:`core.circle.decision`).
 """
 
+from core.circle.agreement import Agreement, compare_with_backlash
+from core.circle.decision import CircleDecision, decide_circle
 from core.circle.figures import DEFAULT_SPIKE_WINDOW_DEG, CircleFigures, Spike, analyze
 from core.circle.io import from_json, to_json
 from core.circle.test import (
@@ -22,6 +24,6 @@ from core.circle.test import (
 
 __all__ = [
     "DEFAULT_SPIKE_WINDOW_DEG", "DIRECTIONS", "INSTRUMENT_KINDS", "QUADRANTS_DEG",
-    "CircleFigures", "CirclePass", "CircularTest", "Instrument", "Spike",
-    "analyze", "from_json", "pass_from_positions", "test_from_positions", "to_json",
+    "Agreement", "CircleDecision", "CircleFigures", "CirclePass", "CircularTest", "Instrument", "Spike",
+    "analyze", "compare_with_backlash", "decide_circle", "from_json", "pass_from_positions", "test_from_positions", "to_json",
 ]

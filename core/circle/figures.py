@@ -12,9 +12,9 @@
 - Centre offset and mean radius deviation: the least-squares circle minus the nominal.
 - Reversal spikes: at each quadrant point one axis reverses; the spike is the largest
   radial deviation within ``spike_window_deg`` after the quadrant point (in the pass'
-  direction of travel) minus the level of the undisturbed circle (the median deviation,
-  about the least-squares centre, of the arcs outside every window), and its width at
-  half that height.
+  direction of travel) above the undisturbed path (the pass' deviation, about the
+  least-squares centre, on the arcs outside every window, fitted with harmonics of
+  order 0-2 and evaluated under the spike), and its width at half that height.
 
 The least-squares circle: a linearised fit (d ≈ a cos θ + b sin θ + c, the limaçon
 that ballbar software uses) as the start, then Gauss-Newton on the exact geometric
@@ -267,51 +267,58 @@ def _half_height_width(s: np.ndarray, v: np.ndarray, i_peak: int, level: float) 
     return float(cross(hi, hi + 1) - cross(lo, lo - 1))
 
 
+def _harmonics(angle_deg: np.ndarray) -> np.ndarray:
+    th = np.deg2rad(angle_deg)
+    return np.column_stack([np.ones_like(th), np.cos(th), np.sin(th), np.cos(2 * th), np.sin(2 * th)])
+
+
 def _spikes(test: CircularTest, dev_by_pass: dict[str, np.ndarray], window_deg: float,
             sigma: dict[str, float]) -> tuple[list[Spike], dict[str, UncertaintyBudget]]:
+    """The spikes of every pass. The undisturbed path under a spike is the pass' own
+    deviation on the arcs outside every window, fitted with the harmonics of order 0-2
+    (its level, a centre shift and the ellipse unequal axis gains draw) and evaluated at
+    the spike's angles."""
     spikes, budgets = [], {}
     for p in test.passes:
         dev = dev_by_pass[p.direction]
-        arcs = []
-        after = {}
+        after = {q: _signed_after_deg(p.angle_deg, q, p.direction) for q in QUADRANTS_DEG}
+        undisturbed = np.zeros(dev.size, dtype=bool)
         for q in QUADRANTS_DEG:
-            s = _signed_after_deg(p.angle_deg, q, p.direction)
-            after[q] = s
-            arc = (s > window_deg) & (s < 90.0)
-            if arc.sum() >= 3:
-                arcs.append(float(np.median(dev[arc])))
-        baseline_mask = np.zeros(dev.size, dtype=bool)
-        for q in QUADRANTS_DEG:
-            baseline_mask |= (after[q] > window_deg) & (after[q] < 90.0)
-        if baseline_mask.sum() < 3:
-            raise InputError(f"spike_window_deg (={window_deg}) leaves no undisturbed arc between the quadrants "
-                             "to take the circle's level from: use a window below 80°")
-        base = float(np.median(dev[baseline_mask]))
-        base_spread = float(np.std(arcs, ddof=1)) if len(arcs) >= 2 else 0.0
+            undisturbed |= (after[q] > window_deg) & (after[q] < 90.0)
+        if undisturbed.sum() < 20:
+            raise InputError(f"spike_window_deg (={window_deg}) leaves too few undisturbed samples between the "
+                             "quadrants to take the circle's path from: use a smaller window")
+        h = _harmonics(p.angle_deg)
+        coef, *_ = np.linalg.lstsq(h[undisturbed], dev[undisturbed], rcond=None)
+        level = h @ coef
+        above = dev - level
+        resid = above[undisturbed]
+        base_rms = float(np.sqrt(np.mean(resid**2)))
+        n_base = int(undisturbed.sum())
         for q in QUADRANTS_DEG:
             s = after[q]
             near = (s > -45.0) & (s < 90.0)
             order = np.argsort(s[near])
-            ss, vv = s[near][order], dev[near][order]
-            in_win = (ss >= 0.0) & (ss <= window_deg)
-            if not in_win.any():  # pragma: no cover - the coverage check guarantees samples
+            ss, vv = s[near][order], above[near][order]
+            idx = np.flatnonzero((ss >= 0.0) & (ss <= window_deg))
+            if not idx.size:  # pragma: no cover - the coverage check guarantees samples
                 raise InputError(f"pass {p.direction!r}: no samples within {window_deg}° after {q:g}°")
-            idx = np.flatnonzero(in_win)
             i_peak = int(idx[np.argmax(vv[idx])])
-            height = float(vv[i_peak] - base)
-            width = _half_height_width(ss, vv, i_peak, base + height / 2.0) if height > 0 else 0.0
-            n_top = int(np.sum(vv[idx] >= vv[i_peak] - 3.0 * sigma[p.direction])) if sigma[p.direction] > 0 else 1
+            height = float(vv[i_peak])
+            width = _half_height_width(ss, vv, i_peak, height / 2.0) if height > 0 else 0.0
+            sd = sigma[p.direction]
+            n_top = int(np.sum(vv[idx] >= vv[i_peak] - 3.0 * sd)) if sd > 0 else 1
             axis = test.plane[0] if q in (0.0, 180.0) else test.plane[1]
             budget = _budget(
                 f"spike.{p.direction}.{q:g}",
-                _resolution(test, 1.0, "the peak reading (the baseline is a median of many)"),
-                _noise(sigma[p.direction], _extremes_factor(n_top),
+                _resolution(test, 1.0, "the peak reading (the undisturbed path is fitted to many)"),
+                _noise(sd, _extremes_factor(n_top),
                        f"the peak of {n_top} readings within 3σ of it reads high by up to σ√(2 ln n)"),
                 UncertaintyComponent(
-                    "baseline", base_spread,
-                    f"scatter of the {len(arcs)} undisturbed arcs' median levels (the level under the spike)"
-                    if base_spread > 0 else "0: the undisturbed arcs lie at one level"),
-                _accuracy(test, math.sqrt(2.0), "peak and baseline, two readings"),
+                    "baseline", base_rms,
+                    f"RMS departure of the {n_base} undisturbed readings from their fitted path (harmonics 0-2)"
+                    if base_rms > 0 else "0: the undisturbed arcs lie on their fitted path"),
+                _accuracy(test, math.sqrt(2.0), "peak and undisturbed path, two readings"),
             )
             budgets[budget.quantity] = budget
             peak_deg = float((q + (1.0 if p.direction == "ccw" else -1.0) * ss[i_peak]) % 360.0)

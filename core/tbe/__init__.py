@@ -8,6 +8,7 @@ from core.tbe.decision import (
     State,
     TaskAssessment,
     decide,
+    state_of,
 )
 from core.tbe.repair import RepairTarget, repair_target, stored_repair_target
 from core.tbe.formulas import (
@@ -20,6 +21,6 @@ from core.tbe.formulas import (
 
 __all__ = [
     "DECISION_RULES", "DEFAULT_RULE", "AxisDecision", "MachiningTask", "RepairTarget", "State", "TaskAssessment",
-    "decide", "repair_target", "stored_repair_target",
+    "decide", "state_of", "repair_target", "stored_repair_target",
     "backlash_limit_um", "circle_delay_s", "circle_steady_lag_um", "tbe_circle_um", "tbe_line_um",
 ]

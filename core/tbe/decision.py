@@ -218,7 +218,14 @@ class AxisDecision:
         return head + f"; backlash limit {self.backlash_limit_um:.1f} µm"
 
 
-def _state(tbe: float, u: float, tolerance: float, warning: float, rule: str) -> tuple[State, str]:
+def state_of(error_um: float, uncertainty_um: float, tolerance_um: float, warning_um: float,
+             rule: str) -> tuple[State, str]:
+    """The state of an error (µm, expanded uncertainty ``uncertainty_um``) against a
+    tolerance and a warning threshold by ``rule`` (see the module docstring), and the
+    reason when it is not OK. Shared by every decision on a machining error: the TBE
+    predicted from the backlash, and the one a circular test measures."""
+    tbe, u, tolerance, warning = error_um, uncertainty_um, tolerance_um, warning_um
+    _check_rule(rule)
     if tbe > tolerance:
         simple = State.ALARM
     elif tbe > warning:
@@ -267,7 +274,7 @@ def decide(
         tbe = float(task.tbe_um(b))
         u_tbe = task.tbe_uncertainty_um(b, u_b)
         task_rule = task.decision_rule or rule
-        state, reason = _state(tbe, u_tbe, task.tolerance_um, warning_fraction * task.tolerance_um, task_rule)
+        state, reason = state_of(tbe, u_tbe, task.tolerance_um, warning_fraction * task.tolerance_um, task_rule)
         out.append(TaskAssessment(task, tbe, task.backlash_limit_um(), state, tbe_uncertainty_um=u_tbe,
                                   backlash_limit_uncertainty_um=task.backlash_limit_uncertainty_um(),
                                   rule=task_rule, reason=reason))
