@@ -6,7 +6,7 @@ functions take a session and core types and return core types or the frozen
 records of :mod:`storage.db.records`.
 """
 
-from storage.db import config_repo, leases, maintenance_repo, results_repo, ui_sessions_repo, webhooks_repo
+from storage.db import circles_repo, config_repo, leases, maintenance_repo, results_repo, ui_sessions_repo, webhooks_repo
 from storage.db.engine import (
     integrity_problems,
     is_sqlite,
@@ -28,6 +28,7 @@ from storage.db.records import (
     AlertRecord,
     AxisRecord,
     AxisSettings,
+    CircularTestRecord,
     CycleRecord,
     FinishedCycle,
     KeyRecord,
@@ -46,7 +47,7 @@ from storage.db.records import (
 )
 
 __all__ = [
-    "AlertRecord", "AxisRecord", "AxisSettings", "ConflictError", "CycleRecord", "DatabaseUnavailableError",
+    "AlertRecord", "AxisRecord", "CircularTestRecord", "circles_repo", "AxisSettings", "ConflictError", "CycleRecord", "DatabaseUnavailableError",
     "FinishedCycle", "KeyRecord", "MachineRecord", "NotFoundError", "ResultRecord", "Schedule", "StorageError",
     "TbeRecord", "TrendSeries", "TrendView", "as_utc", "config_repo", "current_revision", "head_revision", "integrity_problems",
     "is_sqlite", "leases", "maintenance_repo", "OrderRequest", "RepairRecord", "TransitionRecord", "WorkOrderRecord",

@@ -69,7 +69,7 @@ def _order(s: Session, o: WorkOrder) -> WorkOrderRecord:
         verification=json.loads(o.verification) if o.verification else None, closed_at=as_utc(o.closed_at),
         transitions=tuple(TransitionRecord(t.id, as_utc(t.at), t.from_state, t.to_state, t.by, t.note,
                                            json.loads(t.figures) if t.figures else None) for t in o.transitions),
-        repairs=tuple(_repair(s, r) for r in repairs),
+        repairs=tuple(_repair(s, r) for r in repairs), opened_by_circular_test_id=o.opened_by_circle_id,
     )
 
 
@@ -95,7 +95,7 @@ def open_order(s: Session, req: OrderRequest, *, by: str = SERVICE, note: str = 
         backlash_um=_fin(req.backlash_um), backlash_uncertainty_um=_fin(req.backlash_uncertainty_um),
         tbe_um=_fin(req.tbe_um), tbe_uncertainty_um=_fin(req.tbe_uncertainty_um),
         backlash_limit_um=_fin(req.backlash_limit_um), restore_below_um=_fin(req.restore_below_um),
-        due_at=req.due_at, recommendation=req.recommendation,
+        due_at=req.due_at, recommendation=req.recommendation, opened_by_circle_id=req.circular_test_id,
     )
     try:
         with s.begin_nested():  # the partial unique index decides, atomically

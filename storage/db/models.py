@@ -261,6 +261,43 @@ class Alert(Base):
     backlash_um: Mapped[float | None] = mapped_column(Float, nullable=True)
     backlash_limit_um: Mapped[float | None] = mapped_column(Float, nullable=True)
     message: Mapped[str] = mapped_column(Text)
+    # the evidence when a circular test raised or cleared it (circular_tests.id; no foreign key, so
+    # that the column is added in place, without rebuilding the table the work orders refer to)
+    raised_by_circle_id: Mapped[int | None] = mapped_column(Integer, nullable=True)
+    cleared_by_circle_id: Mapped[int | None] = mapped_column(Integer, nullable=True)
+
+
+class CircularTestRow(Base):
+    """A circular test (ISO 230-4) of two axes of a machine: the test itself (core.circle.io's
+    JSON: samples, instrument), its figures, the agreement of each axis' reversal spikes with
+    the TBE at its b̄ (Eq. 8), and each axis' decision against its circle tasks."""
+
+    __tablename__ = "circular_tests"
+    __table_args__ = (Index("ix_circular_tests_machine_measured", "machine_id", "measured_at"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    machine_id: Mapped[int] = mapped_column(ForeignKey("machines.id", ondelete="CASCADE"))
+    first_axis: Mapped[str] = mapped_column(String(20))  # the plane: the first axis is at 0°
+    second_axis: Mapped[str] = mapped_column(String(20))
+    first_axis_id: Mapped[int | None] = mapped_column(ForeignKey("axes.id", ondelete="SET NULL"), nullable=True,
+                                                      index=True)
+    second_axis_id: Mapped[int | None] = mapped_column(ForeignKey("axes.id", ondelete="SET NULL"), nullable=True,
+                                                       index=True)
+    radius_mm: Mapped[float] = mapped_column(Float)
+    feed_mm_min: Mapped[float] = mapped_column(Float)
+    directions: Mapped[str] = mapped_column(String(20))  # "ccw,cw"
+    temperature_c: Mapped[float | None] = mapped_column(Float, nullable=True)
+    utility_day: Mapped[float | None] = mapped_column(Float, nullable=True)
+    measured_at: Mapped[datetime] = mapped_column(UtcDateTime)
+    recorded_at: Mapped[datetime] = mapped_column(UtcDateTime)
+    recorded_by: Mapped[str | None] = mapped_column(String(100), nullable=True)
+    source: Mapped[str] = mapped_column(Text, default="")
+    instrument: Mapped[str] = mapped_column(Text)  # JSON
+    test: Mapped[str] = mapped_column(Text)  # JSON (core.circle.io): the passes' samples
+    figures: Mapped[str | None] = mapped_column(Text, nullable=True)  # JSON: CircleFigures.to_dict()
+    agreement: Mapped[str | None] = mapped_column(Text, nullable=True)  # JSON: axis -> Agreement.to_dict()
+    decision: Mapped[str | None] = mapped_column(Text, nullable=True)  # JSON: axis -> CircleDecision.to_dict() | null
+    state: Mapped[str | None] = mapped_column(String(10), nullable=True)  # the worst judged state, NULL: none judged
 
 
 class TrendRollup(Base):
@@ -335,6 +372,8 @@ class WorkOrder(Base):
     verification_cycle_id: Mapped[int | None] = mapped_column(ForeignKey("cycles.id", ondelete="SET NULL"),
                                                               nullable=True)
     verification: Mapped[str | None] = mapped_column(Text, nullable=True)  # JSON: the last core.maintenance.Verification
+    # the circular test whose decision opened it (circular_tests.id; no foreign key, as Alert's)
+    opened_by_circle_id: Mapped[int | None] = mapped_column(Integer, nullable=True)
     closed_at: Mapped[datetime | None] = mapped_column(UtcDateTime, nullable=True)
 
     transitions: Mapped[list[WorkOrderTransition]] = relationship(

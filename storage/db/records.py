@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 
+from core.circle.test import CircularTest
 from core.criteria import RoundTripResult
 from core.criteria.uncertainty import Instruments
 from core.dataset import AxisSpec
@@ -200,6 +201,8 @@ class AlertRecord:
     backlash_um: float | None
     backlash_limit_um: float | None
     message: str
+    raised_by_circular_test_id: int | None = None  # the evidence, when a circular test raised it
+    cleared_by_circular_test_id: int | None = None
 
     @property
     def active(self) -> bool:
@@ -295,6 +298,7 @@ class WorkOrderRecord:
     closed_at: datetime | None
     transitions: tuple[TransitionRecord, ...] = ()
     repairs: tuple[RepairRecord, ...] = ()
+    opened_by_circular_test_id: int | None = None  # the evidence, when a circular test's decision opened it
 
     @property
     def active(self) -> bool:
@@ -320,3 +324,37 @@ class OrderRequest:
     backlash_limit_um: float | None = None
     restore_below_um: float | None = None
     due_at: datetime | None = None
+    circular_test_id: int | None = None  # the circular test whose decision opened it (instead of result_id)
+
+
+@dataclass(frozen=True)
+class CircularTestRecord:
+    """A stored circular test (ISO 230-4): ``test`` is the core.circle CircularTest with its
+    samples (None in a list read without them); ``figures`` is CircleFigures.to_dict();
+    ``agreement`` and ``decision`` are per axis name of the plane (Agreement.to_dict(),
+    CircleDecision.to_dict() or None when no circle task of that axis matched the test);
+    ``state`` is the worst judged state (None: no task judged)."""
+
+    id: int
+    machine_id: int
+    machine_name: str
+    plane: tuple[str, str]
+    axis_ids: tuple[int | None, int | None]
+    radius_mm: float
+    feed_mm_min: float
+    directions: tuple[str, ...]
+    temperature_c: float | None
+    utility_day: float | None
+    measured_at: datetime
+    recorded_at: datetime
+    recorded_by: str | None
+    source: str
+    instrument: dict
+    figures: dict | None
+    agreement: dict[str, dict]
+    decision: dict[str, dict | None]
+    state: str | None
+    test: CircularTest | None = None  # with its samples (get), None in a list
+
+    def axis_id_of(self, name: str) -> int | None:
+        return self.axis_ids[self.plane.index(name)] if name in self.plane else None

@@ -281,6 +281,7 @@ def _alert(a: Alert) -> AlertRecord:
         raised_by_measurement_id=raised_cycle, cleared_by_measurement_id=cleared_cycle, task_name=a.task_name,
         tbe_um=a.tbe_um, tolerance_um=a.tolerance_um, backlash_um=a.backlash_um,
         backlash_limit_um=a.backlash_limit_um, message=a.message,
+        raised_by_circular_test_id=a.raised_by_circle_id, cleared_by_circular_test_id=a.cleared_by_circle_id,
     )
 
 
@@ -296,8 +297,8 @@ def _alert_full(s: Session, a: Alert) -> AlertRecord:
 
 def _update_alerts(s: Session, fc: FinishedCycle, r: Result) -> list[AlertRecord]:
     d = fc.decision
-    active = s.scalar(select(Alert).where(Alert.axis_id == fc.axis_id, Alert.kind == ALERT_KIND,
-                                          Alert.cleared_at.is_(None)))
+    active = s.scalar(select(Alert).where(Alert.axis_id == fc.axis_id, Alert.kind == ALERT_KIND,  # (a circular
+                                          Alert.raised_by_circle_id.is_(None), Alert.cleared_at.is_(None)))  # test's is its own)
     if d.state is State.ALARM and active is None:
         binding = next(a for a in d.assessments if a.task.name == d.binding_task)
         a = Alert(
