@@ -17,6 +17,7 @@ from fastapi.exceptions import WebSocketRequestValidationError
 from fastapi.responses import FileResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
 
+from api.ui.circles import router as circles_router
 from api.ui.config_routes import router as config_router
 from api.ui.maintenance import router as maintenance_router
 from api.ui.routes import HERE, SignInRequired, UiForbidden, page, router
@@ -59,6 +60,7 @@ def install(app: FastAPI, state: UiState | None = None) -> UiState:
     app.include_router(router)
     app.include_router(config_router)
     app.include_router(maintenance_router)  # and the axis page's work-order panel
+    app.include_router(circles_router)  # and the axis page's circular tests panel
     app.mount("/ui/static", StaticFiles(directory=str(HERE / "static")), name="ui-static")
 
     @app.get("/", include_in_schema=False)

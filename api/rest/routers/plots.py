@@ -1,4 +1,5 @@
-"""/axes/{id}/plots/{name}.png: the figures a maintenance worker reads (Figs. 5, 9, 10, 14, 15).
+"""/axes/{id}/plots/{name}.png: the figures a maintenance worker reads (Figs. 5, 9, 10, 14, 15);
+/circles/{id}/plot.png: a circular test's polar plot (ISO 230-4), beside the test's JSON at /circles/{id}.
 
 A figure is drawn once per set of inputs (the stored results it shows and its parameters)
 and then served from the service's figure cache, which the dashboard shares: repeated or
@@ -14,13 +15,14 @@ from __future__ import annotations
 from enum import Enum
 from typing import Annotated
 
-from fastapi import APIRouter, Query, Response
+from fastapi import APIRouter, Path, Query, Response
 
 from api.rest.auth import ReadKey
 from api.rest.deps import AxisId, ServiceDep
 from api.rest.errors import TooManyRequestsError
 from api.rest.routers.axes import Since, utc
 from api.service.figures import axis as axis_figures
+from api.service.figures import circle_record
 from api.service.figures.gate import RenderBusy
 from storage.db import session_scope
 
@@ -63,3 +65,26 @@ async def plot(
         raise TooManyRequestsError(str(exc), exc.retry_after_s) from None
     return Response(content=png, media_type="image/png", headers={"Cache-Control": "no-cache"})
 
+
+CircleId = Annotated[int, Path(ge=1, le=2**31 - 1, description="circular test id")]
+
+
+@router.get("/circles/{circle_id}/plot.png", response_class=Response, responses=PNG,
+            summary="A circular test's polar plot (ISO 230-4): both directions about the least-squares circle, "
+                    "magnified; the tolerance band of the circle task it was judged against; each reversal spike "
+                    "with its measured height and Eq. 8's prediction at the axis' b̄; G, H and the verdicts")
+async def circle_plot(
+    circle_id: CircleId, svc: ServiceDep, _k: ReadKey,
+    axis: Annotated[str | None, Query(max_length=50, description="the axis whose task's tolerance band is drawn; "
+                                                                 "default the strictest judged task")] = None,
+):
+    def render() -> bytes:
+        with session_scope(svc.factory) as s:
+            return circle_record.render(s, circle_id, axis=axis, draw=svc.plots.draw,
+                                        cache=svc.figures)
+
+    try:
+        png = await svc.render_gate.run(render)
+    except RenderBusy as exc:
+        raise TooManyRequestsError(str(exc), exc.retry_after_s) from None
+    return Response(content=png, media_type="image/png", headers={"Cache-Control": "no-cache"})

@@ -54,6 +54,7 @@ class SpikeMark:
     width_deg: float = 0.0
     predicted_um: float | None = None  # Eq. 8 at the axis' b̄; None without a backlash measurement
     predicted_uncertainty_um: float | None = None
+    peak_deg: float | None = None  # where the analysis found the peak (None: looked for here)
 
 
 @dataclass(frozen=True)
@@ -76,7 +77,7 @@ class Summary:
     hysteresis_uncertainty_um: float | None = None
     # per axis: the agreement line ("agree", "larger", "smaller" with E_n)
     agreements: Mapping[str, str] = field(default_factory=dict)
-    decision: str | None = None  # "OK: task ring-50, largest spike 8.1 ± 1.0 µm against 20 µm"
+    decisions: tuple[str, ...] = ()  # per judged axis: "x: OK on ring-50, TBE 8.1 ± 1.0 µm against 20 µm"
 
 
 def lsq_deviation_um(angle_deg, radial_um, centre_offset_um: tuple[float, float],
@@ -88,11 +89,20 @@ def lsq_deviation_um(angle_deg, radial_um, centre_offset_um: tuple[float, float]
     return np.asarray(radial_um, float) - cx * np.cos(th) - cy * np.sin(th) - mean_radius_deviation_um
 
 
-def spike_peak(angle_deg: np.ndarray, dev_um: np.ndarray, mark: SpikeMark) -> tuple[float, float] | None:
-    """(angle, deviation) of the spike's peak: the largest deviation in the window after the
-    quadrant point in the pass' direction of travel (the axis has reversed there); None when
-    the pass has no sample in that window."""
-    w = float(np.clip(3.0 * mark.width_deg, *SPIKE_WINDOW_DEG))
+def spike_peak(angle_deg: np.ndarray, dev_um: np.ndarray, mark: SpikeMark,
+               window_deg: float | None = None) -> tuple[float, float] | None:
+    """(angle, deviation) of the spike's peak. At ``mark.peak_deg`` when the analysis gave it
+    (the sample nearest it); else the largest deviation within ``window_deg`` (default: three
+    spike widths, 4-30°) after the quadrant point in the pass' direction of travel, where the
+    axis has reversed. None when the pass has no sample there."""
+    if angle_deg.size == 0:
+        return None
+    if mark.peak_deg is not None and np.isfinite(mark.peak_deg):
+        gap = np.abs((angle_deg - mark.peak_deg + 180.0) % 360.0 - 180.0)
+        near = np.flatnonzero(gap <= gap.min() + 1e-9)
+        i = near[int(np.argmax(dev_um[near]))]
+        return float(angle_deg[i]), float(dev_um[i])
+    w = float(window_deg) if window_deg is not None else float(np.clip(3.0 * mark.width_deg, *SPIKE_WINDOW_DEG))
     ahead = (angle_deg - mark.quadrant_deg) % 360.0 if mark.direction == "ccw" else \
         (mark.quadrant_deg - angle_deg) % 360.0
     sel = np.flatnonzero(ahead <= w)
@@ -110,6 +120,11 @@ def _thin(angle: np.ndarray, dev: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return angle[idx], dev[idx]
 
 
+def _signed(v: float) -> str:
+    """``v`` with its sign to 0.1, never "-0.0"."""
+    return f"{round(v, 1) + 0.0:+.1f}"
+
+
 def _fmt_pm(value: float, u: float | None, nd: int = 1) -> str:
     return f"{value:.{nd}f}" + (f" ± {u:.{nd}f}" if u is not None else "") + " µm"
 
@@ -117,7 +132,7 @@ def _fmt_pm(value: float, u: float | None, nd: int = 1) -> str:
 def polar_figure(passes: Mapping[str, tuple[Sequence[float], Sequence[float]]], *, radius_mm: float,
                  feed_mm_min: float, plane: tuple[str, str], centre_offset_um: tuple[float, float],
                  mean_radius_deviation_um: float, spikes: Sequence[SpikeMark], summary: Summary,
-                 band: Band | None, title: str) -> Figure:
+                 band: Band | None, title: str, spike_window_deg: float | None = None) -> Figure:
     """The polar plot as a matplotlib Figure (its artists named by ``gid``: ``pass-<dir>``,
     ``lsq-circle``, ``tolerance-band``, ``warning-ring``, ``spike-<axis>-<quadrant>-<dir>``,
     ``eq8-<axis>-<quadrant>-<dir>``, ``spike-label-...``, ``summary``).
@@ -140,7 +155,7 @@ def polar_figure(passes: Mapping[str, tuple[Sequence[float], Sequence[float]]], 
     for m in spikes:
         if m.direction not in devs:
             continue
-        peak = spike_peak(*devs[m.direction], m)
+        peak = spike_peak(*devs[m.direction], m, spike_window_deg)
         if peak is None:
             continue
         marks.append((m, *peak, peak[1] - m.height_um))
@@ -202,7 +217,7 @@ def polar_figure(passes: Mapping[str, tuple[Sequence[float], Sequence[float]]], 
     ax.tick_params(axis="y", labelsize=7)
     ax.grid(True, alpha=0.35)
     fig.suptitle(f"{title}\nR {radius_mm:g} mm, {feed_mm_min:g} mm/min; radial deviation about the "
-                 f"least-squares circle, µm (centre offset {centre_offset_um[0]:+.1f}, {centre_offset_um[1]:+.1f} µm "
+                 f"least-squares circle, µm (centre offset {_signed(centre_offset_um[0])}, {_signed(centre_offset_um[1])} µm "
                  f"removed)", fontsize=9)
 
     handles, labels = ax.get_legend_handles_labels()
@@ -215,8 +230,7 @@ def polar_figure(passes: Mapping[str, tuple[Sequence[float], Sequence[float]]], 
         lines.append("H: one direction only")
     for axis_name, line in summary.agreements.items():
         lines.append(f"{axis_name}: {line}")
-    if summary.decision:
-        lines.append(summary.decision)
+    lines += list(summary.decisions)
     lines.append("(expanded uncertainties, k = 2)")
     side.text(0.0, 0.0, "\n".join(textwrap.fill(t, 48, subsequent_indent="  ") for t in lines),
               transform=side.transAxes, fontsize=8.5, va="bottom", ha="left", gid="summary")

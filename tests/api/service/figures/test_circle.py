@@ -39,7 +39,7 @@ def figure(*, passes=None, spikes=None, band=Band("ring-50", 20.0, 18.0), summar
                         mean_radius_deviation_um=2.5, spikes=marks() if spikes is None else spikes,
                         summary=summary or Summary(12.0, 11.6, 1.0, 3.0, 0.5,
                                                    {"x": "agree (E_n = 0.4)", "y": "larger (E_n = 1.8)"},
-                                                   "OK: ring-50"),
+                                                   ("x: OK on ring-50",)),
                         band=band, title="vmc-850 x/y")
 
 
@@ -136,7 +136,7 @@ def test_the_legend_side_says_g_h_and_the_verdicts():
     text = next(t for t in fig.axes[1].texts if t.get_gid() == "summary").get_text()
     assert "G (least squares) = 12.0 ± 1.0 µm" in text and "G (minimum zone) = 11.6" in text
     assert "H = 3.0 ± 0.5 µm" in text
-    assert "x: agree (E_n = 0.4)" in text and "y: larger" in text and "OK: ring-50" in text
+    assert "x: agree (E_n = 0.4)" in text and "y: larger" in text and "x: OK on ring-50" in text
     labels = [t.get_text() for t in fig.axes[1].get_legend().get_texts()]
     assert any("Eq. 8" in t for t in labels) and any("tolerance of ring-50" in t for t in labels)
 
@@ -176,3 +176,13 @@ def test_it_renders_a_png():
                 centre_offset_um=(4.0, -3.0), mean_radius_deviation_um=2.5, spikes=marks(),
                 summary=Summary(12.0, 11.6, 1.0, 3.0, 0.5), band=Band("ring-50", 20.0, None), title="a $name$")
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20000
+
+
+def test_spike_peak_is_where_the_analysis_found_it():
+    a = np.arange(0.0, 360.0, 0.5)
+    d = np.zeros_like(a)
+    d[a == 93.0], d[a == 100.0] = 4.0, 6.0
+    assert spike_peak(a, d, SpikeMark("y", 90.0, "ccw", 4.0, 0.5, peak_deg=93.1)) == (93.0, 4.0)
+    assert spike_peak(a, d, SpikeMark("y", 90.0, "ccw", 6.0, 0.5, 4.0)) == (100.0, 6.0)  # 3 widths
+    assert spike_peak(a, d, SpikeMark("y", 90.0, "ccw", 6.0, 0.5), window_deg=5.0) == (93.0, 4.0)
+    assert spike_peak(a, d, SpikeMark("x", 0.0, "cw", 0.0, 0.5, peak_deg=359.9))[0] == 0.0  # across 360°
