@@ -87,6 +87,7 @@ class CircleFigures:
     spike_window_deg: float = DEFAULT_SPIKE_WINDOW_DEG
     noise_um: float = 0.0
     directions: tuple[str, ...] = ()
+    minimum_zone_note: str = ""  # empty when the minimum-zone programme solved
     budgets: dict[str, UncertaintyBudget] = field(default_factory=dict)
 
     def spikes_of(self, axis: str) -> tuple[Spike, ...]:
@@ -113,6 +114,7 @@ class CircleFigures:
             "centre_offset_mz_um": list(self.centre_offset_mz_um),
             "mean_radius_deviation_um": self.mean_radius_deviation_um,
             "mean_radius_deviation_uncertainty_um": self.mean_radius_deviation_uncertainty_um,
+            "minimum_zone_note": self.minimum_zone_note,
             "spike_window_deg": self.spike_window_deg,
             "noise_um": self.noise_um,
             "spikes": [s.to_dict() for s in self.spikes],
@@ -159,39 +161,57 @@ def _lsq_circle(x: np.ndarray, y: np.ndarray, radius_um: float) -> tuple[np.ndar
 
 def _mz_lp(x, y, centre, radius_um: float) -> np.ndarray | None:
     """One linear programme of the minimum zone, linearised about ``centre``: the centre
-    (µm) minimising max - min of d - δa cos θ - δb sin θ; None if the solver fails."""
+    (µm) minimising max - min of d - δa cos θ - δb sin θ; None if the solver fails.
+
+    Solved on the readings that can bound the zone (the highest and lowest ones),
+    adding any reading the solution leaves outside its zone until none does: the
+    answer is the full problem's, at a fraction of its size."""
     dx, dy = x - centre[0], y - centre[1]
     th = np.arctan2(dy, dx)
     d = np.hypot(dx, dy) - radius_um
     c, s = np.cos(th), np.sin(th)
-    one = np.ones_like(c)
-    # variables (δa, δb, lo, t): lo <= d - δa c - δb s <= lo + t, minimise t
-    a_ub = np.block([[np.column_stack([c, s, one, 0 * one])], [np.column_stack([-c, -s, -one, -one])]])
-    b_ub = np.concatenate([d, -d])
     span = float(d.max() - d.min()) + 1.0
     bounds = [(-10 * span, 10 * span), (-10 * span, 10 * span), (None, None), (0, None)]
-    res = linprog(np.array([0.0, 0.0, 0.0, 1.0]), A_ub=a_ub, b_ub=b_ub, bounds=bounds, method="highs")
-    if res.status != 0:
-        return None
-    return np.asarray(centre, dtype=float) + res.x[:2]
+    order = np.argsort(d)
+    m = min(d.size, 200)
+    active = np.union1d(order[:m], order[-m:])
+    tol = 1e-9 * span
+    for _ in range(50):
+        cc, ss, dd = c[active], s[active], d[active]
+        one = np.ones_like(cc)
+        # variables (δa, δb, lo, t): lo <= d - δa c - δb s <= lo + t, minimise t
+        a_ub = np.block([[np.column_stack([cc, ss, one, 0 * one])], [np.column_stack([-cc, -ss, -one, -one])]])
+        res = linprog(np.array([0.0, 0.0, 0.0, 1.0]), A_ub=a_ub, b_ub=np.concatenate([dd, -dd]), bounds=bounds,
+                      method="highs")
+        if res.status != 0:
+            return None
+        da, db, lo, t = res.x
+        r = d - da * c - db * s
+        out = np.flatnonzero((r < lo - tol) | (r > lo + t + tol))
+        if not out.size:
+            return np.asarray(centre, dtype=float) + res.x[:2]
+        worst = out[np.argsort(-np.maximum(lo - r[out], r[out] - lo - t))[:m]]
+        active = np.union1d(active, worst)
+    return None  # pragma: no cover - each round adds the readings outside the zone
 
 
-def _min_zone(x, y, lsq_centre, radius_um: float) -> tuple[float, np.ndarray]:
-    """Minimum-zone G (µm) and its centre: the smallest exact G over the least-squares
-    centre and two linearised LP steps."""
+def _min_zone(x, y, lsq_centre, radius_um: float) -> tuple[float, np.ndarray, bool]:
+    """Minimum-zone G (µm), its centre, and whether the programme solved: the smallest
+    exact G over the least-squares centre and two linearised LP steps."""
     best_c = np.asarray(lsq_centre, dtype=float)
     dev = _deviation_um(x, y, best_c, radius_um)
     best_g = float(dev.max() - dev.min())
-    c = best_c
+    c, solved = best_c, True
     for _ in range(2):
         c = _mz_lp(x, y, c, radius_um)
         if c is None:
+            solved = False
             break
         dev = _deviation_um(x, y, c, radius_um)
         g = float(dev.max() - dev.min())
         if g < best_g:
             best_g, best_c = g, c
-    return best_g, best_c
+    return best_g, best_c, solved
 
 
 # ---------------------------------------------------------------- uncertainty
@@ -233,6 +253,48 @@ def _noise(sigma: float, factor: float, what: str) -> UncertaintyComponent:
     if sigma == 0:
         return UncertaintyComponent("noise", 0.0, "0: the data show no scatter")
     return UncertaintyComponent("noise", factor * sigma, f"σ {sigma:.3g} µm from second differences, {what}")
+
+
+def _between_samples_um(v: np.ndarray, i: int) -> float:
+    """How far the path may pass beyond the sampled maximum ``v[i]`` between samples: the
+    rising line through (i-1, i) meets the falling line through (i+1, i+2) (and likewise
+    one sample earlier) where a cusp (a reversal's spike) would peak; at most the step to
+    the lower neighbour, at least 0."""
+    n = v.size
+    step = max((v[i] - v[j] for j in (i - 1, i + 1) if 0 <= j < n), default=0.0)
+    best = 0.0
+    for a in (i - 1, i):  # the peak between samples a and a + 1
+        if a - 1 < 0 or a + 2 >= n:
+            best = max(best, step)
+            continue
+        s_left, s_right = v[a] - v[a - 1], v[a + 2] - v[a + 1]
+        if not s_left > s_right:
+            continue
+        t = min(max((v[a + 1] - s_right - v[a]) / (s_left - s_right), 0.0), 1.0)
+        best = max(best, v[a] + s_left * t - v[i])
+    return float(min(max(best, 0.0), max(step, 0.0)))
+
+
+def _extreme(arrays: list[np.ndarray], largest: bool) -> tuple[float, float]:
+    """The largest (or smallest) value over run-ordered arrays, and how far the path may
+    go beyond it between samples (:func:`_between_samples_um`)."""
+    best, beyond = (-math.inf if largest else math.inf), 0.0
+    for v in arrays:
+        w = v if largest else -v
+        i = int(np.argmax(w))
+        if (v[i] > best) if largest else (v[i] < best):
+            best, beyond = float(v[i]), _between_samples_um(w, i)
+    return best, beyond
+
+
+def _sampling(step_um: float, what: str) -> UncertaintyComponent:
+    """The sampled extreme may miss the true one by up to ``step_um`` (one-sided), taken
+    as rectangular of that full width: u = a/√3, so U = 1.15 a covers it."""
+    if step_um == 0:
+        return UncertaintyComponent("sampling", 0.0, "0: the readings beside the extreme equal it")
+    return UncertaintyComponent("sampling", step_um / math.sqrt(3.0),
+                                f"{what}: the path may pass up to {step_um:.3g} µm further between samples "
+                                "(where the lines through the neighbouring readings meet), rectangular")
 
 
 def _budget(quantity: str, *components: UncertaintyComponent) -> UncertaintyBudget:
@@ -293,8 +355,12 @@ def _spikes(test: CircularTest, dev_by_pass: dict[str, np.ndarray], window_deg: 
         level = h @ coef
         above = dev - level
         resid = above[undisturbed]
-        base_rms = float(np.sqrt(np.mean(resid**2)))
         n_base = int(undisturbed.sum())
+        # the level under a spike: off by the undisturbed arcs' form beyond harmonics 0-2 (their
+        # RMS departure less the noise), and by the fit's own scatter (σ √(5/n), five coefficients)
+        sd = sigma[p.direction]
+        form = math.sqrt(max(float(np.mean(resid**2)) - sd**2, 0.0))
+        base_u = math.hypot(form, sd * math.sqrt(5.0 / n_base))
         for q in QUADRANTS_DEG:
             s = after[q]
             near = (s > -45.0) & (s < 90.0)
@@ -305,8 +371,8 @@ def _spikes(test: CircularTest, dev_by_pass: dict[str, np.ndarray], window_deg: 
                 raise InputError(f"pass {p.direction!r}: no samples within {window_deg}° after {q:g}°")
             i_peak = int(idx[np.argmax(vv[idx])])
             height = float(vv[i_peak])
+            step = _between_samples_um(vv, i_peak)
             width = _half_height_width(ss, vv, i_peak, height / 2.0) if height > 0 else 0.0
-            sd = sigma[p.direction]
             n_top = int(np.sum(vv[idx] >= vv[i_peak] - 3.0 * sd)) if sd > 0 else 1
             axis = test.plane[0] if q in (0.0, 180.0) else test.plane[1]
             budget = _budget(
@@ -315,10 +381,12 @@ def _spikes(test: CircularTest, dev_by_pass: dict[str, np.ndarray], window_deg: 
                 _noise(sd, _extremes_factor(n_top),
                        f"the peak of {n_top} readings within 3σ of it reads high by up to σ√(2 ln n)"),
                 UncertaintyComponent(
-                    "baseline", base_rms,
-                    f"RMS departure of the {n_base} undisturbed readings from their fitted path (harmonics 0-2)"
-                    if base_rms > 0 else "0: the undisturbed arcs lie on their fitted path"),
+                    "baseline", base_u,
+                    f"the undisturbed path under the spike: form of the {n_base} undisturbed readings beyond "
+                    f"harmonics 0-2 ({form:.3g} µm RMS) and the fit's scatter" if base_u > 0
+                    else "0: the undisturbed arcs lie on their fitted path"),
                 _accuracy(test, math.sqrt(2.0), "peak and undisturbed path, two readings"),
+                _sampling(step, "the peak"),
             )
             budgets[budget.quantity] = budget
             peak_deg = float((q + (1.0 if p.direction == "ccw" else -1.0) * ss[i_peak]) % 360.0)
@@ -329,15 +397,15 @@ def _spikes(test: CircularTest, dev_by_pass: dict[str, np.ndarray], window_deg: 
 
 # ---------------------------------------------------------------- hysteresis
 
-def _hysteresis_um(a: CirclePass, dev_a: np.ndarray, b: CirclePass, dev_b: np.ndarray) -> float:
-    """Largest |d_ccw - d_cw| at the same angle: each pass' samples against the other
-    pass interpolated linearly in angle (periodic)."""
-    out = 0.0
+def _hysteresis_um(a: CirclePass, dev_a: np.ndarray, b: CirclePass, dev_b: np.ndarray) -> tuple[float, float]:
+    """Largest |d_ccw - d_cw| at the same angle (each pass' samples against the other pass
+    interpolated linearly in angle, periodic), and the step beside it along the run."""
+    diffs = []
     for p, dp, o, do in ((a, dev_a, b, dev_b), (b, dev_b, a, dev_a)):
         order = np.argsort(o.angle_deg, kind="stable")
         other = np.interp(p.angle_deg, o.angle_deg[order], do[order], period=360.0)
-        out = max(out, float(np.max(np.abs(dp - other))))
-    return out
+        diffs.append(np.abs(dp - other))
+    return _extreme(diffs, largest=True)
 
 
 # ---------------------------------------------------------------- analysis
@@ -361,8 +429,10 @@ def analyze(test: CircularTest, *, spike_window_deg: float = DEFAULT_SPIKE_WINDO
     centre, r_fit = _lsq_circle(x, y, r_um)
     dev = {d: _deviation_um(*pts[d], centre, r_um) for d in test.directions}
     dev_all = np.concatenate([dev[d] for d in test.directions])
-    g_lsq = float(dev_all.max() - dev_all.min())
-    g_mz, mz_centre = _min_zone(x, y, centre, r_um)
+    hi, step_hi = _extreme([dev[d] for d in test.directions], largest=True)
+    lo, step_lo = _extreme([dev[d] for d in test.directions], largest=False)
+    g_lsq = hi - lo
+    g_mz, mz_centre, mz_solved = _min_zone(x, y, centre, r_um)
     g_mz = min(g_mz, g_lsq)
 
     sigma = {p.direction: _noise_um(p) for p in test.passes}
@@ -374,7 +444,7 @@ def analyze(test: CircularTest, *, spike_window_deg: float = DEFAULT_SPIKE_WINDO
         c, _ = _lsq_circle(*pts[p.direction], r_um)
         dv = _deviation_um(*pts[p.direction], c, r_um)
         g1 = float(dv.max() - dv.min())
-        g1_mz, _ = _min_zone(*pts[p.direction], c, r_um)
+        g1_mz, _, _ = _min_zone(*pts[p.direction], c, r_um)
         per_direction[p.direction] = {"circular_deviation_um": g1, "circular_deviation_mz_um": min(g1_mz, g1),
                                       "centre_offset_um": [float(c[0]), float(c[1])], "noise_um": sigma[p.direction]}
 
@@ -384,12 +454,16 @@ def analyze(test: CircularTest, *, spike_window_deg: float = DEFAULT_SPIKE_WINDO
         _resolution(test, math.sqrt(2.0), "two readings (largest and smallest)"),
         _noise(sig, math.sqrt(2.0) * _extremes_factor(n), f"the extremes of {n} readings, √2·σ·√(2 ln N)"),
         _accuracy(test, math.sqrt(2.0), "two readings"),
+        _sampling(math.hypot(step_hi, step_lo), "largest and smallest reading"),
     )
+    f_hi, f_step_hi = _extreme([p.radial_um for p in test.passes], largest=True)
+    f_lo, f_step_lo = _extreme([p.radial_um for p in test.passes], largest=False)
     budgets["radial_deviation"] = _budget(
         "radial_deviation",
         _resolution(test, 1.0, "one reading"),
         _noise(sig, _extremes_factor(n), f"the extreme of {n} readings, σ·√(2 ln N)"),
         _accuracy(test, 1.0, "one reading against the nominal radius"),
+        _sampling(max(f_step_hi, f_step_lo), "F max or F min"),
     )
     fit_note = f"residual RMS {res_rms:.3g} µm over {n} readings (form errors counted as scatter)"
     budgets["centre_offset"] = _budget(
@@ -405,7 +479,7 @@ def analyze(test: CircularTest, *, spike_window_deg: float = DEFAULT_SPIKE_WINDO
     hyst = hyst_u = None
     if len(test.passes) == 2:
         a, b = test.passes
-        hyst = _hysteresis_um(a, dev[a.direction], b, dev[b.direction])
+        hyst, h_step = _hysteresis_um(a, dev[a.direction], b, dev[b.direction])
         budgets["hysteresis"] = _budget(
             "hysteresis",
             _resolution(test, math.sqrt(2.0), "one reading of each direction"),
@@ -413,6 +487,7 @@ def analyze(test: CircularTest, *, spike_window_deg: float = DEFAULT_SPIKE_WINDO
                    math.sqrt(2.0) * _extremes_factor(n), "the largest of N differences, √2·σ·√(2 ln N)"),
             _accuracy(test, 0.0, "both directions are read at the same angle by the same instrument; its "
                                  "calibration error cancels in the difference"),
+            _sampling(h_step, "the largest difference"),
         )
         hyst_u = budgets["hysteresis"].expanded_um
 
@@ -427,8 +502,8 @@ def analyze(test: CircularTest, *, spike_window_deg: float = DEFAULT_SPIKE_WINDO
         circular_deviation_uncertainty_um=budgets["circular_deviation"].expanded_um,
         hysteresis_um=hyst,
         hysteresis_uncertainty_um=hyst_u,
-        radial_deviation_max_um=float(np.max(np.concatenate([p.radial_um for p in test.passes]))),
-        radial_deviation_min_um=float(np.min(np.concatenate([p.radial_um for p in test.passes]))),
+        radial_deviation_max_um=f_hi,
+        radial_deviation_min_um=f_lo,
         radial_deviation_uncertainty_um=budgets["radial_deviation"].expanded_um,
         centre_offset_um=(float(centre[0]), float(centre[1])),
         centre_offset_uncertainty_um=budgets["centre_offset"].expanded_um,
@@ -440,6 +515,8 @@ def analyze(test: CircularTest, *, spike_window_deg: float = DEFAULT_SPIKE_WINDO
         spike_window_deg=w,
         noise_um=sig,
         directions=test.directions,
+        minimum_zone_note="" if mz_solved else ("the minimum-zone programme did not solve: the minimum-zone G "
+                                                "shown is the best centre found, at most the least-squares G"),
         budgets=budgets,
     )
 
