@@ -35,8 +35,10 @@ def _finite(v) -> float | None:
 def panel_context(svc, s, axis_id: int) -> dict:
     axis = config_repo.get_axis(s, axis_id)
     rec = circles_repo.latest_circular_test(s, axis_id)
-    ctx = {"test": rec, "axis_name": axis.name, "machine_name": axis.machine_name, "verdict_words": VERDICT_WORDS}
-    if rec is None:
+    ctx = {"test": rec, "axis_name": axis.name, "machine_name": axis.machine_name, "machine_id": axis.machine_id,
+           "verdict_words": VERDICT_WORDS}
+    if rec is None:  # how to run one, at the radius and feed of the axis' circle tasks (those get judged)
+        ctx["circle_tasks"] = [t for t in axis.tasks if t.profile == "circle"]
         return ctx
     f = rec.figures or {}
     spikes = [sp for sp in f.get("spikes", []) if sp.get("axis") == axis.name]

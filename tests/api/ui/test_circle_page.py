@@ -8,7 +8,7 @@ import re
 
 import pytest
 
-from storage.db import circles_repo, session_scope
+from storage.db import circles_repo, config_repo, session_scope
 from tests.api.rest.test_circle_plot import BACKLASH_UM, RING, circle_plane, simulated
 from tests.api.ui.conftest import SCREENSHOTS
 from tests.api.ui.test_browser import sign_in
@@ -33,6 +33,14 @@ def test_an_axis_without_a_test_says_how_to_run_one(page, ui_server):
     text = page.locator("#no-circle").inner_text()
     assert "No circular test of axis y yet" in text
     assert "mebm circle measure" in text and "mebm circle import" in text
+    # at the radius and feed of the axis' circle task, posted to the axis' machine
+    with session_scope(ui_server.svc.factory) as s:
+        axis = config_repo.get_axis(s, ui_server.axis_id)
+    (task,) = [t for t in axis.tasks if t.profile == "circle"]
+    how = page.locator("#no-circle-how").inner_text()
+    assert f"--radius-mm {task.radius_mm:g} --feed-mm-min {task.feed_mm_min:g}" in how
+    assert f"{ui_server.url}/api/v1/machines/{axis.machine_id}/circles" in how
+    assert f"{task.name}: R {task.radius_mm:g} mm" in text
     assert page.locator("#circle-plot").count() == 0
 
 
