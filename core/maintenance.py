@@ -174,6 +174,39 @@ def verify_repair(before: Figures, after: Figures, tasks: Sequence[MachiningTask
     return Verification(passed, before, after, changes, judged, rule, against, msg)
 
 
+def verify_repair_by_circle(before: Figures | None, decision, *, circular_test_id: int, radius_mm: float,
+                            feed_mm_min: float) -> dict:
+    """Judge a repair on a circular test measured after it (``decision``: the
+    core.circle.CircleDecision of the axis): the direct measurement of the task's
+    machining error. It passes when the judged task is OK by the decision's rule (the
+    worst of the tasks the test matched is the one judged). Returns the shape of
+    :meth:`Verification.to_dict`, with ``after`` the test's figures and the change of the
+    task's TBE from the round trip before the repair (its Eq. 8 estimate) to the test."""
+    passed = decision.state is State.OK
+    after = {"circular_test_id": circular_test_id, "radius_mm": radius_mm, "feed_mm_min": feed_mm_min,
+             "tasks": [{"task": decision.task, "tbe_um": _r(decision.error_um),
+                        "tbe_uncertainty_um": _r(decision.uncertainty_um), "tolerance_um": decision.tolerance_um,
+                        "state": decision.state.value}],
+             "circular_deviation_um": _r(decision.circular_deviation_um),
+             "circular_deviation_uncertainty_um": _r(decision.circular_deviation_uncertainty_um)}
+    changes = {}
+    b_task = next((t for t in before.tasks if t["task"] == decision.task), None) if before is not None else None
+    if b_task is not None:
+        changes[f"tbe_um[{decision.task}]"] = _change(b_task["tbe_um"], b_task.get("tbe_uncertainty_um") or 0.0,
+                                                      decision.error_um, decision.uncertainty_um)
+    against = (f"circular test {circular_test_id} (R {radius_mm:g} mm, F {feed_mm_min:g} mm/min): the measured "
+               f"machining error of task {decision.task!r}")
+    head = (f"TBE {decision.error_um:.2f} ± {decision.uncertainty_um:.2f} µm (k = 2) against {decision.tolerance_um:g} "
+            f"µm, reversal {getattr(decision, 'spike', '') or '?'}")
+    if b_task is not None:
+        head += f"; {b_task['tbe_um']:.2f} µm estimated from the round trip before the repair"
+    msg = (f"verified against the {against}: OK by the {decision.rule} rule; {head}" if passed else
+           f"not verified against the {against}: {decision.state.value} by the {decision.rule} rule; {head}")
+    return {"passed": passed, "rule": decision.rule, "against": against, "message": msg,
+            "before": before.to_dict() if before is not None else None, "after": after, "changes": changes,
+            "tasks_after": [dict(after["tasks"][0], passed=passed)]}
+
+
 def restore_target_um(backlash_limit_um: float | None, warning_fraction: float) -> float | None:
     """The backlash the chain must be restored below for the axis to be OK again
     (core.tbe.repair_target: the binding task's limit times the warning fraction)."""

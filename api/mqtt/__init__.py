@@ -208,7 +208,7 @@ class MqttPublisher:
 
     def handle(self, ev: Event) -> None:
         base = f"{self.base}/{topic_level(ev.machine)}/{topic_level(ev.axis)}"
-        if ev.kind in ("measurement_stored", "cycle_failed"):
+        if ev.kind in ("measurement_stored", "cycle_failed", "circular_test_stored"):
             body = self.service.status_document(ev.axis_id)
             if body is not None:
                 self.link(ev.machine).publish_status(f"{base}/status", with_instance(body, self.instance))

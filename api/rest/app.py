@@ -19,8 +19,8 @@ from api.rest.headers import SecurityHeaders
 from api.rest.limits import AuthThrottle, BodyLimit, TokenBucket
 from api.rest.metrics import make_registry
 from api.rest.proxies import ForwardedFor
-from api.rest.routers import (alerts, axes, compensation, gap, health, interfaces, keys, machines, maintenance,
-                              measurements, plots)
+from api.rest.routers import (alerts, axes, circles, compensation, gap, health, interfaces, keys, machines,
+                              maintenance, measurements, plots)
 from api.rest.routers import workers
 from api.rest.schemas import ERROR_RESPONSES
 from api.rest.status_body import StatusFastPath, status_json
@@ -33,7 +33,8 @@ from api.ui import install as install_ui
 API_PREFIX = "/api/v1"
 # Routers under /api/v1, included explicitly: a renamed module is an ImportError, never a
 # silently missing endpoint.
-ROUTERS = (machines, axes, measurements, alerts, plots, keys, gap, compensation, interfaces, maintenance, workers)
+ROUTERS = (machines, axes, measurements, alerts, plots, keys, gap, compensation, interfaces, maintenance, workers,
+           circles)
 log = logging.getLogger("mebm.api")
 
 DESCRIPTION = """

@@ -7,6 +7,7 @@ from datetime import datetime
 import numpy as np
 
 from api.rest import schemas as sc
+from api.service.circles import axis_summary
 from api.service.prognosis import to_dict as prognosis_body
 from api.service.status import AxisStatus, state_and_message
 from core.criteria.roundtrip import TBE_BASIS
@@ -91,6 +92,7 @@ def status(s: AxisStatus, now: datetime, next_run: datetime | None) -> sc.AxisSt
         last_cycle_status=s.last_cycle_status, last_cycle_at=s.last_cycle_at,
         last_failure_reason=s.last_failure_reason, next_run_at=next_run, last_raw_run_lost=s.last_raw_run_lost,
         **lm, prognosis=_prognosis(s), work_order=_active_order(s.work_order),
+        circular_test=axis_summary(s.circle, a.name),
     )
 
 
@@ -212,6 +214,7 @@ def alert(a: AlertRecord) -> sc.AlertOut:
         raised_by_measurement_id=a.raised_by_measurement_id, cleared_by_measurement_id=a.cleared_by_measurement_id,
         task_name=a.task_name, tbe_um=a.tbe_um, tolerance_um=a.tolerance_um, backlash_um=a.backlash_um,
         backlash_limit_um=a.backlash_limit_um, message=a.message,
+        raised_by_circular_test_id=a.raised_by_circular_test_id, cleared_by_circular_test_id=a.cleared_by_circular_test_id,
     )
 
 

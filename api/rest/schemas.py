@@ -147,6 +147,10 @@ class AxisStatusOut(BaseModel):
     last_failure_reason: str | None
     last_raw_run_lost: str | None = Field(
         None, description="why the raw run of the last finished cycle could not be kept (null: it was kept)")
+    circular_test: dict[str, Any] | None = Field(
+        None, description="the axis' newest circular test (ISO 230-4), beside the TBE: G and H with U, the axis' "
+                          "largest reversal spike with U (the measured TBE), its agreement with Eq. 8 at b̄, the "
+                          "decision on the task at the test's radius and feed; href: GET /circles/{id}")
     work_order: dict[str, Any] | None = Field(
         None, description="the axis' active maintenance order (null: none): id, kind, state, opened_at, due_at, "
                           "restore_below_um, recommendation and its link; GET /maintenance/orders/{id} has the rest")
@@ -286,6 +290,9 @@ class AlertOut(BaseModel):
     backlash_um: float | None
     backlash_limit_um: float | None
     message: str
+    raised_by_circular_test_id: int | None = Field(
+        None, description="the circular test whose decision raised it (GET /circles/{id}); null: a measurement's")
+    cleared_by_circular_test_id: int | None = None
 
 
 class AlertPage(BaseModel):

@@ -23,8 +23,10 @@ from storage.db import AlertRecord, CycleRecord, WorkOrderRecord, utcnow
 
 log = logging.getLogger("mebm.events")
 
-# axis_changed: created or reconfigured; work_order_changed: a maintenance order opened or moved
-KINDS = ("measurement_stored", "cycle_failed", "alert_changed", "axis_changed", "work_order_changed")
+# axis_changed: created or reconfigured; work_order_changed: a maintenance order opened or moved;
+# circular_test_stored: a circular test of the axis' plane was stored (its status shows the figures)
+KINDS = ("measurement_stored", "cycle_failed", "alert_changed", "axis_changed", "work_order_changed",
+         "circular_test_stored")
 
 
 @dataclass(frozen=True)

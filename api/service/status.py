@@ -17,7 +17,17 @@ from api.service.prognosis import HistoryAnswers, HistoryMemo, history_answers
 from core.errors import MebmError
 from core.history import TemperatureModel
 from core.tbe import AxisDecision, decide
-from storage.db import AxisRecord, ResultRecord, WorkOrderRecord, config_repo, maintenance_repo, results_repo, session_scope
+from storage.db import (
+    AxisRecord,
+    CircularTestRecord,
+    ResultRecord,
+    WorkOrderRecord,
+    circles_repo,
+    config_repo,
+    maintenance_repo,
+    results_repo,
+    session_scope,
+)
 
 
 @dataclass(frozen=True)
@@ -37,6 +47,7 @@ class AxisStatus:
     history_error: str | None = None
     work_order: WorkOrderRecord | None = None  # the axis' active maintenance order
     last_cycle_uuid: str | None = None
+    circle: CircularTestRecord | None = None  # the newest circular test of a plane with the axis (no samples)
 
 
 def with_held(st: AxisStatus, held: dict | None) -> AxisStatus:
@@ -90,6 +101,7 @@ def compute_status(s, axis_id: int, history_memo: HistoryMemo | None = None) -> 
         decision_error=decision_error,
         last_raw_run_lost=last_final.raw_run_lost if last_final is not None else None,
         history=history, history_error=history_error, work_order=maintenance_repo.active_order(s, axis_id),
+        circle=circles_repo.latest_circular_test(s, axis_id),
     )
 
 

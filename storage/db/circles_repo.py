@@ -217,7 +217,7 @@ def update_alerts(s: Session | Engine, axis_id: int, test_id: int, decision: dic
             a = Alert(axis_id=axis_id, kind=ALERT_KIND, raised_at=at, raised_by_circle_id=test_id,
                       task_name=decision.get("task") or decision.get("task_name"), tbe_um=decision.get("error_um"),
                       tolerance_um=decision.get("tolerance_um"),
-                      message=f"circular test {test_id}: {decision.get('reason') or 'ALARM'}")
+                      message=f"circular test {test_id}: {decision.get('message') or decision.get('reason') or 'ALARM'}")
             s.add(a)
             s.flush()
             return [_alert_full(s, a)]

@@ -47,7 +47,8 @@ def order_doc(o: WorkOrderRecord) -> dict:
     return {
         "id": o.id, "axis_id": o.axis_id, "kind": o.kind, "state": o.state, "active": o.active,
         "opened_at": _iso(o.opened_at), "closed_at": _iso(o.closed_at), "due_at": _iso(o.due_at),
-        "opened_by_measurement_id": o.opened_by_measurement_id, "alert_id": o.alert_id,
+        "opened_by_measurement_id": o.opened_by_measurement_id,
+        "opened_by_circular_test_id": o.opened_by_circular_test_id, "alert_id": o.alert_id,
         "binding_task": o.binding_task, "tolerance_um": o.tolerance_um, "backlash_um": o.backlash_um,
         "backlash_uncertainty_um": o.backlash_uncertainty_um, "tbe_um": o.tbe_um,
         "tbe_uncertainty_um": o.tbe_uncertainty_um, "backlash_limit_um": o.backlash_limit_um,

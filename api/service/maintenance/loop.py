@@ -11,6 +11,11 @@ repairs recorded by people, and the measurement that verifies them.
 - When that cycle is stored, it is compared with the last measurement before the repair
   (core.maintenance.verify_repair): the order becomes ``verified``, or ``open`` again
   with both sets of figures.
+- A circular test (api.service.circles) judged like a cycle: its WARNING or ALARM opens
+  the same order with the test as evidence (:meth:`MaintenanceLoop.after_circle`), and a
+  test at a circle task's radius and feed measured after the repair verifies a repaired
+  order (core.maintenance.verify_repair_by_circle); the verification cycle queued with
+  the repair then finds the order concluded and is an ordinary measurement.
 Each step is published as a ``work_order_changed`` event on the service's event hub,
 so MQTT, webhooks and MTConnect carry it like an alert.
 """
@@ -24,11 +29,12 @@ from datetime import datetime, time as dtime, timedelta, timezone
 from api.service.config.settings import SIM_CONTROLLER, MaintenanceSettings
 from api.service.events import Event
 from core.errors import MebmError
-from core.maintenance import summarise_axis, verify_repair
+from core.maintenance import summarise_axis, verify_repair, verify_repair_by_circle
 from core.tbe import State
 from storage.db import (
     AlertRecord,
     AxisRecord,
+    CircularTestRecord,
     CycleRecord,
     OrderRequest,
     RepairRecord,
@@ -129,6 +135,79 @@ class MaintenanceLoop:
         if created:
             log.warning("axis %s: work order %s opened (%s)", axis_id, order.id, kind)
             self.publish(order)
+
+    # -- after a stored circular test ----------------------------------------------------------
+    def after_circle(self, axis: AxisRecord, test: CircularTestRecord, decision, alerts: list[AlertRecord]) -> None:
+        """A circular test judged ``axis`` (``decision``: core.circle.CircleDecision): a
+        repaired order is verified by it; otherwise a WARNING or ALARM opens the order a
+        round trip's decision would open, with the test as its evidence."""
+        if not self.settings.enabled or decision is None:
+            return
+        try:
+            if self._verify_by_circle(axis, test, decision):
+                return
+            self._open_from_circle(axis, test, decision, alerts)
+        except (MebmError, StorageError) as exc:
+            log.error("axis %s: maintenance step after circular test %s failed: %s", axis.id, test.id, exc)
+
+    def _open_from_circle(self, axis: AxisRecord, test: CircularTestRecord, d, alerts: list[AlertRecord]) -> None:
+        due = None
+        if d.state is State.ALARM:
+            kind = "corrective"
+        elif d.state is State.WARNING:  # condition-based on the prognosis' date, as after a round trip
+            st = self.service.status.get(axis.id) if self.service.status is not None else None
+            p = st.history.prognosis if st is not None and st.history is not None else None
+            if p is None or p.limit_date_s is None or p.limit_date_s > p.now_s + self.settings.horizon_days * 86400.0:
+                return
+            kind = "condition_based"
+            due = datetime.fromtimestamp(p.limit_date_s, tz=timezone.utc)
+        else:
+            return
+        with session_scope(self.service.factory) as s:
+            if maintenance_repo.active_order(s, axis.id) is not None:
+                return
+        what = ("corrective maintenance: the machining error is out of tolerance" if kind == "corrective" else
+                f"condition-based maintenance: the prognosis dates the backlash limit on {due:%Y-%m-%d %H:%M} UTC, "
+                f"within the {self.settings.horizon_days:g}-day horizon")
+        rec = (f"{what}. Axis {axis.machine_name}/{axis.name}: circular test {test.id} (R {test.radius_mm:g} mm, "
+               f"F {test.feed_mm_min:g} mm/min) measures task {d.task!r} (tolerance {d.tolerance_um:g} µm) at TBE "
+               f"{d.error_um:.2f} ± {d.uncertainty_um:.2f} µm (k = 2, {d.rule} rule, reversal {d.spike}); "
+               f"circular deviation G {d.circular_deviation_um:.2f} ± {d.circular_deviation_uncertainty_um:.2f} µm.")
+        alert = next((a for a in alerts if a.active and a.kind == "tbe_exceeded"), None)
+        b = (test.agreement.get(axis.name) or {})
+        req = OrderRequest(
+            axis_id=axis.id, kind=kind, opened_at=test.measured_at, recommendation=rec, circular_test_id=test.id,
+            alert_id=alert.id if alert is not None else None, binding_task=d.task, tolerance_um=d.tolerance_um,
+            backlash_um=b.get("backlash_um"), backlash_uncertainty_um=b.get("backlash_uncertainty_um"),
+            tbe_um=d.error_um, tbe_uncertainty_um=d.uncertainty_um, due_at=due,
+        )
+        with session_scope(self.service.factory) as s:
+            order, created = maintenance_repo.open_order(s, req)
+        if created:
+            log.warning("axis %s: work order %s opened (%s) by circular test %s", axis.id, order.id, kind, test.id)
+            self.publish(order)
+
+    def _verify_by_circle(self, axis: AxisRecord, test: CircularTestRecord, d) -> bool:
+        """A repaired order of the axis is concluded by a circular test that judged one of
+        its circle tasks: the direct measurement of the error the order was opened for."""
+        with session_scope(self.service.factory) as s:
+            order = maintenance_repo.active_order(s, axis.id)
+            if order is None or order.state != "repaired":
+                return False
+            repair = maintenance_repo.repair_of_order(s, order.id)
+            if repair is not None and repair.performed_at > test.measured_at:
+                return False  # measured before the repair: no evidence of it
+            before_id = repair.before_measurement_id if repair is not None else None
+            before = maintenance_repo.figures(s, before_id) if before_id is not None else None
+        v = verify_repair_by_circle(before, d, circular_test_id=test.id, radius_mm=test.radius_mm,
+                                    feed_mm_min=test.feed_mm_min)
+        with session_scope(self.service.factory) as s:
+            order = maintenance_repo.conclude_verification(s, order.id, passed=v["passed"], verification=v,
+                                                           note=v["message"])
+        (log.info if v["passed"] else log.warning)("axis %s: work order %s %s by circular test %s: %s", axis.id,
+                                                   order.id, order.state, test.id, v["message"])
+        self.publish(order)
+        return True
 
     def _verify(self, axis_id: int, cycle: CycleRecord) -> bool:
         with session_scope(self.service.factory) as s:
