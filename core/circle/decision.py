@@ -85,8 +85,9 @@ def matching_tasks(figures: CircleFigures, tasks: Sequence[MachiningTask], *, ra
 def decide_circle(figures: CircleFigures, tasks: Sequence[MachiningTask], *, axis: str,
                   warning_fraction: float = 0.9, rule: str = DEFAULT_RULE, radius_tolerance_rel: float = 0.02,
                   feed_tolerance_rel: float = 0.02) -> CircleDecision | None:
-    """The state of each circle task the test matches, on ``axis``' largest spike; the
-    worst (then the most used of its tolerance) is returned, None if no task matched.
+    """The state of each circle task the test matches, on ``axis``' worst reversal spike
+    (the spike whose state is worst, then the highest); the worst task (then the most
+    used of its tolerance) is returned, None if no task matched.
     A task's own ``decision_rule`` overrides ``rule``."""
     if not isinstance(figures, CircleFigures):
         raise InputError(f"decide_circle needs CircleFigures (from analyze), got {type(figures).__name__}")
@@ -103,16 +104,17 @@ def decide_circle(figures: CircleFigures, tasks: Sequence[MachiningTask], *, axi
                              feed_tolerance_rel=feed_tolerance_rel)
     if not matched:
         return None
-    worst = max(spikes, key=lambda s: s.height_um)
-    err, u = worst.height_um, worst.height_uncertainty_um
     out = []
     for t in matched:
         task_rule = t.decision_rule or rule
         warning = warning_fraction * t.tolerance_um
-        state, reason = state_of(err, u, t.tolerance_um, warning, task_rule)
+        # the axis' TBE is its worst reversal: the spike whose state is worst, then the highest
+        judged = [(state_of(s.height_um, s.height_uncertainty_um, t.tolerance_um, warning, task_rule), s)
+                  for s in spikes]
+        (state, reason), worst = max(judged, key=lambda j: (_ORDER.index(j[0][0]), j[1].height_um))
         out.append(CircleDecision(
-            state=state, task=t.name, axis=axis, error_um=err, uncertainty_um=u, tolerance_um=t.tolerance_um,
-            warning_um=warning, rule=task_rule, reason=reason,
+            state=state, task=t.name, axis=axis, error_um=worst.height_um, uncertainty_um=worst.height_uncertainty_um,
+            tolerance_um=t.tolerance_um, warning_um=warning, rule=task_rule, reason=reason,
             circular_deviation_um=figures.circular_deviation_um,
             circular_deviation_uncertainty_um=figures.circular_deviation_uncertainty_um,
             spike=f"{worst.direction}@{worst.quadrant_deg:g}°"))
