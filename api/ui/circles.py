@@ -19,7 +19,7 @@ from fastapi.responses import Response
 from api.service.figures import circle_record
 from api.service.figures.gate import RenderBusy
 from api.ui import panels
-from api.ui.routes import Who
+from api.ui.routes import Who, templates
 from storage.db import circles_repo, config_repo, session_scope
 
 router = APIRouter(prefix="/ui", include_in_schema=False)
@@ -29,7 +29,23 @@ VERDICT_WORDS = {"agree": "agree", "larger": "spikes larger than Eq. 8", "smalle
 
 
 def _finite(v) -> float | None:
-    return float(v) if isinstance(v, (int, float)) and math.isfinite(v) else None
+    return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) else None
+
+
+def fixed(v, nd: int = 2, fmt: str = "") -> str:
+    """A stored figure to ``nd`` decimals ("–" when it is not a finite number: JSON keeps
+    NaN and infinities as null)."""
+    x = _finite(v)
+    return "–" if x is None else f"{x:{fmt}.{nd}f}"
+
+
+def pm(value, u, nd: int = 2) -> str:
+    """"value ± U µm" of a stored figure and its expanded uncertainty."""
+    return f"{fixed(value, nd)} ± {fixed(u, nd)} µm" if _finite(value) is not None else "–"
+
+
+templates.env.filters.update(fixed=fixed)
+templates.env.globals.update(pm=pm)
 
 
 def panel_context(svc, s, axis_id: int) -> dict:

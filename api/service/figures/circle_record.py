@@ -27,16 +27,22 @@ def _num(v) -> float | None:
     return float(v) if isinstance(v, (int, float)) and math.isfinite(v) else None
 
 
+def _f(v, nd: int = 1, sign: str = "") -> str:
+    x = _num(v)
+    return "–" if x is None else f"{x:{sign}.{nd}f}"
+
+
 def agreement_line(a: dict) -> str:
-    """One axis' spikes against Eq. 8, as the plot's side and the axis page write it."""
-    return (f"spikes {a['measured_um']:.1f} ± {a['measured_uncertainty_um']:.1f} µm, Eq. 8 at b̄ "
-            f"{a.get('backlash_um', 0.0):.1f} µm {a['predicted_um']:.1f} ± {a['predicted_uncertainty_um']:.1f} µm: "
-            f"{a['verdict']} (E_n {a['normalised_error']:+.2f})")
+    """One axis' spikes against Eq. 8, as the plot's side writes it (JSON keeps NaN and
+    infinities as null: those are "–")."""
+    return (f"spikes {_f(a.get('measured_um'))} ± {_f(a.get('measured_uncertainty_um'))} µm, Eq. 8 at b̄ "
+            f"{_f(a.get('backlash_um'))} µm {_f(a.get('predicted_um'))} ± {_f(a.get('predicted_uncertainty_um'))} µm: "
+            f"{a.get('verdict', '–')} (E_n {_f(a.get('normalised_error'), 2, '+')})")
 
 
 def decision_line(d: dict) -> str:
-    return (f"{d['state']} on task {d['task']}: TBE {d['error_um']:.1f} ± {d['uncertainty_um']:.1f} µm "
-            f"against {d['tolerance_um']:g} µm ({d.get('rule', '')} rule)")
+    return (f"{d.get('state')} on task {d.get('task')}: TBE {_f(d.get('error_um'))} ± {_f(d.get('uncertainty_um'))} µm "
+            f"against {_f(d.get('tolerance_um'), 3).rstrip('0').rstrip('.')} µm ({d.get('rule', '')} rule)")
 
 
 def band_decision(rec, axis: str | None) -> tuple[str, dict] | None:
