@@ -22,6 +22,7 @@ def drawn_path(radius_mm, direction, *, n=3600, centre_um=(0.0, 0.0), ellipse_um
     return (centre_um[0] + r_um * np.cos(t)) * 1e-3, (centre_um[1] + r_um * np.sin(t)) * 1e-3
 
 
-def drawn_test(radius_mm=50.0, *, directions=("ccw", "cw"), instrument=EXACT, **kw) -> CircularTest:
+def drawn_test(radius_mm=50.0, *, directions=("ccw", "cw"), instrument=EXACT, feed_mm_min=1000.0,
+               **kw) -> CircularTest:
     return test_from_positions({d: drawn_path(radius_mm, d, **kw) for d in directions}, radius_mm=radius_mm,
-                               feed_mm_min=1000.0, plane=("x", "y"), instrument=instrument)
+                               feed_mm_min=feed_mm_min, plane=("x", "y"), instrument=instrument)
