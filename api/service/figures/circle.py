@@ -217,13 +217,14 @@ def polar_figure(passes: Mapping[str, tuple[Sequence[float], Sequence[float]]], 
     ax.tick_params(axis="y", labelsize=7)
     ax.grid(True, alpha=0.35)
     fig.suptitle(f"{title}\nR {radius_mm:g} mm, {feed_mm_min:g} mm/min; radial deviation about the "
-                 f"least-squares circle, µm (centre offset {_signed(centre_offset_um[0])}, {_signed(centre_offset_um[1])} µm "
-                 f"removed)", fontsize=9)
+                 f"least-squares circle, µm (centre offset {_signed(centre_offset_um[0])}, "
+                 f"{_signed(centre_offset_um[1])} µm removed)", fontsize=9)
 
     handles, labels = ax.get_legend_handles_labels()
     side.legend(handles, labels, loc="upper left", fontsize=8, frameon=False)
-    lines = [f"G (least squares) = {_fmt_pm(summary.circular_deviation_um, summary.circular_deviation_uncertainty_um)}",
-             f"G (minimum zone) = {_fmt_pm(summary.circular_deviation_mz_um, summary.circular_deviation_uncertainty_um)}"]
+    u_g = summary.circular_deviation_uncertainty_um
+    lines = [f"G (least squares) = {_fmt_pm(summary.circular_deviation_um, u_g)}",
+             f"G (minimum zone) = {_fmt_pm(summary.circular_deviation_mz_um, u_g)}"]
     if summary.hysteresis_um is not None:
         lines.append(f"H = {_fmt_pm(summary.hysteresis_um, summary.hysteresis_uncertainty_um)}")
     else:

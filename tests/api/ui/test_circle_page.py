@@ -74,7 +74,8 @@ def test_the_panel_shows_the_stored_test_and_its_polar_plot(page, ui_server, pos
     assert page.locator("#circle-when").inner_text() == rec.measured_at.strftime("%Y-%m-%d %H:%M UTC")
     assert page.locator("#circle-radius").inner_text() == "50 mm"
     assert page.locator("#circle-feed").inner_text() == "1000 mm/min"
-    assert page.locator("#circle-g").inner_text() == pm(f["circular_deviation_um"], f["circular_deviation_uncertainty_um"])
+    g = pm(f["circular_deviation_um"], f["circular_deviation_uncertainty_um"])
+    assert page.locator("#circle-g").inner_text() == g
     assert page.locator("#circle-g-mz").inner_text() == f"{f['circular_deviation_mz_um']:.2f} µm"
     assert page.locator("#circle-h").inner_text() == pm(f["hysteresis_um"], f["hysteresis_uncertainty_um"])
     assert page.locator("#circle-spike").inner_text() == pm(a["measured_um"], a["measured_uncertainty_um"])

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import re
+from dataclasses import replace
 from html import unescape
 
 import numpy as np
@@ -76,8 +77,7 @@ def test_a_figure_json_keeps_as_null_is_a_dash(env):
     test = one_direction_test()
     figures = analyze(test)
     agreement = compare_with_backlash(figures, axis="y", backlash_um=0.0, backlash_uncertainty_um=0.0, gain_per_s=10.0)
-    agreement = agreement.__class__(**{**agreement.__dict__, "normalised_error": math.inf, "predicted_uncertainty_um": 0.0,
-                                       "measured_uncertainty_um": 0.0})
+    agreement = replace(agreement, normalised_error=math.inf)  # as when both U are 0 and they differ
     with session_scope(svc.factory) as s:
         test_id = circles_repo.add_circular_test(s, machine_id, test, figures=figures, agreement={"y": agreement})
     r = c.get(f"/ui/axes/{axis_id}")
