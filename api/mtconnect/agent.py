@@ -104,7 +104,8 @@ class MTConnectAgent:
 
     # -- events --------------------------------------------------------------------------------------
     def handle(self, ev: Event) -> None:
-        if ev.kind not in ("measurement_stored", "cycle_failed", "alert_changed", "axis_changed", "work_order_changed"):
+        if ev.kind not in ("measurement_stored", "cycle_failed", "alert_changed", "axis_changed", "work_order_changed",
+                           "circular_test_stored"):
             return
         if not self._seeded:
             self.seed()  # reads this event's cycle too (events follow the commit)

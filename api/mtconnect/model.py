@@ -16,9 +16,18 @@ these DataItems (lengths in MILLIMETER: MTConnect has no micrometre unit, 183.4 
 | ``a<N>_cycle_status`` | EVENT | x:LAST_CYCLE_STATUS | ``last_cycle_status`` |
 | ``a<N>_work_order`` | EVENT | x:MAINTENANCE_ORDER | the active work order, ``STATE:ID:KIND`` or ``NONE`` |
 | ``a<N>_backlash_cond`` | CONDITION | DISPLACEMENT | ``state`` / ``message`` |
+| ``a<N>_circle_g`` | SAMPLE | x:CIRCULAR_DEVIATION | G of the newest circular test (``circular_test.circular_deviation_um``) |
+| ``a<N>_circle_g_u`` | SAMPLE | x:CIRCLE_UNCERTAINTY | U(G), k = 2 |
+| ``a<N>_circle_h`` | SAMPLE | x:CIRCULAR_HYSTERESIS | H (``circular_test.hysteresis_um``) |
+| ``a<N>_circle_h_u`` | SAMPLE | x:CIRCLE_UNCERTAINTY | U(H), k = 2 |
+| ``a<N>_circle_spike`` | SAMPLE | x:REVERSAL_SPIKE | the axis' largest reversal spike, the measured TBE (``circular_test.spike_um``) |
+| ``a<N>_circle_spike_u`` | SAMPLE | x:CIRCLE_UNCERTAINTY | U(spike), k = 2 |
+| ``a<N>_circle_agreement`` | EVENT | x:CIRCLE_AGREEMENT | the spikes against Eq. 8 at b̄: agree, larger, smaller (``circular_test.agreement``) |
 
 The condition is Normal (OK), Warning (WARNING), Fault (ALARM) or Unavailable (UNKNOWN);
-its ``nativeCode`` is the state as REST says it and its text the status message.
+its ``nativeCode`` is the state as REST says it and its text the status message. The
+circular test's observations carry the test's time and are UNAVAILABLE until the axis has
+one (api.service.circles.axis_summary).
 """
 
 from __future__ import annotations
@@ -30,6 +39,7 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from urllib.parse import urlsplit
 
+from api.service.circles import axis_summary
 from api.service.status import AxisStatus, state_and_message
 
 X_NS = "urn:mebm:MTConnectStreams:2.4"  # the x: extension namespace of the streams
@@ -133,10 +143,39 @@ def component_for(st: AxisStatus) -> Component:
                  description="ok, failed, interrupted, queued or running"),
         DataItem(f"{a}_work_order", "EVENT", "x:MAINTENANCE_ORDER", "x:MaintenanceOrder", name="work_order",
                  description="the active work order as STATE:ID:KIND, or NONE"),
-        DataItem(f"{a}_backlash_cond", "CONDITION", "DISPLACEMENT", "", name="maintenance",
-                 description="the maintenance state: Normal (OK), Warning, Fault (ALARM), Unavailable (UNKNOWN)"),
     ]
+    items += _circle_items(a)
+    items.append(DataItem(f"{a}_backlash_cond", "CONDITION", "DISPLACEMENT", "", name="maintenance",
+                          description="the maintenance state: Normal (OK), Warning, Fault (ALARM), Unavailable (UNKNOWN)"))
     return Component(a, st.axis.name, st.axis.id, tuple(items))
+
+
+def _circle_items(a: str) -> list[DataItem]:
+    """The newest circular test (ISO 230-4) of a plane with the axis, beside its TBE."""
+    def u(key: str, of: str) -> DataItem:
+        return DataItem(f"{a}_circle_{key}_u", "SAMPLE", "x:CIRCLE_UNCERTAINTY", "x:CircleUncertainty",
+                        name=f"{of}_uncertainty", units="MILLIMETER", description=f"expanded (k = 2) uncertainty of {of}")
+
+    return [
+        DataItem(f"{a}_circle_g", "SAMPLE", "x:CIRCULAR_DEVIATION", "x:CircularDeviation", name="circular_deviation",
+                 units="MILLIMETER", description="circular deviation G (ISO 230-4, least-squares centre) of the "
+                                                 "newest circular test"),
+        u("g", "circular_deviation"),
+        DataItem(f"{a}_circle_h", "SAMPLE", "x:CIRCULAR_HYSTERESIS", "x:CircularHysteresis", name="circular_hysteresis",
+                 units="MILLIMETER", description="circular hysteresis H (ISO 230-4) between the two directions"),
+        u("h", "circular_hysteresis"),
+        DataItem(f"{a}_circle_spike", "SAMPLE", "x:REVERSAL_SPIKE", "x:ReversalSpike", name="reversal_spike",
+                 units="MILLIMETER", description="the axis' largest reversal spike in the newest circular test: "
+                                                 "its measured TBE"),
+        u("spike", "reversal_spike"),
+        DataItem(f"{a}_circle_agreement", "EVENT", "x:CIRCLE_AGREEMENT", "x:CircleAgreement", name="circle_agreement",
+                 description="the spikes against Eq. 8's TBE at b̄: agree, larger or smaller"),
+    ]
+
+
+_CIRCLE_FIELDS = {"circle_g": "circular_deviation_um", "circle_g_u": "circular_deviation_uncertainty_um",
+                  "circle_h": "hysteresis_um", "circle_h_u": "hysteresis_uncertainty_um",
+                  "circle_spike": "spike_um", "circle_spike_u": "spike_uncertainty_um"}
 
 
 def _utc(t: datetime | None) -> datetime | None:
@@ -178,6 +217,8 @@ def values_for(st: AxisStatus, comp: Component, now: datetime) -> list[Value]:
     tbe = {x.task.name: x.tbe_um for x in d.assessments} if d is not None else {}
     state, message = state_and_message(st)
     message = public_message(message, st.axis.settings.controller_url)
+    circle = axis_summary(st.circle, st.axis.name)
+    t_circle = _utc(circle["measured_at"]) if circle else now
     out = []
     for di in comp.data_items:
         suffix = di.id[len(comp.id) + 1:]
@@ -204,6 +245,12 @@ def values_for(st: AxisStatus, comp: Component, now: datetime) -> list[Value]:
             o = st.work_order
             out.append(Value(di, _utc(o.transitions[-1].at) if o is not None and o.transitions else now,
                              f"{o.state.upper()}:{o.id}:{o.kind}" if o is not None else "NONE"))
+            continue
+        elif suffix in _CIRCLE_FIELDS:
+            out.append(Value(di, t_circle, _mm(circle[_CIRCLE_FIELDS[suffix]]) if circle else None))
+            continue
+        elif suffix == "circle_agreement":
+            out.append(Value(di, t_circle, circle["agreement"] if circle else None))
             continue
         elif suffix == "backlash_cond":
             level = CONDITION_LEVEL[state]

@@ -65,7 +65,28 @@ class AxisNodes:
     message: object
     measured_at: object
     tbe_folder: object
+    circle: dict  # the CircularTest folder's variables: circular_test key -> (variable, type)
     tbe: dict = field(default_factory=dict)  # task name -> variable
+
+
+# the CircularTest folder of an axis: (circular_test key, browse name, type, description)
+CIRCLE_VARIABLES = (
+    ("circular_deviation_um", "CircularDeviation", ua.VariantType.Double,
+     "circular deviation G (ISO 230-4, least-squares centre) of the newest circular test, µm"),
+    ("circular_deviation_uncertainty_um", "CircularDeviationUncertainty", ua.VariantType.Double,
+     "expanded (k = 2) uncertainty of G, µm"),
+    ("hysteresis_um", "CircularHysteresis", ua.VariantType.Double,
+     "circular hysteresis H (ISO 230-4) between the two directions, µm"),
+    ("hysteresis_uncertainty_um", "CircularHysteresisUncertainty", ua.VariantType.Double,
+     "expanded (k = 2) uncertainty of H, µm"),
+    ("spike_um", "ReversalSpike", ua.VariantType.Double,
+     "the axis' largest reversal spike: its measured TBE, µm"),
+    ("spike_uncertainty_um", "ReversalSpikeUncertainty", ua.VariantType.Double,
+     "expanded (k = 2) uncertainty of the spike, µm"),
+    ("agreement", "Agreement", ua.VariantType.String,
+     "the spikes against Eq. 8's TBE at b̄: agree, larger or smaller (null: no b̄ to compare)"),
+    ("measured_at", "MeasuredAt", ua.VariantType.DateTime, "time of the newest circular test (UTC)"),
+)
 
 
 @dataclass
@@ -157,8 +178,19 @@ class AddressSpace:
                 measured_at=await self._variable(obj, f"{base}/MeasuredAt", "MeasuredAt", ua.VariantType.DateTime,
                                                  "time of the last good measurement (UTC)"),
                 tbe_folder=await obj.add_folder(self._id(f"{base}/TBE"), self._qn("TBE")),
+                circle=await self._circle(obj, base),
             )  # fmt: skip
         return a
+
+    async def _circle(self, obj, base: str) -> dict:
+        """The axis' newest circular test (ISO 230-4), beside the TBE folder."""
+        folder = await obj.add_folder(self._id(f"{base}/CircularTest"), self._qn("CircularTest"))
+        out = {}
+        for key, name, vtype, description in CIRCLE_VARIABLES:
+            analog = vtype is ua.VariantType.Double
+            out[key] = (await self._variable(folder, f"{base}/CircularTest/{name}", name, vtype, description,
+                                             analog=analog), vtype)
+        return out
 
     async def _tasks(self, a: AxisNodes, v: AxisValues) -> None:
         names = {t.name for t in v.tasks}
@@ -209,4 +241,8 @@ class AddressSpace:
         await w(a.message.nodeid, _dv(v.message, ua.VariantType.String))
         await w(a.measured_at.nodeid, _dv(v.measured_at, ua.VariantType.DateTime))
         await self._tasks(a, v)
+        c = v.circle
+        t = c["measured_at"] if c else None
+        for key, (node, vtype) in a.circle.items():
+            await w(node.nodeid, _dv(c.get(key) if c else None, vtype, t if key != "measured_at" else None))
         await self._prognosis(v)

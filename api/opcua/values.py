@@ -8,6 +8,7 @@ import math
 from dataclasses import dataclass
 from datetime import datetime, timezone
 
+from api.service.circles import axis_summary
 from api.service.status import state_and_message
 from storage.db import results_repo, session_scope
 
@@ -40,6 +41,7 @@ class AxisValues:
     tasks: tuple[TaskValue, ...]  # tasks[].tbe_um per tasks[].name
     predicted_time: datetime | None  # prognosis.limit_date when there is one, else the active alert's raised_at
     prediction_source: str | None  # "prognosis" | "limit passed"
+    circle: dict | None = None  # circular_test: the newest circular test (api.service.circles.axis_summary)
 
 
 def _finite(x) -> float | None:
@@ -85,4 +87,5 @@ def axis_values(service, axis_id: int) -> AxisValues:
         restore_below_um=target.restore_below_um if target is not None else None,
         restore_below_explanation=target.explanation if target is not None else None,
         tasks=tasks, predicted_time=when, prediction_source=source if when is not None else None,
+        circle=axis_summary(st.circle, st.axis.name),
     )  # fmt: skip

@@ -210,7 +210,7 @@ def test_current_is_right_after_a_restart(tmp_path, schemas):
 def test_errors_are_mtconnect_error_documents(tmp_path, schemas):
     app = _app(tmp_path, FakeRunner(), mtconnect=MtconnectSettings(buffer_size=4))
     with TestClient(app) as client:
-        cases = [("/mtconnect/sample?from=1", 400, "OUT_OF_RANGE"),  # 11 seeded observations, 4 kept: first is 8
+        cases = [("/mtconnect/sample?from=1", 400, "OUT_OF_RANGE"),  # 18 seeded observations, 4 kept: first is 15
                  ("/mtconnect/sample?from=99", 400, "OUT_OF_RANGE"),
                  ("/mtconnect/sample?count=0", 400, "OUT_OF_RANGE"),
                  ("/mtconnect/sample?count=5", 400, "OUT_OF_RANGE"),  # more than the buffer holds
@@ -226,11 +226,11 @@ def test_errors_are_mtconnect_error_documents(tmp_path, schemas):
             err = schemas.error_ok(r.content).find("e:Errors/e:Error", NS)
             assert err.get("errorCode") == code, (url, err.text)
         j = client.get("/mtconnect/sample?from=1", headers=JSON).json()["MTConnectError"]
-        assert j["Errors"]["Error"][0]["errorCode"] == "OUT_OF_RANGE" and "greater than or equal to 8" in \
+        assert j["Errors"]["Error"][0]["errorCode"] == "OUT_OF_RANGE" and "greater than or equal to 15" in \
             j["Errors"]["Error"][0]["value"]
         # the buffer keeps the newest 4; a device asked for by name or uuid
-        doc = schemas.streams_ok(client.get("/mtconnect/sample?from=8").content)
-        assert [int(o.get("sequence")) for o in _observations(doc)] == [8, 9, 10, 11]
+        doc = schemas.streams_ok(client.get("/mtconnect/sample?from=15").content)
+        assert [int(o.get("sequence")) for o in _observations(doc)] == [15, 16, 17, 18]
         uuid_ = schemas.devices_ok(client.get("/mtconnect/vmc-850").content).find(".//d:Device", NS).get("uuid")
         assert schemas.streams_ok(client.get(f"/mtconnect/{uuid_}/current").content).find(
             ".//m:DeviceStream", NS).get("name") == "vmc-850"
@@ -502,3 +502,53 @@ def test_a_failure_text_names_no_controller_address_while_rest_keeps_it(tmp_path
             key = config_repo.create_key(s, "mes", "read")[1]
         body = client.get(f"/api/v1/axes/{axis_id}/status", headers=hdr(key)).json()
         assert "127.0.0.1:1" in body["message"]  # behind a key, the technician's whole text
+
+
+def test_a_circular_test_is_beside_the_tbe_in_probe_current_and_sample(tmp_path, schemas):
+    from dataclasses import replace
+
+    from tests.api.rest.test_circles import _axis as circle_axis, _body
+
+    settings = make_settings(f"sqlite:///{tmp_path}/db.sqlite3", tmp_path)
+    app = create_app(replace(settings, axes=(circle_axis("x"), circle_axis("y"))), runner=FakeRunner(150.0))
+    with TestClient(app) as client:
+        svc, agent = app.state.service, app.state.mtconnect
+        with session_scope(svc.factory) as s:
+            axes = {a.name: a for a in config_repo.list_axes(s)}
+            keys = {r: config_repo.create_key(s, f"{r}-mtc", r)[1] for r in ("read", "operate")}
+        y = axes["y"].id
+        cur = schemas.streams_ok(client.get("/mtconnect/current").content)
+        assert {el.text for el in cur.iterfind(".//x:CircularDeviation", NS)} == {"UNAVAILABLE"}  # no test yet
+        _measure(svc, y, agent, 0)  # b̄ of y, for the agreement
+        seen = agent.subscription.delivered
+        r = client.post(f"/api/v1/machines/{axes['y'].machine_id}/circles", json=_body((0.0, 150.0)),
+                        headers=hdr(keys["operate"]))
+        assert r.status_code == 201, r.text
+        until(lambda: agent.subscription.pending == 0 and agent.subscription.delivered > seen, "the test's events")
+        ct = client.get(f"/api/v1/axes/{y}/status", headers=hdr(keys["read"])).json()["circular_test"]
+
+        probe = schemas.devices_ok(client.get("/mtconnect/probe").content)
+        linear = probe.find(f".//d:Linear[@id='a{y}']", NS)
+        types = {di.get("id"): di.get("type") for di in linear.iter("{%s}DataItem" % NS["d"])}
+        assert types[f"a{y}_circle_g"] == "x:CIRCULAR_DEVIATION" and types[f"a{y}_circle_spike"] == "x:REVERSAL_SPIKE"
+        assert types[f"a{y}_circle_agreement"] == "x:CIRCLE_AGREEMENT"
+
+        for doc in (schemas.streams_ok(client.get("/mtconnect/current").content),
+                    schemas.streams_ok(client.get("/mtconnect/sample", params={"from": 1, "count": 1000}).content)):
+            stream = doc.find(f".//m:ComponentStream[@componentId='a{y}']", NS)
+            g = stream.findall("m:Samples/x:CircularDeviation", NS)[-1]
+            assert float(g.text) == pytest.approx(ct["circular_deviation_um"] / 1000, abs=1e-7)
+            assert g.get("timestamp").startswith(ct["measured_at"][:19])  # the test's time
+            assert float(stream.findall("m:Samples/x:CircularHysteresis", NS)[-1].text) == pytest.approx(
+                ct["hysteresis_um"] / 1000, abs=1e-7)
+            assert float(stream.findall("m:Samples/x:ReversalSpike", NS)[-1].text) == pytest.approx(
+                ct["spike_um"] / 1000, abs=1e-7)
+            u = {el.get("name"): el.text for el in stream.iterfind("m:Samples/x:CircleUncertainty", NS)}
+            assert float(u["reversal_spike_uncertainty"]) == pytest.approx(ct["spike_uncertainty_um"] / 1000, abs=1e-7)
+            assert set(u) == {"circular_deviation_uncertainty", "circular_hysteresis_uncertainty",
+                              "reversal_spike_uncertainty"}
+            assert stream.findall("m:Events/x:CircleAgreement", NS)[-1].text == ct["agreement"] is not None
+        js = client.get("/mtconnect/current", headers=JSON).json()
+        comps = js["MTConnectStreams"]["Streams"]["DeviceStream"][0]["ComponentStream"]
+        (ys,) = [c for c in comps if c.get("componentId") == f"a{y}"]
+        assert ys["Samples"]["x:ReversalSpike"][0]["value"] == pytest.approx(ct["spike_um"] / 1000, abs=1e-7)

@@ -317,3 +317,53 @@ def test_predicted_time_is_the_prognosis_limit_date_once_the_history_supports_on
     assert entry["Source"] == "prognosis"
     limit_date = datetime.fromisoformat(rest["prognosis"]["limit_date"].replace("Z", "+00:00"))
     assert abs(entry["PredictedTime"].replace(tzinfo=timezone.utc) - limit_date) < timedelta(seconds=1)
+
+
+async def _read_circle(endpoint: str) -> dict:
+    async with Client(endpoint, timeout=10) as c:
+        idx, axis = await _browse_to_axis(c)
+        folder = await axis.get_child(f"{idx}:CircularTest")
+        out = {}
+        for var in await folder.get_children():
+            dv = await var.read_data_value(raise_on_bad_status=False)
+            out[(await var.read_browse_name()).Name] = (dv.Value.Value if dv.StatusCode.is_good() else
+                                                        dv.StatusCode.name, dv.SourceTimestamp)
+        spike = await folder.get_child(f"{idx}:ReversalSpike")
+        out["eu"] = await (await spike.get_child("0:EngineeringUnits")).read_value()
+        return out
+
+
+def test_the_newest_circular_test_is_beside_the_tbe(tmp_path):
+    from tests.api.rest.test_circles import _axis as circle_axis, _body
+
+    settings = replace(make_settings(f"sqlite:///{tmp_path}/db.sqlite3", tmp_path,
+                                     opcua=OpcuaSettings(enabled=True, endpoint=LOOPBACK)),
+                       axes=(circle_axis("x"), circle_axis("y")))
+    app = create_app(settings, runner=FakeRunner(backlash_um=150.0))
+    with TestClient(app) as client:
+        svc, server = app.state.service, app.state.opcua
+        with session_scope(svc.factory) as s:
+            axes = {a.name: a for a in config_repo.list_axes(s)}
+            keys = {r: config_repo.create_key(s, f"{r}-ua", r)[1] for r in ("read", "operate")}
+        y = axes["y"].id
+        before = asyncio.run(_read_circle(server.endpoint))
+        assert before["ReversalSpike"][0] == "BadWaitingForInitialData"  # no test yet
+        assert before["eu"].DisplayName.Text == "µm"
+        svc.scheduler.request(y, "manual")  # b̄ of y, for the agreement
+        assert svc.scheduler.idle(30)
+        n = server.updates
+        r = client.post(f"/api/v1/machines/{axes['y'].machine_id}/circles", json=_body((0.0, 150.0)),
+                        headers=hdr(keys["operate"]))
+        assert r.status_code == 201, r.text
+        until(lambda: server.updates >= n + 2, "the OPC UA update of both axes of the plane")
+        ct = client.get(f"/api/v1/axes/{y}/status", headers=hdr(keys["read"])).json()["circular_test"]
+        after = asyncio.run(_read_circle(server.endpoint))
+        assert after["CircularDeviation"][0] == pytest.approx(ct["circular_deviation_um"])
+        assert after["CircularDeviationUncertainty"][0] == pytest.approx(ct["circular_deviation_uncertainty_um"])
+        assert after["CircularHysteresis"][0] == pytest.approx(ct["hysteresis_um"])
+        assert after["ReversalSpike"][0] == pytest.approx(ct["spike_um"]) and ct["spike_um"] > 50.0
+        assert after["ReversalSpikeUncertainty"][0] == pytest.approx(ct["spike_uncertainty_um"])
+        assert after["Agreement"][0] == ct["agreement"] is not None
+        measured = datetime.fromisoformat(ct["measured_at"].replace("Z", "+00:00"))
+        assert abs(after["ReversalSpike"][1].replace(tzinfo=timezone.utc) - measured) < timedelta(milliseconds=1)
+        assert abs(after["MeasuredAt"][0].replace(tzinfo=timezone.utc) - measured) < timedelta(milliseconds=1)
