@@ -25,7 +25,7 @@ from core.errors import InputError
 from storage.db.errors import NotFoundError
 from storage.db.models import Alert, Axis, CircularTestRow, Machine
 from storage.db.records import AlertRecord, CircularTestRecord, as_utc, utcnow
-from storage.db.results_repo import ALERT_KIND, _alert_full
+from storage.db.results_repo import ALERT_KIND, alert_record
 
 STATES = ("OK", "WARNING", "ALARM")  # worst last
 
@@ -220,10 +220,10 @@ def update_alerts(s: Session | Engine, axis_id: int, test_id: int, decision: dic
                       message=f"circular test {test_id}: {decision.get('message') or decision.get('reason') or 'ALARM'}")
             s.add(a)
             s.flush()
-            return [_alert_full(s, a)]
+            return [alert_record(s, a)]
         if state != "ALARM" and active is not None:
             active.cleared_at = at
             active.cleared_by_circle_id = test_id
             s.flush()
-            return [_alert_full(s, active)]
+            return [alert_record(s, active)]
         return []

@@ -295,6 +295,11 @@ def _alert_full(s: Session, a: Alert) -> AlertRecord:
     return replace(rec, raised_by_measurement_id=ids["raised"], cleared_by_measurement_id=ids["cleared"])
 
 
+def alert_record(s: Session, a: Alert) -> AlertRecord:
+    """The record of a stored alert, with the measurements (cycle ids) that raised and cleared it."""
+    return _alert_full(s, a)
+
+
 def _update_alerts(s: Session, fc: FinishedCycle, r: Result) -> list[AlertRecord]:
     d = fc.decision
     active = s.scalar(select(Alert).where(Alert.axis_id == fc.axis_id, Alert.kind == ALERT_KIND,  # (a circular

@@ -507,7 +507,7 @@ def test_a_failure_text_names_no_controller_address_while_rest_keeps_it(tmp_path
 def test_a_circular_test_is_beside_the_tbe_in_probe_current_and_sample(tmp_path, schemas):
     from dataclasses import replace
 
-    from tests.api.rest.test_circles import _axis as circle_axis, _body
+    from tests.api.rest.test_circles import circle_axis, circle_body
 
     settings = make_settings(f"sqlite:///{tmp_path}/db.sqlite3", tmp_path)
     app = create_app(replace(settings, axes=(circle_axis("x"), circle_axis("y"))), runner=FakeRunner(150.0))
@@ -521,7 +521,7 @@ def test_a_circular_test_is_beside_the_tbe_in_probe_current_and_sample(tmp_path,
         assert {el.text for el in cur.iterfind(".//x:CircularDeviation", NS)} == {"UNAVAILABLE"}  # no test yet
         _measure(svc, y, agent, 0)  # b̄ of y, for the agreement
         seen = agent.subscription.delivered
-        r = client.post(f"/api/v1/machines/{axes['y'].machine_id}/circles", json=_body((0.0, 150.0)),
+        r = client.post(f"/api/v1/machines/{axes['y'].machine_id}/circles", json=circle_body((0.0, 150.0)),
                         headers=hdr(keys["operate"]))
         assert r.status_code == 201, r.text
         until(lambda: agent.subscription.pending == 0 and agent.subscription.delivered > seen, "the test's events")

@@ -334,7 +334,7 @@ async def _read_circle(endpoint: str) -> dict:
 
 
 def test_the_newest_circular_test_is_beside_the_tbe(tmp_path):
-    from tests.api.rest.test_circles import _axis as circle_axis, _body
+    from tests.api.rest.test_circles import circle_axis, circle_body
 
     settings = replace(make_settings(f"sqlite:///{tmp_path}/db.sqlite3", tmp_path,
                                      opcua=OpcuaSettings(enabled=True, endpoint=LOOPBACK)),
@@ -352,7 +352,7 @@ def test_the_newest_circular_test_is_beside_the_tbe(tmp_path):
         svc.scheduler.request(y, "manual")  # b̄ of y, for the agreement
         assert svc.scheduler.idle(30)
         n = server.updates
-        r = client.post(f"/api/v1/machines/{axes['y'].machine_id}/circles", json=_body((0.0, 150.0)),
+        r = client.post(f"/api/v1/machines/{axes['y'].machine_id}/circles", json=circle_body((0.0, 150.0)),
                         headers=hdr(keys["operate"]))
         assert r.status_code == 201, r.text
         until(lambda: server.updates >= n + 2, "the OPC UA update of both axes of the plane")

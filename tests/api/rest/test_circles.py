@@ -30,7 +30,7 @@ V1 = "/api/v1"
 TASK = MachiningTask("circle R50", "circle", feed_mm_min=1000.0, gain_per_s=10.0, tolerance_um=120.0, radius_mm=50.0)
 
 
-def _axis(name: str) -> AxisConfig:
+def circle_axis(name: str) -> AxisConfig:
     return AxisConfig("vmc-850", f.settings(spec=replace(f.AXIS, name=name), controller_url="modbus://127.0.0.1:1",
                                             schedule=Schedule(interval_s=3600.0), tasks=(TASK,)))
 
@@ -38,7 +38,7 @@ def _axis(name: str) -> AxisConfig:
 @pytest.fixture
 def env(engine, db_url, tmp_path):  # noqa: ARG001 - engine empties the database
     runner = FakeRunner(backlash_um=150.0)
-    settings = replace(make_settings(db_url, tmp_path), axes=(_axis("x"), _axis("y")))
+    settings = replace(make_settings(db_url, tmp_path), axes=(circle_axis("x"), circle_axis("y")))
     app = create_app(settings, runner=runner)
     with TestClient(app) as client:
         svc = app.state.service
@@ -48,7 +48,7 @@ def env(engine, db_url, tmp_path):  # noqa: ARG001 - engine empties the database
         yield client, svc, keys, axes, runner
 
 
-def _body(backlash_um=(0.0, 0.0), *, radius_mm=TASK.radius_mm, feed_mm_min=TASK.feed_mm_min, **kw) -> dict:
+def circle_body(backlash_um=(0.0, 0.0), *, radius_mm=TASK.radius_mm, feed_mm_min=TASK.feed_mm_min, **kw) -> dict:
     test = simulated_test(radius_mm=radius_mm, feed_mm_min=feed_mm_min, gain_per_s=TASK.gain_per_s,
                           backlash_um=backlash_um, noise_um=0.2, resolution_um=0.1, rate_hz=100.0, seed=1, **kw)
     return to_json(replace(test, temperature_c=21.0, utility_day=12.5))
@@ -66,7 +66,7 @@ def test_a_posted_test_is_analysed_compared_judged_stored_and_listed(env):
     client, svc, keys, axes, runner = env
     machine_id = axes["x"].machine_id
     _measure(client, keys, axes["y"].id)  # y has a b̄ to compare with; x has none
-    r = client.post(f"{V1}/machines/{machine_id}/circles", json=_body((0.0, 150.0)), headers=hdr(keys["operate"]))
+    r = client.post(f"{V1}/machines/{machine_id}/circles", json=circle_body((0.0, 150.0)), headers=hdr(keys["operate"]))
     assert r.status_code == 201, r.text
     doc = r.json()
     assert r.headers["location"] == f"{V1}/circles/{doc['id']}"
@@ -101,7 +101,7 @@ def test_a_posted_test_is_analysed_compared_judged_stored_and_listed(env):
     assert x_ct["agreement"] is None and x_ct["spike_um"] < ct["spike_um"]  # x: no b̄ yet, no play
 
     # a second test, at another radius: stored, not judged
-    other = client.post(f"{V1}/machines/{machine_id}/circles", json=_body(radius_mm=40.0),
+    other = client.post(f"{V1}/machines/{machine_id}/circles", json=circle_body(radius_mm=40.0),
                         headers=hdr(keys["operate"]))
     assert other.status_code == 201 and other.json()["decision"] == {"x": None, "y": None}
     assert other.json()["state"] is None
@@ -113,7 +113,7 @@ def test_a_posted_test_is_analysed_compared_judged_stored_and_listed(env):
     assert client.get(f"{V1}/machines/{machine_id}/circles?axis=y&limit=1", headers=read).json()["total"] == 2
     one = client.get(f"{V1}/circles/{doc['id']}", headers=read).json()
     assert one["figures"] == doc["figures"] and one["decision"] == doc["decision"]
-    posted = _body((0.0, 150.0))
+    posted = circle_body((0.0, 150.0))
     assert [p["direction"] for p in one["test"]["passes"]] == ["ccw", "cw"]
     assert one["test"]["passes"][0]["radial_um"] == pytest.approx(posted["passes"][0]["radial_um"])
     assert "test" not in client.get(f"{V1}/circles/{doc['id']}?samples=false", headers=read).json()
@@ -123,7 +123,7 @@ def test_keys_and_bad_bodies_get_typed_errors(env):
     client, svc, keys, axes, runner = env
     machine_id = axes["x"].machine_id
     url = f"{V1}/machines/{machine_id}/circles"
-    body = _body()
+    body = circle_body()
     assert client.post(url, json=body).status_code == 401
     assert client.post(url, json=body, headers=hdr(keys["read"])).status_code == 403
     op = hdr(keys["operate"])
@@ -156,7 +156,7 @@ def test_a_test_past_the_limit_raises_the_alert_and_order_and_a_test_after_the_r
     client, svc, keys, axes, runner = env
     machine_id, y = axes["y"].machine_id, axes["y"].id
     op, read = hdr(keys["operate"]), hdr(keys["read"])
-    r = client.post(f"{V1}/machines/{machine_id}/circles", json=_body((0.0, 300.0)), headers=op)  # past the limit
+    r = client.post(f"{V1}/machines/{machine_id}/circles", json=circle_body((0.0, 300.0)), headers=op)  # past the limit
     assert r.status_code == 201, r.text
     doc = r.json()
     d = doc["decision"]["y"]
@@ -176,7 +176,7 @@ def test_a_test_past_the_limit_raises_the_alert_and_order_and_a_test_after_the_r
     runner.gate = threading.Event()  # the verification round trip waits until the test has verified the repair
     r = client.post(f"{V1}/axes/{y}/repairs", json={"kind": "preload_adjusted"}, headers=op)
     assert r.status_code == 201 and r.json()["order"]["state"] == "repaired"
-    after = client.post(f"{V1}/machines/{machine_id}/circles", json=_body((0.0, 5.0)), headers=op).json()
+    after = client.post(f"{V1}/machines/{machine_id}/circles", json=circle_body((0.0, 5.0)), headers=op).json()
     assert after["decision"]["y"]["state"] == "OK"
     assert [a["active"] for a in after["alerts"]] == [False]
     o = client.get(f"{V1}/maintenance/orders/{order['id']}", headers=read).json()
