@@ -141,8 +141,11 @@ def test_keys_and_bad_bodies_get_typed_errors(env):
                                   "radial_um": [p["radial_um"][i] for i in half]}])
     r = client.post(url, json=partial, headers=op)
     assert r.status_code == 422 and "quadrant" in r.json()["detail"].lower()
-    r = client.post(url, json=dict(body, measured_at="yesterday"), headers=op)
-    assert r.status_code == 422 and "measured_at" in r.json()["detail"]
+    for when in ("yesterday", "2026-03-01T08:00:00", "2999-01-01T00:00:00Z"):  # not a time, no zone, future
+        r = client.post(url, json=dict(body, measured_at=when), headers=op)
+        assert r.status_code == 422 and "measured_at" in r.json()["detail"], when
+    r = client.post(url, json=dict(body, passes=body["passes"] * 2), headers=op)  # a direction twice
+    assert r.status_code == 422 and "repeated" in r.json()["detail"]
     r = client.post(url, json=[1, 2], headers=op)
     assert r.status_code == 422
     read = hdr(keys["read"])
@@ -150,6 +153,9 @@ def test_keys_and_bad_bodies_get_typed_errors(env):
     assert client.get(f"{V1}/machines/999/circles", headers=read).status_code == 404
     assert client.get(f"{V1}/circles/999", headers=read).status_code == 404
     assert client.get(f"{V1}/machines/{machine_id}/circles", headers=read).json()["total"] == 0  # none stored
+    # a test at a stated time is stored at it
+    r = client.post(url, json=dict(body, measured_at="2026-03-01T08:00:00Z"), headers=op)
+    assert r.status_code == 201 and r.json()["measured_at"] == "2026-03-01T08:00:00Z"
 
 
 def test_a_test_past_the_limit_raises_the_alert_and_order_and_a_test_after_the_repair_verifies_it(env):
