@@ -115,6 +115,13 @@ class IncompleteTraceError(AcquisitionError):
     reason_code = "incomplete_trace"
 
 
+class IncompleteCircleError(IncompleteTraceError):
+    """A circular test's recording does not close its circle: the arc ran short of the 360°
+    the test analyses (the program was stopped or aborted), or the recording holds no circle."""
+
+    reason_code = "incomplete_circle"
+
+
 class NoRoundTripSeen(AcquisitionError):
     """Passive mode: the CNC ran no round trip while mebm listened (``waited_s``). Nothing
     was measured: start the round-trip program at the CNC within the time-out."""

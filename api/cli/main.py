@@ -40,6 +40,7 @@ COMMANDS: tuple[CommandGroup, ...] = (
                  "work orders, repairs and the maintenance summary of a running service"),
     CommandGroup("gap", "api.cli.gap", "where and why the nominal model misses a machine (sim-to-real gap)"),
     CommandGroup("import", "api.cli.import_trace", "a controller's scope trace (CSV) into a mebm dataset run"),
+    CommandGroup("circle", "api.cli.circle", "circular tests (ISO 230-4): measure, import, analyze"),
     CommandGroup("export-comp", "api.cli.export_comp",
                  "a round trip as the controller's compensation table (LinuxCNC, Beckhoff/ISG, CSV)"),
 )
