@@ -74,6 +74,7 @@ def alert_document(ev: Event) -> dict:
         "cleared_at": a.cleared_at.isoformat() if a.cleared_at else None, "task_name": a.task_name,
         "tbe_um": a.tbe_um, "tolerance_um": a.tolerance_um, "backlash_um": a.backlash_um,
         "backlash_limit_um": a.backlash_limit_um, "message": a.message,
+        "raised_by_circular_test_id": a.raised_by_circular_test_id,  # the evidence, when a circular test raised it
     }  # fmt: skip
 
 

@@ -110,7 +110,8 @@ class WebhookSender:
                 "data": {"machine": ev.machine, "axis": ev.axis, "axis_id": ev.axis_id, "alert_id": a.id,
                          "kind": a.kind, "active": a.active, "task_name": a.task_name, "tbe_um": a.tbe_um,
                          "tolerance_um": a.tolerance_um, "backlash_um": a.backlash_um,
-                         "backlash_limit_um": a.backlash_limit_um, "message": a.message},
+                         "backlash_limit_um": a.backlash_limit_um, "message": a.message,
+                         "raised_by_circular_test_id": a.raised_by_circular_test_id},
             }  # fmt: skip
         else:
             return

@@ -413,3 +413,50 @@ def test_the_start_banner_says_whether_mqtt_and_webhooks_are_on_without_the_brok
     assert "s3cret" not in text and "webhooks: 1 receiver(s)" in text
     off = banner(make_settings("sqlite:///x", tmp_path), report, "http://127.0.0.1:1")
     assert "MQTT: off" in off and "webhooks: off" in off
+
+
+@needs_mosquitto
+def test_a_circular_test_refreshes_the_retained_status_and_its_alert_names_the_test(tmp_path):
+    from tests.api.rest.test_circles import circle_axis, circle_body
+
+    port, prefix = free_port(), f"t{uuid.uuid4().hex[:8]}"
+    broker = Broker(port, tmp_path)
+    try:
+        settings = make_settings(f"sqlite:///{tmp_path}/db.sqlite3", tmp_path, instance="plant-a",
+                                 mqtt=MqttSettings(url=f"mqtt://127.0.0.1:{port}", topic_prefix=prefix))
+        app = create_app(replace(settings, axes=(circle_axis("x"), circle_axis("y"))), runner=FakeRunner(150.0))
+        with TestClient(app) as client:
+            svc = app.state.service
+            with session_scope(svc.factory) as s:
+                machine_id = config_repo.list_axes(s)[0].machine_id
+                operate = config_repo.create_key(s, "op-mqtt", "operate")[1]
+            assert _sub(port, f"{prefix}/plant-a/vmc-850/online", 1) == [(f"{prefix}/plant-a/vmc-850/online", b"online")]
+            got, subscribed = [], threading.Event()
+            sub = paho.Client(paho.CallbackAPIVersion.VERSION2)
+            sub.on_connect = lambda c, *a: c.subscribe(f"{prefix}/plant-a/+/+/alerts", qos=1)
+            sub.on_subscribe = lambda *a: subscribed.set()
+            sub.on_message = lambda c, u, msg: got.append((msg.topic, msg.payload))
+            sub.connect("127.0.0.1", port)
+            sub.loop_start()
+            try:
+                until(subscribed.is_set, "the alert subscription")
+                r = client.post(f"/api/v1/machines/{machine_id}/circles", json=circle_body((0.0, 300.0)),
+                                headers=hdr(operate))
+                assert r.status_code == 201, r.text
+                until(lambda: got, "the alert message")
+            finally:
+                sub.loop_stop()
+                sub.disconnect()
+            test_id = r.json()["id"]
+            ((topic, payload),) = got
+            alert = json.loads(payload)
+            assert topic == f"{prefix}/plant-a/vmc-850/y/alerts" and alert["active"] is True
+            assert alert["raised_by_circular_test_id"] == test_id and alert["tbe_um"] > alert["tolerance_um"]
+
+            def retained(axis):
+                (_, p), = _sub(port, f"{prefix}/plant-a/vmc-850/{axis}/status", 1)
+                return (json.loads(p).get("circular_test") or {}).get("id")
+
+            until(lambda: retained("y") == test_id and retained("x") == test_id, "the test in both retained statuses")
+    finally:
+        broker.stop()
