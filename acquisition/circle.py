@@ -158,7 +158,9 @@ def data_arc(command_mm: tuple[np.ndarray, np.ndarray], table_mm: tuple[np.ndarr
     pair = next(((c, s) for c, s in zip(rests, rests[1:])
                  if np.hypot(xc[s[0]] - xc[c[0]] - out[0], yc[s[0]] - yc[c[0]] - out[1]) < 1e-3), None)
     if pair is None:
-        if len(rests) < 2:
+        radial = [(c, s) for c, s in zip(rests, rests[1:])
+                  if abs(np.hypot(xc[s[0]] - xc[c[0]], yc[s[0]] - yc[c[0]]) - r) < 1e-3]
+        if not radial:  # no rest one radius out from another: the program did not get that far
             raise IncompleteCircleError(f"{src}: the command does not rest at the circle's centre and then at its "
                                         "start point: not a recording of mebm's circle program, or cut short")
         raise ProtocolError(f"{src}: the commanded positions do not come out from the centre to the start at "

@@ -422,6 +422,11 @@ def _positions_passes(src: str, table: Table, profile: CircleProfile, fields: Ci
                                 f"{t[i]!r} s)")
     r_nom = fields.radius_mm
     fit_c, fit_r = _kasa_circle(a, b)
+    for band in (0.1, 0.01, 0.001):  # again without the approach from the centre and the rests
+        near = np.abs(np.hypot(a - fit_c[0], b - fit_c[1]) - r_nom) < band * r_nom
+        if near.sum() < 10:
+            break
+        fit_c, fit_r = _kasa_circle(a[near], b[near])
     centre = fields.centre_mm
     if centre is None:
         raise CircleImportError(f"{src}: the circle's centre in the file's coordinates is needed: the samples circle "
@@ -453,6 +458,11 @@ def _positions_passes(src: str, table: Table, profile: CircleProfile, fields: Ci
         full = [c for c in cands if c[2] >= need]
         if not full:
             longest = max((c[2] for c in cands), default=0.0)
+            if math.hypot(fit_c[0] - centre[0], fit_c[1] - centre[1]) > ON_CIRCLE_FRACTION * r_nom:
+                raise CircleImportError(
+                    f"{src}: no {d} circle about ({centre[0]:g}, {centre[1]:g}) mm: the samples circle about "
+                    f"({fit_c[0]:.4f}, {fit_c[1]:.4f}) mm with radius {fit_r:.3f} mm: give --centre-mm "
+                    f"{fit_c[0]:.4f} {fit_c[1]:.4f} (or test.centre_mm) if that is the programmed centre")
             raise CircleImportError(
                 f"{src}: no {d} circle of {need:g}° (the start-up's test.lead_in_deg = {fields.lead_in_deg:g}° and the "
                 f"360° analysed): the longest {d} arc about ({centre[0]:g}, {centre[1]:g}) mm runs {longest:.1f}°"

@@ -222,3 +222,23 @@ def test_a_bad_export_is_refused_naming_what_to_fix_and_nothing_is_written(machi
     if case == "missing-direction":
         assert "--directions ccw" in done.stderr  # the option that imports what there is
         assert import_circle(export, "ballbar-direction-column.toml", out, "--directions", "ccw").returncode == 0
+
+
+def test_the_tour_s_circular_test_on_the_simulated_machine_agrees_with_eq_8_and_is_never_overwritten(tmp_path):
+    command = ["circle", "measure", "--url", "sim:?backlash_um=120&gain_per_s=30", "--radius-mm", "50",
+               "--feed-mm-min", "2000"]
+    assert "mebm " + " ".join(command[:3]) + " 'sim:?backlash_um=120&gain_per_s=30' --radius-mm 50 --feed-mm-min 2000" \
+        in (ROOT / "README.md").read_text()  # the tour's command
+    out = tmp_path / "circle.json"
+    done = mebm(*command, "--out", str(out))
+    assert "spike ccw at   0° (axis x reverses)" in done.stdout and "circular hysteresis H" in done.stdout
+
+    def verdicts(backlash_um: str) -> list[str]:
+        doc = json.loads(mebm("circle", "analyze", str(out), "--backlash-um", backlash_um, "--backlash-u-um", "0.5",
+                              "--gain-per-s", "30", "--json").stdout)
+        return [a["verdict"] for a in doc["agreement"]]
+
+    assert verdicts("120") == ["agree", "agree"]
+    assert verdicts("60") == ["larger", "larger"]  # half the play explains smaller spikes than measured
+    again = mebm(*command, "--out", str(out), check=False)
+    assert again.returncode == 1 and "nothing stored is overwritten" in again.stderr
