@@ -20,6 +20,7 @@ from core.maintenance import (
     restore_target_um,
     summarise_axis,
     verify_repair,
+    verify_repair_by_circle,
 )
 from core.tbe import MachiningTask, backlash_limit_um
 
@@ -165,3 +166,34 @@ def test_a_history_shorter_than_one_fixed_plan_period_has_nothing_to_compare():
     assert both["repairs_saved"] == 4
     assert both["repairs_saved_note"] == ("over 1 of 2 axes: the others have less than one fixed-plan "
                                           "period (90 days) of history")
+
+
+def _circle_decision(play_um: float, task: MachiningTask):
+    from core.circle import analyze
+    from core.circle.decision import decide_circle
+    from core.circle.simulate import simulated_test
+
+    test = simulated_test(radius_mm=task.radius_mm, feed_mm_min=task.feed_mm_min, gain_per_s=task.gain_per_s,
+                          backlash_um=(0.0, play_um), noise_um=0.2, resolution_um=0.1, rate_hz=100.0, seed=3)
+    return decide_circle(analyze(test), [task], axis="y", warning_fraction=0.9, rule="guarded")
+
+
+def test_a_circular_test_after_the_repair_verifies_it_on_the_measured_error():
+    task = MachiningTask("circle R50", "circle", feed_mm_min=1000.0, gain_per_s=10.0, tolerance_um=100.0,
+                         radius_mm=50.0)
+    before = Figures(1, 300.0, 2.0, {}, ({"task": "circle R50", "tbe_um": 164.8, "tbe_uncertainty_um": 1.1,
+                                          "tolerance_um": 100.0, "state": "ALARM"},))
+    good = verify_repair_by_circle(before, _circle_decision(20.0, task), circular_test_id=7, radius_mm=50.0,
+                                   feed_mm_min=1000.0)
+    assert good["passed"] is True and good["tasks_after"][0]["state"] == "OK"
+    assert good["after"]["circular_test_id"] == 7 and good["after"]["tasks"][0]["tbe_uncertainty_um"] > 0
+    ch = good["changes"]["tbe_um[circle R50]"]
+    assert ch["before"] == 164.8 and ch["change"] < -100.0 and ch["significant"] is True
+    assert good["against"].startswith("circular test 7 (R 50 mm, F 1000 mm/min)") and good["message"].startswith(
+        "verified")
+    # a spike between the warning level (90 µm) and the tolerance: not OK, the order goes back to open
+    warn = _circle_decision(150.0, task)
+    assert 90.0 < warn.error_um < 100.0
+    bad = verify_repair_by_circle(None, warn, circular_test_id=8, radius_mm=50.0, feed_mm_min=1000.0)
+    assert bad["passed"] is False and "not verified" in bad["message"] and "WARNING" in bad["message"]
+    assert bad["before"] is None and bad["changes"] == {}
