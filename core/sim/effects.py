@@ -19,6 +19,8 @@ import math
 import typing
 from dataclasses import dataclass, fields, replace
 
+import numpy as np
+
 from core.errors import InputError
 
 FRICTION_MODELS = ("stribeck", "lugre")
@@ -229,14 +231,22 @@ class CyclicError:
     sum_i amplitudes_um[i] sin(2 pi u / periods_mm[i] + phases_deg[i]).
 
     Usual periods: the screw lead (16 mm), the motor revolution (k_a = 6.857 mm), the
-    gear stages (k_a times their ratios to the motor), encoder interpolation
-    (sub-millimetre). Realistic ranges: period 0.5..50 mm, amplitude 0..10 µm.
+    gear stages (k_a times their ratios to the motor). Realistic ranges: period
+    0.5..50 mm, amplitude 0..10 µm.
     ``CyclicError.of((16, 2.0, 0), (6.857, 1.0, 90))`` builds one from triples.
+
+    ``on="scale"``: the linear scale's interpolation error instead, an error of the
+    reading alone: the recorded table is x + sum_i a_i sin(2 pi x / p_i + phi_i) at the
+    true table position x, while the loop and the nut follow the true one (the encoders'
+    rule, :class:`Encoders`). Its periods are the scale's signal period (20-40 µm on
+    incremental scales) and its harmonics, amplitudes 0.5..5 µm; a reading's error has
+    no slope limit (the nut's does).
     """
 
     periods_mm: tuple[float, ...] = ()
     amplitudes_um: tuple[float, ...] = ()
     phases_deg: tuple[float, ...] | None = None  # None: all zero
+    on: str = "nut"  # "nut": a transmission error; "scale": the linear scale's reading
 
     def __post_init__(self) -> None:
         o = "cyclic_error"
@@ -250,8 +260,10 @@ class CyclicError:
             )
         if any(p <= 0 for p in per):
             raise InputError(f"cyclic_error.periods_mm (={list(per)}) must all be > 0")
+        if self.on not in ("nut", "scale"):
+            raise InputError(f"cyclic_error.on (={self.on!r}) must be 'nut' or 'scale'")
         slope = sum(abs(a) * 1e-3 * 2 * math.pi / p for a, p in zip(amp, per))
-        if slope >= 0.5:
+        if self.on == "nut" and slope >= 0.5:
             raise InputError(
                 f"cyclic_error: amplitudes_um (={list(amp)}) are too large for periods_mm (={list(per)}): "
                 f"the nut would nearly stop or run backwards (slope {slope:.2f}, must be < 0.5)"
@@ -261,12 +273,21 @@ class CyclicError:
         object.__setattr__(self, "phases_deg", pha)
 
     @classmethod
-    def of(cls, *components: tuple[float, float, float]) -> CyclicError:
+    def of(cls, *components: tuple[float, float, float], on: str = "nut") -> CyclicError:
         """From (period_mm, amplitude_um, phase_deg) triples."""
         if not components:
-            return cls()
+            return cls(on=on)
         per, amp, pha = zip(*components)
-        return cls(periods_mm=per, amplitudes_um=amp, phases_deg=pha)
+        return cls(periods_mm=per, amplitudes_um=amp, phases_deg=pha, on=on)
+
+    def scale_error_mm(self, x_mm: np.ndarray) -> np.ndarray:
+        """The reading's error (mm) at true table positions ``x_mm`` (``on="scale"``; else 0)."""
+        x = np.asarray(x_mm, dtype=float)
+        out = np.zeros_like(x)
+        if self.on == "scale":
+            for p, a, f in zip(self.periods_mm, self.amplitudes_um, self.phases_deg):
+                out = out + a * 1e-3 * np.sin(2 * np.pi * x / p + math.radians(f))
+        return out
 
 
 @dataclass(frozen=True)

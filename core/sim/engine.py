@@ -83,7 +83,7 @@ class Chain:
         else:
             pos = np.zeros(1)
             wid = np.array([axis.backlash_um], dtype=float)
-        ce = fx.cyclic_error
+        ce = fx.cyclic_error if fx.cyclic_error is not None and fx.cyclic_error.on == "nut" else None
         per = np.array(ce.periods_mm if ce else (), dtype=float)
         amp = np.array(ce.amplitudes_um if ce else (), dtype=float) * 1e-3
         pha = np.deg2rad(np.array(ce.phases_deg if ce else (), dtype=float))
@@ -331,6 +331,8 @@ def simulate(
         if enc.motor_counts_per_rev > 0:
             motor = _quantise(motor, 1.0 / enc.motor_counts_per_rev)
         table = xt
+        if axis.effects.cyclic_error is not None:
+            table = table + axis.effects.cyclic_error.scale_error_mm(xt)
         if enc.table_noise_um > 0:
             table = table + rng.normal(0.0, enc.table_noise_um * 1e-3, table.size)
         table = _quantise(table, enc.table_resolution_um * 1e-3)

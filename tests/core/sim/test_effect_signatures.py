@@ -119,6 +119,23 @@ def test_cyclic_error_appears_with_its_period_and_amplitude():
     assert np.hypot(coef[3], coef[4]) == pytest.approx(1.5, abs=0.01)
 
 
+def test_a_scale_interpolation_error_is_in_the_table_reading_alone():
+    """``on="scale"``: the recorded table carries the error at the true table position;
+    the nut and the true table move as without it (the loop follows the true table), and
+    a period of 20 µm with 2 µm (slope 0.63, past the nut's limit) is a valid reading error."""
+    ce = CyclicError.of((0.020, 2.0, 30.0), on="scale")
+    plain, scaled = _rt(), _rt(Effects(cyclic_error=ce))
+    assert np.array_equal(plain.nut_mm["y"], scaled.nut_mm["y"])
+    assert np.array_equal(plain.table_true_mm["y"], scaled.table_true_mm["y"])
+    x = scaled.table_true_mm["y"]
+    expected = x + 2e-3 * np.sin(2 * np.pi * x / 0.020 + np.radians(30.0))
+    assert np.max(np.abs(scaled.table_mm["y"] - expected)) < 1e-9
+    with pytest.raises(InputError, match="run backwards"):
+        CyclicError.of((0.020, 2.0, 30.0))  # the same on the nut would stall it
+    with pytest.raises(InputError, match="'nut' or 'scale'"):
+        CyclicError.of((16.0, 2.0, 0.0), on="motor")
+
+
 def _roundness_terms_um(x_effects, y_effects, feed=3000.0, radius=10.0):
     axes = {"x": AxisModel("x", effects=x_effects), "y": AxisModel("y", effects=y_effects)}
     tr = simulate(axes, circle(radius, feed_mm_min=feed, sweep_deg=360.0), rate_hz=500.0)
