@@ -32,12 +32,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.ndimage import uniform_filter1d
+from scipy.signal import savgol_filter
 from threadpoolctl import threadpool_limits
 
 from core.dataset import Dataset
 from core.gap import contour as ct
 from core.gap import roundtrip as rt
-from core.gap.data import GapError, choose_split, prepare_runs
+from core.gap.data import Contour, GapError, RoundTrip, choose_split, prepare_runs
 from core.gap.evidence import observe
 from core.gap.families import EFFECTS, REGISTRY
 from core.gap.families.base import NOT_IDENTIFIABLE
@@ -99,6 +100,66 @@ def step_um(x_mm: np.ndarray) -> float:
     return float(d.min() * 1e3) if d.size else 0.0
 
 
+# Samples at rest: an encoder whose speed (Savitzky-Golay over REST_SMOOTH_S) stays below
+# REST_SPEED_FRACTION of its run's feed for at least REST_MIN_S; a level at rest needs
+# REST_MIN_DIFFERENCES third differences inside such stretches.
+REST_SPEED_FRACTION = 0.01
+REST_SMOOTH_S = 0.02
+REST_MIN_S = 0.1
+REST_MIN_DIFFERENCES = 50
+
+
+def rest_differences_um(t_s: np.ndarray, x_mm: np.ndarray, feed_mm_min: float) -> np.ndarray:
+    """The third differences (µm) of one encoder's record inside its stretches at rest.
+
+    Where nothing moves, what an encoder shows is its own noise: no motion of the chain
+    reaches it, and an error of the reading that depends on the position (a scale's
+    interpolation error, a period of 20-40 µm) is a constant there, while in motion it
+    aliases into the differences of every sample. The decay of a stop (a loop settling, a
+    chain ringing out) is smooth on the scale of three samples and passes."""
+    t = np.asarray(t_s, dtype=float)
+    x = np.asarray(x_mm, dtype=float)
+    if x.size < 8 or not feed_mm_min > 0:
+        return np.zeros(0)
+    dt = float(np.median(np.diff(t)))
+    if not dt > 0:
+        return np.zeros(0)
+    n = max(5, 2 * int(round(REST_SMOOTH_S / dt / 2)) + 1)
+    if n >= x.size:
+        return np.zeros(0)
+    v = savgol_filter(x, n, 2, deriv=1, delta=dt)
+    still = np.abs(v) < REST_SPEED_FRACTION * feed_mm_min / 60.0
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], still.astype(np.int8), [0]))))
+    need = max(NOISE_DIFF_ORDER + 2, int(math.ceil(REST_MIN_S / dt)))
+    parts = [np.diff(x[a:b], NOISE_DIFF_ORDER) for a, b in zip(edges[::2], edges[1::2]) if b - a >= need]
+    return np.concatenate(parts) * 1e3 if parts else np.zeros(0)
+
+
+def rest_level_um(differences: Sequence[np.ndarray]) -> float | None:
+    """White-noise level (µm) from third differences at rest (:func:`rest_differences_um`),
+    pooled; None where fewer than REST_MIN_DIFFERENCES: no encoder stood still long enough."""
+    d = np.concatenate([np.asarray(p, float) for p in differences]) if differences else np.zeros(0)
+    if d.size < REST_MIN_DIFFERENCES:
+        return None
+    return float(np.median(np.abs(d - np.median(d))) / 0.6745 / math.sqrt(math.comb(2 * NOISE_DIFF_ORDER,
+                                                                                   NOISE_DIFF_ORDER)))
+
+
+def rest_levels_um(rts: Sequence[RoundTrip], cts: Sequence[Contour]) -> dict[tuple[str, str], float | None]:
+    """Each encoder's white level at rest (µm), from every run of the dataset, train and
+    test (the encoders are the same): ``("table", axis)`` from the round trips' table and
+    the contours' records of the axis, ``("motor", axis)`` from the round trips' motor;
+    None where it never stood still long enough."""
+    diffs: dict[tuple[str, str], list[np.ndarray]] = {}
+    for r in rts:
+        diffs.setdefault(("table", r.axis), []).append(rest_differences_um(r.t_s, r.x_mm, r.feed_mm_min))
+        diffs.setdefault(("motor", r.axis), []).append(rest_differences_um(r.t_s, r.u_mm, r.feed_mm_min))
+    for c in cts:
+        for a in c.axes:
+            diffs.setdefault(("table", a), []).append(rest_differences_um(c.t_s, c.table_mm[a], c.feed_mm_min))
+    return {k: rest_level_um(v) for k, v in diffs.items()}
+
+
 def quantization_um(*records_mm: np.ndarray) -> float:
     """The RMS that the quantization of ``records_mm`` adds to a residual that takes each of
     them once (their differences: table given motor): sqrt(sum q^2 / 12) over their steps
@@ -107,7 +168,8 @@ def quantization_um(*records_mm: np.ndarray) -> float:
 
 
 def noise_floor_um(resid: Sequence[np.ndarray], groups: Sequence[str | None] | None = None,
-                   quant_um: Sequence[float] | None = None) -> float:
+                   quant_um: Sequence[float] | None = None,
+                   rest_um: Sequence[float | None] | None = None) -> float:
     """The white-noise level of residuals (:func:`white_level_um`), as the RMS that a gap of
     white noise alone would have.
 
@@ -134,18 +196,29 @@ def noise_floor_um(resid: Sequence[np.ndarray], groups: Sequence[str | None] | N
     ``quant_um``: per residual, the RMS its encoders' quantization adds
     (:func:`quantization_um`), in quadrature beside the white level. A quantized record
     that moves slowly steps rarely, so its differences read almost no noise while the
-    steps alone give resolution/sqrt(12): a 1 µm scale 0.29 µm RMS."""
+    steps alone give resolution/sqrt(12): a 1 µm scale 0.29 µm RMS.
+
+    ``rest_um``: per residual, the white level its encoders show at rest
+    (:func:`rest_level_um`), or None: it replaces the level read from the residual's
+    differences in motion, which also carry what moves faster than the samples (a scale's
+    interpolation error: on the independent plant's seed 5807 a floor of 2.5-3.9 µm
+    where the same plant's quiet cases read 0.3-0.5 µm). A residual whose encoders never
+    stand still keeps the level in motion."""
     q_all = list(quant_um) if quant_um is not None else [0.0] * len(resid)
-    runs = [(r, None if groups is None else g, q) for r, g, q in zip(resid, groups or [None] * len(resid), q_all)
+    r_all = list(rest_um) if rest_um is not None else [None] * len(resid)
+    runs = [(r, None if groups is None else g, q, w)
+            for r, g, q, w in zip(resid, groups or [None] * len(resid), q_all, r_all)
             if r.size > NOISE_DIFF_ORDER + 1]  # fmt: skip
     if not runs:
         return 0.0
-    pooled = white_level_um([r for r, _, _ in runs])
-    if groups is None and quant_um is None:
+    moving = [r for r, _, _, w in runs if w is None]
+    pooled = white_level_um(moving) if moving else 0.0
+    if groups is None and quant_um is None and rest_um is None:
         return pooled
-    level = {g: white_level_um([r for r, k, _ in runs if k == g]) for g in {k for _, k, _ in runs if k is not None}}
-    n = np.array([r.size for r, _, _ in runs], dtype=float)
-    s = np.array([math.hypot(pooled if g is None else level[g], q) for _, g, q in runs])
+    level = {g: white_level_um([r for r, k, _, w in runs if k == g and w is None])
+             for g in {k for _, k, _, w in runs if k is not None and w is None}}  # fmt: skip
+    n = np.array([r.size for r, *_ in runs], dtype=float)
+    s = np.array([math.hypot(w if w is not None else pooled if g is None else level[g], q) for _, g, q, w in runs])
     return float(np.sqrt(np.sum(n * s * s) / np.sum(n)))
 
 
@@ -751,8 +824,15 @@ def _diagnose(dataset: Dataset, s: GapSettings, workers: int) -> GapReport:
     # and each encoder's quantization, from the records' own smallest step
     quant = ([quantization_um(r.x_mm, r.u_mm) for r in d.test_rt]
              + [math.sqrt(sum(quantization_um(c.table_mm[a]) ** 2 for a in c.axes) / len(c.axes)) for c in d.test_ct])
+    rest = rest_levels_um(d.rts, d.cts)
+    rest_rt = [None if rest.get(("table", r.axis)) is None or rest.get(("motor", r.axis)) is None
+               else math.hypot(rest[("table", r.axis)], rest[("motor", r.axis)]) for r in d.test_rt]
+    rest_ct = [None if any(rest.get(("table", a)) is None for a in c.axes)
+               else math.sqrt(sum(rest[("table", a)] ** 2 for a in c.axes) / len(c.axes)) for c in d.test_ct]
     noise = noise_floor_um(d.rt_nom_plain + d.ct_nom_plain, [r.axis for r in d.test_rt] + [None] * len(d.ct_nom_plain),
-                           quant)  # fmt: skip
+                           quant, rest_rt + rest_ct)  # fmt: skip
+    at_rest = [w is not None for w in rest_rt + rest_ct]
+    noise_from = "rest" if all(at_rest) else "motion" if not any(at_rest) else "rest and motion"
 
     rule = s.rule()
     gate = s.noise_factor * noise
@@ -816,6 +896,7 @@ def _diagnose(dataset: Dataset, s: GapSettings, workers: int) -> GapReport:
         gap_before_um=gap_before,
         gap_after_um=gap_after,
         noise_floor_um=noise,
+        noise_floor_from=noise_from,
         train=d.split.train,
         test=d.split.test,
         split_how=d.split.how,

@@ -9,6 +9,10 @@ from dataclasses import dataclass, field
 FORMAT = "mebm-gap/1"
 
 
+_FLOOR_FROM = {"rest": "where the encoders stand still", "motion": "in motion: no encoder stood still",
+               "rest and motion": "at rest, in motion where an encoder never stood still"}
+
+
 def _num(x, nd: int = 4):
     if x is None:
         return None
@@ -108,6 +112,9 @@ class GapReport:
     # the wear of a stored history in the nominal model: per axis (rate µm per utility day,
     # the reference utility day its backlash is given at)
     nominal_wear: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    # where the noise floor's white level was read: "rest" (every test run's encoders stood
+    # still somewhere), "motion" (none did: from the residuals' third differences), or both
+    noise_floor_from: str = "motion"
 
     def to_dict(self) -> dict:
         return {
@@ -122,6 +129,7 @@ class GapReport:
             "split": {"train": list(self.train), "test": list(self.test), "how": self.split_how},
             "candidates": [c.to_dict() for c in self.candidates],
             "noise_floor_um": _num(self.noise_floor_um, 3),
+            "noise_floor_from": self.noise_floor_from,
             "quantity": dict(self.quantity),
             "gap_before_by_kind_um": {k: _num(v, 3) for k, v in self.gap_before_by_kind_um.items()},
             "nominal_backlash_um": {k: _num(v, 2) for k, v in self.nominal_backlash_um.items()},
@@ -149,7 +157,8 @@ class GapReport:
         lines = [f"Gap diagnosis of machine {self.machine_id or '(unnamed)'}: {n_tr} train run(s), {n_te} test run(s)."]
         lines.append(
             f"The nominal model (K from the axis, {kind} fitted on the train runs: {b}) "
-            f"misses the test runs by {gb:.2f} µm RMS; the measurement noise floor is {self.noise_floor_um:.2f} µm."
+            f"misses the test runs by {gb:.2f} µm RMS; the measurement noise floor is {self.noise_floor_um:.2f} µm"
+            f" (read {_FLOOR_FROM[self.noise_floor_from]})."
         )
         if self.effect == "none":
             lines.append(f"Diagnosis: none. {self.decision}")
