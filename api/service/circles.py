@@ -147,3 +147,30 @@ def axis_summary(record: CircularTestRecord | None, axis: str) -> dict | None:
         "state": d.get("state"), "task": d.get("task"),
         "href": f"/api/v1/circles/{record.id}",
     }
+
+
+def import_circular_test(csv_bytes: bytes, filename: str, profile_toml: bytes, **overrides) -> CircularTest:
+    """The circular test of an exported CSV (a ballbar's or a trace tool's) read through a
+    circle-import profile (TOML, acquisition.circle_import); ``overrides``: radius_mm,
+    feed_mm_min, plane, temperature_c, utility_day (None: the profile's). Errors name the
+    uploaded file's name, line and column, never the server's folders."""
+    import re
+    import tempfile
+    import tomllib
+    from pathlib import Path
+
+    from acquisition.circle_import import parse_profile, read_circle
+
+    try:
+        doc = tomllib.loads(profile_toml.decode("utf-8"))
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise InputError(f"profile: not a TOML circle-import profile ({exc})") from None
+    profile = parse_profile(doc, "profile")
+    name = re.sub(r"[^A-Za-z0-9_.-]+", "_", Path(filename or "").name).strip("._") or "circle.csv"
+    with tempfile.TemporaryDirectory(prefix="mebm-circle-") as tmp:
+        path = Path(tmp) / name
+        path.write_bytes(csv_bytes)
+        try:
+            return read_circle(path, profile, **overrides)
+        except InputError as exc:
+            raise InputError(str(exc).replace(f"{tmp}/", "")) from None

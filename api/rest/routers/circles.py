@@ -13,12 +13,12 @@ from __future__ import annotations
 from datetime import datetime, timedelta
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Body, Path, Query, Response, status
+from fastapi import APIRouter, Body, File, Form, Path, Query, Response, UploadFile, status
 from fastapi.concurrency import run_in_threadpool
 
 from api.rest.auth import OperateKey, ReadKey
 from api.rest.deps import MachineId, ServiceDep, SessionDep
-from api.service.circles import record_circular_test
+from api.service.circles import import_circular_test, record_circular_test
 from core.circle import from_json, to_json
 from core.errors import InputError
 from storage.db import AlertRecord, CircularTestRecord, circles_repo, utcnow
@@ -85,6 +85,39 @@ async def post_circle(machine_id: MachineId, svc: ServiceDep, key: OperateKey, r
     def run():
         test = from_json(body)
         stored = record_circular_test(svc, machine_id, test, by=key.name, measured_at=_measured_at(body))
+        doc = circle_doc(stored.record)
+        doc["alerts"] = [_alert_doc(a) for a in stored.alerts]
+        return doc
+
+    doc = await run_in_threadpool(run)
+    response.headers["Location"] = doc["href"]
+    return doc
+
+
+@router.post("/machines/{machine_id}/circles/import", response_model=dict[str, Any],
+             status_code=status.HTTP_201_CREATED,
+             summary="Import an exported circular test (operate): a CSV through a circle-import profile, then as POST "
+                     "/machines/{id}/circles")
+async def import_circle(
+        machine_id: MachineId, svc: ServiceDep, key: OperateKey, response: Response,
+        file: Annotated[UploadFile, File(description="the export: a ballbar's radial deviations or a trace tool's "
+                                                     "positions (CSV)")],
+        profile: Annotated[UploadFile, File(description="the circle-import profile (TOML, mebm-circle-profile/1; "
+                                                        "examples/circle-profiles/)")],
+        radius_mm: Annotated[float | None, Form(gt=0, le=1e5, description="the nominal radius, if not in the profile")] = None,
+        feed_mm_min: Annotated[float | None, Form(gt=0, le=1e6, description="the feed, if not in the profile")] = None,
+        plane: Annotated[str | None, Form(max_length=41, description="the two axes, first at 0°: xy or x,y")] = None,
+        temperature_c: Annotated[float | None, Form(ge=-50, le=100)] = None,
+        utility_day: Annotated[float | None, Form(ge=0, le=1e6)] = None,
+        measured_at: Annotated[str | None, Form(max_length=40, description="ISO 8601 with a zone")] = None):
+    raw, prof = await file.read(), await profile.read()
+
+    def run():
+        axes = None if plane is None else (plane.split(",") if "," in plane else plane)
+        test = import_circular_test(raw, file.filename or "", prof, radius_mm=radius_mm, feed_mm_min=feed_mm_min,
+                                    plane=axes, temperature_c=temperature_c, utility_day=utility_day)
+        stored = record_circular_test(svc, machine_id, test, by=key.name,
+                                      measured_at=_measured_at({"measured_at": measured_at}))
         doc = circle_doc(stored.record)
         doc["alerts"] = [_alert_doc(a) for a in stored.alerts]
         return doc

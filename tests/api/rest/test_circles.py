@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import threading
 from dataclasses import replace
+from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
@@ -194,3 +195,46 @@ def test_a_test_past_the_limit_raises_the_alert_and_order_and_a_test_after_the_r
                             client.get(f"{V1}/axes/{y}/measurements", headers=read).json()["items"]))
     with session_scope(svc.factory) as s:
         assert maintenance_repo.active_order(s, y) is None
+
+
+PROFILE = Path(__file__).resolve().parents[3] / "examples" / "circle-profiles" / "ballbar-direction-column.toml"
+
+
+def ballbar_csv(backlash_um=(0.0, 0.0)) -> bytes:
+    """A ballbar's export of the twin's circle: angle, deviation and direction, in the order run."""
+    doc = circle_body(backlash_um)
+    lines = ["Angle (deg),Deviation (um),Direction"]
+    for p in doc["passes"]:
+        lines += [f"{a!r},{r!r},{p['direction'].upper()}" for a, r in zip(p["angle_deg"], p["radial_um"])]
+    return ("\n".join(lines) + "\n").encode()
+
+
+def test_an_exported_csv_is_imported_through_its_profile_and_judged_as_a_posted_test(env):
+    client, svc, keys, axes, runner = env
+    url = f"{V1}/machines/{axes['y'].machine_id}/circles/import"
+    op = hdr(keys["operate"])
+    files = {"file": ("vmc-850_xy.csv", ballbar_csv((0.0, 300.0)), "text/csv"),
+             "profile": ("ballbar.toml", PROFILE.read_bytes(), "application/toml")}
+    form = {"radius_mm": str(TASK.radius_mm), "feed_mm_min": str(TASK.feed_mm_min), "temperature_c": "21.0"}
+    r = client.post(url, files=files, data=form, headers=op)
+    assert r.status_code == 201, r.text
+    doc = r.json()
+    assert doc["source"] == "imported: vmc-850_xy.csv" and doc["instrument"]["kind"] == "ballbar"
+    assert doc["temperature_c"] == 21.0 and doc["directions"] == ["ccw", "cw"]
+    posted = client.post(f"{V1}/machines/{axes['y'].machine_id}/circles", json=circle_body((0.0, 300.0)),
+                         headers=op).json()  # the same circle posted as JSON
+    assert doc["decision"]["y"]["state"] == posted["decision"]["y"]["state"] == "ALARM"
+    assert doc["figures"]["circular_deviation_um"] == pytest.approx(posted["figures"]["circular_deviation_um"],
+                                                                    rel=1e-6)
+    assert [a["raised_by_circular_test_id"] for a in doc["alerts"]] == [doc["id"]]
+    # faults name the uploaded file and what fixes them, never the server's folders
+    bad = {"file": ("bb.csv", b"Angle,Dev\n1,2\n", "text/csv"), "profile": files["profile"]}
+    r = client.post(url, files=bad, data=form, headers=op)
+    assert r.status_code == 422 and "bb.csv" in r.json()["detail"] and "no column" in r.json()["detail"]
+    assert "mebm-circle-" not in r.json()["detail"]
+    r = client.post(url, files=files, headers=op)  # no radius: the profile does not give it either
+    assert r.status_code == 422 and "radius_mm" in r.json()["detail"]
+    r = client.post(url, files={**files, "profile": ("p.toml", b"format = [", "application/toml")}, data=form,
+                    headers=op)
+    assert r.status_code == 422 and "profile" in r.json()["detail"]
+    assert client.post(url, files=files, data=form, headers=hdr(keys["read"])).status_code == 403
