@@ -37,7 +37,7 @@ from urllib.parse import parse_qsl, urlsplit
 
 import numpy as np
 
-from acquisition.errors import IncompleteCircleError, ProtocolError
+from acquisition.errors import AcquisitionError, IncompleteCircleError, LostSamplesError, ProtocolError
 from core.circle import DIRECTIONS, CircularTest, Instrument, pass_from_positions
 from core.errors import InputError, require_finite, require_positive
 
@@ -254,6 +254,21 @@ async def _check_state(host: str, port: int, timeout_s: float) -> None:
         raise MachineOffError(f"{where} has the machine OFF: the operator switches it on; mebm never does")
 
 
+async def _abort(host: str, port: int, timeout_s: float) -> bool:
+    """Abort the program mebm started; False when LinuxCNC cannot be reached or refuses."""
+    from acquisition.linuxcnc.rsh import RshClient
+
+    rsh = RshClient(host, port, timeout_s=timeout_s)
+    try:
+        await rsh.open(enable=True)
+        await rsh.set("abort")
+        return True
+    except AcquisitionError:
+        return False
+    finally:
+        await rsh.close()
+
+
 def _check_sampler(sampler: int) -> None:
     """The sampler records six pins (both axes' motor, scale, command)."""
     from acquisition.linuxcnc import hal
@@ -279,6 +294,7 @@ def measure_linuxcnc(url: str, program: CircleProgram, directions=DIRECTIONS, *,
     """Run and record ``program`` on LinuxCNC in each of ``directions``; ``resolution_um``
     is the linear scales' (LinuxCNC does not know it)."""
     from acquisition.linuxcnc.contour import record_contour
+    from acquisition.linuxcnc.errors import EstopError, MachineOffError
 
     host, port, opts = _linuxcnc_options(url)
     dirs = check_directions(directions)
@@ -295,6 +311,16 @@ def measure_linuxcnc(url: str, program: CircleProgram, directions=DIRECTIONS, *,
             turn_s = program.sweep_deg / 360.0 * 2 * math.pi * program.radius_mm / (program.feed_mm_min / 60.0)
             rec = record_contour(host, port, str(path), sampler=opts["sampler"], timeout_s=timeout_s,
                                  max_duration_s=2.0 * turn_s + 30.0)
+        except AcquisitionError as exc:
+            # mebm started the motion: it stops it (an e-stop or a machine off has already)
+            if isinstance(exc, (EstopError, MachineOffError)) or not asyncio.run(_abort(host, port, timeout_s)):
+                raise
+            if isinstance(exc, LostSamplesError):
+                raise LostSamplesError(f"{exc}: abort sent", lost_samples=exc.lost_samples) from exc
+            raise
+        except KeyboardInterrupt:
+            asyncio.run(_abort(host, port, timeout_s))
+            raise
         finally:
             path.unlink(missing_ok=True)
         if len(rec) < 100:

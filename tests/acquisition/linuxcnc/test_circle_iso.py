@@ -8,20 +8,24 @@ agrees for both axes (|E_n| <= 1). With FF1 = 1 (velocity feed-forward) the circ
 the P loop's steady lag R (1 - cos φ), which FF1 removes, while the spikes, a transient
 of the P term alone, still agree with Eq. 8. With a slow drive (a 10 ms velocity loop,
 servo dynamics Eq. 8 does not model) the spikes are larger than Eq. 8 predicts and the
-verdict says so and where to look. E-stop and machine off before the circle, and a
-circle the operator aborts, are typed errors. One LinuxCNC start for the module: the
+verdict says so and where to look. E-stop and machine off before the circle, a
+circle the operator aborts and samples the sampler drops are typed errors (mebm aborts the
+circle it started then). One LinuxCNC start for the module: the
 tuning is changed in HAL between the circles, as a technician would.
 """
 
 from __future__ import annotations
 
 import math
+import os
+import signal
 import time
+from pathlib import Path
 
 import pytest
 
 from acquisition.circle import CircleProgram, measure_circle
-from acquisition.errors import IncompleteCircleError
+from acquisition.errors import IncompleteCircleError, LostSamplesError
 from acquisition.linuxcnc import hal
 from acquisition.linuxcnc.errors import EstopError, MachineOffError
 from acquisition.linuxcnc.sim import SimSettings
@@ -176,3 +180,39 @@ def test_a_circle_the_operator_aborts_does_not_close_and_says_so(powered):
     err = out.get("error")
     assert isinstance(err, IncompleteCircleError), out
     assert err.reason_code == "incomplete_circle" and "does not close" in str(err)
+
+
+def halsampler_of(channel: int) -> int | None:
+    """The pid of the halsampler this process started for FIFO ``channel``, if one runs."""
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            cmd = (d / "cmdline").read_bytes().split(b"\0")
+            ppid = int(next(ln for ln in (d / "status").read_text().splitlines() if ln.startswith("PPid:")).split()[1])
+        except (OSError, StopIteration, ValueError):
+            continue
+        if ppid == os.getpid() and any(c.endswith(b"halsampler") for c in cmd) and str(channel).encode() in cmd:
+            return int(d.name)
+    return None
+
+
+def test_samples_the_sampler_drops_fail_the_circle_and_mebm_aborts_it(powered):
+    # FIFO 3 of the simulated machine (both axes, six pins) holds a quarter of a second:
+    # halsampler held still for longer overruns it, as a busy host would
+    url = f"linuxcnc://127.0.0.1:{powered.settings.port}?sampler=3"
+    thread, out = in_thread(measure_circle, url, CIRCLE, resolution_um=1.0)
+    pid = until(lambda: "error" in out or halsampler_of(3), "halsampler reading FIFO 3")
+    assert "error" not in out, out
+    time.sleep(1.0)  # the circle's program under way
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        time.sleep(0.6)
+    finally:
+        os.kill(pid, signal.SIGCONT)
+    thread.join(60.0)
+    assert not thread.is_alive()
+    err = out.get("error")
+    assert isinstance(err, LostSamplesError) and err.lost_samples >= 1, out
+    assert "abort sent" in str(err)
+    until(lambda: powered.rsh("get program_status") == ["PROGRAM_STATUS IDLE"], "the circle stopped")
