@@ -57,10 +57,13 @@ def circle_body(backlash_um=(0.0, 0.0), *, radius_mm=TASK.radius_mm, feed_mm_min
 
 def _measure(client, keys, axis_id) -> dict:
     """A round trip of the axis (the fake runner's 150 µm play), for its b̄."""
+    def ok():
+        return [m for m in client.get(f"{V1}/axes/{axis_id}/measurements", headers=hdr(keys["read"])).json()["items"]
+                if m["status"] == "ok"]
+
+    n = len(ok())
     assert client.post(f"{V1}/axes/{axis_id}/measurements", headers=hdr(keys["operate"])).status_code == 202
-    items = poll(lambda: [m for m in client.get(f"{V1}/axes/{axis_id}/measurements",
-                                                 headers=hdr(keys["read"])).json()["items"] if m["status"] == "ok"])
-    return items[0]
+    return poll(lambda: ok() if len(ok()) > n else None)[0]
 
 
 def test_a_posted_test_is_analysed_compared_judged_stored_and_listed(env):
@@ -238,3 +241,24 @@ def test_an_exported_csv_is_imported_through_its_profile_and_judged_as_a_posted_
                     headers=op)
     assert r.status_code == 422 and "profile" in r.json()["detail"]
     assert client.post(url, files=files, data=form, headers=hdr(keys["read"])).status_code == 403
+
+
+def test_a_test_in_alarm_on_an_axis_with_an_order_opens_no_second_one_and_a_round_trip_keeps_its_alert(env):
+    client, svc, keys, axes, runner = env
+    y, read = axes["y"].id, hdr(keys["read"])
+    runner.backlash_um = 400.0  # the round trip finds ALARM first: its alert and its corrective order
+    _measure(client, keys, y)
+    (order,) = poll(lambda: client.get(f"{V1}/maintenance/orders?axis_id={y}", headers=read).json()["items"])
+    assert order["opened_by_measurement_id"] is not None and order["opened_by_circular_test_id"] is None
+    r = client.post(f"{V1}/machines/{axes['y'].machine_id}/circles", json=circle_body((0.0, 300.0)),
+                    headers=hdr(keys["operate"]))
+    assert r.status_code == 201 and r.json()["decision"]["y"]["state"] == "ALARM"
+    alerts = client.get(f"{V1}/alerts?axis_id={y}", headers=read).json()["items"]
+    assert sorted((a["raised_by_circular_test_id"] is not None, a["active"]) for a in alerts) == [
+        (False, True), (True, True)]  # each evidence its own alert
+    orders = client.get(f"{V1}/maintenance/orders?axis_id={y}&state=all", headers=read).json()["items"]
+    assert [o["id"] for o in orders] == [order["id"]]  # one active order per axis
+    runner.backlash_um = 150.0  # a good round trip clears its own alert, not the test's
+    _measure(client, keys, y)
+    active = [a for a in client.get(f"{V1}/alerts?axis_id={y}", headers=read).json()["items"] if a["active"]]
+    assert [a["raised_by_circular_test_id"] for a in active] == [r.json()["id"]]
