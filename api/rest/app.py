@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import re
 
 from fastapi import FastAPI
 
@@ -36,6 +37,7 @@ API_PREFIX = "/api/v1"
 ROUTERS = (machines, axes, measurements, alerts, plots, keys, gap, compensation, interfaces, maintenance, workers,
            circles)
 log = logging.getLogger("mebm.api")
+CIRCLE_POST = re.compile(API_PREFIX + r"/machines/[^/]+/circles(?:/import)?")  # a circular test's samples
 
 DESCRIPTION = """
 Manufacturing-error-based maintenance (MEBM) of machine-tool feed drives.
@@ -130,7 +132,8 @@ def create_app(settings: Settings, *, service: Service | None = None, runner: Cy
     app.state.trigger_limit = TokenBucket(lim.triggers_per_minute, lim.trigger_burst)
     app.state.auth_throttle = AuthThrottle(lim.auth_failures_per_minute, lim.auth_failure_burst,
                                            lim.auth_address_failures_per_minute, lim.auth_address_failure_burst)
-    app.add_middleware(BodyLimit, max_bytes=lim.max_body_bytes)  # before anything reads the body
+    app.add_middleware(BodyLimit, max_bytes=lim.max_body_bytes,  # before anything reads the body
+                       larger=(("POST", CIRCLE_POST, lim.max_circle_body_bytes, "limits.max_circle_body_bytes"),))
     app.add_middleware(SecurityHeaders)
     app.add_middleware(ForwardedFor, trusted=settings.trusted_proxies)  # outermost: all see the client
     # each module's router straight into the app, with the API's prefix and error answers:

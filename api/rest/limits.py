@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 from starlette.exceptions import HTTPException
 
@@ -18,8 +19,8 @@ from api.service.throttle import AuthThrottle, TokenBucket  # noqa: F401 - the A
 
 
 class BodyTooLarge(HTTPException):
-    def __init__(self, max_bytes: int):
-        super().__init__(status_code=413, detail=f"request body larger than {max_bytes} bytes (limits.max_body_bytes)")
+    def __init__(self, max_bytes: int, setting: str = "limits.max_body_bytes"):
+        super().__init__(status_code=413, detail=f"request body larger than {max_bytes} bytes ({setting})")
 
 
 def _json_response(status: int, detail: str, extra_headers=()) -> tuple[dict, dict]:
@@ -31,13 +32,22 @@ def _json_response(status: int, detail: str, extra_headers=()) -> tuple[dict, di
 
 
 class BodyLimit:
-    def __init__(self, app, max_bytes: int):
+    """``larger``: (method, path pattern, max_bytes, setting) of the routes whose bodies are
+    data sets rather than requests (a circular test's samples), with a limit of their own."""
+
+    def __init__(self, app, max_bytes: int, larger: tuple[tuple[str, re.Pattern, int, str], ...] = ()):
         self.app = app
         self.max_bytes = max_bytes
+        self.larger = larger
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
+        max_bytes, setting = self.max_bytes, "limits.max_body_bytes"
+        for method, pattern, n, name in self.larger:
+            if scope["method"] == method and pattern.fullmatch(scope["path"]):
+                max_bytes, setting = n, name
+                break
         length = None
         for name, value in scope["headers"]:
             if name == b"content-length":
@@ -46,8 +56,8 @@ class BodyLimit:
                 except ValueError:
                     length = None
                 break
-        if length is not None and length > self.max_bytes:
-            start, body = _json_response(413, BodyTooLarge(self.max_bytes).detail)
+        if length is not None and length > max_bytes:
+            start, body = _json_response(413, BodyTooLarge(max_bytes, setting).detail)
             await send(start)
             await send(body)
             return
@@ -59,8 +69,8 @@ class BodyLimit:
             message = await receive()
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
-                if received > self.max_bytes:
-                    raise BodyTooLarge(self.max_bytes)  # FastAPI answers an HTTPException itself
+                if received > max_bytes:
+                    raise BodyTooLarge(max_bytes, setting)  # FastAPI answers an HTTPException itself
             return message
 
         async def tracking_send(message):

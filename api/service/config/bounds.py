@@ -82,6 +82,7 @@ BOUNDS: tuple[tuple[Bound, str], ...] = (
     (Bound("simulator.wear_um_per_day", 0, 10_000, "µm/day"), "simulator.wear_um_per_day"),
     (Bound("simulator.utility_days_per_s", 1e-9, 1e6, "days/s"), "simulator.utility_days_per_s"),
     (Bound("limits.max_body_bytes", 1024, 1_000_000_000, "bytes"), "limits.max_body_bytes"),
+    (Bound("limits.max_circle_body_bytes", 1024, 1_000_000_000, "bytes"), "limits.max_circle_body_bytes"),
     (Bound("limits.max_header_bytes", 1024, 16 * 1024 * 1024, "bytes"), "limits.max_header_bytes"),
     (Bound("limits.max_headers", 8, 10_000), "limits.max_headers"),
     (Bound("limits.header_timeout_s", 0.1, 300, "s"), "limits.header_timeout_s"),

@@ -505,7 +505,7 @@ def check_webhooks(w: WebhookSettings, where: str) -> None:
 
 
 def _limits(table: Mapping, base: LimitSettings) -> LimitSettings:
-    kinds = {"max_body_bytes": int, "max_header_bytes": int, "max_headers": int, "header_timeout_s": float,
+    kinds = {"max_body_bytes": int, "max_circle_body_bytes": int, "max_header_bytes": int, "max_headers": int, "header_timeout_s": float,
              "triggers_per_minute": float, "trigger_burst": int,
              "auth_failures_per_minute": float, "auth_failure_burst": int,
              "auth_address_failures_per_minute": float, "auth_address_failure_burst": int,

@@ -61,6 +61,9 @@ class LimitSettings:
     """What one client can make the service do (``[limits]``)."""
 
     max_body_bytes: int = 1_000_000  # larger request bodies: 413 before they are read, key or no key
+    # ...except a posted or imported circular test's: its samples (a LinuxCNC recording at the servo
+    # rate is some 40,000, 1.5 MB of JSON); 32 MB is about 800,000 samples
+    max_circle_body_bytes: int = 32_000_000
     max_header_bytes: int = 65536  # a request line and header fields larger in all: 431, the rest unread
     max_headers: int = 100  # more header fields: 431
     header_timeout_s: float = 10.0  # a request head not complete this long after its first byte: 408, closed

@@ -7,6 +7,7 @@ verifies the repair."""
 
 from __future__ import annotations
 
+import json
 import math
 import threading
 from dataclasses import replace
@@ -51,7 +52,7 @@ def env(engine, db_url, tmp_path):  # noqa: ARG001 - engine empties the database
 
 def circle_body(backlash_um=(0.0, 0.0), *, radius_mm=TASK.radius_mm, feed_mm_min=TASK.feed_mm_min, **kw) -> dict:
     test = simulated_test(radius_mm=radius_mm, feed_mm_min=feed_mm_min, gain_per_s=TASK.gain_per_s,
-                          backlash_um=backlash_um, noise_um=0.2, resolution_um=0.1, rate_hz=100.0, seed=1, **kw)
+                          backlash_um=backlash_um, noise_um=0.2, resolution_um=0.1, seed=1, **{"rate_hz": 100.0, **kw})
     return to_json(replace(test, temperature_c=21.0, utility_day=12.5))
 
 
@@ -135,8 +136,6 @@ def test_keys_and_bad_bodies_get_typed_errors(env):
     r = client.post(url, json=dict(body, plane=["x", "z"]), headers=op)
     assert r.status_code == 422 and "no axis 'z'" in r.json()["detail"]
     nan = dict(body, passes=[dict(body["passes"][0], radial_um=[float("nan")] + body["passes"][0]["radial_um"][1:])])
-    import json
-
     r = client.post(url, content=json.dumps(nan), headers={**op, "Content-Type": "application/json"})
     assert r.status_code == 422 and "radial_um" in r.json()["detail"]
     p = body["passes"][0]  # a partial arc: the samples of the first half only
@@ -262,3 +261,16 @@ def test_a_test_in_alarm_on_an_axis_with_an_order_opens_no_second_one_and_a_roun
     _measure(client, keys, y)
     active = [a for a in client.get(f"{V1}/alerts?axis_id={y}", headers=read).json()["items"] if a["active"]]
     assert [a["raised_by_circular_test_id"] for a in active] == [r.json()["id"]]
+
+
+def test_a_recording_at_the_servo_rate_is_posted_whole_while_other_bodies_keep_their_limit(env):
+    client, svc, keys, axes, runner = env
+    body = json.dumps(circle_body(rate_hz=1000.0)).encode()  # 1 kHz: about 38,000 samples
+    assert len(body) > svc.settings.limits.max_body_bytes
+    op = {**hdr(keys["operate"]), "Content-Type": "application/json"}
+    r = client.post(f"{V1}/machines/{axes['y'].machine_id}/circles", content=body, headers=op)
+    assert r.status_code == 201, r.text[:300]
+    assert client.get(f"{V1}/circles/{r.json()['id']}", headers=hdr(keys["read"])).json()["test"]["passes"][0][
+        "angle_deg"].__len__() > 15_000
+    r = client.post(f"{V1}/alerts/1/ack", content=body, headers=op)  # any other route: the general limit
+    assert r.status_code == 413 and "limits.max_body_bytes" in r.json()["detail"]
