@@ -17,7 +17,7 @@ from contextlib import contextmanager
 from datetime import datetime
 
 from sqlalchemy import Engine, or_, select
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, defer
 
 from core.circle.io import from_json, to_json
 from core.circle.test import CircularTest
@@ -164,6 +164,8 @@ def list_circular_tests(s: Session | Engine, machine: int | str, axis: int | str
     with _session(s) as s:
         m = _machine(s, machine)
         q = select(CircularTestRow).where(CircularTestRow.machine_id == m.id)
+        if not samples:  # (the samples are most of a row: a LinuxCNC recording is megabytes)
+            q = q.options(defer(CircularTestRow.test))
         if axis is not None:
             q = q.where(_axis_filter(s, m, axis))
         rows = s.scalars(q.order_by(CircularTestRow.measured_at.desc(), CircularTestRow.id.desc())
@@ -185,8 +187,8 @@ def count_circular_tests(s: Session | Engine, machine: int | str, axis: int | st
 def latest_circular_test(s: Session | Engine, axis_id: int) -> CircularTestRecord | None:
     """The axis' newest test (without samples), or None."""
     with _session(s) as s:
-        row = s.scalar(select(CircularTestRow).where(or_(CircularTestRow.first_axis_id == axis_id,
-                                                         CircularTestRow.second_axis_id == axis_id))
+        row = s.scalar(select(CircularTestRow).options(defer(CircularTestRow.test))
+                       .where(or_(CircularTestRow.first_axis_id == axis_id, CircularTestRow.second_axis_id == axis_id))
                        .order_by(CircularTestRow.measured_at.desc(), CircularTestRow.id.desc()).limit(1))
         if row is None:
             return None
