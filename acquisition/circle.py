@@ -9,10 +9,11 @@ Two machines can run one:
   whose six-pin sampler latches both axes' motor, scale and command in one servo period.
   Each direction is its own program: from the centre out along the start's radius (so
   every recording starts the same way, whatever ran before), a dwell, then one arc of
-  ``lead_in_deg + 360 + lead_out_deg`` degrees (a G2/G3 with ``P2``: one full turn plus the
+  ``lead_in_deg + 360 + lead_out_deg`` degrees (a G2/G3 with ``P``: full turns plus the
   rest, so no block boundary and no planner stop lies on the circle). The data arc is the
   360° after the lead-in (:func:`data_arc`): the start from rest, where one axis reverses as
-  the arc begins, is outside it, and so is the stop at the end.
+  the arc begins, is outside it (the lead-in lasts at least a second, many times the position
+  loop's time constant 1/K), and so is the stop at the end.
 - **the simulated two-axis machine** (``sim:?backlash_um=120&gain_per_s=30...``):
   :func:`core.circle.simulate.simulated_test` with those parameters (core/sim's twin of a
   feed drive traces the circle).
@@ -54,18 +55,33 @@ LINUXCNC_KEYS = ("sampler", "program_dir")
 SIM_DEFAULTS = {"backlash_um": "120", "gain_per_s": "30", "resolution_um": "1", "noise_um": "0", "seed": "0"}
 
 
+MIN_LEAD_IN_DEG = 20.0
+
+
+def lead_in_deg(start_deg: float, direction: str, min_deg: float) -> float:
+    """The arc before the data arc: at least ``min_deg``, extended so that the data arc starts
+    midway between two quadrant points (45° from each), where no reversal spike straddles its
+    two ends."""
+    s = 1.0 if direction == "ccw" else -1.0
+    first = start_deg + s * min_deg
+    data_start = first + ((45.0 - first) % 90.0) if s > 0 else first - ((first - 45.0) % 90.0)
+    return s * (data_start - start_deg)
+
+
 @dataclass(frozen=True)
 class CircleProgram:
     """The circle a CNC runs for the test, in the plane ``(first, second)`` (first axis = 0°,
     counter-clockwise positive): radius, feed, centre in the program's work coordinates
-    (G54), the start angle, and the arcs before and after the 360° of data (degrees)."""
+    (G54), the start angle (midway between two quadrant points), ``lead_in_s`` of arc at
+    the feed before the 360° of data (at least 20°, see :attr:`lead_in_deg`) and
+    ``lead_out_deg`` after it."""
 
     radius_mm: float
     feed_mm_min: float
     plane: tuple[str, str] = ("x", "y")
     centre_mm: tuple[float, float] = (0.0, 0.0)
     start_deg: float = -45.0
-    lead_in_deg: float = 20.0
+    lead_in_s: float = 1.0
     lead_out_deg: float = 25.0
     dwell_s: float = 0.5
 
@@ -76,17 +92,33 @@ class CircleProgram:
         object.__setattr__(self, "plane", plane)
         for i, c in enumerate(self.centre_mm):
             require_finite(f"centre_mm[{i}]", c)
-        require_finite("start_deg", self.start_deg)
-        if not (5.0 <= self.lead_in_deg and 5.0 <= self.lead_out_deg and self.lead_in_deg + self.lead_out_deg < 360.0):
-            raise InputError(f"lead_in_deg (={self.lead_in_deg}) and lead_out_deg (={self.lead_out_deg}) must each be "
-                             ">= 5° and together < 360°")
+        if require_finite("start_deg", self.start_deg) % 90.0 != 45.0:
+            raise InputError(f"start_deg (={self.start_deg}) must lie midway between two quadrant points (45° + "
+                             "a multiple of 90°, e.g. -45)")
+        if not 0.0 <= require_finite("lead_in_s", self.lead_in_s) <= 60.0:
+            raise InputError(f"lead_in_s (={self.lead_in_s}) must be 0..60 s")
+        if not 5.0 <= require_finite("lead_out_deg", self.lead_out_deg) < 90.0:
+            raise InputError(f"lead_out_deg (={self.lead_out_deg}) must be 5..90°")
         if not 0.1 <= self.dwell_s <= 10.0:
             raise InputError(f"dwell_s (={self.dwell_s}) must be 0.1..10 s")
+
+    @property
+    def lead_in_deg(self) -> float:
+        """The arc the lead-in runs: ``lead_in_s`` at the feed, at least 20°, rounded up to a
+        multiple of 90° (the start lies midway between quadrant points, and so does the data
+        arc's start)."""
+        arc_deg = math.degrees(self.feed_mm_min / 60.0 / self.radius_mm * self.lead_in_s)
+        return lead_in_deg(self.start_deg, "ccw", max(MIN_LEAD_IN_DEG, arc_deg))
 
     @property
     def sweep_deg(self) -> float:
         """The arc the program runs: lead-in, 360° of data, lead-out."""
         return self.lead_in_deg + 360.0 + self.lead_out_deg
+
+    @property
+    def turns(self) -> int:
+        """The arc's P word: its full turns plus the part turn to its end point."""
+        return 2 + int((self.lead_in_deg + self.lead_out_deg) // 360.0)
 
 
 def check_plane(plane) -> tuple[str, str]:
@@ -106,8 +138,8 @@ def check_directions(directions) -> tuple[str, ...]:
 
 def circle_gcode(program: CircleProgram, direction: str) -> str:
     """The program of one direction: G21 G90 G61 G54 in the plane's G17/G18/G19; to the
-    centre, out along the start's radius, a dwell, one arc of ``program.sweep_deg`` (``P2``:
-    a full turn and the rest), a dwell, M2."""
+    centre, out along the start's radius, a dwell, one arc of ``program.sweep_deg`` (its
+    ``P`` word: the full turns and the part turn to the end point), a dwell, M2."""
     if direction not in DIRECTIONS:
         raise InputError(f"direction (={direction!r}) must be one of {list(DIRECTIONS)}")
     first, second = program.plane
@@ -122,9 +154,9 @@ def circle_gcode(program: CircleProgram, direction: str) -> str:
     L1, L2 = first.upper(), second.upper()
     w1, w2 = CENTRE_WORDS[first], CENTRE_WORDS[second]
     return (f"(mebm circular test, {direction}, R {r:g} mm, F {f:g} mm/min)\n"
-            f"G21 G90 {gplane} G61 G54\nG1 {L1}{c1:.4f} {L2}{c2:.4f} F{f:g}\nG4 P0.3\n"
-            f"G1 {L1}{s1:.4f} {L2}{s2:.4f}\nG4 P{program.dwell_s:.3f}\n"
-            f"{'G3' if turns_ccw else 'G2'} {L1}{e1:.4f} {L2}{e2:.4f} {w1}{c1 - s1:.4f} {w2}{c2 - s2:.4f} P2 F{f:g}\n"
+            f"G21 G90 {gplane} G61 G54\nG1 {L1}{c1:.6f} {L2}{c2:.6f} F{f:g}\nG4 P0.3\n"
+            f"G1 {L1}{s1:.6f} {L2}{s2:.6f}\nG4 P{program.dwell_s:.3f}\n"
+            f"{'G3' if turns_ccw else 'G2'} {L1}{e1:.6f} {L2}{e2:.6f} {w1}{c1 - s1:.6f} {w2}{c2 - s2:.6f} P{program.turns} F{f:g}\n"
             f"G4 P0.3\nM2\n")
 
 

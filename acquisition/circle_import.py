@@ -11,8 +11,9 @@ Two layouts:
   The rows are in the order the machine ran them.
 - ``layout = "positions"``: a trace tool's export, both axes' positions against time,
   holding one circle per direction. Each circle is found about the profile's centre (the
-  samples on the circle, turning one way); its first ``lead_in_deg`` (the start from
-  rest) is left out and the next 360° kept.
+  samples on the circle, turning one way); its start from rest is left out (the arc of the
+  first second at the feed, or ``test.lead_in_deg``, extended to midway between quadrant
+  points, as mebm's own circle program does) and the next 360° kept.
 
 As in the drive-trace import nothing is guessed, dropped or filled in: a value that is
 not a number, a direction value the profile does not name, a direction the test needs
@@ -31,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from acquisition.circle import MIN_LEAD_IN_DEG, lead_in_deg
 from acquisition.files import MIB, FileRefused, open_regular
 from acquisition.trace_import import LINEAR_UNITS, TIME_UNITS, ColumnSpec, TraceProfile, _layout_hint
 from core.circle import DIRECTIONS, CircularTest, Instrument, pass_from_positions
@@ -44,6 +46,8 @@ ANGLE_UNITS = {"deg": 1.0, "rad": 180.0 / math.pi, "grad": 0.9}
 DEVIATION_UNITS = {"um": 1.0, "mm": 1e3, "nm": 1e-3, "in": 25400.0}
 #: How far a sample may be off the nominal radius to count as on the circle (positions layout).
 ON_CIRCLE_FRACTION = 0.02
+#: The start-up left out of each circle of a positions export, unless test.lead_in_deg says.
+LEAD_IN_S = 1.0
 
 
 class CircleImportError(InputError):
@@ -275,7 +279,7 @@ class CircleFields:
     plane: tuple[str, str]
     directions: tuple[str, ...]
     centre_mm: tuple[float, float] | None
-    lead_in_deg: float
+    lead_in_deg: float | None  # None: the arc of LEAD_IN_S at the feed
     temperature_c: float | None
     utility_day: float | None
 
@@ -313,8 +317,9 @@ def fields_of(profile: CircleProfile, src: str, **overrides) -> CircleFields:
             raise CircleImportError(f"{src}: test.centre_mm (={centre!r}) must be two numbers") from None
         if not all(math.isfinite(c) for c in centre) or len(t["centre_mm"]) != 2:
             raise CircleImportError(f"{src}: test.centre_mm (={t['centre_mm']!r}) must be two finite numbers")
-    lead_in = t.get("lead_in_deg", 20.0)
-    if isinstance(lead_in, bool) or not isinstance(lead_in, (int, float)) or not 0 <= lead_in < 360:
+    lead_in = t.get("lead_in_deg")
+    if lead_in is not None and (isinstance(lead_in, bool) or not isinstance(lead_in, (int, float))
+                                or not 0 <= lead_in < 360):
         raise CircleImportError(f"{src}: test.lead_in_deg (={lead_in!r}) must be 0..360")
     out = {}
     for key in ("temperature_c", "utility_day"):
@@ -323,7 +328,7 @@ def fields_of(profile: CircleProfile, src: str, **overrides) -> CircleFields:
             raise CircleImportError(f"{src}: test.{key} (={v!r}) must be a number")
         out[key] = None if v is None else float(v)
     return CircleFields(vals["radius_mm"], vals["feed_mm_min"], tuple(a.strip().lower() for a in plane), dirs, centre,
-                      float(lead_in), out["temperature_c"], out["utility_day"])
+                      None if lead_in is None else float(lead_in), out["temperature_c"], out["utility_day"])
 
 
 def _radial_passes(src: str, table: Table, profile: CircleProfile, fields: CircleFields) -> list[CirclePass]:
@@ -451,29 +456,37 @@ def _positions_passes(src: str, table: Table, profile: CircleProfile, fields: Ci
     for s, e in runs:
         found["ccw" if sense[s] > 0 else "cw"].append((s, e))
     passes = []
-    need = fields.lead_in_deg + 360.0
+    min_lead = fields.lead_in_deg
+    if min_lead is None:  # the first second of arc: many times any position loop's 1/K
+        min_lead = max(MIN_LEAD_IN_DEG, omega_deg_s * LEAD_IN_S)
     for d in fields.directions:
         sign = 1.0 if d == "ccw" else -1.0
-        cands = [(s, e, sign * (theta[e - 1] - theta[s])) for s, e in found[d]]
-        full = [c for c in cands if c[2] >= need]
+        cands = []
+        for s, e in found[d]:
+            lead = lead_in_deg(float(theta[s]) % 360.0, d, min_lead)
+            cands.append((s, e, sign * (theta[e - 1] - theta[s]), lead))
+        full = [c for c in cands if c[2] >= c[3] + 360.0]
         if not full:
-            longest = max((c[2] for c in cands), default=0.0)
             if math.hypot(fit_c[0] - centre[0], fit_c[1] - centre[1]) > ON_CIRCLE_FRACTION * r_nom:
                 raise CircleImportError(
                     f"{src}: no {d} circle about ({centre[0]:g}, {centre[1]:g}) mm: the samples circle about "
                     f"({fit_c[0]:.4f}, {fit_c[1]:.4f}) mm with radius {fit_r:.3f} mm: give --centre-mm "
                     f"{fit_c[0]:.4f} {fit_c[1]:.4f} (or test.centre_mm) if that is the programmed centre")
+            if not cands:
+                raise CircleImportError(f"{src}: no {d} arc about ({centre[0]:g}, {centre[1]:g}) mm: export both "
+                                        f"directions, or import with --directions {'cw' if d == 'ccw' else 'ccw'}")
+            _, _, longest, lead = max(cands, key=lambda c: c[2])
             raise CircleImportError(
-                f"{src}: no {d} circle of {need:g}° (the start-up's test.lead_in_deg = {fields.lead_in_deg:g}° and the "
-                f"360° analysed): the longest {d} arc about ({centre[0]:g}, {centre[1]:g}) mm runs {longest:.1f}°"
-                + ("; record a longer arc, or a smaller test.lead_in_deg" if longest else
-                   f"; export both directions, or import with --directions {'cw' if d == 'ccw' else 'ccw'}"))
+                f"{src}: the longest {d} arc about ({centre[0]:g}, {centre[1]:g}) mm runs {longest:.1f}°, and the "
+                f"test needs {lead + 360.0:.0f}°: a lead-in of {lead:.0f}° (the start-up's first {min_lead:.0f}°, "
+                "test.lead_in_deg, extended to midway between quadrant points) and the 360° analysed; record a "
+                "longer arc, or give a smaller test.lead_in_deg if the start-up is over sooner")
         if len(full) > 1:
             raise CircleImportError(f"{src}: {len(full)} {d} circles in one file: cut it so it holds one per "
                                     "direction")
-        s, e, _ = full[0]
+        s, e, _, lead = full[0]
         progress = sign * (theta[s:e] - theta[s])
-        keep = s + np.flatnonzero((progress >= fields.lead_in_deg) & (progress < need))
+        keep = s + np.flatnonzero((progress >= lead) & (progress < lead + 360.0))
         try:
             passes.append(pass_from_positions(a[keep], b[keep], radius_mm=r_nom, centre_mm=centre, direction=d))
         except InputError as exc:

@@ -45,7 +45,7 @@ def circle_rows(direction: str, sweep_deg: float, t0: float) -> list[tuple[float
     return list(zip(time, x, y))
 
 
-def write_positions(path, sweeps=(("ccw", 430.0), ("cw", 430.0))):
+def write_positions(path, sweeps=(("ccw", 480.0), ("cw", 480.0))):
     rows, t0 = [], 0.0
     for d, sweep in sweeps:
         rows += circle_rows(d, sweep, t0)
@@ -61,7 +61,8 @@ def test_a_trace_s_two_circles_are_found_and_each_start_up_left_out(tmp_path):
         u = p.unwrapped_deg
         assert 359.5 < abs(u[-1] - u[0]) < 360.0
         s = 1.0 if p.direction == "ccw" else -1.0
-        assert p.angle_deg[0] == pytest.approx((-45.0 + s * 20.0) % 360.0, abs=0.1)  # after the 20° lead-in
+        # the first second of arc (57°) extended to midway between quadrant points: a 90° lead-in
+        assert p.angle_deg[0] == pytest.approx((-45.0 + s * 90.0) % 360.0, abs=0.1)
         peak = int(np.argmax(p.radial_um))
         assert p.radial_um[peak] == pytest.approx(6.0, abs=0.01)
         assert p.angle_deg[peak] == pytest.approx(90.0 + s * 10.0, abs=0.1)
@@ -70,11 +71,12 @@ def test_a_trace_s_two_circles_are_found_and_each_start_up_left_out(tmp_path):
 
 
 def test_a_trace_whose_circle_is_short_is_refused_naming_the_lead_in(tmp_path):
-    path = write_positions(tmp_path / "short.csv", (("ccw", 430.0), ("cw", 300.0)))
-    with pytest.raises(CircleImportError, match=r"no cw circle of 380°.*runs 299\.9°.*smaller test\.lead_in_deg"):
+    path = write_positions(tmp_path / "short.csv", (("ccw", 480.0), ("cw", 300.0)))
+    with pytest.raises(CircleImportError, match=r"longest cw arc .* runs 299\.9°, and the test needs 450°: a lead-in "
+                                                r"of 90° \(the start-up's first 57°, test\.lead_in_deg"):
         read_circle(path, parse_profile(positions_profile()))
-    # with a shorter lead-in it still does not close: 300° is not a circle
-    with pytest.raises(CircleImportError, match="no cw circle of 360°"):
+    # without a lead-in it still does not close: 300° is not a circle
+    with pytest.raises(CircleImportError, match="the test needs 360°"):
         read_circle(path, parse_profile(positions_profile(lead_in_deg=0)))
 
 

@@ -34,6 +34,22 @@ def test_the_program_turns_the_asked_direction_in_each_plane(plane, direction, g
     assert all(f" {w}" in block for w in words)
 
 
+@pytest.mark.parametrize("radius_mm, feed_mm_min, lead_in_deg, turns", [
+    (50.0, 2000.0, 90.0, 2),   # 38° in a second: the next point midway between quadrant points
+    (20.0, 2000.0, 180.0, 2),  # 95° in a second
+    (10.0, 3000.0, 360.0, 3),  # 286° in a second: the arc runs two full turns and the rest
+    (200.0, 200.0, 90.0, 2),   # 1° in a second: at least 20°
+])
+def test_the_lead_in_lasts_a_second_and_ends_midway_between_quadrant_points(radius_mm, feed_mm_min, lead_in_deg,
+                                                                            turns):
+    p = CircleProgram(radius_mm, feed_mm_min)
+    assert p.lead_in_deg == lead_in_deg and p.turns == turns
+    assert math.radians(p.lead_in_deg) * radius_mm / (feed_mm_min / 60.0) >= min(1.0, p.lead_in_deg)
+    block = next(line for line in circle_gcode(p, "cw").splitlines() if line.startswith("G2 "))
+    end_deg = p.start_deg - (p.sweep_deg - 360.0 * (turns - 1))
+    assert f" P{turns} " in block and f"X{radius_mm * math.cos(math.radians(end_deg)):.6f}" in block
+
+
 def recording(program: CircleProgram, direction: str, centre=(0.0, 0.0), *, stop_deg: float | None = None,
               lag_samples: int = 30):
     """A recording of ``circle_gcode`` at 1 kHz: the command (from a rest elsewhere, to the
@@ -78,7 +94,8 @@ def test_the_data_arc_is_the_360_degrees_after_the_lead_in_about_the_commanded_c
 
 def test_a_recording_stopped_before_the_arc_closes_is_an_incomplete_circle():
     cmd, table = recording(PROGRAM, "ccw", stop_deg=300.0)
-    with pytest.raises(IncompleteCircleError, match=r"does not close: the command ran 300\.0° of the 405°") as exc:
+    with pytest.raises(IncompleteCircleError,
+                       match=rf"does not close: the command ran 300\.0° of the {PROGRAM.sweep_deg:g}°") as exc:
         data_arc(cmd, table, PROGRAM, "ccw")
     assert exc.value.reason_code == "incomplete_circle"
 
