@@ -58,13 +58,13 @@ def circle_body(backlash_um=(0.0, 0.0), *, radius_mm=TASK.radius_mm, feed_mm_min
 
 def _measure(client, keys, axis_id) -> dict:
     """A round trip of the axis (the fake runner's 150 µm play), for its b̄."""
-    def ok():
-        return [m for m in client.get(f"{V1}/axes/{axis_id}/measurements", headers=hdr(keys["read"])).json()["items"]
-                if m["status"] == "ok"]
+    def newest_ok():
+        items = client.get(f"{V1}/axes/{axis_id}/measurements?status=ok&limit=1", headers=hdr(keys["read"])).json()
+        return items["items"][0] if items["items"] else None
 
-    n = len(ok())
+    before = newest_ok()
     assert client.post(f"{V1}/axes/{axis_id}/measurements", headers=hdr(keys["operate"])).status_code == 202
-    return poll(lambda: ok() if len(ok()) > n else None)[0]
+    return poll(lambda: m if (m := newest_ok()) is not None and m != before else None)
 
 
 def test_a_posted_test_is_analysed_compared_judged_stored_and_listed(env):
@@ -274,3 +274,24 @@ def test_a_recording_at_the_servo_rate_is_posted_whole_while_other_bodies_keep_t
         "angle_deg"].__len__() > 15_000
     r = client.post(f"{V1}/alerts/1/ack", content=body, headers=op)  # any other route: the general limit
     assert r.status_code == 413 and "limits.max_body_bytes" in r.json()["detail"]
+
+
+def test_a_test_in_warning_opens_a_condition_based_order_when_the_prognosis_dates_the_limit_within_the_horizon(env):
+    from tests.api.rest.test_prognosis import bulk_history
+
+    client, svc, keys, axes, runner = env
+    y, read = axes["y"].id, hdr(keys["read"])
+    _measure(client, keys, y)  # the round trip's 150 µm: OK (TBE 93 µm), opens nothing
+    bulk_history(svc, y)  # b̄ = 200 + 2 (T - 20) + 0.02 d: at the worst-case 30 °C past the task's limit
+    _measure(client, keys, y)
+    st = client.get(f"{V1}/axes/{y}/status", headers=read).json()
+    assert st["prognosis"]["limit_date"] is not None, st["prognosis"]
+    assert client.get(f"{V1}/maintenance/orders?axis_id={y}&state=all", headers=read).json()["items"] == []
+    r = client.post(f"{V1}/machines/{axes['y'].machine_id}/circles", json=circle_body((0.0, 192.0)),
+                    headers=hdr(keys["operate"]))
+    d = r.json()["decision"]["y"]
+    assert d["state"] == "WARNING" and d["warning_um"] < d["error_um"] < d["tolerance_um"], d
+    assert r.json()["alerts"] == []  # WARNING raises no alert...
+    (order,) = poll(lambda: client.get(f"{V1}/maintenance/orders?axis_id={y}", headers=read).json()["items"])
+    assert order["kind"] == "condition_based" and order["opened_by_circular_test_id"] == r.json()["id"]  # ...an order
+    assert order["due_at"][:16] == st["prognosis"]["limit_date"][:16] and order["alert_id"] is None
