@@ -157,6 +157,6 @@ def order_document(ev: Event) -> dict:
         "tolerance_um": o.tolerance_um, "backlash_um": o.backlash_um, "tbe_um": o.tbe_um,
         "restore_below_um": o.restore_below_um, "restore_below_explanation": _explanation(o),
         "due_at": o.due_at.isoformat() if o.due_at else None,
-        "recommendation": o.recommendation,
+        "recommendation": o.recommendation, "opened_by_circular_test_id": o.opened_by_circular_test_id,
         "verification": {k: o.verification.get(k) for k in ("passed", "against", "message")} if o.verification else None,
     }  # fmt: skip

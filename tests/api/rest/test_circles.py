@@ -18,6 +18,7 @@ from fastapi.testclient import TestClient
 
 from api.rest import create_app
 from api.service.config.settings import AxisConfig, Settings
+from api.service.events import order_document
 from core.circle import to_json
 from core.circle.simulate import simulated_test
 from core.tbe import MachiningTask
@@ -165,9 +166,15 @@ def test_a_test_past_the_limit_raises_the_alert_and_order_and_a_test_after_the_r
     client, svc, keys, axes, runner = env
     machine_id, y = axes["y"].machine_id, axes["y"].id
     op, read = hdr(keys["operate"]), hdr(keys["read"])
+    events = []
+    sub = svc.events.subscribe("t", lambda ev: events.append(ev) if ev.kind == "work_order_changed" else None)
     r = client.post(f"{V1}/machines/{machine_id}/circles", json=circle_body((0.0, 300.0)), headers=op)  # past the limit
     assert r.status_code == 201, r.text
     doc = r.json()
+    poll(lambda: events)
+    svc.events.unsubscribe(sub)
+    step = order_document(events[0])  # as MQTT and webhooks send the order's opening
+    assert (step["state"], step["opened_by_circular_test_id"], step["by"]) == ("open", doc["id"], "mebm")
     d = doc["decision"]["y"]
     assert d["state"] == "ALARM" and d["error_um"] > TASK.tolerance_um and doc["state"] == "ALARM"
     assert doc["decision"]["x"]["state"] == "OK"
