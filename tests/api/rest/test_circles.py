@@ -17,7 +17,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from api.rest import create_app
-from api.service.config.settings import AxisConfig, Settings
+from api.service.config.settings import AxisConfig
 from api.service.events import order_document
 from core.circle import to_json
 from core.circle.simulate import simulated_test
