@@ -156,7 +156,8 @@ def circle_gcode(program: CircleProgram, direction: str) -> str:
     return (f"(mebm circular test, {direction}, R {r:g} mm, F {f:g} mm/min)\n"
             f"G21 G90 {gplane} G61 G54\nG1 {L1}{c1:.6f} {L2}{c2:.6f} F{f:g}\nG4 P0.3\n"
             f"G1 {L1}{s1:.6f} {L2}{s2:.6f}\nG4 P{program.dwell_s:.3f}\n"
-            f"{'G3' if turns_ccw else 'G2'} {L1}{e1:.6f} {L2}{e2:.6f} {w1}{c1 - s1:.6f} {w2}{c2 - s2:.6f} P{program.turns} F{f:g}\n"
+            f"{'G3' if turns_ccw else 'G2'} {L1}{e1:.6f} {L2}{e2:.6f} {w1}{c1 - s1:.6f} {w2}{c2 - s2:.6f} "
+            f"P{program.turns} F{f:g}\n"
             f"G4 P0.3\nM2\n")
 
 
