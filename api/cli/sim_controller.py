@@ -117,7 +117,9 @@ def run_linuxcnc(a: argparse.Namespace) -> int:
         print(f"LinuxCNC running mebm's simulated machine ({a.loop}-closed, b = {a.backlash_um:g} µm, "
               f"P = {a.p_gain_per_s:g}/s, FF1 = {a.ff1:g}; configuration in {sim.run_dir}); "
               f"mebm measure --controller '{sim.url}' records the round trips it runs, "
-              "add &trigger=active to have mebm run them", flush=True)
+              "add &trigger=active to have mebm run them; mebm circle measure --url "
+              f"'linuxcnc://127.0.0.1:{a.port}?sampler=2' --radius-mm R --feed-mm-min F --resolution-um "
+              f"{a.scale_resolution_um:g} --out FILE.json runs a circular test of X and Y", flush=True)
         deadline = time.monotonic() + (a.duration_s if a.duration_s is not None else float("inf"))
         while time.monotonic() < deadline and sim.proc is not None and sim.proc.poll() is None:
             time.sleep(min(0.5, max(deadline - time.monotonic(), 0.0)))
