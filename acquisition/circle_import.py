@@ -385,9 +385,13 @@ def _radial_passes(src: str, table: Table, profile: CircleProfile, fields: Circl
         try:
             passes.append(CirclePass(direction=d, angle_deg=angle, radial_um=radial))
         except InputError as exc:
+            hint = ""
+            if "the angles run" in str(exc):
+                where = f"columns.{d}.angle" if d in profile.groups else "columns.angle"
+                hint = (f"; if the export counts the angle clockwise (or the direction's name means the other way), "
+                        f"set {where}.scale = -1 (or swap columns.direction's values)")
             raise CircleImportError(f"{src}: the {d} direction (lines {table.lines[rows[0]]}.."
-                                    f"{table.lines[rows[-1]]}): "
-                                    f"{exc}") from None
+                                    f"{table.lines[rows[-1]]}): {exc}{hint}") from None
     return passes
 
 

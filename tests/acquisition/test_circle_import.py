@@ -169,3 +169,19 @@ def test_a_profile_without_an_instrument_is_refused_naming_its_fields(tmp_path):
     del doc["instrument"]
     with pytest.raises(CircleImportError, match=r"\[instrument\].*resolution_um"):
         read_circle(write_positions(tmp_path / "t.csv"), parse_profile(doc))
+
+
+def test_angles_counted_the_other_way_are_refused_naming_the_scale_that_fixes_them(tmp_path):
+    a, r = ballbar_rows("ccw")
+    b, q = ballbar_rows("cw")
+    lines = ["ang,dev,dir"] + [f"{(-x) % 360:.4f},{y:.4f},CCW" for x, y in zip(a, r)]
+    lines += [f"{(-x) % 360:.4f},{y:.4f},CW" for x, y in zip(b, q)]
+    path = tmp_path / "bb.csv"
+    path.write_text("\n".join(lines) + "\n")
+    columns = {"angle": {"name": "ang", "unit": "deg"}, "deviation": {"name": "dev", "unit": "um"},
+               "direction": {"name": "dir", "ccw": "CCW", "cw": "CW"}}
+    with pytest.raises(CircleImportError, match=r"the ccw direction \(lines 2\.\.721\).*run clockwise.*"
+                                                r"columns\.angle\.scale = -1"):
+        read_circle(path, parse_profile(radial_profile(columns)))
+    columns["angle"]["scale"] = -1.0
+    assert read_circle(path, parse_profile(radial_profile(columns))).directions == ("ccw", "cw")
