@@ -303,15 +303,25 @@ class ServoDynamics:
     0.5-1). With K <= 30 1/s the product K (velocity_lag_s + dead times) stays below
     0.4 there, so the position loop keeps a well-damped response. Every parameter
     acts continuously (no value is rounded to zero).
+
+    ``integral_per_s`` (K_i, 1/s): a PI position loop, v = K (e + K_i ∫e dt) + ...;
+    with an ideal velocity loop its characteristic polynomial s² + K s + K K_i has the
+    damping ratio 0.5 sqrt(K / K_i), so K_i <= K keeps it at 0.5 or more (0: a P loop).
+    ``accel_limit_mm_s2`` (a_max): a drive that saturates, the motor's acceleration (as
+    table travel) held within ±a_max, the position integral frozen while limited and
+    pushing further (anti-windup); 0: no limit. A force limit F_max on a mass m is
+    a_max = F_max / m less the friction and viscous force at that speed.
     """
 
     velocity_lag_s: float = 0.002
     dead_time_s: float = 0.0
     feedforward: float = 0.0
     feedback_delay_s: float = 0.0
+    integral_per_s: float = 0.0
+    accel_limit_mm_s2: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("velocity_lag_s", "dead_time_s", "feedback_delay_s"):
+        for name in ("velocity_lag_s", "dead_time_s", "feedback_delay_s", "integral_per_s", "accel_limit_mm_s2"):
             object.__setattr__(self, name, _nonneg("servo_dynamics", name, getattr(self, name)))
         ff = _finite("servo_dynamics", "feedforward", self.feedforward)
         if not 0.0 <= ff <= 1.5:
