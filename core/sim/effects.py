@@ -174,6 +174,12 @@ class Thermal:
     free steel screw: 11.5; preloaded or cooled screws much less; the seed paper's
     machine about 1.3); backlash_um_per_k -5..5 (the paper's machine about 3);
     temperature 0..40 °C.
+
+    A warm-up during the run: the table side warms and the linear scale's mounting grows,
+    so the scale reads warmup_um_per_m (1 - exp(-t / warmup_tau_s)) 1e-6 (x -
+    fixed_end_mm) beyond the table at position x, t the program time (s). An error of the
+    reading alone (the loop and the chain follow the true table). Realistic ranges:
+    warmup_um_per_m -60..60 (10 ppm/K over 1-5 K); warmup_tau_s 5..3600.
     """
 
     lead_error_um_per_m: float = 0.0
@@ -181,10 +187,20 @@ class Thermal:
     backlash_um_per_k: float = 0.0
     fixed_end_mm: float = 0.0
     reference_c: float = 20.0
+    warmup_um_per_m: float = 0.0
+    warmup_tau_s: float = 60.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
             object.__setattr__(self, f.name, _finite("thermal", f.name, getattr(self, f.name)))
+        object.__setattr__(self, "warmup_tau_s", _positive("thermal", "warmup_tau_s", self.warmup_tau_s))
+
+    def warmup_error_mm(self, t_s, x_mm) -> np.ndarray:
+        """The scale's reading beyond the table at program time ``t_s`` (s) and table
+        position ``x_mm`` (mm), in mm."""
+        t = np.maximum(np.asarray(t_s, dtype=float), 0.0)
+        growth = self.warmup_um_per_m * 1e-6 * -np.expm1(-t / self.warmup_tau_s)
+        return growth * (np.asarray(x_mm, dtype=float) - self.fixed_end_mm)
 
     def lead_scale(self, temperature_c: float) -> float:
         """Nut travel per nominal travel at ``temperature_c`` (1 = nominal)."""
