@@ -333,6 +333,8 @@ def simulate(
         table = xt
         if axis.effects.cyclic_error is not None:
             table = table + axis.effects.cyclic_error.scale_error_mm(xt)
+        if axis.effects.thermal is not None and axis.effects.thermal.warmup_um_per_m != 0.0:
+            table = table + axis.effects.thermal.warmup_error_mm(ts, xt)
         if enc.table_noise_um > 0:
             table = table + rng.normal(0.0, enc.table_noise_um * 1e-3, table.size)
         table = _quantise(table, enc.table_resolution_um * 1e-3)
