@@ -95,7 +95,7 @@ def record_circular_test(svc, machine_id: int, test: CircularTest, *, by: str | 
             s, machine_id, test, figures=figures, agreement=agreement,
             decision={a: d for a, d in decisions.items()}, measured_at=at, recorded_by=by)
         alerts: list[AlertRecord] = []
-        for name, d in decisions.items():
+        for name, d in sorted(decisions.items(), key=lambda kv: axes[kv[0]].id):  # (locks in one order)
             if d is not None:
                 alerts += circles_repo.update_alerts(s, axes[name].id, test_id, d.to_dict(), at=at)
         record = circles_repo.get_circular_test(s, test_id)

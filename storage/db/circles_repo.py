@@ -210,7 +210,10 @@ def update_alerts(s: Session | Engine, axis_id: int, test_id: int, decision: dic
         return []
     at = at or utcnow()
     with _session(s) as s:
-        if s.get(Axis, axis_id) is None:
+        # the axis row locked (PostgreSQL): two tests of one axis stored at once raise one alert.
+        # FOR NO KEY UPDATE: it waits for another such lock, not for the key-share locks the
+        # tests' own foreign keys to the axis take (FOR UPDATE would deadlock with those)
+        if s.scalar(select(Axis.id).where(Axis.id == axis_id).with_for_update(key_share=True)) is None:
             raise NotFoundError("axis", axis_id)
         active = s.scalar(select(Alert).where(Alert.axis_id == axis_id, Alert.kind == ALERT_KIND,
                                               Alert.raised_by_circle_id.is_not(None), Alert.cleared_at.is_(None)))

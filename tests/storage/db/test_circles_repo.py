@@ -187,3 +187,33 @@ def test_the_migration_keeps_the_alerts_and_orders_stored_before_it(backend, tmp
         engine.dispose()
         if handle is not None:
             handle.drop()
+
+
+def test_two_tests_in_alarm_stored_together_raise_one_alert(factory, axes):
+    """Both transactions are open and have stored their test before either looks for the
+    axis' active alert: the axis row's lock (PostgreSQL; SQLite's one writer) orders them."""
+    import threading
+
+    y = axes["y"]
+    barrier = threading.Barrier(2, timeout=30)
+    raised, errors = [], []
+
+    def post(i):
+        try:
+            with session_scope(factory) as s:
+                tid = circles_repo.add_circular_test(s, "vmc-850", circle(spike_um=50.0, seed=i), measured_at=T0)
+                if s.bind.dialect.name == "postgresql":
+                    barrier.wait()  # (SQLite: the first insert holds the one write lock until its commit)
+                raised.extend(circles_repo.update_alerts(s, y, tid, _decision("ALARM", 50.0), at=T0))
+        except Exception as exc:  # noqa: BLE001 - reported below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=post, args=(i,)) for i in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    assert errors == [] and len(raised) == 1
+    with session_scope(factory) as s:
+        active = results_repo.list_alerts(s, axis_id=y)[1]
+    assert [a.id for a in active] == [raised[0].id]
