@@ -244,6 +244,8 @@ def _simulate_axis(axis, chain, cmd, t0, h, ts, ts_tab, frac, steps_per_radian):
     dead = sd.dead_time_s if sd else 0.0
     ff = sd.feedforward if sd else 0.0
     fb = sd.feedback_delay_s if sd else 0.0
+    ki = sd.integral_per_s if sd else 0.0
+    a_max = sd.accel_limit_mm_s2 if sd else 0.0
     compliant = fx.compliance is not None or fx.friction is not None
     ch = fx.compliance or DEFAULT_CHAIN
     k_si = ch.stiffness_n_per_um * 1e6
@@ -262,7 +264,7 @@ def _simulate_axis(axis, chain, cmd, t0, h, ts, ts_tab, frac, steps_per_radian):
     kernels.run_dynamic(
         t0, h, nsub, cmd, k, u0, x0, side, *args,
         lag, dead, compliant, ch.stiffness_n_per_um * 1000.0, ch.table_mass_kg, c_contact, visc,
-        model, fc, fs, vs, sig0, sig1, ts, ts_tab, out_u, out_x, out_xt, ff, fb, band,
+        model, fc, fs, vs, sig0, sig1, ts, ts_tab, out_u, out_x, out_xt, ff, fb, band, ki, a_max,
     )  # fmt: skip
     return out_u, out_x, out_xt, h / nsub
 

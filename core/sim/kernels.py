@@ -309,14 +309,17 @@ def run_dynamic(
     t0, hc, nsub, cmd, gain, u0, x0, side0, fixed, lam, per, amp, pha, pos, hw,
     lag_s, dead_s, compliant, k_n_mm, mass_kg, c_contact, c_visc,
     fr_model, fc, fs, vs, sig0, sig1,
-    ts, ts_tab, out_u, out_x, out_xt, kff=0.0, fb_s=0.0, v_band=0.0,
+    ts, ts_tab, out_u, out_x, out_xt, kff=0.0, fb_s=0.0, v_band=0.0, ki=0.0, a_max=0.0,
 ):  # fmt: skip
     """Servo dynamics and/or a compliant chain with friction, fixed step hc / nsub.
 
     Motor: v_cmd = (K e + kff c')(t - dead_s) with e = c - x(t - fb_s), first-order lag
     solved exactly per step for a constant input; u integrates the motor velocity
     exactly over the step. Both delays are interpolated linearly between sub-steps, so
-    the result is continuous in them.
+    the result is continuous in them. ``ki`` > 0 (1/s): a PI position loop, K (e + ki
+    ∫e dt). ``a_max`` > 0 (mm/s^2): the motor's acceleration is held within ±a_max
+    (the velocity integrated as a ramp over a limited step) and the position integral
+    is frozen while the limit holds and the error pushes further (anti-windup).
     Rigid chain: the table is the play operator of the nut. Compliant chain:
     semi-implicit (symplectic) Euler on the table mass with a unilateral spring-damper
     contact at each flank; viscous terms implicit; Coulomb/static friction as a
@@ -351,6 +354,8 @@ def run_dynamic(
     xbuf = np.full(nfbuf, x0)
     xi = 0
     xprev = x0
+    integ = 0.0  # the position error's integral (mm s), PI loop only
+    lim = 0.0  # the sign of the acceleration limit that held in the last step (0: none)
     j = 0
     jt = 0
     nstep = cmd.size - 1
@@ -368,9 +373,15 @@ def run_dynamic(
                 xbuf[xi] = xm
                 xd = xbuf[(xi - nf0) % nfbuf] * (1.0 - ffrac) + xbuf[(xi - nf0 - 1) % nfbuf] * ffrac
                 xi = (xi + 1) % nfbuf
-                e = gain * (cc - xd) + kff * dc / h
+                err = cc - xd
             else:
-                e = gain * (cc - xm) + kff * dc / h
+                err = cc - xm
+            if ki > 0.0:
+                if lim == 0.0 or err * lim < 0.0:
+                    integ += err * h
+                e = gain * (err + ki * integ) + kff * dc / h
+            else:
+                e = gain * err + kff * dc / h
             if dead_s > 0.0:
                 buf[bi] = e
                 ia = (bi - nd0) % nbuf
@@ -388,7 +399,25 @@ def run_dynamic(
             n, g = _nut(u, fixed, lam, per, amp, pha)
             hb, dhb = _half(n, pos, hw)
             nv = g * w
-            if lag_s > 0.0:
+            if a_max > 0.0:
+                w1 = vc + (w - vc) * lag_f if lag_s > 0.0 else vc
+                dw = a_max * h
+                if w1 > w + dw:
+                    w1 = w + dw
+                    lim = 1.0
+                elif w1 < w - dw:
+                    w1 = w - dw
+                    lim = -1.0
+                else:
+                    lim = 0.0
+                if lim != 0.0:
+                    u += 0.5 * (w + w1) * h
+                elif lag_s > 0.0:
+                    u += vc * h + (w - vc) * lag_s * (1.0 - lag_f)
+                else:
+                    u += vc * h
+                w = w1
+            elif lag_s > 0.0:
                 u += vc * h + (w - vc) * lag_s * (1.0 - lag_f)
                 w = vc + (w - vc) * lag_f
             else:
