@@ -34,7 +34,7 @@ import numpy as np
 
 from acquisition.circle import MIN_LEAD_IN_DEG, lead_in_deg
 from acquisition.files import MIB, FileRefused, open_regular
-from acquisition.trace_import import LINEAR_UNITS, TIME_UNITS, ColumnSpec, TraceProfile, _layout_hint
+from acquisition.trace_import import LINEAR_UNITS, TIME_UNITS, ColumnSpec, TraceProfile, layout_hint
 from core.circle import DIRECTIONS, CircularTest, Instrument, pass_from_positions
 from core.circle.test import CirclePass
 from core.errors import InputError
@@ -215,7 +215,7 @@ def read_table(path: Path, profile: CircleProfile) -> Table:
             idx = {}
             for name in names:
                 if name not in header:
-                    hint = _layout_hint(path, _as_trace_profile(profile))
+                    hint = layout_hint(path, _as_trace_profile(profile))
                     raise CircleImportError(f"{src}, line {profile.header_line}: no column {name!r}; the header has "
                                             f"{header}{hint}")
                 idx[name] = header.index(name)

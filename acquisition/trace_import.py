@@ -169,7 +169,7 @@ def read_trace(path: str | Path, profile: TraceProfile) -> dict[str, np.ndarray]
                 if spec.name not in header:
                     raise TraceImportError(f"{src}, line {profile.header_line}: no column {spec.name!r} "
                                            f"(for {spec.target}); the header has {header}"
-                                           + _layout_hint(path, profile))  # fmt: skip
+                                           + layout_hint(path, profile))  # fmt: skip
                 idx[spec.target] = header.index(spec.name)
             cols: dict[str, list[float]] = {t: [] for t in idx}
             width = max(idx.values()) + 1
@@ -227,7 +227,7 @@ def _is_number(text: str) -> bool:
 LAYOUT_SCAN_LINES = 50  # how far into a file a header line is looked for
 
 
-def _layout_hint(path: Path, profile: TraceProfile) -> str:
+def layout_hint(path: Path, profile: TraceProfile) -> str:
     """Where the file has all the profile's column names, as the ``[csv]`` settings that
     would read them (``"; line 4 has all the profile's columns: csv.header_line = 4,
     csv.delimiter = '\\t' read(s) it"``);

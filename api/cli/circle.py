@@ -242,7 +242,7 @@ def _dataset_backlash(folder: Path, axis: str):
 
 def analyze(a: argparse.Namespace) -> int:
     from core.circle import analyze as analyze_test
-    from api.cli.measure import _task
+    from api.cli.measure import parse_task
     from core.circle import compare_with_backlash, decide_circle
 
     path = Path(a.path)
@@ -276,7 +276,7 @@ def analyze(a: argparse.Namespace) -> int:
             ag = compare_with_backlash(figures, axis=axis, backlash_um=b, backlash_uncertainty_um=u, gain_per_s=k)
             agreements.append((ag, origin))
             if a.task:
-                tasks = [_task(text, n, k) for n, text in enumerate(a.task)]
+                tasks = [parse_task(text, n, k) for n, text in enumerate(a.task)]
                 d = decide_circle(figures, tasks, axis=axis, warning_fraction=a.warning_fraction, rule=a.rule)
                 if d is None:
                     notes.append(f"axis {axis}: no --task at the test's radius {test.radius_mm:g} mm and feed "

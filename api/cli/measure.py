@@ -65,7 +65,7 @@ def _travel(values: list[float]) -> tuple[float, float]:
     raise InputError(f"--travel-mm takes START END or LENGTH, got {values}")
 
 
-def _task(text: str, i: int, gain: float):
+def parse_task(text: str, i: int, gain: float):
     from core.tbe import MachiningTask
 
     profile, _, rest = text.partition(":")
@@ -91,7 +91,7 @@ def run(a: argparse.Namespace) -> int:
         raise InputError(f"--axis (={a.axis!r}) must be a name like x, y, z")
     start, end = _travel(a.travel_mm)
     axis = AxisSpec(axis_name, a.transmission_mm_per_rev, a.screw_lead_mm, a.position_gain_per_s, (start, end))
-    tasks = [_task(t, i, a.position_gain_per_s) for i, t in enumerate(a.task)]
+    tasks = [parse_task(t, i, a.position_gain_per_s) for i, t in enumerate(a.task)]
     extra = {} if a.trigger is None else {"trigger": a.trigger}
     if a.start_timeout_s is not None:
         extra["passive"] = {"start_timeout_s": a.start_timeout_s}

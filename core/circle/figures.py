@@ -126,14 +126,14 @@ class CircleFigures:
 
 # ---------------------------------------------------------------- geometry
 
-def _points_um(p: CirclePass, radius_um: float) -> tuple[np.ndarray, np.ndarray]:
+def points_um(p: CirclePass, radius_um: float) -> tuple[np.ndarray, np.ndarray]:
     """The path's points about the nominal centre, µm."""
     th = np.deg2rad(p.angle_deg)
     rho = radius_um + p.radial_um
     return rho * np.cos(th), rho * np.sin(th)
 
 
-def _deviation_um(x, y, centre, radius_um: float) -> np.ndarray:
+def deviation_um(x, y, centre, radius_um: float) -> np.ndarray:
     """Radial deviation about ``centre`` (µm), from the nominal radius."""
     return np.hypot(x - centre[0], y - centre[1]) - radius_um
 
@@ -199,7 +199,7 @@ def _min_zone(x, y, lsq_centre, radius_um: float) -> tuple[float, np.ndarray, bo
     """Minimum-zone G (µm), its centre, and whether the programme solved: the smallest
     exact G over the least-squares centre and two linearised LP steps."""
     best_c = np.asarray(lsq_centre, dtype=float)
-    dev = _deviation_um(x, y, best_c, radius_um)
+    dev = deviation_um(x, y, best_c, radius_um)
     best_g = float(dev.max() - dev.min())
     c, solved = best_c, True
     for _ in range(2):
@@ -207,7 +207,7 @@ def _min_zone(x, y, lsq_centre, radius_um: float) -> tuple[float, np.ndarray, bo
         if c is None:
             solved = False
             break
-        dev = _deviation_um(x, y, c, radius_um)
+        dev = deviation_um(x, y, c, radius_um)
         g = float(dev.max() - dev.min())
         if g < best_g:
             best_g, best_c = g, c
@@ -422,12 +422,12 @@ def analyze(test: CircularTest, *, spike_window_deg: float = DEFAULT_SPIKE_WINDO
     if not (math.isfinite(w) and 1.0 <= w <= 80.0):
         raise InputError(f"spike_window_deg (={spike_window_deg}) must be within 1..80°")
     r_um = test.radius_mm * 1e3
-    pts = {p.direction: _points_um(p, r_um) for p in test.passes}
+    pts = {p.direction: points_um(p, r_um) for p in test.passes}
     x = np.concatenate([pts[d][0] for d in test.directions])
     y = np.concatenate([pts[d][1] for d in test.directions])
     n = x.size
     centre, r_fit = _lsq_circle(x, y, r_um)
-    dev = {d: _deviation_um(*pts[d], centre, r_um) for d in test.directions}
+    dev = {d: deviation_um(*pts[d], centre, r_um) for d in test.directions}
     dev_all = np.concatenate([dev[d] for d in test.directions])
     hi, step_hi = _extreme([dev[d] for d in test.directions], largest=True)
     lo, step_lo = _extreme([dev[d] for d in test.directions], largest=False)
@@ -442,7 +442,7 @@ def analyze(test: CircularTest, *, spike_window_deg: float = DEFAULT_SPIKE_WINDO
     per_direction = {}
     for p in test.passes:
         c, _ = _lsq_circle(*pts[p.direction], r_um)
-        dv = _deviation_um(*pts[p.direction], c, r_um)
+        dv = deviation_um(*pts[p.direction], c, r_um)
         g1 = float(dv.max() - dv.min())
         g1_mz, _, _ = _min_zone(*pts[p.direction], c, r_um)
         per_direction[p.direction] = {"circular_deviation_um": g1, "circular_deviation_mz_um": min(g1_mz, g1),

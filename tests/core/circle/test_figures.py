@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from core.circle import Instrument, analyze, test_from_positions
-from core.circle.figures import _deviation_um, _points_um
+from core.circle.figures import deviation_um, points_um
 from core.errors import InputError
 from tests.core.circle.helpers import EXACT, drawn_path, drawn_test
 
@@ -79,7 +79,7 @@ def test_a_one_sided_bump_pulls_the_least_squares_centre_and_the_minimum_zone_do
 
 
 def _g_about(test, centre_um):
-    dev = np.concatenate([_deviation_um(*_points_um(p, test.radius_mm * 1e3), np.asarray(centre_um),
+    dev = np.concatenate([deviation_um(*points_um(p, test.radius_mm * 1e3), np.asarray(centre_um),
                                         test.radius_mm * 1e3) for p in test.passes])
     return float(dev.max() - dev.min())
 
