@@ -303,6 +303,8 @@ def analyze(a: argparse.Namespace) -> int:
                   f"µm, predicted {ag.predicted_um:.2f} ± {ag.predicted_uncertainty_um:.2f} µm at b̄ "
                   f"{ag.backlash_um:.2f} ± {ag.backlash_uncertainty_um:.2f} µm, K {ag.gain_per_s:g}/s: E_n "
                   f"{ag.normalised_error:+.2f}, {ag.verdict.upper()}: {ag.meaning}")
+            if ag.loop is not None and ag.loop.verdict != "agree":
+                print(f"  loop, axis {ag.axis}: {ag.loop.sentence()}")
         for d in ds:
             print(f"  decision: {d.message()}")
         for n in notes:

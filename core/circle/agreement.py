@@ -1,5 +1,6 @@
 """The two loops side by side: the reversal spikes a circular test measures against the
-TBE Eq. 8 predicts from the axis' backlash b̄ (the indirect loop).
+TBE Eq. 8 predicts from the axis' backlash b̄ (the indirect loop), and, away from the
+reversals, the circle against the one Eq. 8's proportional loop traces (:func:`loop_check`).
 
 Both are the same quantity: the radial deviation after a quadrant point from the path
 the loop traces without backlash (Eq. 8 is written relative to the circle of radius
@@ -18,12 +19,17 @@ import numpy as np
 from core.circle.figures import CircleFigures
 from core.errors import InputError, ModelDomainError, require_finite
 from core.tbe.decision import MachiningTask
+from core.tbe.formulas import circle_steady_lag_um
 
 VERDICTS = ("agree", "larger", "smaller")
 # Eq. 8 against an exact time-domain simulation of its own model (rigid backlash, ideal
 # inner loops, P position loop): within 0.2 % over b 20-300 µm, R 25-200 mm, feed
 # 100-3000 mm/min, K 10-30 1/s (docs/metrology.md); taken as a rectangular half-width.
 EQ8_MODEL_REL = 0.002
+# The slowest servo period of a position loop in common use (LinuxCNC's servo thread
+# default; drives close theirs at 62.5-250 µs): the bound of the sampled loop's departure
+# from the continuous one Eq. 8 is written for, in the loop check.
+SERVO_PERIOD_MAX_S = 1e-3
 
 MEANINGS = {
     "agree": ("the spikes are what the backlash explains: the encoders' lost motion and the contour tell "
@@ -33,6 +39,18 @@ MEANINGS = {
     "smaller": ("the spikes are smaller than the backlash predicts: the chain has less play than the encoders' "
                 "lost motion says (part of it is elastic wind-up or the scales' own hysteresis), or the drive "
                 "compensates the reversal (backlash compensation, reversal spike compensation)"),
+}
+
+
+LOOP_MEANINGS = {
+    "agree": "away from the reversals the circle is the one the paper's proportional loop at K traces",
+    "larger": ("away from the reversals the circle is larger than a proportional loop at K traces: the drive "
+               "feeds the commanded velocity forward, or its gain is above K. The spikes above that path are "
+               "still Eq. 8's, but against the programmed circle the error at a reversal is the spike itself, "
+               "no longer the spike less the loop's lag R (1 - cos φ)"),
+    "smaller": ("away from the reversals the circle is smaller than a proportional loop at K traces: the loop's "
+                "effective gain is below K or its velocity loop lags; give the axis its effective gain, or run "
+                "the gap diagnosis (servo dynamics)"),
 }
 
 
@@ -55,12 +73,18 @@ class Agreement:
     radius_mm: float = 0.0
     feed_mm_min: float = 0.0
     spikes: tuple[str, ...] = ()  # the reversals measured, "<direction>@<quadrant>°"
+    # the loop Eq. 8 assumes, checked where nothing reverses: the undisturbed circle's radius
+    # deviation against a proportional loop's -R (1 - cos φ) (None: not checked)
+    loop: LoopCheck | None = None
 
     def sentence(self) -> str:
-        return (f"axis {self.axis}: spikes {self.measured_um:.2f} ± {self.measured_uncertainty_um:.2f} µm, Eq. 8 at "
+        text = (f"axis {self.axis}: spikes {self.measured_um:.2f} ± {self.measured_uncertainty_um:.2f} µm, Eq. 8 at "
                 f"b̄ {self.backlash_um:.1f} ± {self.backlash_uncertainty_um:.1f} µm predicts "
                 f"{self.predicted_um:.2f} ± {self.predicted_uncertainty_um:.2f} µm (k = 2), "
                 f"E_n {self.normalised_error:+.2f}: {self.meaning}")
+        if self.loop is not None and self.loop.verdict != "agree":
+            text += f". {self.loop.sentence()}"
+        return text
 
     def to_dict(self) -> dict:
         return {
@@ -80,7 +104,65 @@ class Agreement:
             "feed_mm_min": self.feed_mm_min,
             "spikes": list(self.spikes),
             "coverage_factor": 2.0,
+            "loop": None if self.loop is None else self.loop.to_dict(),
         }
+
+
+@dataclass(frozen=True)
+class LoopCheck:
+    """The undisturbed circle against the one a proportional loop at K traces (Eq. 8's
+    loop): radius deviations from the nominal radius, expanded uncertainties (k = 2)."""
+
+    predicted_um: float
+    predicted_uncertainty_um: float
+    measured_um: float
+    measured_uncertainty_um: float
+    normalised_error: float
+    verdict: str
+    meaning: str
+
+    def sentence(self) -> str:
+        return (f"The undisturbed circle is {self.measured_um:+.2f} ± {self.measured_uncertainty_um:.2f} µm off the "
+                f"nominal radius, a proportional loop at K traces {self.predicted_um:+.2f} ± "
+                f"{self.predicted_uncertainty_um:.2f} µm (E_n {self.normalised_error:+.2f}): {self.meaning}")
+
+    def to_dict(self) -> dict:
+        return {"predicted_um": self.predicted_um, "predicted_uncertainty_um": self.predicted_uncertainty_um,
+                "measured_um": self.measured_um, "measured_uncertainty_um": self.measured_uncertainty_um,
+                "normalised_error": self.normalised_error, "verdict": self.verdict, "meaning": self.meaning}
+
+
+def _normalised(diff: float, u_a: float, u_b: float) -> tuple[float, str]:
+    denom = math.hypot(u_a, u_b)
+    en = diff / denom if denom > 0 else (0.0 if diff == 0 else math.copysign(math.inf, diff))
+    return en, "agree" if abs(en) <= 1.0 else ("larger" if en > 0 else "smaller")
+
+
+def loop_check(figures: CircleFigures, *, gain_per_s: float, gain_rel_uncertainty: float = 0.01) -> LoopCheck | None:
+    """The undisturbed circle's radius deviation (away from the reversals) against the
+    proportional loop's -R (1 - cos φ), tan φ = ω / K, K known within ``gain_rel_uncertainty``
+    (a rectangular half-width), the loop sampled at up to SERVO_PERIOD_MAX_S. Eq. 8 is written for that loop; a drive that feeds the
+    velocity forward traces the full radius and still shows Eq. 8's spikes above it. None
+    where the test has no undisturbed level."""
+    measured = figures.undisturbed_radius_deviation_um
+    u_m = figures.undisturbed_radius_deviation_uncertainty_um
+    if not (math.isfinite(measured) and math.isfinite(u_m)):
+        return None
+    k = require_finite("gain_per_s", gain_per_s)
+    lag = circle_steady_lag_um(figures.radius_mm, figures.feed_mm_min, k)
+    spread = [abs(circle_steady_lag_um(figures.radius_mm, figures.feed_mm_min, k * (1 + d * gain_rel_uncertainty)) - lag)
+              for d in (1.0, -1.0)]
+    # a real loop is sampled: at a servo period T it passes the circle with the gain
+    # KT / |e^(jωT) - 1 + KT| instead of K / |jω + K|, a circle about R ω² T / 2K larger
+    # (0.9 µm at R 20 mm, 2000 mm/min, K 30/s, T 1 ms); T up to SERVO_PERIOD_MAX_S, rectangular
+    w = figures.feed_mm_min / 60.0 / figures.radius_mm
+    kt = k * SERVO_PERIOD_MAX_S
+    sampled = kt / abs(np.exp(1j * w * SERVO_PERIOD_MAX_S) - 1.0 + kt)
+    servo = abs(sampled - k / math.hypot(w, k)) * figures.radius_mm * 1e3
+    u_p = 2.0 * math.hypot(max(spread), servo) / math.sqrt(3.0)
+    en, verdict = _normalised(measured + lag, u_m, u_p)
+    return LoopCheck(predicted_um=-lag, predicted_uncertainty_um=u_p, measured_um=measured, measured_uncertainty_um=u_m,
+                     normalised_error=en, verdict=verdict, meaning=LOOP_MEANINGS[verdict])
 
 
 def measured_spike_um(figures: CircleFigures, axis: str) -> tuple[float, float, tuple[str, ...]]:
@@ -138,15 +220,10 @@ def compare_with_backlash(figures: CircleFigures, *, axis: str, backlash_um: flo
     predicted, u_p = predicted_tbe_um(backlash_um, backlash_uncertainty_um, radius_mm=figures.radius_mm,
                                       feed_mm_min=figures.feed_mm_min, gain_per_s=gain_per_s,
                                       gain_rel_uncertainty=gain_rel_uncertainty)
-    diff = measured - predicted
-    denom = math.hypot(u_m, u_p)
-    if denom > 0:
-        en = diff / denom
-    else:
-        en = 0.0 if diff == 0 else math.copysign(math.inf, diff)
-    verdict = "agree" if abs(en) <= 1.0 else ("larger" if en > 0 else "smaller")
+    en, verdict = _normalised(measured - predicted, u_m, u_p)
     return Agreement(axis=axis, predicted_um=predicted, predicted_uncertainty_um=u_p, measured_um=measured,
                      measured_uncertainty_um=u_m, normalised_error=en, agree=verdict == "agree", verdict=verdict,
                      meaning=MEANINGS[verdict], backlash_um=float(backlash_um),
                      backlash_uncertainty_um=float(backlash_uncertainty_um), gain_per_s=float(gain_per_s),
-                     radius_mm=figures.radius_mm, feed_mm_min=figures.feed_mm_min, spikes=names)
+                     radius_mm=figures.radius_mm, feed_mm_min=figures.feed_mm_min, spikes=names,
+                     loop=loop_check(figures, gain_per_s=gain_per_s, gain_rel_uncertainty=gain_rel_uncertainty))

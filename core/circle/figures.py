@@ -83,6 +83,10 @@ class CircleFigures:
     spikes: tuple[Spike, ...]
     per_direction: dict[str, dict]
     mean_radius_deviation_uncertainty_um: float = 0.0
+    # the radius of the path away from the reversals (the undisturbed arcs' level) minus the
+    # nominal radius: what the loop traces without backlash (a P loop: -R (1 - cos φ))
+    undisturbed_radius_deviation_um: float = float("nan")
+    undisturbed_radius_deviation_uncertainty_um: float = float("nan")
     centre_offset_mz_um: tuple[float, float] = (0.0, 0.0)
     spike_window_deg: float = DEFAULT_SPIKE_WINDOW_DEG
     noise_um: float = 0.0
@@ -114,6 +118,8 @@ class CircleFigures:
             "centre_offset_mz_um": list(self.centre_offset_mz_um),
             "mean_radius_deviation_um": self.mean_radius_deviation_um,
             "mean_radius_deviation_uncertainty_um": self.mean_radius_deviation_uncertainty_um,
+            "undisturbed_radius_deviation_um": self.undisturbed_radius_deviation_um,
+            "undisturbed_radius_deviation_uncertainty_um": self.undisturbed_radius_deviation_uncertainty_um,
             "minimum_zone_note": self.minimum_zone_note,
             "spike_window_deg": self.spike_window_deg,
             "noise_um": self.noise_um,
@@ -335,12 +341,13 @@ def _harmonics(angle_deg: np.ndarray) -> np.ndarray:
 
 
 def _spikes(test: CircularTest, dev_by_pass: dict[str, np.ndarray], window_deg: float,
-            sigma: dict[str, float]) -> tuple[list[Spike], dict[str, UncertaintyBudget]]:
+            sigma: dict[str, float]) -> tuple[list[Spike], dict[str, UncertaintyBudget], list[tuple[float, float]]]:
     """The spikes of every pass. The undisturbed path under a spike is the pass' own
     deviation on the arcs outside every window, fitted with the harmonics of order 0-2
     (its level, a centre shift and the ellipse unequal axis gains draw) and evaluated at
-    the spike's angles."""
-    spikes, budgets = [], {}
+    the spike's angles. Also each pass' undisturbed level (the order-0 term: its radius
+    about the least-squares centre minus the nominal radius) and its fit scatter, µm."""
+    spikes, budgets, levels = [], {}, []
     for p in test.passes:
         dev = dev_by_pass[p.direction]
         after = {q: _signed_after_deg(p.angle_deg, q, p.direction) for q in QUADRANTS_DEG}
@@ -361,6 +368,7 @@ def _spikes(test: CircularTest, dev_by_pass: dict[str, np.ndarray], window_deg: 
         sd = sigma[p.direction]
         form = math.sqrt(max(float(np.mean(resid**2)) - sd**2, 0.0))
         base_u = math.hypot(form, sd * math.sqrt(5.0 / n_base))
+        levels.append((float(coef[0]), math.hypot(form, sd) / math.sqrt(n_base)))
         for q in QUADRANTS_DEG:
             s = after[q]
             near = (s > -45.0) & (s < 90.0)
@@ -392,7 +400,7 @@ def _spikes(test: CircularTest, dev_by_pass: dict[str, np.ndarray], window_deg: 
             peak_deg = float((q + (1.0 if p.direction == "ccw" else -1.0) * ss[i_peak]) % 360.0)
             spikes.append(Spike(axis=axis, quadrant_deg=q, direction=p.direction, height_um=height,
                                 height_uncertainty_um=budget.expanded_um, width_deg=width, peak_deg=peak_deg))
-    return spikes, budgets
+    return spikes, budgets, levels
 
 
 # ---------------------------------------------------------------- hysteresis
@@ -491,8 +499,15 @@ def analyze(test: CircularTest, *, spike_window_deg: float = DEFAULT_SPIKE_WINDO
         )
         hyst_u = budgets["hysteresis"].expanded_um
 
-    spikes, spike_budgets = _spikes(test, dev, w, sigma)
+    spikes, spike_budgets, levels = _spikes(test, dev, w, sigma)
     budgets.update(spike_budgets)
+    budgets["undisturbed_radius_deviation"] = _budget(
+        "undisturbed_radius_deviation",
+        UncertaintyComponent("fit", math.hypot(res_rms / math.sqrt(n), math.sqrt(sum(u * u for _, u in levels))
+                                               / len(levels)),
+                             "the least-squares radius and the undisturbed arcs' level about it"),
+        _accuracy(test, 1.0, "the absolute radius"),
+    )
     return CircleFigures(
         radius_mm=test.radius_mm,
         feed_mm_min=test.feed_mm_min,
@@ -511,6 +526,8 @@ def analyze(test: CircularTest, *, spike_window_deg: float = DEFAULT_SPIKE_WINDO
         spikes=tuple(spikes),
         per_direction=per_direction,
         mean_radius_deviation_uncertainty_um=budgets["mean_radius_deviation"].expanded_um,
+        undisturbed_radius_deviation_um=float(np.mean([c for c, _ in levels])),
+        undisturbed_radius_deviation_uncertainty_um=budgets["undisturbed_radius_deviation"].expanded_um,
         centre_offset_mz_um=(float(mz_centre[0]), float(mz_centre[1])),
         spike_window_deg=w,
         noise_um=sig,

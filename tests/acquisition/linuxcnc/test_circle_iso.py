@@ -6,7 +6,9 @@ circle G3 and G2 (R 20 mm, 2000 mm/min) and records both axes.
 Asserts: every reversal spike within 5 % of Eq. 8 at mebm's b̄, and compare_with_backlash
 agrees for both axes (|E_n| <= 1). With FF1 = 1 (velocity feed-forward) the circle grows by
 the P loop's steady lag R (1 - cos φ), which FF1 removes, while the spikes, a transient
-of the P term alone, still agree with Eq. 8. With a slow drive (a 10 ms velocity loop,
+of the P term alone, still agree with Eq. 8: the two loops disagree on the loop itself
+(the undisturbed circle against the one Eq. 8's P loop traces), and the result says the
+drive feeds forward. With a slow drive (a 10 ms velocity loop,
 servo dynamics Eq. 8 does not model) the spikes are larger than Eq. 8 predicts and the
 verdict says so and where to look. E-stop and machine off before the circle, a
 circle the operator aborts and samples the sampler drops are typed errors (mebm aborts the
@@ -127,6 +129,7 @@ def test_p_only_the_spikes_agree_with_eq_8(p_only, axis):
     ag = compare_with_backlash(figures, axis=axis, backlash_um=result.backlash_mean_um,
                                backlash_uncertainty_um=result.backlash_mean_uncertainty_um, gain_per_s=K_PER_S)
     assert ag.agree and abs(ag.normalised_error) <= 1.0 and ag.verdict == "agree", ag.sentence()
+    assert ag.loop.verdict == "agree", ag.sentence()  # away from the reversals: the paper's P loop
 
 
 def test_ff1_grows_the_circle_by_the_lag_it_removes_and_leaves_the_spikes_to_eq_8(p_only, ff1):
@@ -138,6 +141,10 @@ def test_ff1_grows_the_circle_by_the_lag_it_removes_and_leaves_the_spikes_to_eq_
         ag = compare_with_backlash(ff1, axis=axis, backlash_um=result.backlash_mean_um,
                                    backlash_uncertainty_um=result.backlash_mean_uncertainty_um, gain_per_s=K_PER_S)
         assert ag.agree, ag.sentence()
+        # the loop is not Eq. 8's, and the result says so: the circle is R, not R cos φ
+        assert ag.loop.verdict == "larger" and ag.loop.normalised_error > 3.0, ag.sentence()
+        assert ag.loop.measured_um - ag.loop.predicted_um == pytest.approx(lag_um, rel=0.10)
+        assert "feeds the commanded velocity forward" in ag.sentence()
 
 
 @pytest.mark.parametrize("axis", ["x", "y"])

@@ -95,3 +95,19 @@ def test_the_plot_of_a_test_the_axis_is_not_in_is_not_found(env):
     assert c.get(f"/ui/axes/{axis_id}/circles/0/plot.png").status_code == 422
     # stored without figures: analysed when drawn
     assert c.get(f"/ui/axes/{axis_id}/circles/{test_id}/plot.png").status_code == 200
+
+
+def test_a_circle_larger_than_eq_8_s_loop_traces_says_so_beside_the_spikes(env):
+    """The test's path lies on the nominal radius, where a P loop at K 10/s would trace it
+    22 µm inside: the panel says the loop is not Eq. 8's and what that means."""
+    c, svc, machine_id, axis_id, _x = env
+    test = one_direction_test()
+    figures = analyze(test)
+    agreement = compare_with_backlash(figures, axis="y", backlash_um=10.0, backlash_uncertainty_um=1.0, gain_per_s=10.0)
+    assert agreement.loop.verdict == "larger"
+    with session_scope(svc.factory) as s:
+        circles_repo.add_circular_test(s, machine_id, test, figures=figures, agreement={"y": agreement})
+    loop = text_of(c.get(f"/ui/axes/{axis_id}").text, "circle-loop")
+    assert f"{agreement.loop.measured_um:.2f} ± {agreement.loop.measured_uncertainty_um:.2f} µm" in loop
+    assert f"{agreement.loop.predicted_um:.2f} ± {agreement.loop.predicted_uncertainty_um:.2f} µm" in loop
+    assert "feeds the commanded velocity forward" in loop

@@ -8,7 +8,7 @@ import pytest
 from core.circle import analyze, compare_with_backlash
 from core.circle.simulate import simulated_test
 from core.errors import InputError
-from core.sim import Friction
+from core.sim import Friction, ServoDynamics
 from core.tbe import tbe_circle_um
 
 R_MM, FEED_MM_MIN, K_PER_S = 50.0, 2000.0, 10.0
@@ -136,3 +136,23 @@ def test_backlash_with_unequal_gains_agrees_and_friction_on_top_makes_the_spikes
     for axis, b_um, k in (("x", 100.0, K_PER_S), ("y", 60.0, k2)):
         a = compare_with_backlash(f, axis=axis, backlash_um=b_um, backlash_uncertainty_um=1.0, gain_per_s=k)
         assert a.verdict == verdict, a.sentence()
+
+
+def test_the_loop_check_tells_a_proportional_loop_from_a_feed_forward_one(backlash):
+    """Away from the reversals a P loop traces R cos φ (R (1 - cos φ) = 4.4 µm inside R at
+    R 50 mm, 2000 mm/min, K 10/s): the check agrees. With the velocity fed forward the
+    axes trace R itself, while the spikes above that path stay Eq. 8's: the check says
+    "larger" and that the drive feeds forward."""
+    _, f = backlash
+    lag_um = R_MM * (1 - math.cos(math.atan(FEED_MM_MIN / 60.0 / R_MM / K_PER_S))) * 1e3
+    p_loop = compare_with_backlash(f, axis="x", backlash_um=100.0, backlash_uncertainty_um=1.0, gain_per_s=K_PER_S)
+    assert p_loop.loop.verdict == "agree", p_loop.sentence()
+    assert p_loop.loop.predicted_um == pytest.approx(-lag_um, rel=1e-9)
+    assert p_loop.loop.measured_um == pytest.approx(-lag_um, abs=p_loop.loop.measured_uncertainty_um + 0.05)
+    ff = analyze(simulated_test(radius_mm=R_MM, feed_mm_min=FEED_MM_MIN, gain_per_s=K_PER_S, backlash_um=(100.0, 60.0),
+                                servo_dynamics=ServoDynamics(velocity_lag_s=0.0, feedforward=1.0), noise_um=0.1))
+    a = compare_with_backlash(ff, axis="x", backlash_um=100.0, backlash_uncertainty_um=1.0, gain_per_s=K_PER_S)
+    assert abs(ff.undisturbed_radius_deviation_um) < 0.2 * lag_um  # the full radius
+    assert a.loop.verdict == "larger" and a.loop.normalised_error > 3.0, a.sentence()
+    assert "feeds the commanded velocity forward" in a.sentence()
+    assert a.to_dict()["loop"]["verdict"] == "larger"
