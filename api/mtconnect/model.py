@@ -253,9 +253,16 @@ def values_for(st: AxisStatus, comp: Component, now: datetime) -> list[Value]:
             out.append(Value(di, t_circle, circle["agreement"] if circle else None))
             continue
         elif suffix == "backlash_cond":
-            level = CONDITION_LEVEL[state]
-            cid = f"alert-{st.active_alert_id}" if st.active_alert_id is not None else f"{comp.id}-{state.lower()}"
-            out.append(Value(di, measured_at or cycle_at or now, message, level=level, native_code=state,
+            c_state, c_message, c_at = state, message, measured_at or cycle_at or now
+            if (st.active_alert_id is not None and circle and circle.get("state") in ("WARNING", "ALARM")
+                    and state not in ("WARNING", "ALARM")):
+                # the active alert is the circular test's (the round trip's decision does not
+                # raise one): the condition is the direct measurement's
+                c_state, c_at = circle["state"], t_circle
+                c_message = (f"circular test {circle['id']}: reversal spike {circle['spike_um']:.1f} µm on task "
+                             f"{circle['task']} ({circle['state']})")
+            cid = f"alert-{st.active_alert_id}" if st.active_alert_id is not None else f"{comp.id}-{c_state.lower()}"
+            out.append(Value(di, c_at, c_message, level=CONDITION_LEVEL[c_state], native_code=c_state,
                              condition_id=cid))
             continue
         else:  # pragma: no cover - every DataItem of component_for is handled above

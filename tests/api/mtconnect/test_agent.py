@@ -552,3 +552,38 @@ def test_a_circular_test_is_beside_the_tbe_in_probe_current_and_sample(tmp_path,
         comps = js["MTConnectStreams"]["Streams"]["DeviceStream"][0]["ComponentStream"]
         (ys,) = [c for c in comps if c.get("componentId") == f"a{y}"]
         assert ys["Samples"]["x:ReversalSpike"][0]["value"] == pytest.approx(ct["spike_um"] / 1000, abs=1e-7)
+
+
+def test_an_alert_a_circular_test_raises_is_the_axis_condition(tmp_path, schemas):
+    """The round trip's b̄ leaves the axis within its task; a circular test with 300 µm of
+    play on y at the task's radius and feed raises the alert: the axis' condition is the
+    test's, with the alert's id, as an MES reading conditions alone must see it."""
+    from dataclasses import replace
+
+    from tests.api.rest.test_circles import circle_axis, circle_body
+
+    settings = make_settings(f"sqlite:///{tmp_path}/db.sqlite3", tmp_path)
+    app = create_app(replace(settings, axes=(circle_axis("x"), circle_axis("y"))), runner=FakeRunner(150.0))
+    with TestClient(app) as client:
+        svc, agent = app.state.service, app.state.mtconnect
+        with session_scope(svc.factory) as s:
+            axes = {a.name: a for a in config_repo.list_axes(s)}
+            keys = {r: config_repo.create_key(s, f"{r}-mtc", r)[1] for r in ("read", "operate")}
+        y = axes["y"].id
+        _measure(svc, y, agent, 0)
+        status = client.get(f"/api/v1/axes/{y}/status", headers=hdr(keys["read"])).json()
+        assert status["state"] not in ("WARNING", "ALARM"), status["state"]  # the premise
+        seen = agent.subscription.delivered
+        r = client.post(f"/api/v1/machines/{axes['y'].machine_id}/circles", json=circle_body((0.0, 300.0)),
+                        headers=hdr(keys["operate"]))
+        assert r.status_code == 201, r.text
+        until(lambda: agent.subscription.pending == 0 and agent.subscription.delivered > seen, "the test's events")
+        status = client.get(f"/api/v1/axes/{y}/status", headers=hdr(keys["read"])).json()
+        ct = status["circular_test"]
+        assert ct["state"] == "ALARM" and status["active_alert_id"] is not None, status
+        doc = schemas.streams_ok(client.get("/mtconnect/current").content)
+        stream = doc.find(f".//m:ComponentStream[@componentId='a{y}']", NS)
+        (cond,) = list(stream.find("m:Condition", NS))
+        assert cond.tag == "{%s}Fault" % NS["m"], cond.tag
+        assert cond.get("conditionId") == f"alert-{status['active_alert_id']}"
+        assert f"circular test {ct['id']}" in cond.text
