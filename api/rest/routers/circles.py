@@ -83,14 +83,19 @@ async def post_circle(machine_id: MachineId, svc: ServiceDep, key: OperateKey, r
                                                                           "(units in the keys); measured_at optional",
                                                            examples=[EXAMPLE])]):
     def run():
-        test = from_json(body)
-        stored = record_circular_test(svc, machine_id, test, by=key.name, measured_at=_measured_at(body))
-        doc = circle_doc(stored.record)
-        doc["alerts"] = [_alert_doc(a) for a in stored.alerts]
-        return doc
+        return _stored_doc(svc, machine_id, from_json(body), key.name, _measured_at(body))
 
     doc = await run_in_threadpool(run)
     response.headers["Location"] = doc["href"]
+    return doc
+
+
+def _stored_doc(svc, machine_id: int, test, by: str, measured_at) -> dict:
+    """The test stored (analysed, compared, judged, alerted on) and its document with the
+    alerts it raised or cleared."""
+    stored = record_circular_test(svc, machine_id, test, by=by, measured_at=measured_at)
+    doc = circle_doc(stored.record)
+    doc["alerts"] = [_alert_doc(a) for a in stored.alerts]
     return doc
 
 
@@ -116,11 +121,7 @@ async def import_circle(
         axes = None if plane is None else (plane.split(",") if "," in plane else plane)
         test = import_circular_test(raw, file.filename or "", prof, radius_mm=radius_mm, feed_mm_min=feed_mm_min,
                                     plane=axes, temperature_c=temperature_c, utility_day=utility_day)
-        stored = record_circular_test(svc, machine_id, test, by=key.name,
-                                      measured_at=_measured_at({"measured_at": measured_at}))
-        doc = circle_doc(stored.record)
-        doc["alerts"] = [_alert_doc(a) for a in stored.alerts]
-        return doc
+        return _stored_doc(svc, machine_id, test, key.name, _measured_at({"measured_at": measured_at}))
 
     doc = await run_in_threadpool(run)
     response.headers["Location"] = doc["href"]

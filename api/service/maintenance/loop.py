@@ -96,18 +96,10 @@ class MaintenanceLoop:
         d = st.decision
         if d is None or st.latest is None or st.latest.cycle_id != cycle.id:
             return
-        due = None
-        if d.state is State.ALARM:
-            kind = "corrective"
-        elif d.state is State.WARNING and st.history is not None:
-            p = st.history.prognosis
-            horizon_s = self.settings.horizon_days * 86400.0
-            if p.limit_date_s is None or p.limit_date_s > p.now_s + horizon_s:
-                return
-            kind = "condition_based"
-            due = datetime.fromtimestamp(p.limit_date_s, tz=timezone.utc)
-        else:
+        opened = self._order_kind(d.state, st.history.prognosis if st.history is not None else None)
+        if opened is None:
             return
+        kind, due = opened
         with session_scope(self.service.factory) as s:
             if maintenance_repo.active_order(s, axis_id) is not None:
                 return
@@ -137,6 +129,17 @@ class MaintenanceLoop:
             self.publish(order)
 
     # -- after a stored circular test ----------------------------------------------------------
+    def _order_kind(self, state: State, prognosis) -> tuple[str, datetime | None] | None:
+        """The order a decision opens: ALARM a corrective one; WARNING a condition-based one,
+        due on the prognosis' date, when that date falls within the horizon; else none."""
+        if state is State.ALARM:
+            return "corrective", None
+        if state is not State.WARNING or prognosis is None or prognosis.limit_date_s is None:
+            return None
+        if prognosis.limit_date_s > prognosis.now_s + self.settings.horizon_days * 86400.0:
+            return None
+        return "condition_based", datetime.fromtimestamp(prognosis.limit_date_s, tz=timezone.utc)
+
     def after_circle(self, axis: AxisRecord, test: CircularTestRecord, decision, alerts: list[AlertRecord]) -> None:
         """A circular test judged ``axis`` (``decision``: core.circle.CircleDecision): a
         repaired order is verified by it; otherwise a WARNING or ALARM opens the order a
@@ -151,18 +154,12 @@ class MaintenanceLoop:
             log.error("axis %s: maintenance step after circular test %s failed: %s", axis.id, test.id, exc)
 
     def _open_from_circle(self, axis: AxisRecord, test: CircularTestRecord, d, alerts: list[AlertRecord]) -> None:
-        due = None
-        if d.state is State.ALARM:
-            kind = "corrective"
-        elif d.state is State.WARNING:  # condition-based on the prognosis' date, as after a round trip
-            st = self.service.status.get(axis.id) if self.service.status is not None else None
-            p = st.history.prognosis if st is not None and st.history is not None else None
-            if p is None or p.limit_date_s is None or p.limit_date_s > p.now_s + self.settings.horizon_days * 86400.0:
-                return
-            kind = "condition_based"
-            due = datetime.fromtimestamp(p.limit_date_s, tz=timezone.utc)
-        else:
+        st = self.service.status.get(axis.id) if self.service.status is not None else None
+        # condition-based on the prognosis' date, as after a round trip
+        opened = self._order_kind(d.state, st.history.prognosis if st is not None and st.history is not None else None)
+        if opened is None:
             return
+        kind, due = opened
         with session_scope(self.service.factory) as s:
             if maintenance_repo.active_order(s, axis.id) is not None:
                 return

@@ -19,6 +19,16 @@ NAME = "cyclic_error"
 N_PERIODS = 2  # components
 
 
+def _sines_mm(th: np.ndarray, at_mm: np.ndarray, periods_mm: np.ndarray) -> np.ndarray:
+    """sum_i 1e-3 (th[2i] sin(2 pi x / p_i) + th[2i+1] cos(2 pi x / p_i)) at positions ``at_mm``:
+    the error (mm) of sine and cosine amplitudes ``th`` in µm."""
+    out = np.zeros_like(at_mm, dtype=float)
+    for i, p in enumerate(periods_mm):
+        arg = 2 * np.pi * at_mm / p
+        out = out + 1e-3 * (th[2 * i] * np.sin(arg) + th[2 * i + 1] * np.cos(arg))
+    return out
+
+
 def cyclic_stage(periods_mm: Sequence[float]) -> Stage:
     """Periodic transmission error u + sum a_i sin(2 pi u / p_i + phi_i) at the strongest
     periods of the residual (0.5-60 mm, found freely: screw lead, k_a, a gear or belt
@@ -27,11 +37,7 @@ def cyclic_stage(periods_mm: Sequence[float]) -> Stage:
     per = np.asarray(periods_mm, float)
 
     def u_map(th, run, u):
-        out = u
-        for i, p in enumerate(per):
-            arg = 2 * np.pi * u / p
-            out = out + 1e-3 * (th[2 * i] * np.sin(arg) + th[2 * i + 1] * np.cos(arg))
-        return out
+        return u + _sines_mm(th, u, per)
 
     names: list[str] = []
     for p in per:
@@ -59,11 +65,7 @@ def scale_stage(period_mm: float) -> Stage:
         # slow motion: µm that turn a 30 µm period's phase along a long stroke); the scale's
         # own error averages out of that part over its many periods
         at = x + uniform_filter1d(run.x_mm - x, max(1, int(round(SCALE_REFERENCE_S / run.dt_s))), mode="nearest")
-        out = x
-        for i, p in enumerate(per):
-            arg = 2 * np.pi * at / p
-            out = out + 1e-3 * (th[2 * i] * np.sin(arg) + th[2 * i + 1] * np.cos(arg))
-        return out
+        return x + _sines_mm(th, at, per)
 
     names: list[str] = []
     for p in per:
