@@ -64,8 +64,7 @@ def _speed_m_min(run: RoundTrip) -> np.ndarray:
     run's memo."""
     hit = run.memo.get("thermal_speed_m_min")
     if hit is None:
-        u = uniform_filter1d(run.u_mm, max(1, int(round(0.01 / run.dt_s))), mode="nearest")
-        hit = run.memo["thermal_speed_m_min"] = np.abs(np.gradient(u, run.t_s)) / MM_S_PER_M_MIN
+        hit = run.memo["thermal_speed_m_min"] = np.abs(_velocity_mm_s(run)) / MM_S_PER_M_MIN
     return hit
 
 
@@ -79,9 +78,14 @@ def warmup_heat(run: RoundTrip, law: str, tau_s: float) -> np.ndarray:
     return lfilter([1.0 - a], [1.0, -a], _speed_m_min(run))
 
 
+def _velocity_mm_s(run: RoundTrip) -> np.ndarray:
+    """The nut's velocity (mm/s) over 10 ms."""
+    return np.gradient(uniform_filter1d(run.u_mm, max(1, int(round(0.01 / run.dt_s))), mode="nearest"), run.t_s)
+
+
 def _side(run: RoundTrip) -> np.ndarray:
     """+1 / -1 per sample: the direction of the last motion (the flank the nut drives)."""
-    v = np.gradient(uniform_filter1d(run.u_mm, max(1, int(round(0.01 / run.dt_s))), mode="nearest"), run.t_s)
+    v = _velocity_mm_s(run)
     moving = np.abs(v) > 0.1 * max(float(np.max(np.abs(v))), 1e-12)
     idx = np.where(moving, np.arange(v.size), 0)
     np.maximum.accumulate(idx, out=idx)
@@ -98,8 +102,9 @@ def warmup_starts(runs: Sequence[RoundTrip], axis: AxisSpec, resid: Sequence[np.
 
     For each τ of a grid (WARMUP_TAU_GRID), the residuals are regressed on the warm-up's
     growth and shift, h(t) (x - x_0) and h(t), beside each run's own offset, lead (a slope
-    in x: a growth that holds over the run, the temperature form's) and flank (a backlash
-    of its own). What is left is a lead that changes within a run. It is seen where, at
+    in x: a growth that holds over the run, the temperature form's), flank (a backlash
+    of its own) and velocity (a reading latched late or early, a lag). What is left is a
+    lead that changes within a run. It is seen where, at
     the best τ, n ln(RSS_0/RSS_1) > 3 ln n with n one sample per 50 ms of the runs (the
     residuals of a run are correlated over the envelope window, not independent per
     sample)."""
@@ -112,7 +117,8 @@ def warmup_starts(runs: Sequence[RoundTrip], axis: AxisSpec, resid: Sequence[np.
     rss0 = 0.0
     for run, r in zip(runs, resid):
         idx = run.fit_idx
-        own = np.column_stack([np.ones(idx.size), (run.u_mm[idx] - fixed) * 1e-3, _side(run)[idx]])
+        own = np.column_stack([np.ones(idx.size), (run.u_mm[idx] - fixed) * 1e-3, _side(run)[idx],
+                               _velocity_mm_s(run)[idx]])
         q, _ = np.linalg.qr(own)
         rp = r - q @ (q.T @ r)
         proj.append((q, rp))
