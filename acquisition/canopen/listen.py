@@ -288,6 +288,11 @@ class CanopenListenDriver(BlockingLinkDriver):
     supports_passive = True
     has_running_flag = False  # CiA 402 has no "program running" object: the positions tell
     REORDER_HORIZON = 32
+    # opening the bus, then one timeout_s for the master's traffic: the link's budget leaves
+    # the bus' opening a timeout_s of its own and one more, so on a busy host the traffic
+    # wait still ends in its own typed error (no SYNC, no TPDO), never in the link's
+    # generic "no answer"
+    connect_exchanges = 3
 
     def __init__(self, channel: str, node_id: int, *, mapping: ListenMapping, interface: str = "socketcan",
                  sync_rate_hz: float | None = None, time_scale: float = 1.0, window_s: float | None = None,
