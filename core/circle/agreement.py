@@ -141,17 +141,17 @@ def _normalised(diff: float, u_a: float, u_b: float) -> tuple[float, str]:
 def loop_check(figures: CircleFigures, *, gain_per_s: float, gain_rel_uncertainty: float = 0.01) -> LoopCheck | None:
     """The undisturbed circle's radius deviation (away from the reversals) against the
     proportional loop's -R (1 - cos φ), tan φ = ω / K, K known within ``gain_rel_uncertainty``
-    (a rectangular half-width), the loop sampled at up to SERVO_PERIOD_MAX_S. Eq. 8 is written for that loop; a drive that feeds the
-    velocity forward traces the full radius and still shows Eq. 8's spikes above it. None
-    where the test has no undisturbed level."""
+    (a rectangular half-width), the loop sampled at up to SERVO_PERIOD_MAX_S. Eq. 8 is
+    written for that loop; a drive that feeds the velocity forward traces the full radius
+    and still shows Eq. 8's spikes above it. None where the test has no undisturbed level."""
     measured = figures.undisturbed_radius_deviation_um
     u_m = figures.undisturbed_radius_deviation_uncertainty_um
     if not (math.isfinite(measured) and math.isfinite(u_m)):
         return None
     k = require_finite("gain_per_s", gain_per_s)
     lag = circle_steady_lag_um(figures.radius_mm, figures.feed_mm_min, k)
-    spread = [abs(circle_steady_lag_um(figures.radius_mm, figures.feed_mm_min, k * (1 + d * gain_rel_uncertainty)) - lag)
-              for d in (1.0, -1.0)]
+    r_mm, feed = figures.radius_mm, figures.feed_mm_min
+    spread = [abs(circle_steady_lag_um(r_mm, feed, k * (1 + d * gain_rel_uncertainty)) - lag) for d in (1.0, -1.0)]
     # a real loop is sampled: at a servo period T it passes the circle with the gain
     # KT / |e^(jωT) - 1 + KT| instead of K / |jω + K|, a circle about R ω² T / 2K larger
     # (0.9 µm at R 20 mm, 2000 mm/min, K 30/s, T 1 ms); T up to SERVO_PERIOD_MAX_S, rectangular

@@ -79,9 +79,9 @@ def scale_stage(period_mm: float) -> Stage:
 SCALE_PERIODS_UM = (15.0, 50.0)
 SCALE_MAX_AMPLITUDE_UM = 10.0
 SCALE_WINDOW_MM = 2.0  # the stretches whose periodograms are summed (the search's resolution)
-SCALE_FALSE_ALARM = 1e-3
+SCALE_FALSE_ALARM = 1e-3  # the chance that white noise alone passes the search's test
 SCALE_MIN_ALIAS_CYCLES = 2.0  # cycles over a stretch below which its samples cannot show a period
-SCALE_REFERENCE_S = 0.05  # the slow part of the table's position, as the round trips' scores split it  # the chance that white noise alone passes the search's test
+SCALE_REFERENCE_S = 0.05  # the slow part of the table's position, as the round trips' scores split it
 
 
 def _stretches(runs) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -128,8 +128,9 @@ def scale_period_mm(runs) -> float | None:
     A feed aliases a period shorter than two samples' spacing into another within one
     stretch; stretches run at other feeds or while accelerating alias it elsewhere, so only
     the true period adds up over all of them. A stretch whose samples alias a period to
-    fewer than SCALE_MIN_ALIAS_CYCLES over its length does not count for that period. The coherent step (every stretch on one
-    position axis: the error is a function of the scale's position) then sharpens it."""
+    fewer than SCALE_MIN_ALIAS_CYCLES over its length does not count for that period. The
+    coherent step (every stretch on one position axis: the error is a function of the
+    scale's position) then sharpens it."""
     parts = _stretches(runs)
     if len(parts) < 3:
         return None
