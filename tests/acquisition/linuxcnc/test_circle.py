@@ -32,7 +32,7 @@ K_PER_S = AXIS.position_gain_per_s
 def measured():
     settings = SimSettings(backlash_um=BACKLASH_UM, loop="full", p_gain_per_s=K_PER_S, scale_resolution_um=1.0)
     with running_sim(settings) as sim:
-        cycle = run_cycle(driver_from_url(sim.url + "&trigger=active", timeout_s=2.0), AXIS, PROGRAM)
+        cycle = run_cycle(driver_from_url(sim.url + "&trigger=active", timeout_s=5.0), AXIS, PROGRAM)
         program = sim.run_dir / "circle.ngc"
         program.write_text(half_circle_gcode(RADIUS_MM, FEED_MM_MIN))
         program.chmod(0o644)

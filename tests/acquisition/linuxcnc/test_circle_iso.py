@@ -84,7 +84,7 @@ def tuned(sim, **pins):
 @pytest.fixture(scope="module")
 def p_only(sim):
     sim.power_on()
-    cycle = run_cycle(driver_from_url(sim.url + "&trigger=active", timeout_s=2.0), AXIS, PROGRAM)
+    cycle = run_cycle(driver_from_url(sim.url + "&trigger=active", timeout_s=5.0), AXIS, PROGRAM)
     assert cycle.ok, cycle.reason
     test = measure(sim)
     return cycle.result, test, analyze(test)

@@ -44,7 +44,7 @@ TASK = MachiningTask("finish circle", "circle", feed_mm_min=2000.0, gain_per_s=A
 
 def lost_motion(sim) -> tuple[float, float]:
     """(b̄, lost motion at the reversal) of one round trip mebm commands, in µm."""
-    drv = driver_from_url(URL, timeout_s=2.0)
+    drv = driver_from_url(URL, timeout_s=5.0)
     r = run_cycle(drv, AXIS, PROGRAM)
     assert r.ok, r.reason
     return r.result.backlash_mean_um, reversal_lost_motion_um(r.trace.table_mm, drv.last_command_mm, PROGRAM)

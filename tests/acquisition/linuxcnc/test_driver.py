@@ -113,7 +113,7 @@ def test_machine_off_is_a_typed_failure(powered):
 @pytest.mark.parametrize("pins", ["scale_pin=x-scael.out", "scale_pin=y-scale.out"], ids=["no-such-pin", "not-sampled"])
 def test_a_wrong_pin_is_a_typed_failure_naming_it(powered, pins):
     url = powered.url.replace("scale_pin=x-scale.out", pins)
-    r = run_cycle(driver_from_url(url + "&trigger=active", timeout_s=2.0), AXIS, PROGRAM)
+    r = run_cycle(driver_from_url(url + "&trigger=active", timeout_s=5.0), AXIS, PROGRAM)
     assert not r.ok and r.reason_code == "hal_pin", r.reason
     assert pins.split("=")[1] in r.reason
 
