@@ -6,6 +6,7 @@ SQLite only: the agent reads the database through the service like REST does."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import socket
@@ -504,10 +505,13 @@ def test_a_failure_text_names_no_controller_address_while_rest_keeps_it(tmp_path
         assert "127.0.0.1:1" in body["message"]  # behind a key, the technician's whole text
 
 
-def test_a_circular_test_is_beside_the_tbe_in_probe_current_and_sample(tmp_path, schemas):
+@contextlib.contextmanager
+def _circle_plane(tmp_path):
+    """A service whose machine has the x-y plane of the circular-test REST tests, a fake
+    runner's 150 µm play: (client, service, agent, axes by name, read and operate keys)."""
     from dataclasses import replace
 
-    from tests.api.rest.test_circles import circle_axis, circle_body
+    from tests.api.rest.test_circles import circle_axis
 
     settings = make_settings(f"sqlite:///{tmp_path}/db.sqlite3", tmp_path)
     app = create_app(replace(settings, axes=(circle_axis("x"), circle_axis("y"))), runner=FakeRunner(150.0))
@@ -516,6 +520,13 @@ def test_a_circular_test_is_beside_the_tbe_in_probe_current_and_sample(tmp_path,
         with session_scope(svc.factory) as s:
             axes = {a.name: a for a in config_repo.list_axes(s)}
             keys = {r: config_repo.create_key(s, f"{r}-mtc", r)[1] for r in ("read", "operate")}
+        yield client, svc, agent, axes, keys
+
+
+def test_a_circular_test_is_beside_the_tbe_in_probe_current_and_sample(tmp_path, schemas):
+    from tests.api.rest.test_circles import circle_body
+
+    with _circle_plane(tmp_path) as (client, svc, agent, axes, keys):
         y = axes["y"].id
         cur = schemas.streams_ok(client.get("/mtconnect/current").content)
         assert {el.text for el in cur.iterfind(".//x:CircularDeviation", NS)} == {"UNAVAILABLE"}  # no test yet
@@ -558,17 +569,9 @@ def test_an_alert_a_circular_test_raises_is_the_axis_condition(tmp_path, schemas
     """The round trip's b̄ leaves the axis within its task; a circular test with 300 µm of
     play on y at the task's radius and feed raises the alert: the axis' condition is the
     test's, with the alert's id, as an MES reading conditions alone must see it."""
-    from dataclasses import replace
+    from tests.api.rest.test_circles import circle_body
 
-    from tests.api.rest.test_circles import circle_axis, circle_body
-
-    settings = make_settings(f"sqlite:///{tmp_path}/db.sqlite3", tmp_path)
-    app = create_app(replace(settings, axes=(circle_axis("x"), circle_axis("y"))), runner=FakeRunner(150.0))
-    with TestClient(app) as client:
-        svc, agent = app.state.service, app.state.mtconnect
-        with session_scope(svc.factory) as s:
-            axes = {a.name: a for a in config_repo.list_axes(s)}
-            keys = {r: config_repo.create_key(s, f"{r}-mtc", r)[1] for r in ("read", "operate")}
+    with _circle_plane(tmp_path) as (client, svc, agent, axes, keys):
         y = axes["y"].id
         _measure(svc, y, agent, 0)
         status = client.get(f"/api/v1/axes/{y}/status", headers=hdr(keys["read"])).json()
