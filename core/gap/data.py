@@ -18,8 +18,8 @@ runs at the most extreme conditions.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -60,6 +60,9 @@ class RoundTrip:
     # of a history whose train runs span several utility days, else 0)
     utility_day: float | None = None
     wear_um: float = 0.0
+    # a train run the fits use (False: a long history's train run left out of the fits by
+    # :func:`thin_train`; still read for the noise at rest, the where and the observations)
+    fitted: bool = True
     # what depends on the record alone, computed once per run (the measured envelope split,
     # :func:`core.gap.roundtrip.residual_env_um`; the sample step, :attr:`dt_s`); a fresh one
     # for every copy
@@ -557,6 +560,34 @@ def choose_split(dataset: Dataset) -> Split:
         raise GapError("cannot hold out a run: every kind of run has a single run (need two of a kind)")
     train = tuple(r.spec.file for r in runs if r.spec.file not in test)
     return Split(train, tuple(test), "held out by the diagnosis: " + "; ".join(reasons))
+
+
+# The train round trips of an axis that the fits use, at most: a longer history's are
+# thinned evenly over the measurement order, its first and newest kept. Every evaluation
+# of a chain form simulates each train record through the chain's sub-steps, so without a
+# bound the diagnosis' time grows with the history (a 16-run history of 1000 mm round
+# trips took minutes); six round trips pin down the families' few parameters per axis,
+# and every held-out run is still scored.
+MAX_FITTED_ROUND_TRIPS = 6
+
+
+def thin_train(rts: Sequence[RoundTrip], max_per_axis: int = MAX_FITTED_ROUND_TRIPS) -> tuple[list[RoundTrip], str]:
+    """``rts`` with the train round trips beyond ``max_per_axis`` per axis marked
+    ``fitted=False`` (evenly over their order in the dataset, the first and the last
+    kept), and a sentence saying which were left out of the fits ("" when none)."""
+    out = list(rts)
+    said = []
+    for a in dict.fromkeys(r.axis for r in rts):
+        idx = [i for i, r in enumerate(rts) if r.axis == a and r.split == "train"]
+        if len(idx) <= max_per_axis:
+            continue
+        keep = {idx[int(round(k))] for k in np.linspace(0, len(idx) - 1, max_per_axis)}
+        left = [i for i in idx if i not in keep]
+        for i in left:
+            out[i] = replace(out[i], fitted=False)
+        said.append(f"{max_per_axis} of axis {a}'s {len(idx)} train round trips, evenly over their order "
+                    f"(left out of the fits: {', '.join(rts[i].file for i in left)})")
+    return out, ("the fits use " + "; ".join(said) if said else "")
 
 
 def prepare_runs(dataset: Dataset, split: Split | None = None) -> tuple[list[RoundTrip], list[Contour]]:

@@ -38,7 +38,7 @@ from threadpoolctl import threadpool_limits
 from core.dataset import Dataset
 from core.gap import contour as ct
 from core.gap import roundtrip as rt
-from core.gap.data import Contour, GapError, RoundTrip, choose_split, prepare_runs
+from core.gap.data import Contour, GapError, RoundTrip, choose_split, prepare_runs, thin_train
 from core.gap.evidence import observe
 from core.gap.families import EFFECTS, REGISTRY
 from core.gap.families.base import NOT_IDENTIFIABLE
@@ -323,9 +323,10 @@ class _Diagnosis:
         # (family, axis) -> its round-trip fit on the nominal model and the notes on it
         self.alone: dict[tuple[str, str], tuple[_AxisFit | None, tuple[str, ...]]] = {}
         self.split = choose_split(dataset)
-        self.rts, self.cts = prepare_runs(dataset, self.split)
+        rts, self.cts = prepare_runs(dataset, self.split)
+        self.rts, self.thinned = thin_train(rts)
         self.rt_axes = sorted({r.axis for r in self.rts})
-        self.train_rt = {a: [r for r in self.rts if r.axis == a and r.split == "train"] for a in self.rt_axes}
+        self.train_rt = self._train_rt()
         for r in self.rts:
             if r.split == "test" and not self.train_rt[r.axis]:
                 raise GapError(f"test round trip {r.file!r} of axis {r.axis!r} has no train round trip of that axis")
@@ -338,6 +339,10 @@ class _Diagnosis:
             missing = [a for c in self.test_ct for a in c.axes if a not in self.rt_axes]
             if missing:
                 raise GapError(f"test contour(s) of axis {missing[0]!r} with neither train round trips nor train contours")
+
+    def _train_rt(self) -> dict[str, list[RoundTrip]]:
+        """Each axis' train round trips that the fits use (:func:`core.gap.data.thin_train`)."""
+        return {a: [r for r in self.rts if r.axis == a and r.split == "train" and r.fitted] for a in self.rt_axes}
 
     def in_threads(self, calls: Sequence) -> list:
         """The results of ``calls`` in order, in up to the diagnosis' workers threads (:func:`_in_threads`)."""
@@ -367,7 +372,7 @@ class _Diagnosis:
             self.wear_um_per_day[a], self.wear_ref_day[a] = rate, ref
             self.rts = [replace(r, wear_um=rate * (r.utility_day - ref)) if r.axis == a else r for r in self.rts]
         if self.wear_um_per_day:
-            self.train_rt = {a: [r for r in self.rts if r.axis == a and r.split == "train"] for a in self.rt_axes}
+            self.train_rt = self._train_rt()
             self.test_rt = [r for r in self.rts if r.split == "test"]
 
     def fit_nominal(self) -> None:
@@ -899,7 +904,9 @@ def _diagnose(dataset: Dataset, s: GapSettings, workers: int) -> GapReport:
         noise_floor_from=noise_from,
         train=d.split.train,
         test=d.split.test,
-        split_how=d.split.how,
+        split_how=d.split.how + (f"; {d.thinned}" if d.thinned else ""),
+        fitted=(tuple(f for f in d.split.train if f not in {r.file for r in d.rts if not r.fitted}) if d.thinned
+                else None),
         candidates=tuple(ordered),
         nominal_backlash_um=dict(d.b_um),
         nominal_wear={a: (r, d.wear_ref_day[a]) for a, r in d.wear_um_per_day.items()},

@@ -115,6 +115,9 @@ class GapReport:
     # where the noise floor's white level was read: "rest" (every test run's encoders stood
     # still somewhere), "motion" (none did: from the residuals' third differences), or both
     noise_floor_from: str = "motion"
+    # the train runs the fits used where a long history's train round trips were thinned
+    # (core.gap.data.thin_train); None: every train run
+    fitted: tuple[str, ...] | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -126,7 +129,8 @@ class GapReport:
             "where": self.where.to_dict(),
             "gap_before_um": _num(self.gap_before_um, 3),
             "gap_after_um": _num(self.gap_after_um, 3),
-            "split": {"train": list(self.train), "test": list(self.test), "how": self.split_how},
+            "split": {"train": list(self.train), "test": list(self.test), "how": self.split_how,
+                      **({"fitted": list(self.fitted)} if self.fitted is not None else {})},
             "candidates": [c.to_dict() for c in self.candidates],
             "noise_floor_um": _num(self.noise_floor_um, 3),
             "noise_floor_from": self.noise_floor_from,
