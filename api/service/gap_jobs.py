@@ -1,7 +1,7 @@
 """Gap diagnoses as bounded background jobs, computed in a separate process.
 
-A diagnosis (core.gap) takes half a minute for a full-size benchmark dataset on a quiet
-2-core machine, about six minutes for the demo axis' 16 newest runs on the shared one
+A diagnosis (core.gap) takes a quarter to half a minute for a full-size benchmark dataset
+on a quiet 2-core machine, about a minute for the demo axis' 16 newest runs
 (docs/gap-diagnosis.md, "Time"), and several minutes on a
 dataset whose visible gap no single candidate explains (the two-together search: up to
 620 s seen in the independent plant's benchmark, two diagnoses at a time), longer than an MES should
@@ -410,12 +410,14 @@ def run_bytes(folder: Path, runs: int | Sequence[str]) -> int | None:
 
 WORKER_NICE = 10  # the diagnosis yields the CPU to the service's cycles and requests
 # What a diagnosis is expected to take before one has been timed here: seconds per MB of
-# run files (the demo axis' 1000 mm round trips are 0.87 MB each; its 16 newest took 351 s
-# in the worker process at nice +10 on the shared 2-core machine), plus the model kernels'
-# compilation by a fresh worker process (docs/gap-diagnosis.md, "Time"); seconds per run
-# when the size is not known
-DEFAULT_S_PER_MB = 24.0
-DEFAULT_S_PER_RUN = 21.0
+# run files (the demo axis' 1000 mm round trips are 0.86 MB each; its 16 newest took 67 s
+# in the worker process on the quiet 2-core machine, benchmarks/bench_gap_history.py),
+# plus the model kernels' compilation by a fresh worker process (docs/gap-diagnosis.md,
+# "Time"); seconds per run when the size is not known. Beyond six train round trips an
+# axis' fits are thinned (core.gap.data.thin_train), so a longer history takes less than
+# its size says
+DEFAULT_S_PER_MB = 5.0
+DEFAULT_S_PER_RUN = 4.5
 FIRST_DIAGNOSIS_EXTRA_S = 20.0
 # not answers: starting the run set again computes it anew (a time-out is kept for its data
 # version, so a poller does not start the same long diagnosis again and again; a start from
