@@ -17,7 +17,10 @@ have no round-trip stage.
 from __future__ import annotations
 
 import math
+import os
+import threading
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -218,6 +221,31 @@ def fit(model: RTModel, runs: Sequence[RoundTrip], starts: Sequence[np.ndarray] 
     return r.theta, r.rss
 
 
+RUN_THREADS = min(os.cpu_count() or 1, 4)  # threads that simulate a fit's runs side by side
+_pool: tuple[int, ThreadPoolExecutor] | None = None
+_pool_lock = threading.Lock()
+
+
+def map_runs(fn: Callable[[RoundTrip], np.ndarray], runs: Sequence[RoundTrip]) -> list[np.ndarray]:
+    """``[fn(r) for r in runs]``, the runs in up to :data:`RUN_THREADS` threads of one pool
+    per process (the chain kernels release the interpreter). The diagnosis fits several
+    candidates at once in its own threads; this keeps the cores busy when one long
+    chain fit is all that is left."""
+    global _pool
+    if len(runs) <= 1 or RUN_THREADS <= 1:
+        return [fn(r) for r in runs]
+    with _pool_lock:
+        if _pool is None or _pool[0] != os.getpid():  # a forked child starts its own
+            _pool = (os.getpid(), ThreadPoolExecutor(RUN_THREADS, thread_name_prefix="mebm-gap-run"))
+        pool = _pool[1]
+
+    def call(r):
+        with np.errstate(over="ignore", invalid="ignore"):  # as the diagnosis' own threads
+            return fn(r)
+
+    return list(pool.map(call, runs))
+
+
 def fit_model(model: RTModel, runs: Sequence[RoundTrip], starts: Sequence[np.ndarray] = (),
               n_starts: int = 1, max_nfev: int | None = None, diff_step: float | None = None,
               skip: int = 0) -> FitResult:
@@ -225,8 +253,13 @@ def fit_model(model: RTModel, runs: Sequence[RoundTrip], starts: Sequence[np.nda
     points beside ``model.x0``; the RSS excludes the priors; ``skip`` as :func:`fit_ls`."""
     n_prior = 0 if model.prior is None else int(np.size(model.prior(model.x0)))
 
+    def one(theta, r):
+        return model_residual_um(model, theta, r, r.fit_idx, stacked=True, train=True)
+
     def res(theta):
-        parts = [model_residual_um(model, theta, r, r.fit_idx, stacked=True, train=True) for r in runs]
+        # a chain form's runs are simulated side by side (each run's residual is pure, so
+        # the result is the same as one after the other); the others are too quick to gain
+        parts = map_runs(lambda r: one(theta, r), runs) if model.envelope else [one(theta, r) for r in runs]
         if model.prior is not None:
             parts.append(model.prior(theta))
         return np.concatenate(parts)
@@ -244,21 +277,30 @@ def intervals(fr: FitResult, names: Sequence[str], lower: np.ndarray, upper: np.
     """95 % intervals from the Jacobian at the optimum (s^2 (J'J)^-1, data residuals taken
     as independent: the decimated samples of a run are not quite, so the intervals are
     a lower bound on the true ones). None: the data cannot pin the parameter down (a
-    singular J'J, or an interval wider than half the parameter's admissible range)."""
+    singular J'J, judged on unit-length columns, or an interval wider than half the
+    parameter's admissible range)."""
     j = fr.jac[: fr.n_res] if fr.jac.shape[0] >= fr.n_res else fr.jac
     p = len(names)
     dof = max(fr.n_res - p, 1)
     s2 = fr.rss / dof
-    jtj = j.T @ j
-    out: dict[str, tuple[float, float] | None] = {}
+    # Judged on the columns scaled to unit length (J'J then holds the parameters'
+    # correlations): the rank test and the pseudo-inverse's cut-off depend on how nearly
+    # the data confuse the parameters, not on the units they are stated in. A column of
+    # zeros (a parameter the train data never exercise) stays zero: J'J is singular, and
+    # none of the fit's parameters is pinned down (a form fitted with a part the data
+    # cannot see is not told from its smaller forms)
+    norms = np.sqrt(np.sum(j * j, axis=0))
+    scale = 1.0 / np.where(norms > 0.0, norms, 1.0)
+    corr = (j * scale).T @ (j * scale)
     try:
-        cov = np.linalg.pinv(jtj, rcond=1e-10, hermitian=True) * s2
+        cov = scale[:, None] * np.linalg.pinv(corr, rcond=1e-10, hermitian=True) * scale[None, :] * s2
         sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-        sv = np.linalg.svd(jtj, compute_uv=False, hermitian=True)
+        sv = np.linalg.svd(corr, compute_uv=False, hermitian=True)
         rank_ok = sv.size == 0 or sv[-1] > 1e-12 * sv[0]
     except np.linalg.LinAlgError:
         sd = np.full(p, np.inf)
         rank_ok = False
+    out: dict[str, tuple[float, float] | None] = {}
     for i, n in enumerate(names):
         half = z * float(sd[i])
         ok = rank_ok and np.isfinite(half) and half <= 0.5 * float(upper[i] - lower[i]) and not (
