@@ -533,6 +533,14 @@ class _Diagnosis:
         f = self.fit_candidate((effect,))
         if not (self._worse(f) or (f.rt_fits and not f.identified)) or REGISTRY[effect].stage is None:
             return f
+        if self.gap_before <= self.gate_um:
+            # nothing is named within the noise gate (rule 1 of core.gap.select), whatever
+            # a refit would give: the table keeps the first fit, and says so
+            if self._worse(f):
+                f.fitted = False
+                f.notes.insert(0, "not fitted: the fit makes the held-out gap worse than the nominal model's "
+                                  "(not fitted again: the gap before is within the noise)")  # fmt: skip
+            return f
         again = self.fit_candidate((effect,), retry=True)
         if again.rt_fits and (again.identified, -self._train_gain(again)) > (f.identified, -self._train_gain(f)):
             why = "made the held-out gap worse" if self._worse(f) else "left its parameters unidentifiable"
@@ -841,7 +849,7 @@ def _diagnose(dataset: Dataset, s: GapSettings, workers: int) -> GapReport:
 
     rule = s.rule()
     gate = s.noise_factor * noise
-    d.gap_before = gap_before
+    d.gap_before, d.gate_um = gap_before, gate
     fits = dict(zip(EFFECTS, _in_threads([lambda e=e: d.fit_single(e) for e in EFFECTS], workers)))
     singles = list(fits.values())
     pairs: list[Fitted] = []
