@@ -11,20 +11,15 @@ time in the forward and the feedback path; and integral action in the position l
 fitted on every contour fit: at K_I = 0 its effect on the tracking error is first order
 (the integral of the lag), so the train contours say whether it is there, and a P loop
 is its lower bound. K_I is held at K_eff² or less (K_i <= K_eff: the loop's damping
-ratio 0.5 or more with an ideal velocity loop). K_I rather than K_i is the fitted
-parameter because its Jacobian column is K_eff times smaller: with K_i (1/s) it was the
-largest column and the intervals' rank test, which is not scale-free, lost whole axes
-(forms plant, seed [3301, 0]). K_I and feed-forward both remove the lag at steady speed:
-they are told apart by the contours' start and the settling after it, and where the
-train contours cannot, K_I's interval says "not identifiable".
+ratio 0.5 or more with an ideal velocity loop). K_I and feed-forward both remove the lag
+at steady speed: they are told apart by the contours' start and the settling after it,
+and where the train contours cannot, K_I's interval says "not identifiable".
 
 Not covered: a drive that saturates (a force or current limit, ``accel_limit_mm_s2`` in
-the twin) as a limit of its own. It acts only in the hardest accelerations: on contours
-that stay below it its parameter changes nothing, its Jacobian column is zero, and the
-contour fit's interval test (one rank test over all the family's parameters) would call
-every servo parameter not identifiable; it needs a form whose parameter list is its own
-(docs/gap-diagnosis.md §4). Where a circle's start reaches the limit, the delay forms
-follow it.
+the twin) as a limit of its own. It acts only in the hardest accelerations: on train
+contours that stay below it its parameter changes nothing (a zero Jacobian column,
+which makes the whole fit not identifiable), and a value the train runs never tested
+would decide the held-out ones (docs/gap-diagnosis.md §4).
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """The servo family's forms beyond the P loop, on the twin's circles: integral action in
-the position loop (a PI loop), and a drive that saturates in the hardest accelerations."""
+the position loop (a PI loop)."""
 
 import numpy as np
 
@@ -41,12 +41,3 @@ def test_a_pi_position_loop_is_named_with_its_integral_gain():
     lo, hi = best.intervals["x.integral_gain_per_s2"]
     assert 0.0 < lo <= k_i <= hi
 
-
-def test_a_drive_saturated_in_the_hardest_accelerations_is_named():
-    """The x drive's acceleration held at 150 mm/s²: the circles start at feed, so the loop
-    asks K v at the start (133, 200 and 417 mm/s² on the three circles): the slowest train
-    circle never reaches the limit, the test circle does most. The family's forms follow
-    the saturated start as a delay (docs/gap-diagnosis.md §4)."""
-    rep = diagnose(_circles(ServoDynamics(velocity_lag_s=0.002, accel_limit_mm_s2=150.0), seed=6), SETTINGS)
-    assert rep.effect == "servo_dynamics", rep.text()
-    assert rep.gap_after_um <= 0.5 * rep.gap_before_um, rep.text()
