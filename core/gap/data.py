@@ -565,8 +565,8 @@ def choose_split(dataset: Dataset) -> Split:
 # The train round trips of an axis that the fits use, at most: a longer history's are
 # thinned evenly over the measurement order, its first and newest kept. Every evaluation
 # of a chain form simulates each train record through the chain's sub-steps, so without a
-# bound the diagnosis' time grows with the history (a 16-run history of 1000 mm round
-# trips took minutes); six round trips pin down the families' few parameters per axis,
+# bound the diagnosis' time grows with the history (the demo axis' 16 stored 1000 mm
+# round trips would take minutes); six round trips pin down a family's few parameters per axis,
 # and every held-out run is still scored.
 MAX_FITTED_ROUND_TRIPS = 6
 
