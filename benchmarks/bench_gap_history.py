@@ -5,10 +5,11 @@ through the service's path. A measurement, not a test.
 
 Builds the history `make run` stores for the demo axis (api.service.config.settings:
 the seed paper's Y axis, 1000 mm of travel, round trips at 3000 mm/min and 500 mm/s²,
-sampled at 400 Hz, the demo's encoders, lead error, cyclic error and thermal growth, the
-backlash following the simulated shop temperature and the chain's wear by utility day),
-``--runs`` round trips a minute apart, written as the service's cycle writes them
-(time and the two encoders, the conditions in the run's fields; storage.dataset.append_runs). Then times
+sampled at 400 Hz, on the service's demo twin: its encoders, lead error, cyclic error and
+thermal growth, the backlash following the simulated shop temperature and the chain's
+wear by utility day), ``--runs`` round trips a minute apart, written as the service's
+cycle writes them (time and the two encoders, the conditions in the run's fields;
+storage.dataset.append_runs). Then times
 
 * ``direct``: ``core.gap.diagnose`` of the folder in this process, and
 * ``service``: the same runs through ``api.service.gap_jobs.GapJobs``, as the dashboard's
@@ -23,27 +24,22 @@ CPU and the load average before and after. The page's expected time
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import statistics
 import sys
 import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
-
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from acquisition.measurement import default_program  # noqa: E402
 from api.service.config.settings import DEMO_MACHINE, DEMO_SIMULATOR, demo_axis  # noqa: E402
-from api.service.demo import DEMO_ENCODERS, DEMO_LEAD_ERROR_UM_PER_M, DEMO_LEAD_GROWTH_PPM_PER_K  # noqa: E402
+from api.service.demo import DriftingTwin  # noqa: E402
 from api.service.gap_jobs import GapJobs, RunPlan, stored_files  # noqa: E402
 from core.dataset import MachineSpec, Run, RunSpec  # noqa: E402
 from core.gap import diagnose  # noqa: E402
-from core.sim import AxisModel, CyclicError, Effects, Thermal, round_trip, simulate  # noqa: E402
 from storage.dataset import append_runs, next_run_name, read_dataset  # noqa: E402
 from timing import cpu_name  # noqa: E402
 
@@ -52,36 +48,26 @@ CYCLE_S = 60.0  # the demo's schedule: one round trip a minute
 
 
 def build_history(folder: Path, runs: int, seed: int = 1) -> None:
-    """``runs`` round trips of the demo axis, a minute apart, stored in ``folder``."""
+    """``runs`` round trips of the demo axis, a minute apart, stored in ``folder``: the
+    service's own demo twin (api.service.demo.DriftingTwin, on a clock that advances a
+    cycle per run) running the round trip the service programs."""
     cfg = demo_axis()
-    spec, sim = cfg.settings.spec, DEMO_SIMULATOR
-    effects = Effects(
-        thermal=Thermal(lead_error_um_per_m=DEMO_LEAD_ERROR_UM_PER_M, lead_growth_ppm_per_k=DEMO_LEAD_GROWTH_PPM_PER_K),
-        cyclic_error=CyclicError.of((spec.screw_lead_mm, sim.cyclic_error_um, 0.0)),
-    )
-    base = AxisModel.from_axis_spec(spec, sim.backlash_um_at_20c, effects=effects, encoders=DEMO_ENCODERS)
+    spec, name = cfg.settings.spec, cfg.settings.spec.name
+    now = [0.0]
+    twin = DriftingTwin(spec, DEMO_SIMULATOR, clock=lambda: now[0], seed=seed)
     program = default_program(spec, cfg.settings.measure_feed_mm_min,
                               acceleration_mm_s2=cfg.settings.measure_acceleration_mm_s2)
-    rng = np.random.default_rng(seed)
-    side = base.initial_side
     for i in range(runs):
-        t_s = i * CYCLE_S
-        temp_c = sim.temperature_mean_c + sim.temperature_amplitude_c * math.sin(2 * math.pi * t_s / sim.temperature_period_s)
-        day = t_s * sim.utility_days_per_s
-        b_um = sim.backlash_um_at_20c + sim.backlash_um_per_k * (temp_c - 20.0) + sim.wear_um_per_day * day
-        prog = round_trip(program.start_mm, program.end_mm, program.feed_mm_min,
-                          acceleration_mm_s2=program.acceleration_mm_s2, dwell_s=program.dwell_s, axis=spec.name)
-        model = replace(base, backlash_um=b_um, initial_side=side)
-        tr = simulate({spec.name: model}, prog, temperature_c=temp_c, rate_hz=RATE_HZ, rng=rng)
-        side = "negative"
+        now[0] = i * CYCLE_S
+        temp_c = twin.temperature_c
+        tr = twin.round_trip(program, RATE_HZ)
         # as the service's cycle stores a round trip: time and the two encoders, no
         # command column (the diagnosis rebuilds the program), the conditions in the spec
-        name = spec.name
         run = RunSpec(file=next_run_name(folder, f"rt_{name}"), kind="round_trip", axes=(name,),
-                      feed_mm_min=program.feed_mm_min, temperature_c=temp_c, utility_day=day,
+                      feed_mm_min=program.feed_mm_min, temperature_c=temp_c, utility_day=twin.wear.utility_days(),
                       acceleration_mm_s2=program.acceleration_mm_s2,
                       extra={"measured_at": f"2026-01-01T00:{i:02d}:00+00:00", "temperature_measured": True})
-        cols = {"time_s": tr.time_s, f"{name}_motor_rev": tr.motor_rev[name], f"{name}_table_mm": tr.table_mm[name]}
+        cols = {"time_s": tr.time_s, f"{name}_motor_rev": tr.motor_rev, f"{name}_table_mm": tr.table_mm}
         append_runs(folder, MachineSpec(DEMO_MACHINE, {name: spec}), [Run(run, cols)])
 
 

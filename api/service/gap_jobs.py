@@ -410,7 +410,7 @@ def run_bytes(folder: Path, runs: int | Sequence[str]) -> int | None:
 
 WORKER_NICE = 10  # the diagnosis yields the CPU to the service's cycles and requests
 # What a diagnosis is expected to take before one has been timed here: seconds per MB of
-# run files (the demo axis' 1000 mm round trips are 0.86 MB each; its 16 newest took 61 s
+# run files (the demo axis' 1000 mm round trips are 0.86 MB each; its 16 newest took 57 s
 # in the worker process on the quiet 2-core machine, benchmarks/bench_gap_history.py),
 # plus the model kernels' compilation by a fresh worker process (docs/gap-diagnosis.md,
 # "Time"); seconds per run when the size is not known. Beyond six train round trips an

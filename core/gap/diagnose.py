@@ -783,6 +783,12 @@ def pair_jobs(singles: Sequence[Fitted], gap_before: float, gate_um: float, rule
     return out
 
 
+def _fitted_runs(train: Sequence[str], rts: Sequence[RoundTrip]) -> tuple[str, ...]:
+    """The train runs the fits used: ``train`` but the round trips a thinning left out."""
+    left = {r.file for r in rts if not r.fitted}
+    return tuple(f for f in train if f not in left)
+
+
 def _candidate(f: Fitted, s: GapSettings) -> Candidate:
     params: dict = {}
     for k, v in f.params.items():
@@ -913,8 +919,7 @@ def _diagnose(dataset: Dataset, s: GapSettings, workers: int) -> GapReport:
         train=d.split.train,
         test=d.split.test,
         split_how=d.split.how + (f"; {d.thinned}" if d.thinned else ""),
-        fitted=(tuple(f for f in d.split.train if f not in {r.file for r in d.rts if not r.fitted}) if d.thinned
-                else None),
+        fitted=_fitted_runs(d.split.train, d.rts) if d.thinned else None,
         candidates=tuple(ordered),
         nominal_backlash_um=dict(d.b_um),
         nominal_wear={a: (r, d.wear_ref_day[a]) for a, r in d.wear_um_per_day.items()},
