@@ -16,16 +16,19 @@ have no round-trip stage.
 
 from __future__ import annotations
 
+import contextvars
 import math
 import os
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from contextlib import contextmanager
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.ndimage import uniform_filter1d
 from scipy.optimize import least_squares
+from scipy.optimize._numdiff import approx_derivative  # least_squares' own finite differences
 
 from core.gap.data import RoundTrip
 from core.gap.play import play
@@ -60,6 +63,9 @@ class RTModel:
     envelope: bool = False
     # the windows of its train score when ``envelope`` is set (:func:`residual_train_env_um`)
     train_windows_s: tuple[float, ...] = (ENVELOPE_WINDOW_S,)
+    # ``predict`` makes a discrete choice per run (a chain's start place, :class:`RunChoices`):
+    # its Jacobian is taken with the choices held
+    run_choices: bool = False
 
 
 def predict_nominal(theta, run: RoundTrip) -> np.ndarray:
@@ -180,28 +186,78 @@ class FitResult:
 NONFINITE_RESIDUAL = 1e6  # µm: what a diverged simulation counts as, per sample
 
 
+@dataclass
+class RunChoices:
+    """The discrete choices a model's ``predict`` made per run at one parameter vector
+    (a chain's start place in its gap, :func:`core.gap.stages._free_start`), and those it
+    is to hold. A fit takes its Jacobian with the choices of the point it differentiates
+    at held: the derivative is the chosen branch's, not a jump to another start place
+    within a finite-difference step, and each column costs one simulation instead of one
+    per place."""
+
+    held: dict[int, int] = field(default_factory=dict)  # id(run) -> the choice to make
+    made: dict[int, int] = field(default_factory=dict)  # id(run) -> the choice made
+
+
+_RUN_CHOICES: contextvars.ContextVar[RunChoices | None] = contextvars.ContextVar("mebm_gap_run_choices", default=None)
+
+
+def run_choices() -> RunChoices | None:
+    """The choices the current evaluation records and holds (None: choose freely)."""
+    return _RUN_CHOICES.get()
+
+
+@contextmanager
+def choosing(choices: RunChoices) -> Iterator[RunChoices]:
+    """Model evaluations in the block record their choices in, and hold those of, ``choices``."""
+    token = _RUN_CHOICES.set(choices)
+    try:
+        yield choices
+    finally:
+        _RUN_CHOICES.reset(token)
+
+
 def fit_ls(residuals: Callable[[np.ndarray], np.ndarray], x0s: Sequence[np.ndarray], lower: np.ndarray,
            upper: np.ndarray, n_starts: int = 1, n_prior: int = 0, max_nfev: int | None = None,
-           diff_step=None, skip: int = 0) -> FitResult:
+           diff_step=None, skip: int = 0, hold_choices: bool = False) -> FitResult:
     """Multi-start trust-region least squares: the ``n_starts`` cheapest of ``x0s`` (one
     evaluation each) start a fit; the best wins. ``skip``: the cheapest ``skip`` starts are
-    passed over (a fit again from other starts); the costliest are taken where fewer remain."""
+    passed over (a fit again from other starts); the costliest are taken where fewer remain.
+    ``hold_choices``: the residuals make discrete choices per run (:class:`RunChoices`);
+    the Jacobian is least_squares' own forward differences, with the choices made at the
+    point held."""
     def safe(th):
         # a simulation that diverged for these parameters (NaN or inf) is a bad fit, not a
         # crash: a large finite residual steers the optimiser away from it
         r = np.asarray(residuals(th), dtype=float)
         return np.where(np.isfinite(r), r, NONFINITE_RESIDUAL)
 
+    last: list = []  # the latest evaluation (theta, residuals, choices made)
+
+    def recorded(th):
+        with choosing(RunChoices()) as ch:
+            r = safe(th)
+        last[:] = [np.array(th, copy=True), r, ch.made]
+        return r
+
+    def held_jac(th):
+        if not last or not np.array_equal(last[0], th):
+            recorded(th)
+        with choosing(RunChoices(held=dict(last[2]))):
+            return approx_derivative(safe, th, method="2-point", rel_step=diff_step, f0=last[1], bounds=(lower, upper))
+
+    fun, jac = (recorded, held_jac) if hold_choices else (safe, "2-point")
+
     cands = [np.clip(x0, lower + 1e-9, upper - 1e-9) for x0 in x0s]
     if len(cands) > 1:
-        costs = [float(np.sum(safe(th) ** 2)) for th in cands]
+        costs = [float(np.sum(fun(th) ** 2)) for th in cands]
         first = min(skip, max(len(cands) - n_starts, 0))
         cands = [cands[i] for i in np.argsort(costs, kind="stable")[first : first + n_starts]]
     best = None
     for x0 in cands:
         kw = {} if diff_step is None else {"diff_step": diff_step}
         try:
-            sol = least_squares(safe, x0, bounds=(lower, upper), x_scale="jac", method="trf",
+            sol = least_squares(fun, x0, jac=jac, bounds=(lower, upper), x_scale="jac", method="trf",
                                 max_nfev=max_nfev or 25 * (len(x0) + 1), **kw)  # fmt: skip
         except ValueError:  # the trust region met non-finite numbers: this start fails
             continue
@@ -209,7 +265,7 @@ def fit_ls(residuals: Callable[[np.ndarray], np.ndarray], x0s: Sequence[np.ndarr
             best = sol
     if best is None:  # every start failed: the first start, unfitted (the candidate will not be taken)
         x0 = cands[0]
-        r = safe(x0)
+        r = fun(x0)
         return FitResult(x0, float(np.sum(r**2)), np.zeros((r.size, x0.size)), int(r.size - n_prior))
     return FitResult(best.x, float(2 * best.cost), best.jac, int(best.fun.size - n_prior), best.status == 0)
 
@@ -243,7 +299,9 @@ def map_runs(fn: Callable[[RoundTrip], np.ndarray], runs: Sequence[RoundTrip]) -
         with np.errstate(over="ignore", invalid="ignore"):  # as the diagnosis' own threads
             return fn(r)
 
-    return list(pool.map(call, runs))
+    # each run in its own copy of the caller's context: the run choices it records and holds
+    ctxs = [contextvars.copy_context() for _ in runs]
+    return list(pool.map(lambda c, r: c.run(call, r), ctxs, runs))
 
 
 def fit_model(model: RTModel, runs: Sequence[RoundTrip], starts: Sequence[np.ndarray] = (),
@@ -265,7 +323,7 @@ def fit_model(model: RTModel, runs: Sequence[RoundTrip], starts: Sequence[np.nda
         return np.concatenate(parts)
 
     r = fit_ls(res, [model.x0, *starts], model.lower, model.upper, n_starts, n_prior, max_nfev=max_nfev,
-               diff_step=diff_step, skip=skip)
+               diff_step=diff_step, skip=skip, hold_choices=model.run_choices)
     rss = train_rss(model, r.theta, runs, model.envelope)
     # the residuals per sample: each window's stacked (d, e) repeats the same samples
     n_res = r.n_res // len(model.train_windows_s) if model.envelope else r.n_res

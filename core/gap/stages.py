@@ -34,7 +34,8 @@ from scipy.signal import savgol_filter
 
 from core.gap.data import RoundTrip
 from core.gap.play import play, play_dahl, play_friction, play_inertia
-from core.gap.roundtrip import ENVELOPE_WINDOW_S, TRAIN_ENVELOPE_WINDOWS_S, RTModel, residual_env_um, residual_um
+from core.gap.roundtrip import (ENVELOPE_WINDOW_S, TRAIN_ENVELOPE_WINDOWS_S, RTModel, residual_env_um, residual_um,
+                                run_choices)
 
 GUIDE_DAMPING_PER_S = 1.0  # friction on a chain: a light oil-film damping of the table (1/s)
 # kernels of a chain's dynamics: fitted and scored on round trips by envelope above 20 Hz
@@ -181,6 +182,7 @@ def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
         prior=prior if priors else None, envelope=any(s.kernel in ENVELOPE_KERNELS for s in stages),
         train_windows_s=(TRAIN_ENVELOPE_WINDOWS_S if any(s.kernel == "compliant_chain" for s in stages)
                          else (ENVELOPE_WINDOW_S,)),
+        run_choices=any(s.kernel in FREE_START_KERNELS for s in stages),
     )  # fmt: skip
 
 
@@ -194,20 +196,29 @@ def _free_start(sim: Callable[[float], np.ndarray], run: RoundTrip, half_gap_mm:
     place is not observed to the micrometre (the medians put it several µm off on a
     stroke that stick-slips one way), and a Karnopp chain is bistable in it (a
     micrometre of start decides between stick-slip and sliding through a whole
-    stroke)."""
+    stroke). The choice is a :class:`core.gap.roundtrip.RunChoices` one: recorded where
+    the fit asks, and held (one simulation) while it takes its Jacobian."""
     u0 = float(run.u_mm[0])
     starts = [run.start_table_mm(half_gap_mm)]
     for x0 in (u0 - half_gap_mm, u0 + half_gap_mm):
         if all(abs(x0 - s) > 1e-6 for s in starts):
             starts.append(x0)
-    best, best_cost = None, math.inf
-    for x0 in starts:
+    choices = run_choices()
+    held = None if choices is None else choices.held.get(id(run))
+    if held is not None and held < len(starts):
+        x = sim(starts[held])
+        if np.all(np.isfinite(x)):
+            return x
+    best, best_i, best_cost = None, None, math.inf
+    for i, x0 in enumerate(starts):
         x = sim(x0)
         if not np.all(np.isfinite(x)):
             continue
         cost = float(np.sum(residual_env_um(x, run) ** 2))
         if cost < best_cost:
-            best, best_cost = x, cost
+            best, best_i, best_cost = x, i, cost
+    if choices is not None and best_i is not None:
+        choices.made[id(run)] = best_i
     return best if best is not None else x  # every start diverged: a bad fit, not simulated again
 
 

@@ -50,3 +50,60 @@ def test_a_fit_stopped_by_its_evaluation_cap_says_so():
     assert fit_ls(res, start, lo, hi, max_nfev=2).capped
     done = fit_ls(res, start, lo, hi, max_nfev=200)
     assert not done.capped and np.allclose(done.theta, [3.0, 9.0], atol=1e-4)
+
+
+def _two_place_residuals(x, y, sims):
+    """Residuals of a model that simulates two places and keeps the better one (as a
+    chain's start place), recording its choice and holding a held one. The second place
+    doubles the residual: never the better one, so the choice never changes."""
+    from core.gap.roundtrip import run_choices
+
+    def res(th):
+        ch = run_choices()
+        held = None if ch is None else ch.held.get(0)
+        tried = [held] if held is not None else (0, 1)
+        best = None
+        for i in tried:
+            sims.append(i)
+            r = (1.0 + i) * (th[0] * x + th[1] - y)
+            if best is None or np.sum(r**2) < np.sum(best[1] ** 2):
+                best = (i, r)
+        if ch is not None and held is None:
+            ch.made[0] = best[0]
+        return best[1]
+
+    return res
+
+
+def test_a_jacobian_with_the_choices_held_is_least_squares_own_at_one_simulation_a_column():
+    x = np.linspace(0.0, 1.0, 40)
+    y = 2.0 * x + 0.3 + 0.01 * np.sin(17 * x)
+    free_sims: list[int] = []
+    held_sims: list[int] = []
+    lo, hi = np.array([-10.0, -10.0]), np.array([10.0, 10.0])
+    free = fit_ls(_two_place_residuals(x, y, free_sims), [np.array([1.0, 0.0])], lo, hi)
+    held = fit_ls(_two_place_residuals(x, y, held_sims), [np.array([1.0, 0.0])], lo, hi, hold_choices=True)
+    # the place never changes near the path: the fit is the one least_squares makes alone
+    assert np.array_equal(free.theta, held.theta) and np.array_equal(free.jac, held.jac)
+    assert abs(held.theta[0] - 2.0) < 0.05
+    # a free evaluation simulates both places; a Jacobian column only the one chosen
+    assert len(free_sims) % 2 == 0 and held_sims.count(1) < free_sims.count(1)
+    n_eval = free_sims.count(1)  # evaluations of either kind in the free fit (each tries place 1)
+    n_cols = n_eval - held_sims.count(1)  # those that became held columns
+    assert n_cols > 0 and len(held_sims) == 2 * (n_eval - n_cols) + n_cols
+
+
+def test_run_choices_reach_the_threads_that_simulate_the_runs():
+    from core.gap.roundtrip import RunChoices, choosing, map_runs, run_choices
+
+    runs = [object() for _ in range(4)]
+
+    def sim(r):
+        ch = run_choices()
+        ch.made[id(r)] = ch.held.get(id(r), 0) + 1
+        return np.zeros(1)
+
+    with choosing(RunChoices(held={id(runs[2]): 5})) as ch:
+        map_runs(sim, runs)
+    assert ch.made == {id(runs[0]): 1, id(runs[1]): 1, id(runs[2]): 6, id(runs[3]): 1}
+    assert run_choices() is None
