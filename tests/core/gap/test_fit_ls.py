@@ -93,9 +93,11 @@ def test_a_jacobian_with_the_choices_held_is_least_squares_own_at_one_simulation
     assert n_cols > 0 and len(held_sims) == 2 * (n_eval - n_cols) + n_cols
 
 
-def test_run_choices_reach_the_threads_that_simulate_the_runs():
+def test_run_choices_reach_the_threads_that_simulate_the_runs(monkeypatch):
+    import core.gap.roundtrip as rt
     from core.gap.roundtrip import RunChoices, choosing, map_runs, run_choices
 
+    monkeypatch.setattr(rt, "RUN_THREADS", 4)  # the pool, on a machine of any size
     runs = [object() for _ in range(4)]
 
     def sim(r):
