@@ -212,8 +212,9 @@ class RunPlan:
         if self.older:
             lines.append(f"{self.older} older run(s) of the period not used (the newest {self.requested} are).")
         if self.no_temperature:
-            lines.append(f"{self.no_temperature} run(s) without a measured temperature (stored as 20 °C): a thermal "
-                         f"effect is judged on the others' temperatures.")
+            lines.append(f"{self.no_temperature} run(s) without a measured temperature: taken at the measured runs' "
+                         f"mean (not at the 20 °C stored in its place), so a thermal effect is judged on the others' "
+                         f"temperatures.")
         return "\n".join(lines)
 
 

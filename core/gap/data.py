@@ -29,6 +29,8 @@ from core.sim import circle as circle_program
 from core.sim import line as line_program
 from core.sim.programs import Program
 
+REFERENCE_C = 20.0  # °C: the temperature a lead and a backlash are stated at
+
 MAX_FIT_SAMPLES = 8000  # per run, for the least-squares fits (the models run on all samples)
 
 
@@ -63,6 +65,9 @@ class RoundTrip:
     # a train run the fits use (False: a long history's train run left out of the fits by
     # :func:`thin_train`; still read for the noise at rest, the where and the observations)
     fitted: bool = True
+    # False: the run's temperature_c is a placeholder, no thermometer read it (the run's
+    # ``temperature_measured``, :func:`temperature_measured`)
+    temperature_measured: bool = True
     # what depends on the record alone, computed once per run (the measured envelope split,
     # :func:`core.gap.roundtrip.residual_env_um`; the sample step, :attr:`dt_s`); a fresh one
     # for every copy
@@ -106,6 +111,7 @@ class Contour:
     meta: dict = field(default_factory=dict)
     score: np.ndarray | None = field(default=None, repr=False)  # bool per sample: on the data arc/segment
     rebuilt: bool = False  # True: no command columns, the program was rebuilt from the run's fields
+    temperature_measured: bool = True  # as RoundTrip's
     command_mm: dict | None = field(default=None, repr=False)  # axis -> recorded command
 
     @property
@@ -209,6 +215,7 @@ def prepare_round_trip(run: Run, axis_spec, split: str) -> RoundTrip:
     return RoundTrip(
         file=run.spec.file, axis=a, split=split, t_s=t, u_mm=u, x_mm=x,
         temperature_c=float(run.spec.temperature_c), feed_mm_min=float(run.spec.feed_mm_min),
+        temperature_measured=temperature_measured(run),
         acceleration_mm_s2=run.spec.acceleration_mm_s2, side0=_first_direction(u), fit_idx=idx,
         command_mm=None if cmd is None else np.asarray(cmd, float), start=start,
         rest_lead_mm=rest_lead_mm(t, u, x),
@@ -498,6 +505,7 @@ def prepare_contour(run: Run, split: str, axes: Mapping[str, AxisSpec] | None = 
         temperature_c=float(s.temperature_c), feed_mm_min=float(s.feed_mm_min),
         acceleration_mm_s2=s.acceleration_mm_s2, fit_idx=_fit_idx_on(score, t.size),
         rate_hz=min(1000.0, 1.0 / dt), meta=meta, score=score, rebuilt=not has_cmd, command_mm=cmd_cols,
+        temperature_measured=temperature_measured(run),
     )  # fmt: skip
 
 
@@ -515,9 +523,17 @@ class Split:
     how: str  # "given" or a sentence saying which runs were held out and why
 
 
+def temperature_measured(run: Run) -> bool:
+    """Whether a thermometer read the run's ``temperature_c``: not where the run says
+    ``temperature_measured: false`` (an import without a temperature, a cycle whose
+    sensor failed), which stores the reference 20 °C as a placeholder."""
+    return run.spec.extra.get("temperature_measured", True) is not False
+
+
 def choose_split(dataset: Dataset) -> Split:
     """The runs' ``split`` when any run has one; else hold out whole runs at the most
-    extreme condition (temperature, then feed) per kind, never random samples."""
+    extreme condition (temperature, then feed) per kind, never random samples. Only
+    measured temperatures count: a run without one is held out by its feed, if at all."""
     runs = dataset.runs
     if len(runs) < 2:
         raise GapError(f"the dataset has {len(runs)} run(s); a diagnosis needs at least 2 (one to fit, one to test)")
@@ -537,10 +553,10 @@ def choose_split(dataset: Dataset) -> Split:
     for (kind, _), rs in groups.items():
         if len(rs) < 2:
             continue
-        temps = np.array([r.spec.temperature_c for r in rs])
+        temps = np.array([r.spec.temperature_c if temperature_measured(r) else np.nan for r in rs])
         feeds = np.array([r.spec.feed_mm_min for r in rs])
-        if np.ptp(temps) > 0.5:
-            dev = np.abs(temps - np.median(temps))
+        if np.sum(np.isfinite(temps)) >= 2 and np.nanmax(temps) - np.nanmin(temps) > 0.5:
+            dev = np.nan_to_num(np.abs(temps - np.nanmedian(temps)), nan=-1.0)  # unmeasured: never the extreme
             what = "temperature"
             vals = temps
         else:
@@ -593,7 +609,11 @@ def thin_train(rts: Sequence[RoundTrip], max_per_axis: int = MAX_FITTED_ROUND_TR
 def prepare_runs(dataset: Dataset, split: Split | None = None) -> tuple[list[RoundTrip], list[Contour]]:
     """Every run of ``dataset`` prepared as the diagnosis fits and scores it: its round
     trips and its contours, in the dataset's order, each marked ``"train"`` or ``"test"``
-    by ``split`` (default: :func:`choose_split`)."""
+    by ``split`` (default: :func:`choose_split`). A run whose temperature was not measured
+    (:func:`temperature_measured`) is taken at the mean of the measured runs' (the
+    reference 20 °C where none was): judged by the others' temperatures, not by the
+    placeholder stored in its place, which would read as a temperature step to the
+    thermal family and the simulated contours."""
     split = choose_split(dataset) if split is None else split
     axes = dataset.machine.axes
     rts: list[RoundTrip] = []
@@ -604,4 +624,9 @@ def prepare_runs(dataset: Dataset, split: Split | None = None) -> tuple[list[Rou
             rts.append(prepare_round_trip(run, axes[run.spec.axes[0]], sp))
         else:
             cts.append(prepare_contour(run, sp, axes))
+    measured = [r.temperature_c for r in (*rts, *cts) if r.temperature_measured]
+    if len(measured) < len(rts) + len(cts):
+        fill = float(np.mean(measured)) if measured else REFERENCE_C
+        rts = [r if r.temperature_measured else replace(r, temperature_c=fill) for r in rts]
+        cts = [c if c.temperature_measured else replace(c, temperature_c=fill) for c in cts]
     return rts, cts

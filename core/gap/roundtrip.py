@@ -30,10 +30,9 @@ from scipy.ndimage import uniform_filter1d
 from scipy.optimize import least_squares
 from scipy.optimize._numdiff import approx_derivative  # least_squares' own finite differences
 
-from core.gap.data import RoundTrip
+from core.gap.data import REFERENCE_C, RoundTrip
 from core.gap.play import play
 
-REFERENCE_C = 20.0
 N_PERIODS = 2  # cyclic error: components fitted
 MAX_PERIODOGRAM_SAMPLES = 3000
 

@@ -273,9 +273,11 @@ def locate(
     if len(all_runs) >= 3:
         per = np.array([rms(r) for _, r in all_runs])
         for key in ("feed_mm_min", "acceleration_mm_s2", "temperature_c"):
-            vals = [getattr(run, key) for run, _ in all_runs]
-            if all(v is not None for v in vals):
-                conds[key] = pearson_r(np.array(vals, float), per)
+            # a temperature counts where a thermometer read it, not a run's placeholder
+            use = np.array([key != "temperature_c" or run.temperature_measured for run, _ in all_runs])
+            vals = [getattr(run, key) for (run, _), u in zip(all_runs, use) if u]
+            if use.sum() >= 3 and all(v is not None for v in vals):
+                conds[key] = pearson_r(np.array(vals, float), per[use])
     details["r_run_rms_vs"] = conds
     cond_text = _sentence_conditions(conds)
     phase = axis = None
