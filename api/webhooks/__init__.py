@@ -2,7 +2,7 @@
 (https://www.standardwebhooks.com), for MES systems that only take HTTP.
 
 Each delivery is a JSON body ``{"type": "alert.raised" | "alert.cleared" | "work_order.<state>", "timestamp",
-"data": {...}}`` with the headers ``webhook-id`` (``msg_<uuid>``, the same on every
+"data": {...}}`` (``data`` names the installation, ``instance``, as every MQTT payload does) with the headers ``webhook-id`` (``msg_<uuid>``, the same on every
 retry), ``webhook-timestamp`` (Unix seconds) and ``webhook-signature``
 (``v1,<base64 HMAC-SHA256>`` of ``"{id}.{timestamp}.{body}"`` with the secret's key: the
 base64 after ``whsec_``).
@@ -101,13 +101,13 @@ class WebhookSender:
     def handle(self, ev: Event) -> None:
         if ev.kind == "work_order_changed":
             doc = {"type": f"work_order.{ev.order.state}",  # a work-order step
-                   "timestamp": _iso(ev.at), "data": order_document(ev)}
+                   "timestamp": _iso(ev.at), "data": {"instance": self.service.instance, **order_document(ev)}}
         elif ev.kind == "alert_changed":
             a = ev.alert
             doc = {
                 "type": "alert.raised" if a.active else "alert.cleared",
                 "timestamp": _iso(ev.at),
-                "data": {"machine": ev.machine, "axis": ev.axis, "axis_id": ev.axis_id, "alert_id": a.id,
+                "data": {"instance": self.service.instance, "machine": ev.machine, "axis": ev.axis, "axis_id": ev.axis_id, "alert_id": a.id,
                          "kind": a.kind, "active": a.active, "task_name": a.task_name, "tbe_um": a.tbe_um,
                          "tolerance_um": a.tolerance_um, "backlash_um": a.backlash_um,
                          "backlash_limit_um": a.backlash_limit_um, "message": a.message,

@@ -219,6 +219,8 @@ def test_a_webhook_receiver_verifies_the_signature_of_each_alert_change_after_a_
     # the ALARM also opened a work order: its step is delivered the same way
     (order,) = [r for r in Receiver.received if r[2]["type"].startswith("work_order.")]
     assert order[1] and order[2]["type"] == "work_order.open" and order[2]["data"]["kind"] == "corrective"
+    # every message names the installation that sent it, as the MQTT payloads do
+    assert {r[2]["data"]["instance"] for r in Receiver.received} == {svc.instance}
     log = [d for d in log if d["event_type"].startswith("alert.")]
     (id1, ok1, doc1, _), (id1b, ok1b, _, _), (id2, ok2, doc2, _) = [r for r in Receiver.received if r[2]["type"].startswith("alert.")]
     assert ok1 and ok1b and ok2  # every signature verifies
@@ -320,7 +322,7 @@ def test_webhook_messages_wait_in_memory_while_the_database_is_unreachable_and_a
     upgrade(up)
     port = free_port()
     server = _serve_later(port)
-    svc = SimpleNamespace(events=EventHub(), factory=make_session_factory(down))
+    svc = SimpleNamespace(events=EventHub(), factory=make_session_factory(down), instance="plant-a")
     sender = WebhookSender(svc, WebhookSettings(urls=(f"http://127.0.0.1:{port}/hook",), secret=SECRET))
     try:
         alert = AlertRecord(id=7, axis_id=1, kind="tbe", raised_at=utcnow(), cleared_at=None, acknowledged_at=None,
