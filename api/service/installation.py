@@ -1,5 +1,5 @@
 """The name of this installation, on every interface: the MQTT topics and payloads, the
-MTConnect devices' uuids, the OPC UA namespace.
+MTConnect devices' uuids, the OPC UA namespace, the webhooks' messages.
 
 Two installations may watch machines of the same name (each plant has its ``vmc-1``) and
 publish to one broker or one MES; the installation's name keeps them apart. It is
