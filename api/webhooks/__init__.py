@@ -2,7 +2,8 @@
 (https://www.standardwebhooks.com), for MES systems that only take HTTP.
 
 Each delivery is a JSON body ``{"type": "alert.raised" | "alert.cleared" | "work_order.<state>", "timestamp",
-"data": {...}}`` (``data`` names the installation, ``instance``, as every MQTT payload does) with the headers ``webhook-id`` (``msg_<uuid>``, the same on every
+"data": {...}}`` (``data`` names the installation, ``instance``, as every MQTT payload
+does) with the headers ``webhook-id`` (``msg_<uuid>``, the same on every
 retry), ``webhook-timestamp`` (Unix seconds) and ``webhook-signature``
 (``v1,<base64 HMAC-SHA256>`` of ``"{id}.{timestamp}.{body}"`` with the secret's key: the
 base64 after ``whsec_``).
@@ -107,10 +108,10 @@ class WebhookSender:
             doc = {
                 "type": "alert.raised" if a.active else "alert.cleared",
                 "timestamp": _iso(ev.at),
-                "data": {"instance": self.service.instance, "machine": ev.machine, "axis": ev.axis, "axis_id": ev.axis_id, "alert_id": a.id,
-                         "kind": a.kind, "active": a.active, "task_name": a.task_name, "tbe_um": a.tbe_um,
-                         "tolerance_um": a.tolerance_um, "backlash_um": a.backlash_um,
-                         "backlash_limit_um": a.backlash_limit_um, "message": a.message,
+                "data": {"instance": self.service.instance, "machine": ev.machine, "axis": ev.axis,
+                         "axis_id": ev.axis_id, "alert_id": a.id, "kind": a.kind, "active": a.active,
+                         "task_name": a.task_name, "tbe_um": a.tbe_um, "tolerance_um": a.tolerance_um,
+                         "backlash_um": a.backlash_um, "backlash_limit_um": a.backlash_limit_um, "message": a.message,
                          "raised_by_circular_test_id": a.raised_by_circular_test_id},
             }  # fmt: skip
         else:

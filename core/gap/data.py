@@ -564,6 +564,8 @@ def choose_split(dataset: Dataset) -> Split:
             what = "feed"
             vals = feeds
         n_out = max(1, len(rs) // 4)
+        if what == "temperature":  # of the measured runs only
+            n_out = min(n_out, int(np.sum(np.isfinite(temps))))
         order = np.argsort(-dev, kind="stable")[:n_out]
         for i in order:
             test.append(rs[i].spec.file)

@@ -74,3 +74,15 @@ def test_the_temperature_trend_of_the_runs_leaves_a_placeholder_out():
     resid = [np.full(10, g) for g in (1.0, 2.0, 3.0, 4.0, 9.0)]
     where = locate([], [], [], [], {}, {}, {}, list(zip(runs, resid)))
     assert where.details["r_run_rms_vs"]["temperature_c"] > 0.99
+
+
+def test_a_history_of_few_measured_temperatures_holds_out_only_measured_ones():
+    from core.dataset import Run, RunSpec
+
+    # twelve round trips, two of them with a thermometer: a quarter would be three runs,
+    # but only the two measured temperatures can be the most extreme
+    specs = [RunSpec(f"rt_{i}.csv", "round_trip", ("y",), 1000.0, 20.0, extra={"temperature_measured": False})
+             for i in range(10)]
+    specs += [RunSpec(f"rt_{i}.csv", "round_trip", ("y",), 1000.0, t) for i, t in ((10, 23.0), (11, 26.0))]
+    sp = choose_split(Dataset(MachineSpec("t", {}), tuple(Run(s, {}) for s in specs)))
+    assert set(sp.test) == {"rt_10.csv", "rt_11.csv"} and "nan" not in sp.how, sp.how
