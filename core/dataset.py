@@ -117,6 +117,13 @@ class RunSpec:
     start_mm: tuple[float, ...] | None = None
     extra: Mapping = field(default_factory=dict, compare=False)
 
+    @property
+    def temperature_measured(self) -> bool:
+        """Whether a thermometer read ``temperature_c``: not where the run says
+        ``temperature_measured: false`` (an import without a temperature, a cycle whose
+        sensor failed), which stores the reference 20 °C as a stand-in."""
+        return self.extra.get("temperature_measured", True) is not False
+
     def columns_required(self) -> tuple[str, ...]:
         cols = ["time_s"]
         for a in self.axes:

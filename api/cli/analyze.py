@@ -56,7 +56,7 @@ def run(a: argparse.Namespace) -> int:
             except MebmError as exc:
                 failures.append(f"{r.spec.file} (axis {axis_name}): {exc}")
                 continue
-            measured = r.spec.extra.get("temperature_measured", True) is not False
+            measured = r.spec.temperature_measured
             results.append({
                 "file": r.spec.file,
                 "feed_mm_min": r.spec.feed_mm_min,

@@ -365,7 +365,7 @@ def stored_runs(folder: Path) -> tuple[StoredRun, ...] | None:
     if runs is None:
         try:
             runs = tuple(StoredRun(r.spec.file, _parse_time(r.spec.extra.get("measured_at")), r.spec.utility_day,
-                                   r.spec.extra.get("temperature_measured", True) is not False)
+                                   r.spec.temperature_measured)
                          for r in read_dataset(folder, load_runs=False).runs)
         except (MebmError, OSError, ValueError):
             return None

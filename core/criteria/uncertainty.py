@@ -259,5 +259,4 @@ def inputs_of_run(extra: dict, instruments: Instruments | None = None,
 def inputs_of_spec(spec, instruments: Instruments | None = None) -> UncertaintyInputs:
     """:func:`inputs_of_run` of a stored run's ``RunSpec``: its ``extra`` fields and its
     temperature (unless the run says it was not measured, ``temperature_measured``)."""
-    measured = spec.extra.get("temperature_measured", True) is not False
-    return inputs_of_run(spec.extra, instruments, float(spec.temperature_c) if measured else None)
+    return inputs_of_run(spec.extra, instruments, float(spec.temperature_c) if spec.temperature_measured else None)

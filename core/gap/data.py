@@ -65,8 +65,8 @@ class RoundTrip:
     # a train run the fits use (False: a long history's train run left out of the fits by
     # :func:`thin_train`; still read for the noise at rest, the where and the observations)
     fitted: bool = True
-    # False: the run's temperature_c is a placeholder, no thermometer read it (the run's
-    # ``temperature_measured``, :func:`temperature_measured`)
+    # False: no thermometer read the run's temperature_c, a stand-in
+    # (:attr:`core.dataset.RunSpec.temperature_measured`)
     temperature_measured: bool = True
     # what depends on the record alone, computed once per run (the measured envelope split,
     # :func:`core.gap.roundtrip.residual_env_um`; the sample step, :attr:`dt_s`); a fresh one
@@ -215,7 +215,7 @@ def prepare_round_trip(run: Run, axis_spec, split: str) -> RoundTrip:
     return RoundTrip(
         file=run.spec.file, axis=a, split=split, t_s=t, u_mm=u, x_mm=x,
         temperature_c=float(run.spec.temperature_c), feed_mm_min=float(run.spec.feed_mm_min),
-        temperature_measured=temperature_measured(run),
+        temperature_measured=run.spec.temperature_measured,
         acceleration_mm_s2=run.spec.acceleration_mm_s2, side0=_first_direction(u), fit_idx=idx,
         command_mm=None if cmd is None else np.asarray(cmd, float), start=start,
         rest_lead_mm=rest_lead_mm(t, u, x),
@@ -505,7 +505,7 @@ def prepare_contour(run: Run, split: str, axes: Mapping[str, AxisSpec] | None = 
         temperature_c=float(s.temperature_c), feed_mm_min=float(s.feed_mm_min),
         acceleration_mm_s2=s.acceleration_mm_s2, fit_idx=_fit_idx_on(score, t.size),
         rate_hz=min(1000.0, 1.0 / dt), meta=meta, score=score, rebuilt=not has_cmd, command_mm=cmd_cols,
-        temperature_measured=temperature_measured(run),
+        temperature_measured=run.spec.temperature_measured,
     )  # fmt: skip
 
 
@@ -521,13 +521,6 @@ class Split:
     train: tuple[str, ...]
     test: tuple[str, ...]
     how: str  # "given" or a sentence saying which runs were held out and why
-
-
-def temperature_measured(run: Run) -> bool:
-    """Whether a thermometer read the run's ``temperature_c``: not where the run says
-    ``temperature_measured: false`` (an import without a temperature, a cycle whose
-    sensor failed), which stores the reference 20 °C as a placeholder."""
-    return run.spec.extra.get("temperature_measured", True) is not False
 
 
 def choose_split(dataset: Dataset) -> Split:
@@ -553,7 +546,7 @@ def choose_split(dataset: Dataset) -> Split:
     for (kind, _), rs in groups.items():
         if len(rs) < 2:
             continue
-        temps = np.array([r.spec.temperature_c if temperature_measured(r) else np.nan for r in rs])
+        temps = np.array([r.spec.temperature_c if r.spec.temperature_measured else np.nan for r in rs])
         feeds = np.array([r.spec.feed_mm_min for r in rs])
         if np.sum(np.isfinite(temps)) >= 2 and np.nanmax(temps) - np.nanmin(temps) > 0.5:
             dev = np.nan_to_num(np.abs(temps - np.nanmedian(temps)), nan=-1.0)  # unmeasured: never the extreme
@@ -612,9 +605,9 @@ def prepare_runs(dataset: Dataset, split: Split | None = None) -> tuple[list[Rou
     """Every run of ``dataset`` prepared as the diagnosis fits and scores it: its round
     trips and its contours, in the dataset's order, each marked ``"train"`` or ``"test"``
     by ``split`` (default: :func:`choose_split`). A run whose temperature was not measured
-    (:func:`temperature_measured`) is taken at the mean of the measured runs' (the
+    (:attr:`core.dataset.RunSpec.temperature_measured`) is taken at the mean of the measured runs' (the
     reference 20 °C where none was): judged by the others' temperatures, not by the
-    placeholder stored in its place, which would read as a temperature step to the
+    stand-in stored in its place, which would read as a temperature step to the
     thermal family and the simulated contours."""
     split = choose_split(dataset) if split is None else split
     axes = dataset.machine.axes

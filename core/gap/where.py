@@ -273,7 +273,7 @@ def locate(
     if len(all_runs) >= 3:
         per = np.array([rms(r) for _, r in all_runs])
         for key in ("feed_mm_min", "acceleration_mm_s2", "temperature_c"):
-            # a temperature counts where a thermometer read it, not a run's placeholder
+            # a temperature counts where a thermometer read it, not a run's stand-in
             use = np.array([key != "temperature_c" or run.temperature_measured for run, _ in all_runs])
             vals = [getattr(run, key) for (run, _), u in zip(all_runs, use) if u]
             if use.sum() >= 3 and all(v is not None for v in vals):

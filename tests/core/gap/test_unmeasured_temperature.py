@@ -1,7 +1,7 @@
 """A run whose temperature no thermometer read (``temperature_measured: false``, the
 reference 20 °C stored in its place) is judged by the measured runs' temperatures: it is
 not held out as the most extreme temperature, the thermal family does not read its
-placeholder as a temperature step, and the where-analysis leaves it out of its
+stand-in as a temperature step, and the where-analysis leaves it out of its
 temperature trend."""
 
 from dataclasses import replace
@@ -52,9 +52,9 @@ def test_a_run_without_a_measured_temperature_is_taken_at_the_measured_runs_mean
     assert [by_file[f"rt_{i}.csv"].temperature_c for i in range(4)] == [c[2] for c in CONDITIONS[:4]]
 
 
-def test_a_placeholder_temperature_is_no_temperature_step_for_the_thermal_family():
+def test_a_stand_in_temperature_is_no_temperature_step_for_the_thermal_family():
     # a lead grown by the machine's 25 °C (8 ppm/K, a static lead error at one temperature):
-    # read at the placeholder's 20 °C the last train run would be a 5 K step for the
+    # read at the stand-in's 20 °C the last train run would be a 5 K step for the
     # temperature form to fit
     rep = diagnose(_dataset(Effects(thermal=Thermal(lead_growth_ppm_per_k=8.0)), split=True),
                    GapSettings(keep_curves=False, second_effect=False))  # fmt: skip
@@ -62,12 +62,12 @@ def test_a_placeholder_temperature_is_no_temperature_step_for_the_thermal_family
     assert not any(k.endswith("lead_growth_ppm_per_k") for k in thermal.params), thermal.params
 
 
-def test_the_temperature_trend_of_the_runs_leaves_a_placeholder_out():
+def test_the_temperature_trend_of_the_runs_leaves_a_stand_in_out():
     from types import SimpleNamespace
 
     from core.gap.where import locate
 
-    # the gap grows with the measured temperature; the unmeasured run's placeholder (20 °C
+    # the gap grows with the measured temperature; the unmeasured run's stand-in (20 °C
     # stored, a large gap) would turn the trend around
     runs = [SimpleNamespace(feed_mm_min=1000.0, acceleration_mm_s2=None, temperature_c=t, temperature_measured=m)
             for t, m in ((22.0, True), (24.0, True), (26.0, True), (28.0, True), (20.0, False))]
