@@ -69,6 +69,21 @@ class SimMemo:
         self._sims[key] = out
         return out
 
+    def motor_mm(self, c: Contour, axis: str, model: AxisModel) -> np.ndarray:
+        """Simulated motor position of one axis (mm of table travel, k_a times its
+        revolutions) at the run's sample times: what the loop asked of the drive."""
+        key = ("motor", c.file, axis, model)
+        hit = self._sims.get(key)
+        if hit is not None:
+            return hit
+        prog = _one_axis(c.program, c.axes.index(axis), start_side(c.program, axis, model))
+        tr = simulate({axis: model}, prog, temperature_c=c.temperature_c, rate_hz=c.rate_hz, step_s=SIM_STEP_S,
+                      steps_per_radian=SIM_STEPS_PER_RADIAN)
+        out = np.interp(c.t_s, tr.time_s, model.transmission_mm_per_rev * tr.motor_true_rev[axis])
+        self.n_simulations += 1
+        self._sims[key] = out
+        return out
+
     def table(self, c: Contour, models: Mapping[str, AxisModel]) -> dict[str, np.ndarray]:
         return {a: self.axis(c, a, models[a]) for a in c.axes}
 

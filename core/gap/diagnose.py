@@ -638,10 +638,10 @@ class _Diagnosis:
                     f.contains |= frozenset(st.contains)
         for name, fits in f.ct_fits.items():
             cf = REGISTRY[name].contour_fit
-            for a in fits:
+            for a, fr in fits.items():
                 if name in f.effects:
                     known[name] = known.get(name, False) or any(f.intervals.get(f"{a}.{n}") is not None
-                                                                for n in cf.names)  # fmt: skip
+                                                                for n in fr.names or cf.names)  # fmt: skip
         lost = {e for e, ok in known.items() if not ok}
         if lost:
             f.notes.append(f"parameters not identifiable: {', '.join(sorted(lost))} (on every axis it took)")
@@ -700,16 +700,18 @@ class _Diagnosis:
                 f.notes += [f"{name} on axis {a}: the contour fit stopped at its evaluation cap, not at convergence"
                             for a, fr in src.items() if fr.capped]  # fmt: skip
             for a, fr in src.items():
-                vals = dict(zip(cf.names, fr.theta))
+                names = fr.names or cf.names  # a form with parameters of its own names them
+                vals = dict(zip(names, fr.theta))
                 pieces[a] = (pieces.get(a) or Effects()).with_effect(name, cf.piece(vals))
                 if cf.gain is not None:
                     gains[a] = float(vals[cf.gain])
                 f.ct_fits.setdefault(name, {})[a] = fr
-                ivals = rt.intervals(fr, cf.names, cf.lower, cf.upper)
+                ivals = rt.intervals(fr, names, cf.lower if fr.lower is None else fr.lower,
+                                     cf.upper if fr.upper is None else fr.upper)  # fmt: skip
                 for n, v in vals.items():
                     f.params[f"{a}.{n}"] = float(v)
                     f.intervals[f"{a}.{n}"] = ivals[n]
-                f.n_params += len(cf.names)
+                f.n_params += len(names)
         if not pieces:
             f.ct_res = list(self.ct_nom)
             return

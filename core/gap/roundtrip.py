@@ -180,6 +180,11 @@ class FitResult:
     jac: np.ndarray
     n_res: int
     capped: bool = False  # the best start stopped at its evaluation cap (max_nfev), not at convergence
+    # a fit of a form with more parameters than its family's declared ones: their names and
+    # bounds (None: the family's own, ``ContourFit.names``)
+    names: tuple[str, ...] | None = None
+    lower: np.ndarray | None = None
+    upper: np.ndarray | None = None
 
 
 NONFINITE_RESIDUAL = 1e6  # µm: what a diverged simulation counts as, per sample

@@ -15,16 +15,20 @@ ratio 0.5 or more with an ideal velocity loop). K_I and feed-forward both remove
 at steady speed: they are told apart by the contours' start and the settling after it,
 and where the train contours cannot, K_I's interval says "not identifiable".
 
-Not covered: a drive that saturates (a force or current limit, ``accel_limit_mm_s2`` in
-the twin) as a limit of its own. It acts only in the hardest accelerations: on train
-contours that stay below it its parameter changes nothing (a zero Jacobian column,
-which makes the whole fit not identifiable), and a value the train runs never tested
-would decide the held-out ones (docs/gap-diagnosis.md §4).
+A drive that saturates (a force or current limit: the motor's acceleration held within
+±a_max, the position integral frozen while it holds, ``accel_limit_mm_s2``) is a form of
+its own (:func:`_fit_limited`), fitted on every servo fit and kept where it cuts the
+linear forms' train misfit by a quarter with its limit identifiable. The limit is
+bounded by the largest acceleration the configured loop asks of the motor on the train contours: a
+limit the train contours never reach changes nothing on them (a zero Jacobian column,
+no better fit) and is not kept, since a value the train runs never tested would decide
+the held-out ones.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 
 import numpy as np
 
@@ -32,7 +36,7 @@ from core.dataset import AxisSpec
 from core.gap.contour import SimMemo, apparent_gain_per_s
 from core.gap.data import Contour
 from core.gap.families.base import NOT_IDENTIFIABLE, ContourFit, Family
-from core.gap.roundtrip import fit_ls
+from core.gap.roundtrip import NONFINITE_RESIDUAL, fit_ls, intervals
 from core.sim import AxisModel, Effects, ServoDynamics
 
 NAME = "servo_dynamics"
@@ -44,7 +48,8 @@ def servo_piece(params: Mapping[str, float]) -> ServoDynamics:
     ki = min(float(params.get("integral_gain_per_s2", 0.0)) / k, k)
     return ServoDynamics(velocity_lag_s=1e-3 * params["velocity_lag_ms"], dead_time_s=1e-3 * params["dead_time_ms"],
                          feedforward=params["feedforward"], feedback_delay_s=1e-3 * params["feedback_delay_ms"],
-                         integral_per_s=max(ki, 0.0))  # fmt: skip
+                         integral_per_s=max(ki, 0.0),
+                         accel_limit_mm_s2=max(float(params.get(LIMIT_NAME, 0.0)), 0.0))  # fmt: skip
 
 
 SERVO_NAMES = ("position_gain_per_s", "feedforward", "velocity_lag_ms", "dead_time_ms", "feedback_delay_ms",
@@ -54,10 +59,16 @@ SERVO_UPPER = np.array([120.0, 1.2, 20.0, 6.0, 6.0, 4000.0])
 SERVO_FORMS = (
     "servo_dynamics: effective position gain on both sides of the configured K, velocity feed-forward "
     "fraction, a first-order velocity-loop lag, dead time in the forward and in the feedback path "
-    "(interpolated, continuous), integral action in the position loop (a PI loop, K_I = K K_i <= K_eff²). "
-    "Not covered: a resonant velocity loop (it is approximated by the lag), acceleration feed-forward, "
-    "friction compensation pulses, a drive that saturates (force or current limit)."
+    "(interpolated, continuous), integral action in the position loop (a PI loop, K_I = K K_i <= K_eff²), "
+    "a drive that saturates (a force or current limit, the motor's acceleration held within ±a_max) where the "
+    "train contours reach its limit. Not covered: a resonant velocity loop (it is approximated by the lag), "
+    "acceleration feed-forward, friction compensation pulses, a drive limit the train contours never reach."
 )
+LIMIT_NAME = "accel_limit_mm_s2"
+LIMIT_START_FRACTIONS = (0.15, 0.3, 0.5, 0.7)  # of the most the configured loop asks
+# the limited form is kept where it cuts the linear forms' train RSS by this much: as a
+# family must cut a gap by the decision's min_reduction (0.25) to be named
+LIMIT_MIN_CUT = 0.25
 
 
 def fit_servo(memo: SimMemo, contours: Sequence[Contour], axes: Mapping[str, AxisSpec],
@@ -74,11 +85,14 @@ def fit_servo(memo: SimMemo, contours: Sequence[Contour], axes: Mapping[str, Axi
         mine = [c for c in contours if a in c.axes]
         spec = axes[a]
 
-        def res(theta, a=a, fx0=fx0, mine=mine, spec=spec):
-            fx = fx0.with_effect(NAME, servo_piece(dict(zip(SERVO_NAMES, theta))))
-            m = AxisModel(name=a, transmission_mm_per_rev=spec.transmission_mm_per_rev,
-                          screw_lead_mm=spec.screw_lead_mm, position_gain_per_s=float(theta[0]),
-                          backlash_um=max(0.0, float(backlash_um.get(a, 0.0))), effects=fx)  # fmt: skip
+        def model(theta, limit=0.0, a=a, fx0=fx0, spec=spec):
+            fx = fx0.with_effect(NAME, servo_piece({**dict(zip(SERVO_NAMES, theta)), LIMIT_NAME: limit}))
+            return AxisModel(name=a, transmission_mm_per_rev=spec.transmission_mm_per_rev,
+                             screw_lead_mm=spec.screw_lead_mm, position_gain_per_s=float(theta[0]),
+                             backlash_um=max(0.0, float(backlash_um.get(a, 0.0))), effects=fx)  # fmt: skip
+
+        def res(theta, limit=0.0, a=a, mine=mine):
+            m = model(theta, limit)
             return np.concatenate([(c.table_mm[a][c.fit_idx] - memo.axis(c, a, m)[c.fit_idx]) * 1e3 for c in mine])
 
         k = spec.position_gain_per_s
@@ -90,9 +104,59 @@ def fit_servo(memo: SimMemo, contours: Sequence[Contour], axes: Mapping[str, Axi
         for ff in (0.5, 0.9):
             starts.append(np.array([k, ff, 1.0, 0.5, 0.5, 0.0]))
         fr = fit_ls(res, starts, SERVO_LOWER, SERVO_UPPER, n_starts=1, max_nfev=20, diff_step=1e-3)
+        configured = np.array([k, 0.0, 0.0, 0.0, 0.0, 0.0])  # the configured P loop
+        asked = max(peak_accel_mm_s2(memo.motor_mm(c, a, model(configured)), c.rate_hz) for c in mine)
+        if asked > 0.0:
+            fr = _fit_limited(res, fr, asked, (fr.theta, starts[0]))
         out[a] = fr
         rss += fr.rss
     return out, rss
+
+
+def peak_accel_mm_s2(x_mm: np.ndarray, rate_hz: float) -> float:
+    """The largest |acceleration| of a simulated (noise-free) position record, mm/s²."""
+    if x_mm.size < 3:
+        return 0.0
+    dt = 1.0 / rate_hz
+    return float(np.max(np.abs(np.gradient(np.gradient(x_mm, dt), dt))))
+
+
+def _fit_limited(res, linear, asked_mm_s2: float, froms: Sequence[np.ndarray]):
+    """The servo fit with the drive's acceleration limit a_max (``LIMIT_NAME``), from
+    ``froms`` (the linear fit's values, the configured loop) with the limit at
+    :data:`LIMIT_START_FRACTIONS` of ``asked_mm_s2``, the most the configured loop asks of
+    the motor on the train contours and the limit's upper bound (the cost is multi-modal
+    in the limit: a limit that clips one contour's start and one that clips all of them
+    are separate minima). A linear fit to a saturated drive bends its gain and lags to
+    follow the clipped motion, so the configured loop is a start of its own. The best
+    start is pursued only where it already fits better than the linear fit. Kept over
+    the ``linear`` fit where it cuts its train RSS by :data:`LIMIT_MIN_CUT` and the limit
+    is identifiable: a limit just under the largest demand trims the sharpest start of a
+    contour (where the configured loop, without the drive's lag, asks more than any
+    drive gives) by a few per mille of the RSS, which a BIC test on thousands of
+    correlated samples would take for a saturating drive."""
+    names = SERVO_NAMES + (LIMIT_NAME,)
+    lower = np.r_[SERVO_LOWER, 0.02 * asked_mm_s2]
+    upper = np.r_[SERVO_UPPER, asked_mm_s2]
+    starts = [np.clip(np.r_[th, f * asked_mm_s2], lower + 1e-9, upper - 1e-9) for th in froms
+              for f in LIMIT_START_FRACTIONS]  # fmt: skip
+
+    def limited(th):
+        return res(th[:-1], th[-1])
+
+    # pursued from the best start only where one already fits the train contours better
+    # than the linear fit: a drive that never saturates is clipped by every start
+    costs = [float(np.sum(np.nan_to_num(limited(th), nan=NONFINITE_RESIDUAL, posinf=NONFINITE_RESIDUAL,
+                                        neginf=-NONFINITE_RESIDUAL) ** 2)) for th in starts]  # fmt: skip
+    best = int(np.argmin(costs))
+    if not costs[best] < linear.rss:
+        return linear
+    lim = fit_ls(limited, [starts[best]], lower, upper, max_nfev=20, diff_step=1e-3)
+    if not 0.0 < lim.rss <= (1.0 - LIMIT_MIN_CUT) * linear.rss:
+        return linear
+    if intervals(lim, names, lower, upper)[LIMIT_NAME] is None:
+        return linear
+    return replace(lim, names=names, lower=lower, upper=upper)
 
 
 def identifiable(d, f) -> tuple[bool, str | None]:
