@@ -55,31 +55,31 @@ class SimMemo:
 
     def axis(self, c: Contour, axis: str, model: AxisModel) -> np.ndarray:
         """Simulated (noise-free) table position of one axis at the run's sample times."""
-        key = (c.file, axis, model)
-        hit = self._sims.get(key)
-        if hit is not None:
-            return hit
-        prog = _one_axis(c.program, c.axes.index(axis), start_side(c.program, axis, model))
-        tr = simulate({axis: model}, prog, temperature_c=c.temperature_c, rate_hz=c.rate_hz, step_s=SIM_STEP_S,
-                      steps_per_radian=SIM_STEPS_PER_RADIAN)
-        skew = model.effects.sampling_skew
-        tau = skew.table_delay_s if skew is not None else 0.0  # the table latched tau after the motor
-        out = np.interp(c.t_s + tau, tr.time_s, tr.table_true_mm[axis])
-        self.n_simulations += 1
-        self._sims[key] = out
-        return out
+
+        def table(tr):
+            skew = model.effects.sampling_skew
+            tau = skew.table_delay_s if skew is not None else 0.0  # the table latched tau after the motor
+            return np.interp(c.t_s + tau, tr.time_s, tr.table_true_mm[axis])
+
+        return self._simulated((c.file, axis, model), c, axis, model, table)
 
     def motor_mm(self, c: Contour, axis: str, model: AxisModel) -> np.ndarray:
         """Simulated motor position of one axis (mm of table travel, k_a times its
         revolutions) at the run's sample times: what the loop asked of the drive."""
-        key = ("motor", c.file, axis, model)
+
+        def motor(tr):
+            return np.interp(c.t_s, tr.time_s, model.transmission_mm_per_rev * tr.motor_true_rev[axis])
+
+        return self._simulated(("motor", c.file, axis, model), c, axis, model, motor)
+
+    def _simulated(self, key, c: Contour, axis: str, model: AxisModel, take) -> np.ndarray:
         hit = self._sims.get(key)
         if hit is not None:
             return hit
         prog = _one_axis(c.program, c.axes.index(axis), start_side(c.program, axis, model))
         tr = simulate({axis: model}, prog, temperature_c=c.temperature_c, rate_hz=c.rate_hz, step_s=SIM_STEP_S,
                       steps_per_radian=SIM_STEPS_PER_RADIAN)
-        out = np.interp(c.t_s, tr.time_s, model.transmission_mm_per_rev * tr.motor_true_rev[axis])
+        out = take(tr)
         self.n_simulations += 1
         self._sims[key] = out
         return out

@@ -17,12 +17,12 @@ and where the train contours cannot, K_I's interval says "not identifiable".
 
 A drive that saturates (a force or current limit: the motor's acceleration held within
 ±a_max, the position integral frozen while it holds, ``accel_limit_mm_s2``) is a form of
-its own (:func:`_fit_limited`), fitted on every servo fit and kept where it cuts the
+its own (:func:`_fit_limited`), tried on every servo fit and kept where it cuts the
 linear forms' train misfit by a quarter with its limit identifiable. The limit is
-bounded by the largest acceleration the configured loop asks of the motor on the train contours: a
-limit the train contours never reach changes nothing on them (a zero Jacobian column,
-no better fit) and is not kept, since a value the train runs never tested would decide
-the held-out ones.
+bounded by the largest acceleration the configured loop asks of the motor on the train
+contours: a limit the train contours never reach changes nothing on them (a zero
+Jacobian column, no better fit) and is not kept, since a value the train runs never
+tested would decide the held-out ones.
 """
 
 from __future__ import annotations
