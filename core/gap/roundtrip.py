@@ -190,6 +190,13 @@ class FitResult:
 NONFINITE_RESIDUAL = 1e6  # µm: what a diverged simulation counts as, per sample
 
 
+def finite_residuals(r) -> np.ndarray:
+    """Residuals with a diverged simulation's (NaN or inf) counted as
+    :data:`NONFINITE_RESIDUAL`: a bad fit that steers an optimiser away, not a crash."""
+    r = np.asarray(r, dtype=float)
+    return np.where(np.isfinite(r), r, NONFINITE_RESIDUAL)
+
+
 @dataclass
 class RunChoices:
     """The discrete choices a model's ``predict`` made per run at one parameter vector
@@ -231,10 +238,7 @@ def fit_ls(residuals: Callable[[np.ndarray], np.ndarray], x0s: Sequence[np.ndarr
     the Jacobian is least_squares' own forward differences, with the choices made at the
     point held."""
     def safe(th):
-        # a simulation that diverged for these parameters (NaN or inf) is a bad fit, not a
-        # crash: a large finite residual steers the optimiser away from it
-        r = np.asarray(residuals(th), dtype=float)
-        return np.where(np.isfinite(r), r, NONFINITE_RESIDUAL)
+        return finite_residuals(residuals(th))
 
     last: list = []  # the latest evaluation (theta, residuals, choices made)
 

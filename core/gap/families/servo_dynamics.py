@@ -36,7 +36,7 @@ from core.dataset import AxisSpec
 from core.gap.contour import SimMemo, apparent_gain_per_s
 from core.gap.data import Contour
 from core.gap.families.base import NOT_IDENTIFIABLE, ContourFit, Family
-from core.gap.roundtrip import NONFINITE_RESIDUAL, fit_ls, intervals
+from core.gap.roundtrip import finite_residuals, fit_ls, intervals
 from core.sim import AxisModel, Effects, ServoDynamics
 
 NAME = "servo_dynamics"
@@ -146,8 +146,7 @@ def _fit_limited(res, linear, asked_mm_s2: float, froms: Sequence[np.ndarray]):
 
     # pursued from the best start only where one already fits the train contours better
     # than the linear fit: a drive that never saturates is clipped by every start
-    costs = [float(np.sum(np.nan_to_num(limited(th), nan=NONFINITE_RESIDUAL, posinf=NONFINITE_RESIDUAL,
-                                        neginf=-NONFINITE_RESIDUAL) ** 2)) for th in starts]  # fmt: skip
+    costs = [float(np.sum(finite_residuals(limited(th)) ** 2)) for th in starts]
     best = int(np.argmin(costs))
     if not costs[best] < linear.rss:
         return linear
