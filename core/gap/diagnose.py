@@ -44,7 +44,7 @@ from core.gap.families import EFFECTS, REGISTRY
 from core.gap.families.base import NOT_IDENTIFIABLE
 from core.gap.report import Candidate, GapReport, explain, selection_dict
 from core.gap.select import Rule, cuts, eligible_singles, ranked, select, ties_of
-from core.gap.stages import Stage, compose, stage_starts, train_residuals
+from core.gap.stages import NESTED_MIN_CUT, Stage, compose, stage_starts, train_residuals
 from core.gap.where import breakaways, locate, rattles
 from core.sim import AxisModel, Effects
 
@@ -476,6 +476,8 @@ class _Diagnosis:
         for st in made if isinstance(made, tuple) else (made,):
             if st.derive_starts is not None:
                 st = replace(st, starts=st.starts + tuple(st.derive_starts(fitted_vals)))
+            if st.extends and not any(t[1].info.get("form") == st.extends for t in tried):
+                continue  # a form that extends another is fitted from that one's values only
             stages = (bfit.stages if bfit else ()) + (st,)
             if sum(1 for x in stages if x.kernel) > 1:
                 note = (f"axis {a}: {' and '.join(x.effect for x in stages)} both model the chain's dynamics; "
@@ -504,6 +506,10 @@ class _Diagnosis:
                        else ref_fit.rss)  # fmt: skip
             gain = n * math.log(max(fr.rss, 1e-12) / max(ref_rss, 1e-12)) + len(st.names) * math.log(max(n, 2))
             tried.append((gain, st, stages, model, fr, ref_rss))
+        # a form that extends another of the family is kept over it only where it cuts its
+        # train RSS by NESTED_MIN_CUT (Stage.extends)
+        tried = [t for t in tried if not t[1].extends or all(
+            t[4].rss <= (1.0 - NESTED_MIN_CUT) * b[4].rss for b in tried if b[1].info.get("form") == t[1].extends)]
         if not tried:
             return None, tuple(notes)
         gain, st, stages, model, fr, ref_rss = min(tried, key=lambda x: x[0])

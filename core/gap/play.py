@@ -35,22 +35,27 @@ def play(u, half_width, x0):
 
 
 @njit(cache=True, nogil=True)
-def play_friction(u, half_width, lost_mm, breakaway_mm, x0):
+def play_friction(u, half_width, lost_mm, breakaway_mm, x0, lost_minus_mm=None, breakaway_minus_mm=-1.0):
     """Play with friction lost motion: moving in direction s the table sits at
-    u - s (b/2 + L_i); at rest it sticks until |u - x| exceeds b/2 + breakaway_mm."""
+    u - s (b/2 + L_i); at rest it sticks until |u - x| exceeds b/2 + breakaway_mm.
+    Friction that differs by direction: ``lost_minus_mm`` and ``breakaway_minus_mm``
+    (>= 0) are the lost motion and break-away moving in -, ``lost_mm`` and
+    ``breakaway_mm`` then those moving in + (None and -1: the same both ways)."""
     n = u.size
     out = np.empty(n)
+    lost_m = lost_mm if lost_minus_mm is None else lost_minus_mm
+    brk_m = breakaway_mm if breakaway_minus_mm < 0.0 else breakaway_minus_mm
     x = x0
     s = 0
     for i in range(n):
         hb = half_width[i]
         lo = u[i] - hb - lost_mm[i]
-        hi = u[i] + hb + lost_mm[i]
+        hi = u[i] + hb + lost_m[i]
         if s == 0:
             if u[i] - x > hb + breakaway_mm:
                 s = 1
                 x = max(x, lo)
-            elif x - u[i] > hb + breakaway_mm:
+            elif x - u[i] > hb + brk_m:
                 s = -1
                 x = min(x, hi)
         elif s == 1:

@@ -10,7 +10,9 @@ Kernels (``Stage.kernel``):
 
 * ``"lost_motion"``: the play operator with a speed-dependent lost motion and a
   break-away threshold, parameters (break-away lost motion µm, Stribeck velocity mm/s,
-  viscous lost motion µm per mm/s);
+  viscous lost motion µm per mm/s) and, in the form that differs by direction, a fourth,
+  the direction asymmetry a (the break-away and Stribeck parts times 1 + a moving in +,
+  1 - a in -);
 * ``"presliding"``: the play operator with Dahl pre-sliding friction on a stiff chain,
   parameters (Coulomb lost motion µm, pre-sliding length µm); ``backlash_um`` is the
   apparent backlash (the gap plus the Coulomb lost motion);
@@ -37,6 +39,10 @@ from core.gap.play import play, play_dahl, play_friction, play_inertia
 from core.gap.roundtrip import (ENVELOPE_WINDOW_S, TRAIN_ENVELOPE_WINDOWS_S, RTModel, residual_env_um, residual_um,
                                 run_choices)
 
+# a family's form that extends another of its forms is kept over it where it cuts that
+# form's train RSS by at least this share (as an effect is named where it cuts the gap by
+# the decision's min_reduction, 0.25 by default)
+NESTED_MIN_CUT = 0.25
 GUIDE_DAMPING_PER_S = 1.0  # friction on a chain: a light oil-film damping of the table (1/s)
 # kernels of a chain's dynamics: fitted and scored on round trips by envelope above 20 Hz
 # (roundtrip.residual_env_um), as a stick-slipping or hunting chain's phase is not reproducible
@@ -78,6 +84,11 @@ class Stage:
     # values): the decision names it over them only where the held-out runs tell the two
     # apart and its own parameters are identifiable (core.gap.select, parsimony)
     contains: tuple[str, ...] = ()
+    # the form of the same family this one extends by more parameters (its ``info["form"]``):
+    # fitted from that form's values and kept over it only where it cuts that form's train
+    # RSS by NESTED_MIN_CUT (core.gap.diagnose), so that an extra parameter the train runs
+    # hardly need is never taken, however little the BIC charges for it
+    extends: str | None = None
 
 
 # ---- composition ------------------------------------------------------------------
@@ -134,10 +145,16 @@ def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
         if kern is None:
             x = play(u, hb, run.start_table_mm(float(hb[0])))
         elif kern[0].kernel == "lost_motion":
-            ls, vs, cv = kern[1]
+            ls, vs, cv = kern[1][:3]
             v = _speed_mm_s(run)
-            lost = 1e-3 * (ls * np.exp(-((v / vs) ** 2)) + cv * v)
-            x = play_friction(u, hb, lost, 1e-3 * ls, run.start_table_mm(float(hb[0])))
+            stribeck = ls * np.exp(-((v / vs) ** 2))
+            x0 = run.start_table_mm(float(hb[0]))
+            if len(kern[1]) == 3:
+                x = play_friction(u, hb, 1e-3 * (stribeck + cv * v), 1e-3 * ls, x0)
+            else:  # friction that differs by direction: its levels times 1 + a in +, 1 - a in -
+                a = kern[1][3]
+                x = play_friction(u, hb, 1e-3 * ((1 + a) * stribeck + cv * v), 1e-3 * (1 + a) * ls, x0,
+                                  1e-3 * ((1 - a) * stribeck + cv * v), 1e-3 * (1 - a) * ls)  # fmt: skip
         elif kern[0].kernel == "presliding":
             lc, lp = kern[1]
             hbc = np.maximum(0.0, hb - 0.5e-3 * lc)  # backlash_um is the apparent one

@@ -74,11 +74,18 @@ class Friction:
       ``"lugre"``: the LuGre bristle model with the same steady-state curve, adding
       pre-sliding (elastic micro-motion, bristle_stiffness_n_per_um) and frictional lag.
 
+    direction_asymmetry (-1..1, either model): friction that differs by direction, the
+    friction levels (Coulomb, static and the Stribeck curve, not the viscous part) times
+    1 + direction_asymmetry while the table moves (or the chain pushes it) in + and
+    1 - direction_asymmetry in -; coulomb_n is the mean of the two directions' levels.
+    A wiper or a seal that drags one way, a table on an incline, a guide preloaded on
+    one side.
+
     Realistic ranges: coulomb_n 100..3000 N and at least 2 % of the table weight (less
     lets a heavy table bounce across the backlash in a limit cycle, see Compliance);
     static_n coulomb_n..1.3 coulomb_n; stribeck_velocity_mm_s 0.1..20;
     viscous_n_s_per_mm 0..10; bristle_stiffness_n_per_um 20..500;
-    bristle_damping_ratio 0.1..1.
+    bristle_damping_ratio 0.1..1; direction_asymmetry -0.3..0.3.
     With the stick-slip model and static_n > coulomb_n, a proportional loop closed on
     the table "hunts" by at most 2 (static_n - coulomb_n) / stiffness around a target,
     slowly (the nut must cross the backlash at the creep speed K e): a real effect of
@@ -93,9 +100,15 @@ class Friction:
     bristle_stiffness_n_per_um: float = 100.0
     bristle_damping_ratio: float = 0.5
     stick_band_mm_s: float = 0.0
+    direction_asymmetry: float = 0.0
 
     def __post_init__(self) -> None:
         o = "friction"
+        a = _finite(o, "direction_asymmetry", self.direction_asymmetry)
+        if not -1.0 < a < 1.0:
+            raise InputError(f"friction.direction_asymmetry (={self.direction_asymmetry}) must be within (-1, 1): "
+                             "the levels are times 1 + a one way and 1 - a the other")  # fmt: skip
+        object.__setattr__(self, "direction_asymmetry", a)
         object.__setattr__(self, "stick_band_mm_s", _nonneg(o, "stick_band_mm_s", self.stick_band_mm_s))
         object.__setattr__(self, "coulomb_n", _nonneg(o, "coulomb_n", self.coulomb_n))
         static = self.coulomb_n if self.static_n is None else _nonneg(o, "static_n", self.static_n)

@@ -252,19 +252,19 @@ def _simulate_axis(axis, chain, cmd, t0, h, ts, ts_tab, frac, steps_per_radian):
     c_contact = 2 * ch.damping_ratio * math.sqrt(k_si * ch.table_mass_kg) / 1000.0
     fr = fx.friction
     # Without the friction effect the guides hold the table with Coulomb friction.
-    model, vs, sig0, sig1, visc, band = kernels.FRICTION_STRIBECK, 1.0, 1.0, 0.0, 0.0, 0.0
+    model, vs, sig0, sig1, visc, band, fdir = kernels.FRICTION_STRIBECK, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0
     fc = fs = ch.guide_friction_n
     if fr is not None:
         model = kernels.FRICTION_LUGRE if fr.model == "lugre" else kernels.FRICTION_STRIBECK
         fc, fs, vs, visc = fr.coulomb_n, fr.static_n, fr.stribeck_velocity_mm_s, fr.viscous_n_s_per_mm
-        band = fr.stick_band_mm_s
+        band, fdir = fr.stick_band_mm_s, fr.direction_asymmetry
         sig0 = fr.bristle_stiffness_n_per_um * 1000.0
         sig1 = 2 * fr.bristle_damping_ratio * math.sqrt(fr.bristle_stiffness_n_per_um * 1e6 * ch.table_mass_kg) / 1000.0
     visc += ch.guide_damping_n_s_per_mm
     kernels.run_dynamic(
         t0, h, nsub, cmd, k, u0, x0, side, *args,
         lag, dead, compliant, ch.stiffness_n_per_um * 1000.0, ch.table_mass_kg, c_contact, visc,
-        model, fc, fs, vs, sig0, sig1, ts, ts_tab, out_u, out_x, out_xt, ff, fb, band, ki, a_max,
+        model, fc, fs, vs, sig0, sig1, ts, ts_tab, out_u, out_x, out_xt, ff, fb, band, ki, a_max, fdir,
     )  # fmt: skip
     return out_u, out_x, out_xt, h / nsub
 

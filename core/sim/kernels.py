@@ -309,7 +309,7 @@ def run_dynamic(
     t0, hc, nsub, cmd, gain, u0, x0, side0, fixed, lam, per, amp, pha, pos, hw,
     lag_s, dead_s, compliant, k_n_mm, mass_kg, c_contact, c_visc,
     fr_model, fc, fs, vs, sig0, sig1,
-    ts, ts_tab, out_u, out_x, out_xt, kff=0.0, fb_s=0.0, v_band=0.0, ki=0.0, a_max=0.0,
+    ts, ts_tab, out_u, out_x, out_xt, kff=0.0, fb_s=0.0, v_band=0.0, ki=0.0, a_max=0.0, fr_dir=0.0,
 ):  # fmt: skip
     """Servo dynamics and/or a compliant chain with friction, fixed step hc / nsub.
 
@@ -329,7 +329,9 @@ def run_dynamic(
     table slower than it counts as at rest (sticks while the chain force is within the
     static friction, else breaks away against the Stribeck friction at its speed), as the
     round-trip chain form has it (:func:`core.gap.play.play_inertia`); 0 leaves the
-    velocity-level switch alone.
+    velocity-level switch alone. ``fr_dir`` (-1..1): friction that differs by direction,
+    the friction levels (Coulomb, static, Stribeck curve) times 1 + fr_dir for motion in +
+    and 1 - fr_dir in - (at rest, the direction the chain force pushes).
     """
     h = hc / nsub
     u = u0
@@ -435,14 +437,16 @@ def run_dynamic(
                 vf = v + h * acc * f
                 if fr_model == FRICTION_STRIBECK:
                     if v == 0.0 or abs(v) <= v_band:
-                        if abs(f) <= fs:
+                        sd = 1.0 + fr_dir * math.copysign(1.0, f)
+                        if abs(f) <= fs * sd:
                             vn = 0.0
                         else:
                             r = v / vs
-                            vn = (vf - math.copysign(h * acc * (fc + (fs - fc) * math.exp(-r * r)), f)) / damp_imp
+                            ff = sd * (fc + (fs - fc) * math.exp(-r * r))
+                            vn = (vf - math.copysign(h * acc * ff, f)) / damp_imp
                     else:
                         r = v / vs
-                        ff = fc + (fs - fc) * math.exp(-r * r)
+                        ff = (1.0 + fr_dir * math.copysign(1.0, v)) * (fc + (fs - fc) * math.exp(-r * r))
                         vn = vf - math.copysign(h * acc * ff, v)
                         if vn * v <= 0.0:
                             vn = 0.0  # friction stops the table within the step
@@ -450,7 +454,7 @@ def run_dynamic(
                             vn = vn / damp_imp
                 elif fr_model == FRICTION_LUGRE:
                     r = v / vs
-                    gz = (fc + (fs - fc) * math.exp(-r * r)) / sig0
+                    gz = (1.0 + fr_dir * math.copysign(1.0, v)) * (fc + (fs - fc) * math.exp(-r * r)) / sig0
                     if gz < 1e-12:
                         gz = 1e-12
                     zn = (z + h * v) / (1.0 + h * abs(v) / gz)

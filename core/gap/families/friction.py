@@ -38,6 +38,34 @@ def friction_stage() -> Stage:
     )  # fmt: skip
 
 
+def friction_directional_stage() -> Stage:
+    """Friction that differs by direction, on a stiff chain: the lost-motion form with a
+    direction asymmetry a, its break-away and Stribeck parts times 1 + a moving in + and
+    1 - a in - (the viscous part the same both ways): a wiper or a seal that drags one
+    way, a guide preloaded on one side, a table on an incline. Fitted from the
+    lost-motion form's values and kept over it only where it cuts that form's train
+    misfit by a quarter (``Stage.extends``). A Coulomb level that differs by direction
+    is the lost motion of the two directions' mean plus an offset of the table while it
+    moves, (F- - F+) / 2k, which the per-run offset takes: what is seen of the asymmetry
+    is in the break-away and the Stribeck part (and on contours the same a, on the
+    twin's friction). Not covered: a viscous part that differs by direction, on a
+    compliant chain or with pre-sliding."""
+    base = friction_stage()
+    return Stage(
+        NAME, base.names + ("direction_asymmetry",), np.append(base.x0, 0.0), np.append(base.lower, -0.9),
+        np.append(base.upper, 0.9), kernel="lost_motion", starts=(), info={"form": "lost_motion_directional"},
+        derive_starts=_directional_starts, extends="lost_motion",
+    )  # fmt: skip
+
+
+def _directional_starts(prev: Mapping[str, float]) -> tuple[np.ndarray, ...]:
+    """Starts from the fitted lost-motion form, the asymmetry either way."""
+    if "breakaway_lost_motion_um" not in prev:
+        return ()
+    p = [prev["breakaway_lost_motion_um"], prev["stribeck_velocity_mm_s"], prev["viscous_lost_motion_um_per_mm_s"]]
+    return tuple(np.array(p + [a]) for a in (0.3, -0.3))
+
+
 def friction_presliding_stage() -> Stage:
     """Friction on a stiff chain with pre-sliding (Dahl): the friction builds over the
     table's travel, df/dx = (1 - f sgn(dx)) / l_p (f the friction over its Coulomb level,
@@ -134,7 +162,8 @@ def sim_piece(p: Mapping[str, float], info: Mapping, axis: AxisSpec, b_um: float
     coulomb_um = min(4.0 * p["breakaway_lost_motion_um"], 0.45 * b_um)  # static = 1.25 Coulomb assumed
     fr = Friction(coulomb_n=coulomb_um * k, static_n=(coulomb_um + p["breakaway_lost_motion_um"]) * k,
                   stribeck_velocity_mm_s=p["stribeck_velocity_mm_s"],
-                  viscous_n_s_per_mm=p["viscous_lost_motion_um_per_mm_s"] * k)  # fmt: skip
+                  viscous_n_s_per_mm=p["viscous_lost_motion_um_per_mm_s"] * k,
+                  direction_asymmetry=p.get("direction_asymmetry", 0.0))  # fmt: skip
     return fr, 2 * coulomb_um
 
 
@@ -256,7 +285,8 @@ def stiff_on_contours(d, a: str, pieces: dict, bl: dict, b_rt_um: float):
         lc, ex = float(th[0]), float(th[1])
         pre = {} if len(th) < 3 else {"model": "lugre", "bristle_stiffness_n_per_um": lc * k / float(th[2])}
         fr = Friction(coulomb_n=lc * k, static_n=(lc + ex) * k, stribeck_velocity_mm_s=base.stribeck_velocity_mm_s,
-                      viscous_n_s_per_mm=base.viscous_n_s_per_mm, **pre)  # fmt: skip
+                      viscous_n_s_per_mm=base.viscous_n_s_per_mm, direction_asymmetry=base.direction_asymmetry,
+                      **pre)  # fmt: skip
         return fr, max(0.0, b_rt_um - 2 * lc)
 
     def res(th):
@@ -296,7 +326,11 @@ def stiff_on_contours(d, a: str, pieces: dict, bl: dict, b_rt_um: float):
 
 # static friction above the Coulomb level holds a table at rest and lets it jump; below
 # its critical speed it sticks and slips out and back alike
-FAMILY = Family(NAME, f"{friction_stage.__doc__}\n{friction_presliding_stage.__doc__}\n{friction_chain_stage.__doc__}",
-                lambda runs, axis, resid: (friction_stage(), friction_presliding_stage(), friction_chain_stage()),
+# the form that differs by direction last: the chain's derived starts read the lost-motion
+# form's values, its own too
+FAMILY = Family(NAME, "\n".join(f.__doc__ for f in (friction_stage, friction_presliding_stage, friction_chain_stage,
+                                                     friction_directional_stage)),
+                lambda runs, axis, resid: (friction_stage(), friction_presliding_stage(), friction_chain_stage(),
+                                           friction_directional_stage()),
                 sim_piece=sim_piece,
                 derived=derived, shown_by=("breakaway", "stick_slip"), contour_refit=refit_on_contours)  # fmt: skip

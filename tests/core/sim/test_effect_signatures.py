@@ -40,6 +40,25 @@ def test_friction_adds_lost_motion_of_twice_the_friction_over_stiffness(model):
     assert apparent_backlash_um(tr, "y", 20.0, 100.0) == pytest.approx(expected, abs=0.05)
 
 
+@pytest.mark.parametrize("model", ["stribeck", "lugre"])
+@pytest.mark.parametrize("asym", [0.25, -0.25])
+def test_friction_that_differs_by_direction_moves_the_table_by_half_the_difference_over_stiffness(model, asym):
+    """F+ = 400 (1 + a) N one way, F- = 400 (1 - a) N the other, on 100 N/µm: the lost
+    motion is that of the mean friction, and while it moves the table sits
+    (F- - F+) / 2k = -a 400 / 100 µm from where the same mean friction both ways puts it."""
+    ch = Compliance(stiffness_n_per_um=100.0)
+
+    def offsets_um(a):
+        tr = _rt(Effects(friction=Friction(coulomb_n=400.0, model=model, direction_asymmetry=a), compliance=ch))
+        (_, o_out), (_, o_back) = strokes(tr, "y", 20.0, 100.0)
+        return apparent_backlash_um(tr, "y", 20.0, 100.0), 0.5e3 * (np.mean(o_out) + np.mean(o_back))
+
+    width, centre = offsets_um(asym)
+    width_0, centre_0 = offsets_um(0.0)
+    assert width == pytest.approx(width_0, abs=0.05)
+    assert centre - centre_0 == pytest.approx(-asym * 400.0 / 100.0, abs=0.05)
+
+
 def test_friction_sticks_then_slips_after_a_reversal():
     nominal = _rt(travel=(0.0, 20.0), rate=50000.0)
     fric = Friction(coulomb_n=500.0, static_n=650.0, stribeck_velocity_mm_s=1.0)

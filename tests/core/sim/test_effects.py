@@ -51,6 +51,8 @@ def test_every_category_parses_with_defaults():
         (lambda: Friction(coulomb_n=300, static_n=200), "static_n (=200.0)"),
         (lambda: Friction(coulomb_n=-1), "coulomb_n (=-1)"),
         (lambda: Friction(model="dahl"), "'dahl'"),
+        (lambda: Friction(coulomb_n=300, direction_asymmetry=1.0), "direction_asymmetry (=1.0)"),
+        (lambda: Friction(coulomb_n=300, direction_asymmetry=float("nan")), "direction_asymmetry"),
         (lambda: Compliance(table_mass_kg=0), "table_mass_kg (=0)"),
         (lambda: BacklashProfile((0, 1), (10,)), "equal length"),
         (lambda: BacklashProfile((1, 0), (10, 10)), "strictly increasing"),
