@@ -37,6 +37,7 @@ from core.gap.contour import SimMemo, apparent_gain_per_s
 from core.gap.data import Contour
 from core.gap.families.base import NOT_IDENTIFIABLE, ContourFit, Family
 from core.gap.roundtrip import finite_residuals, fit_ls, intervals
+from core.gap.stages import NESTED_MIN_CUT
 from core.sim import AxisModel, Effects, ServoDynamics
 
 NAME = "servo_dynamics"
@@ -66,9 +67,6 @@ SERVO_FORMS = (
 )
 LIMIT_NAME = "accel_limit_mm_s2"
 LIMIT_START_FRACTIONS = (0.15, 0.3, 0.5, 0.7)  # of the most the configured loop asks
-# the limited form is kept where it cuts the linear forms' train RSS by this much: as a
-# family must cut a gap by the decision's min_reduction (0.25) to be named
-LIMIT_MIN_CUT = 0.25
 
 
 def fit_servo(memo: SimMemo, contours: Sequence[Contour], axes: Mapping[str, AxisSpec],
@@ -130,8 +128,9 @@ def _fit_limited(res, linear, asked_mm_s2: float, froms: Sequence[np.ndarray]):
     are separate minima). A linear fit to a saturated drive bends its gain and lags to
     follow the clipped motion, so the configured loop is a start of its own. The best
     start is pursued only where it already fits better than the linear fit. Kept over
-    the ``linear`` fit where it cuts its train RSS by :data:`LIMIT_MIN_CUT` and the limit
-    is identifiable: a limit just under the largest demand trims the sharpest start of a
+    the ``linear`` fit where it cuts its train RSS by
+    :data:`core.gap.stages.NESTED_MIN_CUT`, as any form that extends another of its
+    family, and the limit is identifiable: a limit just under the largest demand trims the sharpest start of a
     contour (where the configured loop, without the drive's lag, asks more than any
     drive gives) by a few per mille of the RSS, which a BIC test on thousands of
     correlated samples would take for a saturating drive."""
@@ -151,7 +150,7 @@ def _fit_limited(res, linear, asked_mm_s2: float, froms: Sequence[np.ndarray]):
     if not costs[best] < linear.rss:
         return linear
     lim = fit_ls(limited, [starts[best]], lower, upper, max_nfev=20, diff_step=1e-3)
-    if not 0.0 < lim.rss <= (1.0 - LIMIT_MIN_CUT) * linear.rss:
+    if not 0.0 < lim.rss <= (1.0 - NESTED_MIN_CUT) * linear.rss:
         return linear
     if intervals(lim, names, lower, upper)[LIMIT_NAME] is None:
         return linear
