@@ -8,7 +8,7 @@ LinuxCNC's own states and configuration, each with what to do about it.
 
 from __future__ import annotations
 
-from acquisition.errors import AcquisitionError
+from acquisition.errors import AcquisitionError, ProtocolError
 
 
 class EstopError(AcquisitionError):
@@ -33,4 +33,17 @@ class HalPinError(AcquisitionError, LookupError):
 
     def __init__(self, message: str, *, pin: str):
         self.pin = pin
+        super().__init__(message)
+
+
+class CommandRefusedError(ProtocolError):
+    """linuxcncrsh refused a ``set`` on mebm's enabled session, and asking it why (``get
+    enable``, ``get machine``, ``get estop``) and sending the command once more did not help.
+    ``estop``, ``machine_on``, ``enabled``: the state found after the refusal (``estop`` is
+    None when the machine was on: it was not asked)."""
+
+    reason_code = "command_refused"
+
+    def __init__(self, message: str, *, command: str, estop: bool | None, machine_on: bool, enabled: bool):
+        self.command, self.estop, self.machine_on, self.enabled = command, estop, machine_on, enabled
         super().__init__(message)

@@ -5,6 +5,14 @@ linuxcncrsh answers ``get`` with ``KEY VALUE...`` and, once ``set verbose on``, 
 ``set`` with ``SET KEY ACK`` or ``SET KEY NAK``; replies end in CR, LF or both, in either
 order. The session is read-only until ``set enable`` (mebm enables it only for an active
 round trip).
+
+linuxcncrsh (2.9, ``commandSet``) refuses a ``set`` for two reasons of its own: another
+session enabled itself after this one (the last ``set enable`` takes control), or its copy
+of LinuxCNC's task state is not ON. It refreshes that copy on every ``get`` and while it
+waits for a command to be received, never before it checks a ``set``: a ``set`` with no
+``get`` before it (the first of a session) is judged on whatever state linuxcncrsh last
+read, for any session. :meth:`RshClient.set` asks why once, and sends the command again
+when the answer allows.
 """
 
 from __future__ import annotations
@@ -12,6 +20,7 @@ from __future__ import annotations
 import asyncio
 
 from acquisition.errors import ControllerConnectionError, ControllerTimeoutError, ProtocolError
+from acquisition.linuxcnc.errors import CommandRefusedError
 
 
 class RshClient:
@@ -101,7 +110,53 @@ class RshClient:
         return words[1:]
 
     async def set(self, command: str) -> None:
-        """``set COMMAND`` on an enabled session; a NAK is a :class:`ProtocolError`."""
+        """``set COMMAND`` on an enabled session. On a NAK the session asks why (``get enable``,
+        ``get machine``; each ``get`` also refreshes linuxcncrsh's copy of the task state):
+        with the machine ON it takes control back if another session has it and sends the
+        command once more. A machine found off, or a second NAK, is a
+        :class:`~acquisition.linuxcnc.errors.CommandRefusedError` naming the state found."""
         reply = await self.exchange(f"set {command}")
-        if "NAK" in reply.upper() or "ACK" not in reply.upper():
-            raise ProtocolError(f"{self.where} refused 'set {command}': {reply!r}")
+        if _acked(reply):
+            return
+        if not self.enabled:
+            raise ProtocolError(f"{self.where} refused 'set {command}' on a session that is not enabled: {reply!r}")
+        estop, machine_on, enabled = await self._state()
+        if machine_on:
+            if not enabled:
+                await self.exchange(f"set enable {self.enable_pw}")  # verbose is on: it answers
+            reply = await self.exchange(f"set {command}")
+            if _acked(reply):
+                return
+            estop, machine_on, enabled = await self._state()
+        raise CommandRefusedError(self._refusal(command, reply, estop, machine_on, enabled), command=command,
+                                  estop=estop, machine_on=machine_on, enabled=enabled)
+
+    async def _state(self) -> tuple[bool | None, bool, bool]:
+        """(e-stop, machine on, this session enabled) as linuxcncrsh sees them now; e-stop is
+        asked only when the machine is not on (None otherwise)."""
+        enabled = (await self.get("enable"))[0].upper() == "ON"
+        machine_on = (await self.get("machine"))[0].upper() == "ON"
+        estop = None if machine_on else (await self.get("estop"))[0].upper() == "ON"
+        return estop, machine_on, enabled
+
+    def _refusal(self, command: str, reply: str, estop: bool | None, machine_on: bool, enabled: bool) -> str:
+        found = (f"machine {'ON' if machine_on else 'OFF'}"
+                 + ("" if estop is None else f", E-STOP {'ON' if estop else 'off'}")
+                 + f", this session {'enabled' if enabled else 'not enabled'}")
+        if estop:
+            todo = "LinuxCNC is in E-STOP: the operator resets it at the machine; mebm never does"
+        elif not machine_on:
+            todo = "the machine is OFF: the operator switches it on; mebm never does"
+        elif not enabled:
+            todo = ("another linuxcncrsh client holds control (each 'set enable' takes it from the last) or "
+                    "the enable password was refused: let no other client (a second mebm, a pendant, a script) "
+                    "command LinuxCNC while mebm measures, and check the enable password")
+        else:
+            todo = ("linuxcncrsh refused the command itself on a machine that accepts commands: check "
+                    "LinuxCNC's log for why it cannot run it (the program file, the mode)")
+        return f"{self.where} refused 'set {command}' ({reply!r}; found {found}): {todo}"
+
+
+def _acked(reply: str) -> bool:
+    """Whether a ``set`` reply is linuxcncrsh's ``SET KEY ACK``."""
+    return "ACK" in reply.upper() and "NAK" not in reply.upper()
