@@ -83,6 +83,38 @@ def run_operator_program(sim: LinuxcncSim, gcode: str) -> None:
     assert all("ACK" in r and "NAK" not in r for r in replies), replies
 
 
+#: LinuxCNC's Python module (linuxcnc-uspace installs it for the system's Python).
+SYSTEM_PYTHON = "/usr/bin/python3"
+_SWITCH_ON = """
+import sys, time
+try:
+    import linuxcnc
+except ImportError as exc:
+    sys.exit(f"no module: {exc}")
+c, s = linuxcnc.command(), linuxcnc.stat()
+c.state(linuxcnc.STATE_ON)
+end = time.monotonic() + float(sys.argv[1])
+while True:
+    s.poll()
+    if s.task_state == linuxcnc.STATE_ON:
+        break
+    if time.monotonic() > end:
+        sys.exit(f"LinuxCNC did not report the machine ON (task state {s.task_state})")
+    time.sleep(0.02)
+"""
+
+
+def switch_on_elsewhere(timeout_s: float = 5.0) -> None:
+    """The operator switches the machine on from an interface other than linuxcncrsh
+    (LinuxCNC's Python module, as AXIS does); returns once LinuxCNC reports it ON. linuxcncrsh
+    does not see it until its next ``get``."""
+    proc = subprocess.run([SYSTEM_PYTHON, "-c", _SWITCH_ON, str(timeout_s)], capture_output=True, text=True,
+                          timeout=timeout_s + 10.0, check=False)
+    if proc.stderr.startswith("no module"):
+        unavailable(f"LinuxCNC's Python module is not importable by {SYSTEM_PYTHON}: {proc.stderr.strip()}")
+    assert proc.returncode == 0, proc.stderr.strip()[-500:]
+
+
 def in_thread(fn, *args, **kwargs):
     """Run ``fn`` in a thread; returns (thread, result holder)."""
     out: dict = {}

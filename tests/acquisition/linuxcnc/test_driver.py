@@ -6,11 +6,16 @@ Asserts: an active round trip's b̄ within 1 µm of the chain's backlash, from s
 consecutive servo periods; a round trip LinuxCNC runs from a program mebm did not send,
 found passively; each typed failure (e-stop before and during the trace, machine off, a
 bad pin, a pin the sampler does not record, a sampler overrun, LinuxCNC stopped
-mid-trace and not running). The test that stops LinuxCNC is the module's last.
+mid-trace and not running); a command linuxcncrsh refuses on its stale copy of the
+machine's state (switched on elsewhere) is sent again once the state is asked, mebm's
+session takes control back from a client that took it, and names the machine's state when
+linuxcncrsh refuses a command with the machine off. The test that stops LinuxCNC is the
+module's last.
 """
 
 from __future__ import annotations
 
+import asyncio
 import os
 import signal
 import time
@@ -18,9 +23,19 @@ import time
 import numpy as np
 import pytest
 
+from acquisition.linuxcnc.errors import CommandRefusedError
+from acquisition.linuxcnc.rsh import RshClient
 from acquisition.measurement import run_cycle
 from acquisition.url import driver_from_url
-from tests.acquisition.linuxcnc.rig import AXIS, BACKLASH_UM, PROGRAM, in_thread, run_operator_program, running_sim
+from tests.acquisition.linuxcnc.rig import (
+    AXIS,
+    BACKLASH_UM,
+    PROGRAM,
+    in_thread,
+    run_operator_program,
+    running_sim,
+    switch_on_elsewhere,
+)
 from tests.waiting import until
 
 
@@ -108,6 +123,68 @@ def test_machine_off_is_a_typed_failure(powered):
     powered.rsh("set machine off")
     r = run_cycle(driver(powered, "&trigger=active"), AXIS, PROGRAM)
     assert not r.ok and r.reason_code == "machine_off", r.reason
+
+
+class RecordingRsh(RshClient):
+    """An RshClient that keeps each line it exchanged with its reply."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.exchanged: list[tuple[str, str]] = []
+
+    async def exchange(self, line: str) -> str:
+        reply = await super().exchange(line)
+        self.exchanged.append((line, reply))
+        return reply
+
+
+def test_a_command_refused_on_linuxcncrsh_s_stale_machine_state_is_sent_again_once_the_state_is_asked(powered):
+    assert powered.rsh("set machine off", "get machine")[-1] == "MACHINE OFF"  # linuxcncrsh's last read
+    switch_on_elsewhere()  # LinuxCNC is ON; linuxcncrsh has not read it since
+
+    async def body():
+        rsh = RecordingRsh("127.0.0.1", powered.settings.port, timeout_s=5.0)
+        await rsh.open(enable=True)
+        try:
+            await rsh.set("mode auto")
+        finally:
+            await rsh.close()
+        return rsh.exchanged
+
+    exchanged = asyncio.run(body())
+    assert exchanged[-4:] == [("set mode auto", "SET MODE NAK"), ("get enable", "ENABLE ON"),
+                              ("get machine", "MACHINE ON"), ("set mode auto", "SET MODE ACK")], exchanged
+
+
+async def _enabled_session_then(sim, operator_command: str, command: str) -> tuple[BaseException | None, str]:
+    """mebm's session enabled, then the operator's ``operator_command`` on a session of their
+    own (which enables itself), then ``command`` on mebm's: what it raised and whether mebm's
+    session is the enabled one after it."""
+    rsh = RshClient("127.0.0.1", sim.settings.port, timeout_s=5.0)
+    await rsh.open(enable=True)
+    try:
+        sim.rsh(operator_command)
+        try:
+            await rsh.set(command)
+            error = None
+        except CommandRefusedError as exc:
+            error = exc
+        return error, (await rsh.get("enable"))[0]
+    finally:
+        await rsh.close()
+
+
+def test_a_session_another_client_took_control_of_takes_it_back_and_sends_again(powered):
+    assert asyncio.run(_enabled_session_then(powered, "get enable", "mode mdi")) == (None, "ON")
+
+
+def test_a_command_refused_with_the_machine_off_names_the_state(powered):
+    # the operator's session took control too: mebm's is not enabled either, and says so
+    error, enabled = asyncio.run(_enabled_session_then(powered, "set machine off", "mode mdi"))
+    assert isinstance(error, CommandRefusedError), error
+    assert (error.estop, error.machine_on, error.enabled, enabled) == (False, False, False, "OFF")
+    assert "machine OFF, E-STOP off, this session not enabled" in str(error), str(error)
+    assert "the operator switches it on" in str(error), str(error)
 
 
 @pytest.mark.parametrize("pins", ["scale_pin=x-scael.out", "scale_pin=y-scale.out"], ids=["no-such-pin", "not-sampled"])
