@@ -11,32 +11,22 @@ cannot follow. Seeds 41 and 42: with a = ±0.4 the symmetric form leaves 0.38 µ
 the truth; with a = 0 the symmetric form is kept.
 """
 
-import numpy as np
 import pytest
 
-from core.dataset import Dataset, MachineSpec
+from core.dataset import Dataset
 from core.gap import GapSettings, diagnose
-from core.sim import AxisModel, Compliance, Effects, Encoders, Friction, round_trip, simulate
+from core.sim import Compliance, Effects, Encoders, Friction
+from tests.core.gap.test_friction_or_skew import round_trips
 
 ENC = Encoders(table_noise_um=0.1, motor_noise_um=0.1)
-CONDITIONS = ((600.0, 400.0, 17.0), (1000.0, 600.0, 20.0), (1500.0, 800.0, 23.0), (2400.0, 1500.0, 30.0))
 
 
 def _dataset(asymmetry: float, seed: int) -> Dataset:
-    effects = Effects(
+    return round_trips(Effects(
         compliance=Compliance(stiffness_n_per_um=200.0, table_mass_kg=500.0, damping_ratio=0.3),
         friction=Friction(coulomb_n=2000.0, static_n=2600.0, stribeck_velocity_mm_s=5.0, viscous_n_s_per_mm=5.0,
                           direction_asymmetry=asymmetry),
-    )  # fmt: skip
-    rng = np.random.default_rng(seed)
-    axis = AxisModel(name="y", transmission_mm_per_rev=6.857, backlash_um=60.0, effects=effects, encoders=ENC)
-    runs = []
-    for i, (feed, acc, temp) in enumerate(CONDITIONS):
-        start = (10.0, 40.0, 70.0, 30.0)[i]
-        prog = round_trip(start, start + 100.0, feed, acc, 0.5, axis="y")
-        tr = simulate({"y": axis}, prog, temperature_c=temp, rate_hz=250.0, rng=rng)
-        runs.append(tr.to_run(f"rt_{i}.csv", split="test" if i == 3 else "train"))
-    return Dataset(MachineSpec("t", {"y": axis.to_axis_spec((0.0, 200.0))}), tuple(runs))
+    ), seed, ENC)  # fmt: skip
 
 
 SETTINGS = GapSettings(keep_curves=False, second_effect=False)

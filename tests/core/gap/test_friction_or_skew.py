@@ -43,9 +43,10 @@ STIFF_CHAIN_VISCOUS = Effects(
 LATCH_SKEW = Effects(sampling_skew=SamplingSkew(table_delay_s=3e-5))
 
 
-def _dataset(effects: Effects, seed: int) -> Dataset:
+def round_trips(effects: Effects, seed: int, encoders: Encoders = ENC) -> Dataset:
+    """One axis of the twin with ``effects``: three train round trips and a faster test one."""
     rng = np.random.default_rng(seed)
-    axis = AxisModel(name="y", transmission_mm_per_rev=6.857, backlash_um=60.0, effects=effects, encoders=ENC)
+    axis = AxisModel(name="y", transmission_mm_per_rev=6.857, backlash_um=60.0, effects=effects, encoders=encoders)
     runs = []
     for i, (feed, acc, temp) in enumerate(CONDITIONS):
         start = (10.0, 40.0, 70.0, 30.0)[i]
@@ -57,7 +58,7 @@ def _dataset(effects: Effects, seed: int) -> Dataset:
 
 @pytest.mark.parametrize("seed", (41, 42))
 def test_friction_on_a_stiff_chain_is_named_friction_not_a_skew(seed):
-    rep = diagnose(_dataset(STIFF_CHAIN_FRICTION, seed), GapSettings(keep_curves=False))
+    rep = diagnose(round_trips(STIFF_CHAIN_FRICTION, seed), GapSettings(keep_curves=False))
     assert rep.gap_before_um > 2.5 * rep.noise_floor_um, rep.text()  # it shows
     assert rep.where.details["rms_by_phase_um"]["reversal"] == max(rep.where.details["rms_by_phase_um"].values())
     assert rep.effect == "friction", rep.text()
@@ -70,7 +71,7 @@ def test_friction_on_a_stiff_chain_is_named_friction_not_a_skew(seed):
 
 @pytest.mark.parametrize("seed", (41, 42))
 def test_a_lost_motion_growing_with_feed_on_a_stiff_chain_is_named_friction_not_a_skew(seed):
-    rep = diagnose(_dataset(STIFF_CHAIN_VISCOUS, seed), GapSettings(keep_curves=False))
+    rep = diagnose(round_trips(STIFF_CHAIN_VISCOUS, seed), GapSettings(keep_curves=False))
     assert rep.gap_before_um > 2.5 * rep.noise_floor_um, rep.text()  # it shows
     assert rep.effect == "friction", rep.text()
     assert rep.gap_after_um <= 0.5 * rep.gap_before_um, rep.text()
@@ -84,7 +85,7 @@ def test_a_lost_motion_growing_with_feed_on_a_stiff_chain_is_named_friction_not_
 
 @pytest.mark.parametrize("seed", (41, 42))
 def test_a_latch_skew_is_named_a_skew_not_friction(seed):
-    rep = diagnose(_dataset(LATCH_SKEW, seed), GapSettings(keep_curves=False))
+    rep = diagnose(round_trips(LATCH_SKEW, seed), GapSettings(keep_curves=False))
     phases = rep.where.details["rms_by_phase_um"]
     assert phases["constant_velocity"] > 2 * phases["reversal"], phases  # the skew's signature: at speed
     assert rep.effect == "sampling_skew", rep.text()
