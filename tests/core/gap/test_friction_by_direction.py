@@ -6,9 +6,9 @@ levels times 1 + a moving in + and 1 - a in -; three train round trips and a fas
 one (the conditions of test_friction_or_skew.py) at 250 Hz. The Coulomb asymmetry moves
 the table by (F- - F+) / 2k while it moves, which the per-run offset takes; the break-away
 and the Stribeck part differ by direction too, and those the symmetric lost-motion form
-cannot follow. Seeds 41 and 42: with a = ±0.4 the symmetric form leaves 0.38 µm of a
-0.94 µm gap, the form that differs by direction 0.21 µm, its asymmetry within 0.01 of
-the truth; with a = 0 the symmetric form is kept.
+cannot follow. Seeds 41 and 42: with a = ±0.4 the symmetric form leaves 0.38-0.40 µm of
+a 0.93-0.94 µm gap, the form that differs by direction 0.20-0.21 µm, its asymmetry within
+0.01 of the truth; with a = 0 the symmetric form is kept.
 """
 
 import pytest
