@@ -130,10 +130,10 @@ def _fit_limited(res, linear, asked_mm_s2: float, froms: Sequence[np.ndarray]):
     start is pursued only where it already fits better than the linear fit. Kept over
     the ``linear`` fit where it cuts its train RSS by
     :data:`core.gap.stages.NESTED_MIN_CUT`, as any form that extends another of its
-    family, and the limit is identifiable: a limit just under the largest demand trims the sharpest start of a
-    contour (where the configured loop, without the drive's lag, asks more than any
-    drive gives) by a few per mille of the RSS, which a BIC test on thousands of
-    correlated samples would take for a saturating drive."""
+    family, and the limit is identifiable: a limit just under the largest demand trims
+    the sharpest start of a contour (where the configured loop, without the drive's lag,
+    asks more than any drive gives) by a few per mille of the RSS, which a BIC test on
+    thousands of correlated samples would take for a saturating drive."""
     names = SERVO_NAMES + (LIMIT_NAME,)
     lower = np.r_[SERVO_LOWER, 0.02 * asked_mm_s2]
     upper = np.r_[SERVO_UPPER, asked_mm_s2]
