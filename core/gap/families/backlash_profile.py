@@ -27,6 +27,21 @@ def profile_knots(lo_mm: float, hi_mm: float) -> np.ndarray:
     return np.linspace(lo_mm, hi_mm, n)
 
 
+def seen_knots(knots: np.ndarray, strokes_mm: Sequence[np.ndarray]) -> np.ndarray:
+    """The knots some train sample weighs on: a sample strictly between a knot's two
+    neighbours (the end knots always). A knot inside a stretch no train stroke crossed
+    is a parameter the data never exercise: it would leave J'J singular and every
+    parameter of the fit "not identifiable" (``core.gap.roundtrip.intervals``) whatever
+    the rest of the travel shows; without it the profile is straight across the
+    stretch, as the smoothness prior would draw it."""
+    keep = np.zeros(knots.size, dtype=bool)
+    keep[[0, -1]] = True
+    for i in range(1, knots.size - 1):
+        a, b = knots[i - 1], knots[i + 1]
+        keep[i] = any(bool(np.any((u > a) & (u < b))) for u in strokes_mm)
+    return knots[keep]
+
+
 def knot_names(knots: np.ndarray) -> tuple[str, ...]:
     """The parameter names of the knots after the first, ``backlash_change_at_<mm>mm_um``,
     in whole millimetres where that tells them apart (knots 1 mm apart and more: a travel
@@ -46,12 +61,14 @@ def profile_stage(runs: Sequence[RoundTrip], axis: AxisSpec) -> Stage:
     works), a ramp. The knots are at most 40 mm apart, not a fixed seven over the travel:
     seven knots (travel / 6 apart) miss a bump of a nut's length on a long travel. The
     result depends on where the knots fall, not monotonically on their number (a choice
-    of the spacing by cross-validation is not built). Not covered: features shorter than
+    of the spacing by cross-validation is not built). A knot between train strokes that
+    no sample reaches is left out (:func:`seen_knots`). Not covered: features shorter than
     the knot spacing, a width that differs between directions, the travel no train round
-    trip crossed (the profile is flat beyond it)."""
+    trip crossed (the profile is flat beyond it, straight across a stretch between two
+    strokes)."""
     lo = min(float(np.min(r.u_mm)) for r in runs)
     hi = max(float(np.max(r.u_mm)) for r in runs)
-    knots = profile_knots(lo, hi)
+    knots = seen_knots(profile_knots(lo, hi), [r.u_mm for r in runs])
     n = knots.size
 
     def width(th, run, u, hb):
