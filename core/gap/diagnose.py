@@ -257,6 +257,7 @@ class _AxisFit:
     stages: tuple
     effects: tuple[str, ...]
     gain: float = 0.0  # its BIC gain over the reference on the train runs (lower: better)
+    train_ratio: float = 1.0  # its train RSS over the reference's, in the form's own metric
 
 
 @dataclass
@@ -526,7 +527,8 @@ class _Diagnosis:
                 gain = n * math.log(max(fr.rss, 1e-12) / max(ref_rss, 1e-12)) + len(st.names) * math.log(max(n, 2))
         if fr.capped:
             notes.append(f"{new} on axis {a}: the round-trip fit stopped at its evaluation cap, not at convergence")
-        return _AxisFit(model, fr, stages, tuple(s.effect for s in stages), gain), tuple(notes)
+        return _AxisFit(model, fr, stages, tuple(s.effect for s in stages), gain,
+                        fr.rss / max(ref_rss, 1e-12)), tuple(notes)
 
     def fit_single(self, effect: str) -> Fitted:
         """Family ``effect`` alone on the nominal model. A fit that fails (it makes the
@@ -557,6 +559,45 @@ class _Diagnosis:
             f.notes.insert(0, "not fitted: the fit makes the held-out gap worse than the nominal model's, "
                               "from other starts too")  # fmt: skip
         return f
+
+    def fit_pair(self, effects: tuple[str, str], base: Fitted, singles: Mapping[str, Fitted]) -> Fitted:
+        """The pair ``effects`` fitted on top of ``base`` (its first family alone). Two
+        families that each stand in for the other alone (a backlash changing with
+        temperature on strokes run at different temperatures reads as a profile along the
+        travel) make the pair's cost multi-modal: from each base's values the joint fit
+        ends in its own valley. A pair fit that fails (:meth:`fit_single`'s reading, or
+        its second family cuts the base's train RSS by NESTED_MIN_CUT on a round-trip
+        axis and nothing of its held-out gap: the train runs see it clearly, the
+        held-out runs not at all) is fitted again from the other family's fit, and of
+        the two the train runs choose (identifiable first, then the lower BIC on the
+        train round trips; both hold the same forms); the held-out runs never choose a
+        fit."""
+        f = self.fit_candidate(effects, base)
+        other = singles.get(effects[-1])
+        seen = any(af is not base.rt_fits.get(a) and af.train_ratio <= 1.0 - NESTED_MIN_CUT
+                   for a, af in f.rt_fits.items())  # fmt: skip
+        idle = seen and not cuts(f.gap_after_um, base.gap_after_um, self.s.min_reduction)
+        if other is None or not (idle or self._worse(f) or (f.rt_fits and not f.identified)):
+            return f
+        again = self.fit_candidate((effects[-1], effects[0]), other)
+        if (again.identified, -self._train_bic(again)) > (f.identified, -self._train_bic(f)):
+            why = ("made the held-out gap worse" if self._worse(f) else "left its parameters unidentifiable"
+                   if not f.identified else f"cut nothing of {effects[0]}'s held-out gap")
+            again.notes.insert(0, f"{'+'.join(effects)}: fitted again from {effects[-1]}'s fit (from "
+                                  f"{effects[0]}'s it {why})")  # fmt: skip
+            return again
+        return f
+
+    def _train_bic(self, f: Fitted) -> float:
+        """BIC of ``f``'s round-trip fits on every round-trip axis (the nominal fit where it
+        took none)."""
+        total = 0.0
+        for a in self.rt_axes:
+            n = max(sum(r.fit_idx.size for r in self.train_rt[a]), 2)
+            af = f.rt_fits.get(a)
+            rss, k = (af.fit.rss, af.model.n_extra) if af else (self.nom_fit[a].rss, 0)
+            total += n * math.log(max(rss, 1e-12)) + k * math.log(n)
+        return total
 
     def _worse(self, f: Fitted) -> bool:
         """The nominal model cuts the candidate's held-out gap by ``min_reduction``: told
@@ -774,14 +815,19 @@ def pair_jobs(singles: Sequence[Fitted], gap_before: float, gate_um: float, rule
     every other on top, then every other pair of families that took something, once each,
     from the better of the two (two effects that each alone extrapolate badly rank last by
     test gap). A family that took nothing (:func:`_took_something`) is in no pair, and a
-    pair of the same two families is fitted once."""
+    pair of the same two families is fitted once. A family "not fitted" alone (its fit
+    makes the held-out gap worse) whose train fit was accepted goes on top of the bases
+    all the same: fitted without the effect that is there beside it, it takes that
+    effect's part and extrapolates it wrongly, which is what a pair is for."""
     took = [f for f in ranked(singles, rule.penalty_per_param) if f.fitted and _took_something(f, gap_before)]
+    failed = [f for f in ranked(singles, rule.penalty_per_param) if not f.fitted and (f.rt_fits or f.ct_fits)]
     ok = eligible_singles([f for f in singles if f.fitted], gap_before, rule)
     if ok:
         bases = [b for b in [ok[0]] + ties_of(ok[0], ok, rule) if b.gap_after_um > gate_um]
-        jobs = [((b.effects[0], t.effects[0]), b) for b in bases for t in took if t.effects[0] != b.effects[0]]
     else:
-        jobs = [((b.effects[0], t.effects[0]), b) for b in took[:2] for t in took if t.effects[0] != b.effects[0]]
+        bases = took[:2]
+    jobs = [((b.effects[0], t.effects[0]), b) for b in bases for t in took + failed if t.effects[0] != b.effects[0]]
+    if not ok:
         jobs += [((a.effects[0], b.effects[0]), a) for i, a in enumerate(took) for b in took[i + 1:]]
     out, seen = [], set()
     for job in jobs:
@@ -808,11 +854,12 @@ def _candidate(f: Fitted, s: GapSettings) -> Candidate:
                      f.converged)  # fmt: skip
 
 
-def _fit_all(d: _Diagnosis, jobs: list[tuple[tuple[str, ...], Fitted | None]], workers: int) -> list[Fitted]:
-    """``d.fit_candidate`` on each (effects, base), in order, in up to ``workers`` threads
+def _fit_all(d: _Diagnosis, jobs: list[tuple[tuple[str, ...], Fitted | None]], workers: int,
+             singles: Mapping[str, Fitted]) -> list[Fitted]:
+    """``d.fit_pair`` on each (effects, base), in order, in up to ``workers`` threads
     (:func:`_in_threads`). The answer is the same as one after the other: the diagnosis'
     memo holds pure results only, keyed by their inputs."""
-    return _in_threads([lambda job=job: d.fit_candidate(*job) for job in jobs], workers)
+    return _in_threads([lambda job=job: d.fit_pair(*job, singles) for job in jobs], workers)
 
 
 def diagnose(dataset: Dataset, settings: GapSettings | None = None, *, workers: int | None = None) -> GapReport:
@@ -868,7 +915,7 @@ def _diagnose(dataset: Dataset, s: GapSettings, workers: int) -> GapReport:
     singles = list(fits.values())
     pairs: list[Fitted] = []
     if s.second_effect and gap_before > gate:
-        pairs = ranked(_fit_all(d, pair_jobs(singles, gap_before, gate, rule), workers), s.penalty_per_param)
+        pairs = ranked(_fit_all(d, pair_jobs(singles, gap_before, gate, rule), workers, fits), s.penalty_per_param)
     found, broke = rattles(d.rts), breakaways(d.rts)
     observations = observe(broke, found, {e: st.shown_by for e, st in REGISTRY.items()})
     dec = select(singles, pairs, gap_before, noise, observations, rule)

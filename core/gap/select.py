@@ -188,8 +188,10 @@ def select(singles: Sequence[Hypothesis], pairs: Sequence[Hypothesis], gap_befor
     if gap_before <= gate:
         return decision("within_noise")
     fitted = [h for h in singles if h.fitted]
+    # a pair's base is its first family's single row, fitted or not (a family that fails
+    # alone may be half of a pair: core.gap.diagnose.pair_jobs)
     eligible = eligible_singles(fitted, gap_before, rule) + eligible_pairs(
-        [p for p in pairs if p.fitted], fitted, gap_before, gate, rule)
+        [p for p in pairs if p.fitted], singles, gap_before, gate, rule)
     if not eligible:
         top = ranked(fitted, rule.penalty_per_param)[:1]
         if top and rule.min_first_reduction is not None and cuts(top[0].gap_after_um, gap_before,
