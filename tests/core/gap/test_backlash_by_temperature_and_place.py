@@ -19,18 +19,21 @@ STROKES = ((40.0, 175.0, 600.0, 17.2), (290.0, 510.0, 980.0, 24.1), (400.0, 760.
 WIDTH_UM = 60.0
 
 
-def temperature_and_wear(seed: int, backlash_um_per_k: float) -> Dataset:
-    """One axis: a wear bump of +50 % over 270-570 mm and a backlash changing by
-    ``backlash_um_per_k`` (with the lead growing 8 ppm/K)."""
+def temperature_and_wear(seed: int, backlash_um_per_k: float, width_um: float = WIDTH_UM, bump: float = 0.5,
+                         temperatures_c: tuple[float, ...] | None = None) -> Dataset:
+    """One axis: a wear bump of +``bump`` over 270-570 mm of a ``width_um`` backlash
+    changing by ``backlash_um_per_k`` (with the lead growing 8 ppm/K); the strokes'
+    temperatures are STROKES' unless given."""
     pos = np.linspace(0.0, 800.0, 17)
-    bump = np.clip(1.0 - np.abs(pos - 420.0) / 150.0, 0.0, None)
+    shape = np.clip(1.0 - np.abs(pos - 420.0) / 150.0, 0.0, None)
     fx = Effects(thermal=Thermal(backlash_um_per_k=backlash_um_per_k, lead_growth_ppm_per_k=8.0),
-                 backlash_profile=BacklashProfile(tuple(pos), tuple(WIDTH_UM * (1.0 + 0.5 * bump))))  # fmt: skip
+                 backlash_profile=BacklashProfile(tuple(pos), tuple(width_um * (1.0 + bump * shape))))  # fmt: skip
     m = AxisModel(name="x", transmission_mm_per_rev=8.0, screw_lead_mm=16.0, position_gain_per_s=20.0,
-                  backlash_um=WIDTH_UM, effects=fx, encoders=Encoders(table_noise_um=0.3, motor_noise_um=0.3))  # fmt: skip
+                  backlash_um=width_um, effects=fx, encoders=Encoders(table_noise_um=0.3, motor_noise_um=0.3))  # fmt: skip
+    temps = temperatures_c or tuple(s[3] for s in STROKES)
     rng = np.random.default_rng(seed)
     runs = []
-    for i, (lo, hi, feed, temp) in enumerate(STROKES):
+    for i, ((lo, hi, feed, _), temp) in enumerate(zip(STROKES, temps)):
         prog = round_trip(lo, hi, feed, 600.0, 0.5, axis="x")
         tr = simulate({"x": m}, prog, temperature_c=temp, rate_hz=250.0, rng=rng)
         runs.append(tr.to_run(f"rt_{i}.csv", split="test" if i == len(STROKES) - 1 else "train"))
@@ -58,3 +61,17 @@ def test_backlash_by_temperature_and_along_the_travel_is_named_as_both(backlash_
     assert all(isinstance(v, float) for v in pair.params.values()), pair.params  # every knot pinned down
     assert pair.params["x.backlash_um_per_k"] == pytest.approx(backlash_um_per_k, abs=1.0), pair.params
     assert pair.params["x.lead_growth_ppm_per_k"] == pytest.approx(8.0, abs=0.5), pair.params
+
+
+def test_a_family_that_makes_the_gap_worse_alone_is_named_in_its_pair():
+    """A wide backlash (146 µm, +60 % over the bump) falling 3.9 µm/K, a warm test stroke:
+    thermal alone reads the bump as temperature and makes the held-out gap worse ("not
+    fitted"); on top of the profile it explains the gap."""
+    ds = temperature_and_wear(43, -3.9, width_um=146.0, bump=0.6, temperatures_c=(20.8, 24.0, 16.7, 29.2))
+    rep = diagnose(ds, GapSettings(keep_curves=False), workers=1)
+    thermal = next(c for c in rep.candidates if c.effect == "thermal")
+    assert not thermal.fitted and thermal.gap_after_um > rep.gap_before_um, rep.text()
+    assert set(rep.effects) == {"thermal", "backlash_profile"}, rep.text()
+    assert rep.gap_after_um <= 0.3 * rep.gap_before_um, rep.text()
+    pair = next(c for c in rep.pairs if set(c.effect.split("+")) == set(rep.effects))
+    assert pair.params["x.backlash_um_per_k"] == pytest.approx(-3.9, abs=1.0), pair.params
