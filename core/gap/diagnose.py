@@ -814,7 +814,9 @@ def pair_jobs(singles: Sequence[Fitted], gap_before: float, gate_um: float, rule
     above the noise gate. Where none does: the two best single families as a base with
     every other on top, then every other pair of families that took something, once each,
     from the better of the two (two effects that each alone extrapolate badly rank last by
-    test gap). A family that took nothing (:func:`_took_something`) is in no pair, and a
+    test gap); the bases are the best of the families that cut the held-out gap at all
+    (below ``TOOK_FRACTION`` of it) before those that took something on the train runs
+    only, whose part of the gap the held-out runs do not confirm. A family that took nothing (:func:`_took_something`) is in no pair, and a
     pair of the same two families is fitted once. A family "not fitted" alone (its fit
     makes the held-out gap worse) whose train fit was accepted goes on top of the bases
     all the same: fitted without the effect that is there beside it, it takes that
@@ -825,7 +827,7 @@ def pair_jobs(singles: Sequence[Fitted], gap_before: float, gate_um: float, rule
     if ok:
         bases = [b for b in [ok[0]] + ties_of(ok[0], ok, rule) if b.gap_after_um > gate_um]
     else:
-        bases = took[:2]
+        bases = sorted(took, key=lambda f: f.gap_after_um >= TOOK_FRACTION * gap_before)[:2]  # stable: by score within
     jobs = [((b.effects[0], t.effects[0]), b) for b in bases for t in took + failed if t.effects[0] != b.effects[0]]
     if not ok:
         jobs += [((a.effects[0], b.effects[0]), a) for i, a in enumerate(took) for b in took[i + 1:]]
@@ -923,7 +925,7 @@ def _diagnose(dataset: Dataset, s: GapSettings, workers: int) -> GapReport:
     single = fits.get(effect)
     decision, second_text = explain(dec, {e: f.gap_after_um for e, f in fits.items()}, s.second_effect,
                                     on_top=any(p.effects[0] == effect for p in pairs))  # fmt: skip
-    effects_list = [] if chosen is None else list(chosen.effects)
+    effects_list = list(dec.effects)
     gap_after = gap_before if chosen is None else chosen.gap_after_um
     first = [single] if single is not None else []
     cands = [_candidate(f, s) for f in first + [f for f in ranked(singles, s.penalty_per_param) if f is not single]]

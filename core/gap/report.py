@@ -233,19 +233,19 @@ def explain(dec, single_gap_um: Mapping[str, float], second_effect: bool, on_top
         return (f"No candidate cuts the test gap by {m} or more{best}{pair}: the gap is not one of the modelled "
                 f"effects.{unsupported}"), ""  # fmt: skip
     c = dec.chosen
-    name = c.effects[0]
+    name = dec.effect
     if dec.kind == "weak":
         text = (f"{name} cuts the test gap by {_pct(c.gap_after_um, gb)} only (under {m}): the likeliest of the "
                 "modelled effects, but most of the gap stays unexplained.")  # fmt: skip
         return text + unsupported, ("No second effect found (no other candidate on top cuts the remaining gap by "
                                     f"{m})." if second_effect else "")  # fmt: skip
     alone = single_gap_um.get(name, gb)
-    if len(c.effects) > 1:
-        second = c.effects[1]
+    if len(dec.effects) > 1:
+        second = dec.effects[1]
         if alone <= (1 - r.min_reduction) * gb:
             text = f"{name} cuts the test gap by {_pct(alone, gb)}, and {second} on top by another {_pct(c.gap_after_um, alone)}."
         else:
-            text = (f"No single candidate cuts the test gap by {m}, but {name} and {second} together cut it by "
+            text = (f"Neither {name} nor {second} alone cuts the test gap by {m}, but together they cut it by "
                     f"{_pct(c.gap_after_um, gb)}.")  # fmt: skip
         second_text = (f"A second effect remains: {second} (together the test gap falls to {c.gap_after_um:.2f} µm; "
                        f"{name} alone leaves {alone:.2f} µm).")  # fmt: skip
@@ -269,6 +269,9 @@ def explain(dec, single_gap_um: Mapping[str, float], second_effect: bool, on_top
         text += (f" The held-out runs do not tell it apart from {'+'.join(b.effects)} ({b.gap_after_um:.2f} µm, the "
                  "better score), whose fit stopped at its evaluation cap, not at convergence.")  # fmt: skip
     text += _passed_over(dec)
+    if not c.identified:
+        text += (" Its parameters are not identifiable from the train runs, and no hypothesis whose parameters are "
+                 "cuts the gap as needed: the data support the fit more than the physics it names.")  # fmt: skip
     if not c.converged:
         text += (" Its fit stopped at its evaluation cap, not at convergence: its figures may move in their last "
                  "digits with the computer's numerics.")  # fmt: skip
@@ -279,7 +282,7 @@ def _passed_over(dec) -> str:
     """The sentences on eligible hypotheses the decision passed over: those whose parameters
     are not identifiable, and the larger forms that contain the answer's."""
     out = ""
-    name = "+".join(dec.chosen.effects)
+    name = "+".join(dec.effects)
     if dec.not_identified:
         hs = ", ".join(f"{'+'.join(h.effects)} ({h.gap_after_um:.2f} µm)" for h in dec.not_identified)
         out += (f" {hs} cut the test gap further, but the train runs do not pin their parameters down (not "
@@ -300,7 +303,8 @@ def selection_dict(dec) -> dict:
 
     return {
         "kind": dec.kind,
-        "chosen": hyp(dec.chosen),
+        # the named hypothesis' families dominant first, as the report's ``effects``
+        "chosen": None if dec.chosen is None else hyp(dec.chosen) | {"effects": list(dec.effects)},
         "best_by_score": hyp(dec.best),
         "ties": [hyp(h) for h in dec.ties],
         "by_evidence": dec.by_evidence,

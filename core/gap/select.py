@@ -7,9 +7,11 @@ top of another). The decision is one rule:
 1. **The noise gate.** A gap before within ``noise_factor`` times the noise floor is
    noise: ``none``.
 2. **Eligible hypotheses.** A single family is eligible when it cuts the gap before by
-   ``min_reduction``; a pair when it cuts the gap before by ``min_reduction`` and its
-   second effect cuts its base's gap by ``min_reduction`` too (each effect is needed),
-   its base's gap lying above the noise gate.
+   ``min_reduction``; a pair when it cuts the gap before by ``min_reduction`` and the gap
+   each of its families leaves alone by ``min_reduction`` too (each effect is needed,
+   whichever of the two the pair was fitted on), each of those gaps lying above the
+   noise gate. A pair is named dominant first: its families in the order of what each
+   explains alone (the smaller single gap first), not in the order it was fitted.
 3. **The best by score.** Held-out gap times (1 + ``penalty_per_param`` x parameters).
 4. **Told apart, symmetrically.** Two hypotheses are told apart when the better cuts the
    worse one's gap by ``min_reduction``, whichever of them is named. The eligible
@@ -45,6 +47,7 @@ turns it into sentences.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
@@ -95,7 +98,8 @@ class Decision:
     that point at families outside it; ``not_identified``: eligible hypotheses with a
     better score passed over because their parameters are not identifiable (rule 5);
     ``contained``: eligible hypotheses passed over for a simpler one they contain, which
-    the held-out runs do not tell apart from them or whose own parameters are (rule 6)."""
+    the held-out runs do not tell apart from them or whose own parameters are (rule 6);
+    ``effects``: the chosen hypothesis' families, dominant first (rule 2)."""
 
     kind: str
     chosen: Hypothesis | None
@@ -109,10 +113,11 @@ class Decision:
     rule: Rule
     not_identified: tuple[Hypothesis, ...] = ()
     contained: tuple[Hypothesis, ...] = ()
+    effects: tuple[str, ...] = ()
 
     @property
     def effect(self) -> str:
-        return "none" if self.chosen is None else self.chosen.effects[0]
+        return self.effects[0] if self.effects else "none"
 
 
 def cuts(better_um: float, worse_um: float, min_reduction: float) -> bool:
@@ -154,15 +159,26 @@ def ties_of(best: Hypothesis, rows: Sequence[Hypothesis], rule: Rule) -> list[Hy
                   rule.penalty_per_param)  # fmt: skip
 
 
+def dominant_first(h: Hypothesis, singles: Sequence[Hypothesis]) -> tuple[str, ...]:
+    """``h``'s families in the order of what each explains alone: the smaller held-out gap
+    of its single row first (a family without one last); between equal gaps, as fitted."""
+    alone = {s.effects[0]: s.gap_after_um for s in singles}
+    return tuple(sorted(h.effects, key=lambda e: alone.get(e, math.inf)))
+
+
 def eligible_pairs(pairs: Sequence[Hypothesis], singles: Sequence[Hypothesis], gap_before: float,
                    gate_um: float, rule: Rule) -> list[Hypothesis]:
-    """The pairs that cut the gap before by ``min_reduction`` and whose second effect cuts
-    its base's gap by ``min_reduction`` (the base: the single of the pair's first effect,
-    above the noise gate), best first; of two pairs of the same families, the better."""
-    base = {h.effects[0]: h for h in singles}
-    ok = [p for p in pairs if p.effects[0] in base and base[p.effects[0]].gap_after_um > gate_um
-          and cuts(p.gap_after_um, gap_before, rule.min_reduction)
-          and cuts(p.gap_after_um, base[p.effects[0]].gap_after_um, rule.min_reduction)]  # fmt: skip
+    """The pairs that cut the gap before by ``min_reduction`` and the gap each of their
+    families leaves alone (its single row, above the noise gate) by ``min_reduction``:
+    each effect is needed, whichever the pair was fitted on. Best first; of two pairs of
+    the same families, the better."""
+    alone = {h.effects[0]: h.gap_after_um for h in singles}
+
+    def needed(p: Hypothesis) -> bool:  # a family without a single row explains nothing alone
+        return all(alone.get(e, math.inf) > gate_um and cuts(p.gap_after_um, alone.get(e, math.inf), rule.min_reduction)
+                   for e in p.effects)  # fmt: skip
+
+    ok = [p for p in pairs if cuts(p.gap_after_um, gap_before, rule.min_reduction) and needed(p)]
     out, seen = [], set()
     for p in ranked(ok, rule.penalty_per_param):
         if frozenset(p.effects) not in seen:
@@ -183,13 +199,14 @@ def select(singles: Sequence[Hypothesis], pairs: Sequence[Hypothesis], gap_befor
         supporting = tuple(o for o in obs if o.weight(held))
         unsupported = tuple(o for o in obs if not o.weight(held))
         return Decision(kind, chosen, best, tuple(ties), by_evidence, supporting, unsupported, gap_before,
-                        noise_floor, rule, tuple(not_identified), tuple(contained))  # fmt: skip
+                        noise_floor, rule, tuple(not_identified), tuple(contained),
+                        () if chosen is None else dominant_first(chosen, singles))  # fmt: skip
 
     if gap_before <= gate:
         return decision("within_noise")
     fitted = [h for h in singles if h.fitted]
-    # a pair's base is its first family's single row, fitted or not (a family that fails
-    # alone may be half of a pair: core.gap.diagnose.pair_jobs)
+    # a pair is weighed against each of its families' single rows, fitted or not (a family
+    # that fails alone may be half of a pair: core.gap.diagnose.pair_jobs)
     eligible = eligible_singles(fitted, gap_before, rule) + eligible_pairs(
         [p for p in pairs if p.fitted], singles, gap_before, gate, rule)
     if not eligible:
