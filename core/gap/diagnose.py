@@ -816,11 +816,12 @@ def pair_jobs(singles: Sequence[Fitted], gap_before: float, gate_um: float, rule
     from the better of the two (two effects that each alone extrapolate badly rank last by
     test gap); the bases are the best of the families that cut the held-out gap at all
     (below ``TOOK_FRACTION`` of it) before those that took something on the train runs
-    only, whose part of the gap the held-out runs do not confirm. A family that took nothing (:func:`_took_something`) is in no pair, and a
-    pair of the same two families is fitted once. A family "not fitted" alone (its fit
-    makes the held-out gap worse) whose train fit was accepted goes on top of the bases
-    all the same: fitted without the effect that is there beside it, it takes that
-    effect's part and extrapolates it wrongly, which is what a pair is for."""
+    only, whose part of the gap the held-out runs do not confirm. A family that took
+    nothing (:func:`_took_something`) is in no pair, and a pair of the same two families
+    is fitted once. A family "not fitted" alone (its fit makes the held-out gap worse)
+    whose train fit was accepted goes on top of the bases all the same: fitted without
+    the effect that is there beside it, it takes that effect's part and extrapolates it
+    wrongly, which is what a pair is for."""
     took = [f for f in ranked(singles, rule.penalty_per_param) if f.fitted and _took_something(f, gap_before)]
     failed = [f for f in ranked(singles, rule.penalty_per_param) if not f.fitted and (f.rt_fits or f.ct_fits)]
     ok = eligible_singles([f for f in singles if f.fitted], gap_before, rule)

@@ -270,8 +270,8 @@ def explain(dec, single_gap_um: Mapping[str, float], second_effect: bool, on_top
                  "better score), whose fit stopped at its evaluation cap, not at convergence.")  # fmt: skip
     text += _passed_over(dec)
     if not c.identified:
-        text += (" Its parameters are not identifiable from the train runs, and no hypothesis whose parameters are "
-                 "cuts the gap as needed: the data support the fit more than the physics it names.")  # fmt: skip
+        text += (" Its parameters are not identifiable from the train runs, and no eligible hypothesis has "
+                 "identifiable ones: the data support the fit more than the physics it names.")  # fmt: skip
     if not c.converged:
         text += (" Its fit stopped at its evaluation cap, not at convergence: its figures may move in their last "
                  "digits with the computer's numerics.")  # fmt: skip
