@@ -26,17 +26,17 @@ from core.gap.families.friction import friction_chain_stage, friction_stage
 from core.gap.families.sampling_skew import skew_stage
 from core.gap.families.servo_dynamics import SERVO_FORMS, SERVO_LOWER, SERVO_NAMES, SERVO_UPPER, fit_servo, servo_piece
 from core.gap.families.thermal import thermal_stage
-from core.gap.stages import (ENVELOPE_KERNELS, FREE_START_KERNELS, GUIDE_DAMPING_PER_S, Stage,
-                             compose, drive_u, stage_starts, train_residuals)
+from core.gap.stages import (ENVELOPE_KERNELS, FREE_START_KERNELS, GUIDE_DAMPING_PER_S, SMOOTH_POSITION_S,
+                             SMOOTH_VELOCITY_S, Stage, compose, smooth_u, stage_starts, train_residuals)
 
 __all__ = [
     "ASSUMED_MASS_KG", "ASSUMED_STIFFNESS_N_PER_UM", "EFFECTS", "ENVELOPE_KERNELS", "FREE_START_KERNELS",
     "FRICTION_CHAIN_MIN_MM_S2", "GUIDE_DAMPING_PER_S", "GUIDE_FRICTION_PRIOR_MM_S2", "GUIDE_FRICTION_PRIOR_WEIGHT",
     "LOOP_STABILITY_WEIGHT", "NOT_IDENTIFIABLE", "N_KNOTS", "N_PERIODS", "PROFILE_KNOT_SPACING_MM",
     "PROFILE_MAX_KNOTS", "PROFILE_SMOOTHNESS_WEIGHT", "REGISTRY", "SERVO_FORMS", "SERVO_LOWER", "SERVO_NAMES",
-    "SERVO_UPPER", "ContourFit", "Family", "Stage", "compliance_stage",
+    "SERVO_UPPER", "SMOOTH_POSITION_S", "SMOOTH_VELOCITY_S", "ContourFit", "Family", "Stage", "compliance_stage",
     "compose", "cyclic_stage", "derived", "fit_servo", "friction_chain_stage", "friction_stage", "loop_damping_floor",
-    "profile_knots", "profile_stage", "servo_piece", "sim_piece", "skew_stage", "drive_u", "stage_starts",
+    "profile_knots", "profile_stage", "servo_piece", "sim_piece", "skew_stage", "smooth_u", "stage_starts",
     "thermal_stage", "train_residuals",
 ]  # fmt: skip
 

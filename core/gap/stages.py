@@ -32,6 +32,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.signal import savgol_filter
 
 from core.gap.data import RoundTrip
 from core.gap.play import play, play_dahl, play_friction, play_inertia
@@ -46,6 +47,12 @@ GUIDE_DAMPING_PER_S = 1.0  # friction on a chain: a light oil-film damping of th
 # kernels of a chain's dynamics: fitted and scored on round trips by envelope above 20 Hz
 # (roundtrip.residual_env_um), as a stick-slipping or hunting chain's phase is not reproducible
 ENVELOPE_KERNELS = ("friction_chain", "compliant_chain")
+# Savitzky-Golay windows (order 2) of the motor record driving a chain kernel, so the
+# motor encoder's noise, differentiated, does not drive the chain. 16 ms keeps 99 % of
+# 25 Hz but cuts above ~60 Hz, where the chains ring: a rattle the motor record carries
+# is then not started in the model (a known limit, docs/gap-diagnosis.md §8).
+SMOOTH_POSITION_S = 0.016
+SMOOTH_VELOCITY_S = 0.03
 
 
 @dataclass(frozen=True)
@@ -96,23 +103,20 @@ def _speed_mm_s(run: RoundTrip) -> np.ndarray:
     return np.abs(np.gradient(u, run.t_s))
 
 
-def drive_u(run: RoundTrip, memo: dict) -> tuple[np.ndarray, np.ndarray]:
-    """Nut travel and velocity that drive a chain kernel, kept in the diagnosis' memo: the
-    motor record as sampled, its velocity by central differences. A chain rings at tens
-    to a few hundred hertz and, with the loop closed on the table scale, the motor carries
-    its hunting; a smoothing that keeps the encoder's noise out of the drive cuts that
-    band (an order-2 Savitzky-Golay derivative over 30 ms passes half of 25 Hz and 5 % of
-    50 Hz), and a model so driven does not fall into the cycle the machine runs. The
-    noise the record carries drives the chain as it drives the play operator of every
-    other model (below the chain's frequency the table follows the nut)."""
-    key = ("drive", run.file)
+def smooth_u(run: RoundTrip, memo: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Nut travel and velocity with the motor encoder noise averaged out (Savitzky-Golay),
+    kept in the diagnosis' memo."""
+    key = ("smooth", run.file)
     hit = memo.get(key)
     if hit is not None:
         return hit
     u = run.u_mm
-    v = np.gradient(u, run.t_s) if u.size > 1 else np.zeros_like(u)
-    memo[key] = (u, v)
-    return u, v
+    n = 2 * int(round(SMOOTH_POSITION_S / run.dt_s / 2)) + 1
+    nv = 2 * int(round(SMOOTH_VELOCITY_S / run.dt_s / 2)) + 1
+    us = savgol_filter(u, n, 2) if 5 <= n < u.size else u
+    vs = savgol_filter(u, nv, 2, deriv=1, delta=run.dt_s) if 5 <= nv < u.size else np.gradient(u, run.t_s)
+    memo[key] = (us, vs)
+    return us, vs
 
 
 def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
@@ -166,7 +170,7 @@ def compose(stages: Sequence[Stage], b0_um: float, memo: dict) -> RTModel:
             hbc = np.maximum(0.0, hb - mu / (w * w))  # backlash_um is the apparent one
             # sub-steps: omega h <= 0.05 (0.1 for the friction chain, fitted from many starts)
             nsub = max(1, int(math.ceil(run.dt_s * w / (0.1 if kern[0].kernel == "friction_chain" else 0.05))))
-            us, vs_ = drive_u(run, memo)
+            us, vs_ = smooth_u(run, memo)
             if u is not run.u_mm:
                 us = us + (u - run.u_mm)
             def sim(x0):

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from core.dataset import AxisSpec
-from core.gap.candidates import GUIDE_DAMPING_PER_S, compose, drive_u, friction_chain_stage, sim_piece
+from core.gap.candidates import GUIDE_DAMPING_PER_S, compose, friction_chain_stage, sim_piece, smooth_u
 from core.gap.data import RoundTrip, rest_lead_mm
 from core.gap.play import play_inertia
 from core.plant_independent.drive import DriveParams, constant_lut, simulate_axis
@@ -74,7 +74,7 @@ def test_a_chain_model_crosses_the_measured_gap_before_its_table_moves():
     wrong = dataclasses.replace(rt, rest_lead_mm=half_gap_mm)
     assert travel_before_motion_um(wrong) == pytest.approx(B_UM + wind_um, abs=3.0)
     # the measured place alone would have started it on the driving flank
-    us, vs = drive_u(wrong, {})
+    us, vs = smooth_u(wrong, {})
     hb = np.full(rt.u_mm.size, half_gap_mm)
     x = play_inertia(us, vs, rt.t_s, hb, w2, 2 * 0.1 * np.sqrt(w2), GUIDE_DAMPING_PER_S, mu, 40,
                      wrong.start_table_mm(half_gap_mm), mu + ex, 0.3)  # fmt: skip
