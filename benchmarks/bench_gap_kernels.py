@@ -12,7 +12,8 @@ and compares: the named effects must be the same under every setting, and the fi
 
 ``default`` is the machine's own environment; ``Prescott``, ``Haswell`` and ``SkylakeX``
 set ``OPENBLAS_CORETYPE``; ``generic`` sets ``NUMBA_CPU_NAME=generic`` (numba compiles
-its kernels for a generic x86-64 once, then keeps them in its cache). Each worker
+its kernels for a generic x86-64 once, then keeps them in its cache). A kernel the CPU
+cannot run (``SkylakeX`` needs AVX-512) is left out, and the script says so. Each worker
 prints the BLAS kernel it ran (threadpoolctl). Exit status 1 when an effect differs.
 """
 
@@ -38,6 +39,25 @@ SETTINGS = {
     "SkylakeX": {"OPENBLAS_CORETYPE": "SkylakeX"},
     "generic": {"NUMBA_CPU_NAME": "generic"},
 }
+# the instruction sets an OpenBLAS kernel needs (/proc/cpuinfo flags): forced onto a CPU
+# without them, OpenBLAS dies of an illegal instruction (SkylakeX's AVX-512 on an AMD
+# EPYC before Zen 4)
+CORETYPE_NEEDS = {"Haswell": frozenset({"avx2", "fma"}), "SkylakeX": frozenset({"avx512f"})}
+
+
+def cpu_flags() -> frozenset[str]:
+    """The CPU's feature flags (/proc/cpuinfo; empty where it cannot be read)."""
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return frozenset()
+    return frozenset(next((ln.split(":", 1)[1].split() for ln in text.splitlines() if ln.startswith("flags")), []))
+
+
+def runnable(setting: str, flags: frozenset[str]) -> bool:
+    """Whether this CPU can run ``setting`` (a setting name of SETTINGS or an OpenBLAS core type)."""
+    coretype = SETTINGS.get(setting, {"OPENBLAS_CORETYPE": setting}).get("OPENBLAS_CORETYPE")
+    return CORETYPE_NEEDS.get(coretype, frozenset()) <= flags
 
 
 def sig2(x: float) -> str:
@@ -106,6 +126,11 @@ def main() -> None:
         raise SystemExit(f"unknown setting(s) {unknown}: choose from {sorted(SETTINGS)}")
     cpu = next((ln.split(":", 1)[1].strip() for ln in Path("/proc/cpuinfo").read_text().splitlines()
                 if ln.startswith("model name")), platform.processor())  # fmt: skip
+    flags = cpu_flags()
+    for s in [s for s in settings if not runnable(s, flags)]:
+        need = ", ".join(sorted(CORETYPE_NEEDS[SETTINGS[s]["OPENBLAS_CORETYPE"]] - flags))
+        print(f"setting {s} left out: this CPU lacks {need}, which its BLAS kernel needs")
+    settings = [s for s in settings if runnable(s, flags)]
     print(f"CPU: {cpu}; seed {args.seed}; settings {', '.join(settings)}")
     jobs = [(s, p) for p in args.plants.split(",") for s in settings]
     t0 = time.perf_counter()
